@@ -1,0 +1,30 @@
+# Two commands for a newcomer: `make report` and `make test`. Both build .venv from scratch if needed.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+REPORTS ?= reports
+
+.PHONY: report test lint bench clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+
+$(STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e ".[test]"
+	touch $(STAMP)
+
+report: $(STAMP)
+	$(BIN)/python studies/calibrate_needle_208.py --out $(REPORTS) --data $(REPORTS)/needle_208/calibrated_geometry.json
+	$(BIN)/python studies/needle_208_nominal.py --out $(REPORTS)
+
+test: $(STAMP)
+	$(BIN)/ruff check src tests studies benchmarks
+	$(BIN)/python -m pytest -q
+
+bench: $(STAMP)
+	$(BIN)/python benchmarks/throughput.py --json
+
+clean:
+	rm -rf $(VENV) .pytest_cache .hypothesis build src/*.egg-info

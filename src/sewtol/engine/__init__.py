@@ -1,0 +1,17 @@
+"""Vectorised kinematic engine of Assur groups over (samples, angles) arrays.
+
+Each group returns positions with analytic first and second transfer functions with respect to
+the chain's driving angle. Groups never raise on a chain that cannot close: they return NaN and
+a Closure with the miss distance, and the mechanism decides whether that is an error (a single
+run) or a counted failure (a study).
+"""
+
+from .crank import crank
+from .dyad import Closure, rrr
+from .motion import Angle, Motion, direction, driving_angle, fixed, on_body, polar
+from .slider import rpr, rrp
+
+__all__ = [
+    "Angle", "Closure", "Motion", "crank", "direction", "driving_angle", "fixed", "on_body",
+    "polar", "rpr", "rrp", "rrr",
+]

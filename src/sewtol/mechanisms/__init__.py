@@ -1,0 +1,1 @@
+"""Mechanisms: parameters (validated frozen dataclasses) plus a topology built from engine groups."""

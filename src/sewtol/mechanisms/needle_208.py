@@ -1,0 +1,196 @@
+"""The 208-class overlock needle drive: two four-bars in series, zero mobility.
+
+Topology (see docs/needle_208.md and ../shared/design/needle_208.md):
+
+    crank F-L (LF)  ->  RRR dyad L-M-A (LM, AM; M on side branch_M of L->A)
+    rocker angle theta = ang(A->M); second arm B = A + AB e(theta + beta_sense*beta)
+    RRR dyad B-C-D (BC, CD; C on side branch_C of B->D)
+    needle-bar point E on the ternary rod: E = B + BE e(ang(B->C) + CBE), CBE = 180 nominal
+
+Units: lengths mm, angles degrees at this boundary (radians inside), the guide shift in um.
+The guide is the line through (guide_x, guide_y) with direction u = (sin a, cos a),
+a = guide_angle measured from the vertical (top leaning to +x for a > 0); its normal
+n = (cos a, -sin a) points to the right of u. d = n.(E - G) - guide_shift_um/1000.
+
+E depends on the crank only through theta, and theta swings between two extremes reached when
+crank and connecting rod are collinear, so the path is computed on the rocker interval.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from importlib import resources
+
+import numpy as np
+
+from .. import engine
+from ..errors import AssemblyError
+from . import params as P
+
+LENGTHS = ("LF", "LM", "AM", "AB", "BC", "BE", "CD")
+DEG = np.pi / 180.0
+
+
+@dataclass(frozen=True)
+class Needle208:
+    """Every dimension of the needle drive (mm, deg; floats, or equal-length arrays for a batch)."""
+
+    LF: float
+    LM: float
+    AM: float
+    AB: float
+    BC: float
+    BE: float
+    CD: float
+    CBE: float
+    beta: float
+    Ax: float
+    Ay: float
+    Dx: float
+    Dy: float
+    guide_x: float
+    guide_y: float
+    guide_angle: float
+    guide_shift_um: float = 0.0
+    branch_M: float = 1.0
+    branch_C: float = 1.0
+    beta_sense: float = 1.0
+
+    def __post_init__(self):
+        for name in LENGTHS:
+            P.positive(name, getattr(self, name))
+        for name in ("CBE", "beta", "Ax", "Ay", "Dx", "Dy", "guide_x", "guide_y", "guide_angle",
+                     "guide_shift_um"):
+            P.finite(name, getattr(self, name))
+        for name in ("branch_M", "branch_C", "beta_sense"):
+            P.branch(name, getattr(self, name))
+
+    @classmethod
+    def nominal(cls) -> Needle208:
+        """The reconstructed nominal machine stored as package data (studies/calibrate_needle_208.py)."""
+        return cls(**load_nominal_record()["params"])
+
+    def override(self, **changes) -> Needle208:
+        return P.override(self, changes)
+
+
+def load_nominal_record() -> dict:
+    text = resources.files("sewtol.data").joinpath("needle_208.json").read_text()
+    return json.loads(text)
+
+
+# --- kernels (pure, vectorised; `c` holds parameter columns from params.column) ---------------
+
+
+def _arm_angle(c) -> np.ndarray:
+    return c["beta_sense"] * c["beta"] * DEG
+
+
+@np.errstate(invalid="ignore", divide="ignore", over="ignore")
+def rocker_interval(c):
+    """Exact rocker extremes (rad), lo < hi, and the miss of the first dyad at its worst crank angle.
+
+    The extremes are where crank and connecting rod are collinear: |FM| = LM + LF (extended) and
+    |FM| = LM - LF (folded). Among the two intersections of each circle pair, the one on the
+    assembly branch (M on side branch_M of L->A) is kept.
+    """
+    F = engine.fixed(0.0, 0.0)
+    A = engine.fixed(c["Ax"], c["Ay"])
+    thetas = []
+    for reach, sense in ((c["LM"] + c["LF"], 1.0), (c["LM"] - c["LF"], -1.0)):
+        best = None
+        for side in (1.0, -1.0):
+            M, _ = engine.rrr(F, reach, A, c["AM"], side)
+            unit = (M.p - F.p) / np.abs(M.p - F.p)
+            L = F.p + sense * c["LF"] * unit
+            cross = ((A.p - L).conjugate() * (M.p - L)).imag
+            match = np.sign(cross) == c["branch_M"]
+            th = np.angle(M.p - A.p)
+            best = th if best is None else np.where(match, th, best)
+        thetas.append(best)
+    t1, t2 = thetas
+    half = np.angle(np.exp(1j * (t2 - t1)))
+    lo = np.where(half > 0, t1, t1 + half)
+    hi = lo + np.abs(half)
+    # first dyad over a full crank turn: |A - L| spans |FA| -/+ LF
+    fa = np.abs(A.p - F.p)
+    miss = np.maximum.reduce([
+        fa + c["LF"] - (c["LM"] + c["AM"]),
+        np.abs(c["LM"] - c["AM"]) - (fa - c["LF"]),
+        np.zeros_like(fa + c["LF"]),
+    ])
+    # where it misses most: L farthest from A (phi = ang(F->A) + 180) or nearest (phi = ang(F->A))
+    far = fa + c["LF"] - (c["LM"] + c["AM"]) >= np.abs(c["LM"] - c["AM"]) - (fa - c["LF"])
+    phi_fail = np.angle(A.p - F.p) + np.where(far, np.pi, 0.0)
+    return lo, hi, miss, phi_fail
+
+
+def second_dyad_miss(c, lo, hi):
+    """How far dyad B-C-D is from closing over theta in [lo, hi], and the worst theta (rad)."""
+    v = (c["Dx"] - c["Ax"]) + 1j * (c["Dy"] - c["Ay"])
+    ad = np.abs(v)
+    g = np.angle(v)
+    off = _arm_angle(c)
+    # |D - B|^2 = AD^2 + AB^2 - 2 AB AD cos(theta + off - g): closest at theta = g - off (mod 2pi)
+    t_near = lo + np.mod(g - off - lo, 2 * np.pi)
+    t_far = lo + np.mod(g - off + np.pi - lo, 2 * np.pi)
+    ts = [lo, hi, np.where(t_near <= hi, t_near, lo), np.where(t_far <= hi, t_far, lo)]
+    worst_miss = np.zeros(np.broadcast(lo, ad).shape)
+    worst_t = np.broadcast_to(lo, worst_miss.shape).astype(float)
+    for t in ts:
+        dist = np.abs(v - c["AB"] * np.exp(1j * (t + off)))
+        miss = np.maximum(np.maximum(dist - (c["BC"] + c["CD"]), np.abs(c["BC"] - c["CD"]) - dist), 0)
+        worse = miss > worst_miss
+        worst_miss = np.where(worse, miss, worst_miss)
+        worst_t = np.where(worse, t, worst_t)
+    return worst_miss, worst_t
+
+
+def chain_from_rocker(c, rocker: engine.Angle) -> dict[str, engine.Motion]:
+    """B, C, E for a given rocker angle state (derivatives w.r.t. whatever drives the rocker)."""
+    A = engine.fixed(c["Ax"], c["Ay"])
+    D = engine.fixed(c["Dx"], c["Dy"])
+    B = engine.polar(A, c["AB"], rocker + _arm_angle(c))
+    C, closure = engine.rrr(B, c["BC"], D, c["CD"], c["branch_C"])
+    E = engine.polar(B, c["BE"], engine.direction(B, C) + c["CBE"] * DEG)
+    return {"B": B, "C": C, "E": E, "closure_BCD": closure}
+
+
+def chain_from_crank(c, phi_rad) -> dict:
+    """Every joint over crank angles phi (rad); derivatives are transfer functions d/dphi."""
+    F = engine.fixed(0.0, 0.0)
+    A = engine.fixed(c["Ax"], c["Ay"])
+    L = engine.polar(F, c["LF"], engine.driving_angle(phi_rad))
+    M, closure_lma = engine.rrr(L, c["LM"], A, c["AM"], c["branch_M"])
+    theta = engine.direction(A, M)
+    out = chain_from_rocker(c, theta)
+    out.update({"L": L, "M": M, "theta": theta, "closure_LMA": closure_lma})
+    return out
+
+
+def guide_frame(c):
+    """Unit direction u, unit normal n (complex) and the shifted guide point G (mm)."""
+    a = c["guide_angle"] * DEG
+    u = np.sin(a) + 1j * np.cos(a)
+    n = np.cos(a) - 1j * np.sin(a)
+    G = c["guide_x"] + 1j * c["guide_y"] + n * (c["guide_shift_um"] * 1e-3)
+    return u, n, G
+
+
+def project(n, z):
+    """Real dot product n.z of complex vectors."""
+    return (np.conjugate(n) * z).real
+
+
+def check_assembly(params: Needle208) -> None:
+    """Raise AssemblyError naming the dyad and angle if a single machine cannot run a full turn."""
+    c = P.column(params, None)
+    lo, hi, miss1, phi_fail = rocker_interval(c)
+    if float(miss1) > 0:
+        raise AssemblyError("L-M-A", np.degrees(float(phi_fail)) % 360, float(miss1),
+                            P.as_dict(params), "crank angle; the crank cannot make a full turn")
+    miss2, t_fail = second_dyad_miss(c, lo, hi)
+    if float(miss2) > 0:
+        raise AssemblyError("B-C-D", np.degrees(float(t_fail)), float(miss2), P.as_dict(params),
+                            "rocker angle theta = ang(A->M)")

@@ -1,0 +1,97 @@
+"""Shared machinery of parameter dataclasses: validation rules, overrides by name, batches.
+
+A parameter set holds floats for one machine or equal-length 1-D arrays for a batch of machines
+(a Monte-Carlo sample); the kernels broadcast either way. Vary a set with `override` or
+`dataclasses.replace`, never by mutation.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+
+from ..errors import ParameterError
+
+
+def positive(name: str, value) -> None:
+    v = np.asarray(value, float)
+    if not np.all(np.isfinite(v)):
+        raise ParameterError(name, "must be a finite number", _show(value))
+    if np.any(v <= 0.0):
+        raise ParameterError(name, "must be a positive length in mm", _show(value))
+
+
+def finite(name: str, value) -> None:
+    v = np.asarray(value, float)
+    if not np.all(np.isfinite(v)):
+        raise ParameterError(name, "must be a finite number", _show(value))
+
+
+def branch(name: str, value) -> None:
+    v = np.asarray(value, float)
+    if not np.all(np.isin(v, (-1.0, 1.0))):
+        raise ParameterError(name, "must be +1 (left) or -1 (right)", _show(value))
+
+
+def _show(value):
+    v = np.asarray(value, float)
+    if v.ndim == 0:
+        return float(v)
+    bad = v[~np.isfinite(v) | (v <= 0)] if v.size else v
+    return f"array of {v.size}, e.g. {float(bad.flat[0]) if bad.size else float(v.flat[0])}"
+
+
+def field_names(cls) -> list[str]:
+    return [f.name for f in dataclasses.fields(cls)]
+
+
+def override(params, changes: dict[str, Any]):
+    """A copy with the named fields changed; unknown names fail and list the valid ones."""
+    valid = field_names(type(params))
+    for name in changes:
+        if name not in valid:
+            raise ParameterError(
+                name, f"unknown parameter; valid names are {', '.join(valid)}", name
+            )
+    return dataclasses.replace(params, **changes)
+
+
+def batch_size(params) -> int | None:
+    """Number of machines in a batch set, None for a single machine."""
+    sizes = {np.asarray(getattr(params, f)).size for f in field_names(type(params))
+             if np.asarray(getattr(params, f)).ndim > 0}
+    if not sizes:
+        return None
+    if len(sizes) > 1:
+        raise ParameterError("batch", "all array parameters must have the same length", sorted(sizes))
+    return sizes.pop()
+
+
+def column(params, n: int | None):
+    """Fields as arrays shaped (n, 1) so they broadcast against (n, angles); scalars stay scalars."""
+    out = {}
+    for f in field_names(type(params)):
+        v = np.asarray(getattr(params, f), float)
+        out[f] = v.reshape(-1, 1) if (n is not None and v.ndim > 0) else v
+    return out
+
+
+def take(params, index):
+    """Machine(s) `index` of a batch set (scalars are kept)."""
+    changes = {}
+    for f in field_names(type(params)):
+        v = getattr(params, f)
+        if np.asarray(v).ndim > 0:
+            sub = np.asarray(v)[index]
+            changes[f] = float(sub) if np.ndim(sub) == 0 else sub
+    return dataclasses.replace(params, **changes)
+
+
+def as_dict(params) -> dict[str, Any]:
+    out = {}
+    for f in field_names(type(params)):
+        v = getattr(params, f)
+        out[f] = v.tolist() if isinstance(v, np.ndarray) else v
+    return out

@@ -1,0 +1,107 @@
+"""Single-machine figures of the 208 needle drive, as the CLI and reports present them."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from .errors import AssemblyError
+from .mechanisms.needle_208 import Needle208, check_assembly
+from .metrics import needle as nm
+from .studies import beta as sb
+
+
+@dataclass(frozen=True)
+class NominalFigures:
+    """beta*, deviation figures, window, guide used, fitted guide, stroke and frame of one machine."""
+
+    beta_opt_deg: float
+    total_um: float
+    plus_um: float
+    minus_um: float
+    window_deg: tuple[float, float]
+    guide: dict
+    fitted_guide: dict
+    stroke_mm: float
+    A_mm: tuple[float, float]
+    D_mm: tuple[float, float]
+    limit_um: float
+
+    def to_dict(self) -> dict:
+        return {
+            "beta_opt_deg": self.beta_opt_deg,
+            "total_um": self.total_um,
+            "plus_um": self.plus_um,
+            "minus_um": self.minus_um,
+            "window_deg": list(self.window_deg),
+            "guide": self.guide,
+            "fitted_guide": self.fitted_guide,
+            "stroke_mm": self.stroke_mm,
+            "A_mm": list(self.A_mm),
+            "D_mm": list(self.D_mm),
+            "limit_um": self.limit_um,
+        }
+
+    def to_dataframe(self) -> pd.DataFrame:
+        rows = [
+            ("beta* (deg)", self.beta_opt_deg),
+            ("SumDelta at beta* (um)", self.total_um),
+            ("Delta+ (um)", self.plus_um),
+            ("Delta- (um)", self.minus_um),
+            (f"window SumDelta <= {self.limit_um:g} um, low (deg)", self.window_deg[0]),
+            (f"window SumDelta <= {self.limit_um:g} um, high (deg)", self.window_deg[1]),
+            ("guide x (mm)", self.guide["x_mm"]),
+            ("guide y (mm)", self.guide["y_mm"]),
+            ("guide angle from vertical (deg)", self.guide["angle_from_vertical_deg"]),
+            ("fitted guide angle at beta* (deg)", self.fitted_guide["angle_from_vertical_deg"]),
+            ("fitted zone width at beta* (um)", self.fitted_guide["width_um"]),
+            ("stroke (mm)", self.stroke_mm),
+            ("A x (mm)", self.A_mm[0]),
+            ("A y (mm)", self.A_mm[1]),
+            ("D x (mm)", self.D_mm[0]),
+            ("D y (mm)", self.D_mm[1]),
+        ]
+        return pd.DataFrame(rows, columns=["quantity", "value"])
+
+
+def nominal_figures(params: Needle208, range_deg=sb.DEFAULT_RANGE_DEG,
+                    limit_um: float = sb.DEFAULT_LIMIT_UM) -> NominalFigures:
+    """Optimise beta with the guide fixed and collect the figures a designer reads."""
+    check_assembly(params)
+    c, _ = nm.columns(params)
+    opt = sb.optimise_beta_columns(c, range_deg, limit_um)
+    if not np.isfinite(opt.beta_deg[0]):
+        raise AssemblyError("B-C-D", float("nan"), float("inf"), {},
+                            f"no beta in {range_deg} deg assembles")
+    at = nm.with_values(c, beta=opt.beta_deg)
+    zone = nm.minimum_zone(at)
+    _, n, G = nm.nd.guide_frame(at)
+    gx, gy = float(G.real.ravel()[0]), float(G.imag.ravel()[0])
+    fx, fy = zone.foot_of(gx, gy)
+    return NominalFigures(
+        beta_opt_deg=float(opt.beta_deg[0]),
+        total_um=float(opt.total_um[0]),
+        plus_um=float(opt.plus_um[0]),
+        minus_um=float(opt.minus_um[0]),
+        window_deg=(float(opt.window_low_deg[0]), float(opt.window_high_deg[0])),
+        guide={"x_mm": gx, "y_mm": gy, "angle_from_vertical_deg": float(params.guide_angle)},
+        fitted_guide={"x_mm": float(fx[0]), "y_mm": float(fy[0]),
+                      "angle_from_vertical_deg": float(zone.angle_from_vertical_deg[0]),
+                      "width_um": float(zone.width_um[0])},
+        stroke_mm=float(nm.stroke_mm(at)[0]),
+        A_mm=(float(params.Ax), float(params.Ay)),
+        D_mm=(float(params.Dx), float(params.Dy)),
+        limit_um=float(limit_um),
+    )
+
+
+def deviation_table(params: Needle208, step_deg: float = 1.0) -> pd.DataFrame:
+    """E and d(phi) over one crank turn at the machine's beta, guide fixed."""
+    check_assembly(params)
+    phi = np.arange(0.0, 360.0, step_deg)
+    c, _ = nm.columns(params)
+    cur = nm.deviation_curve(c, np.radians(phi))
+    return pd.DataFrame({"phi_deg": phi, "x_mm": cur["x_mm"][0], "y_mm": cur["y_mm"][0],
+                         "d_um": cur["d_um"][0]})

@@ -1,0 +1,40 @@
+"""Tables a designer can paste into a report: CSV for tools, Markdown for people.
+
+Column names carry their units (total_um, beta_deg). The Markdown file starts with a title and
+the settings the table depends on (tolerance set, seed, guide), the CSV with the same settings
+as '#' comment lines, so a table read alone still says where it came from.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+
+from ..io import write_text_atomic
+
+
+def to_markdown(frame: pd.DataFrame, title: str, settings: dict | None = None,
+                floatfmt: str = ".4f") -> str:
+    lines = [f"# {title}", ""]
+    for k, v in (settings or {}).items():
+        lines.append(f"- {k}: {v}")
+    if settings:
+        lines.append("")
+    lines.append(frame.to_markdown(index=False, floatfmt=floatfmt))
+    return "\n".join(lines) + "\n"
+
+
+def to_csv(frame: pd.DataFrame, settings: dict | None = None) -> str:
+    head = "".join(f"# {k}: {v}\n" for k, v in (settings or {}).items())
+    return head + frame.to_csv(index=False, float_format="%.9g", lineterminator="\n")
+
+
+def write_table(frame: pd.DataFrame, folder: Path, name: str, title: str,
+                settings: dict | None = None, floatfmt: str = ".4f") -> list[Path]:
+    """Write folder/name.csv and folder/name.md atomically; returns the paths."""
+    folder = Path(folder)
+    csv_path, md_path = folder / f"{name}.csv", folder / f"{name}.md"
+    write_text_atomic(csv_path, to_csv(frame, settings))
+    write_text_atomic(md_path, to_markdown(frame, title, settings, floatfmt))
+    return [csv_path, md_path]

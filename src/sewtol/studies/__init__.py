@@ -1,0 +1,1 @@
+"""Studies on mechanisms: beta optimisation, tolerance scans, worst case, Monte-Carlo, Sobol."""

@@ -1,0 +1,87 @@
+"""Nominal 208 needle drive: figures, d(phi) at beta* and the window, SumDelta against beta.
+
+    python studies/needle_208_nominal.py [--out reports]
+
+Writes reports/needle_208/{nominal,deviation,sum_delta_vs_beta}.{csv,md}, deviation.png,
+sum_delta_vs_beta.png and index.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+
+from sewtol.io import write_text_atomic
+from sewtol.mechanisms.needle_208 import Needle208, load_nominal_record
+from sewtol.metrics import needle as nm
+from sewtol.needle import deviation_table, nominal_figures
+from sewtol.reports import plots
+from sewtol.reports.tables import write_table
+from sewtol.studies import beta as sb
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default="reports")
+    args = ap.parse_args(argv)
+    out = Path(args.out) / "needle_208"
+
+    p = Needle208.nominal()
+    fig = nominal_figures(p)
+    guide = (f"fixed, through ({p.guide_x:.3f}, {p.guide_y:.3f}) mm at {p.guide_angle:.4f} deg "
+             f"from the vertical, shift {p.guide_shift_um:g} um")
+    settings = {"mechanism": "208 needle drive, reconstructed nominal (calibration.md)",
+                "guide": guide}
+    write_table(fig.to_dataframe(), out, "nominal", "Nominal figures", settings, floatfmt=".4f")
+
+    curves = {}
+    for label, beta in [(f"beta* = {fig.beta_opt_deg:.2f}", fig.beta_opt_deg),
+                        (f"window low {fig.window_deg[0]:.2f}", fig.window_deg[0]),
+                        (f"window high {fig.window_deg[1]:.2f}", fig.window_deg[1])]:
+        curves[label] = deviation_table(p.override(beta=beta), step_deg=1.0)
+    table = pd.DataFrame({"phi_deg": curves[next(iter(curves))]["phi_deg"]})
+    for (label, frame), key in zip(curves.items(), ("at_beta_opt", "at_window_low",
+                                                     "at_window_high"), strict=True):
+        table[f"d_um_{key}"] = frame["d_um"]
+    write_table(table, out, "deviation", "Deviation d(phi) from the fixed guide (um)",
+                {**settings, "betas (deg)": ", ".join(f"{b:.4f}" for b in
+                                                      (fig.beta_opt_deg, *fig.window_deg))})
+    f, ax = plt.subplots(figsize=(7, 4))
+    plots.deviation_vs_crank(curves, ax, limit_um=10.0)
+    ax.set_title("208 needle drive: deviation from the fixed guide")
+    plots.save(f, out / "deviation.png")
+
+    betas = np.round(np.arange(15.0, 30.0001, 0.1), 10)
+    c, _ = nm.columns(p)
+    totals = sb.totals_on_grid(c, betas)[0]
+    write_table(pd.DataFrame({"beta_deg": betas, "total_um": totals}), out, "sum_delta_vs_beta",
+                "SumDelta against beta, guide fixed", settings)
+    f, ax = plt.subplots(figsize=(7, 4))
+    plots.sum_delta_vs_beta(betas, totals, fig.beta_opt_deg, fig.window_deg, 10.0, ax)
+    ax.set_title("208 needle drive: SumDelta against beta")
+    plots.save(f, out / "sum_delta_vs_beta.png")
+
+    prov = load_nominal_record()["provenance"]
+    index = [
+        "# 208 needle drive: reports",
+        "",
+        f"Nominal machine: beta* = {fig.beta_opt_deg:.3f} deg, SumDelta = {fig.total_um:.3f} um, "
+        f"window {fig.window_deg[0]:.3f} ... {fig.window_deg[1]:.3f} deg, "
+        f"stroke {fig.stroke_mm:.3f} mm.",
+        f"Frame reconstructed by least squares (cost {prov['cost']:.4g}); see calibration.md.",
+        "",
+        "- [calibration.md](calibration.md): targets, achieved values, residuals",
+        "- [nominal.md](nominal.md) / nominal.csv: figures of the nominal machine",
+        "- [deviation.md](deviation.md) / deviation.csv, deviation.png: d(phi)",
+        "- [sum_delta_vs_beta.md](sum_delta_vs_beta.md), sum_delta_vs_beta.png",
+    ]
+    write_text_atomic(out / "index.md", "\n".join(index) + "\n")
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()

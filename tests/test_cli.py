@@ -1,0 +1,65 @@
+"""The CLI contract of issue 2: keys, columns, one-line errors with non-zero exit."""
+
+import io
+import json
+from contextlib import redirect_stderr, redirect_stdout
+
+import numpy as np
+import pandas as pd
+
+from sewtol.cli import main
+from sewtol.needle import deviation_table
+
+
+def run(*argv):
+    out, err = io.StringIO(), io.StringIO()
+    with redirect_stdout(out), redirect_stderr(err):
+        code = main(list(argv))
+    return code, out.getvalue(), err.getvalue()
+
+
+def test_nominal_json_keys_and_values():
+    code, out, _ = run("needle", "nominal", "--format", "json")
+    assert code == 0
+    d = json.loads(out)
+    for key in ("beta_opt_deg", "total_um", "plus_um", "minus_um", "window_deg", "guide",
+                "stroke_mm", "A_mm", "D_mm"):
+        assert key in d
+    assert set(d["guide"]) >= {"x_mm", "y_mm", "angle_from_vertical_deg"}
+    assert abs(d["beta_opt_deg"] - 22.7) <= 0.5
+    assert abs(d["guide"]["angle_from_vertical_deg"] - 20) <= 0.2
+    assert len(d["window_deg"]) == 2 and d["window_deg"][0] < d["beta_opt_deg"] < d["window_deg"][1]
+    assert abs(d["plus_um"] + d["minus_um"] - d["total_um"]) < 1e-9
+
+
+def test_deviation_csv_columns_match_the_model(nominal):
+    code, out, _ = run("needle", "deviation", "--beta", "21", "--format", "csv")
+    assert code == 0
+    frame = pd.read_csv(io.StringIO(out))
+    assert list(frame.columns) == ["phi_deg", "x_mm", "y_mm", "d_um"]
+    assert len(frame) == 360
+    ref = deviation_table(nominal.override(beta=21.0))
+    assert np.max(np.abs(frame["d_um"] - ref["d_um"])) < 1e-6
+
+
+def test_set_overrides_reach_the_model():
+    _, a, _ = run("needle", "nominal", "--format", "json")
+    _, b, _ = run("needle", "nominal", "--format", "json", "--set", "CD=30.01")
+    assert json.loads(a)["beta_opt_deg"] != json.loads(b)["beta_opt_deg"]
+
+
+def test_bad_inputs_exit_nonzero_with_one_line():
+    cases = [
+        (("--set", "LF=-2"), "LF: must be a positive length in mm (got -2.0)"),
+        (("--set", "QQ=1"), "QQ: unknown parameter; valid names are LF, LM, AM"),
+        (("--set", "LF"), "--set: must be NAME=VALUE"),
+        (("--set", "LF=abc"), "LF: must be a number"),
+        (("--set", "CD=5"), "dyad B-C-D cannot close at angle"),
+        (("--set", "LM=30"), "dyad L-M-A cannot close at angle"),
+    ]
+    for extra, message in cases:
+        code, out, err = run("needle", "nominal", *extra)
+        assert code == 2, extra
+        assert out == ""
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and message in lines[0], (extra, err)
