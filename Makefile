@@ -20,7 +20,7 @@ report: $(STAMP)
 	$(BIN)/python studies/needle_208_nominal.py --out $(REPORTS)
 
 test: $(STAMP)
-	$(BIN)/ruff check src tests studies benchmarks
+	$(BIN)/ruff check src tests studies $(wildcard benchmarks)
 	$(BIN)/python -m pytest -q
 
 bench: $(STAMP)

@@ -44,8 +44,8 @@ def main(argv=None) -> None:
                         (f"window high {fig.window_deg[1]:.2f}", fig.window_deg[1])]:
         curves[label] = deviation_table(p.override(beta=beta), step_deg=1.0)
     table = pd.DataFrame({"phi_deg": curves[next(iter(curves))]["phi_deg"]})
-    for (label, frame), key in zip(curves.items(), ("at_beta_opt", "at_window_low",
-                                                     "at_window_high"), strict=True):
+    for frame, key in zip(curves.values(), ("at_beta_opt", "at_window_low",
+                                            "at_window_high"), strict=True):
         table[f"d_um_{key}"] = frame["d_um"]
     write_table(table, out, "deviation", "Deviation d(phi) from the fixed guide (um)",
                 {**settings, "betas (deg)": ", ".join(f"{b:.4f}" for b in
