@@ -3,7 +3,7 @@
     python studies/needle_208_nominal.py [--out reports]
 
 Writes reports/needle_208/{nominal,deviation,sum_delta_vs_beta}.{csv,md}, deviation.png,
-sum_delta_vs_beta.png and index.md.
+sum_delta_vs_beta.png (index.md is written by needle_208_tolerances.py).
 """
 
 from __future__ import annotations
@@ -15,8 +15,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
-from sewtol.io import write_text_atomic
-from sewtol.mechanisms.needle_208 import Needle208, load_nominal_record
+from sewtol.mechanisms.needle_208 import Needle208
 from sewtol.metrics import needle as nm
 from sewtol.needle import deviation_table, nominal_figures
 from sewtol.reports import plots
@@ -65,21 +64,6 @@ def main(argv=None) -> None:
     ax.set_title("208 needle drive: SumDelta against beta")
     plots.save(f, out / "sum_delta_vs_beta.png")
 
-    prov = load_nominal_record()["provenance"]
-    index = [
-        "# 208 needle drive: reports",
-        "",
-        f"Nominal machine: beta* = {fig.beta_opt_deg:.3f} deg, SumDelta = {fig.total_um:.3f} um, "
-        f"window {fig.window_deg[0]:.3f} ... {fig.window_deg[1]:.3f} deg, "
-        f"stroke {fig.stroke_mm:.3f} mm.",
-        f"Frame reconstructed by least squares (cost {prov['cost']:.4g}); see calibration.md.",
-        "",
-        "- [calibration.md](calibration.md): targets, achieved values, residuals",
-        "- [nominal.md](nominal.md) / nominal.csv: figures of the nominal machine",
-        "- [deviation.md](deviation.md) / deviation.csv, deviation.png: d(phi)",
-        "- [sum_delta_vs_beta.md](sum_delta_vs_beta.md), sum_delta_vs_beta.png",
-    ]
-    write_text_atomic(out / "index.md", "\n".join(index) + "\n")
     print(f"wrote {out}")
 
 

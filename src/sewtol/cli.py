@@ -84,6 +84,44 @@ def cmd_needle_deviation(args):
     emit(args.format, frame=frame)
 
 
+def _tolerances(args):
+    from .mechanisms.needle_208 import Needle208
+    from .mechanisms.params import field_names
+    from .tolerances import NEEDLE_208_SETS, resolve
+
+    return resolve(args.tolerances, NEEDLE_208_SETS, field_names(Needle208))
+
+
+def _check_n(value, name="--n", minimum=2):
+    if value < minimum:
+        raise ParameterError(name, f"must be >= {minimum}", value)
+
+
+def cmd_needle_scan(args):
+    from .studies.scan import scan
+
+    rows = scan(_needle_params(args), _tolerances(args), guide_shift_um=args.guide_shift_um)
+    frame = rows.to_dataframe()
+    emit(args.format, obj=rows.to_records(), frame=frame)
+
+
+def cmd_needle_montecarlo(args):
+    from .studies.montecarlo import montecarlo
+
+    _check_n(args.n)
+    res = montecarlo(_needle_params(args), _tolerances(args), args.n, args.seed,
+                     n_jobs=args.n_jobs, progress=args.progress)
+    emit(args.format, obj=res.to_dict(), frame=res.summary_frame())
+
+
+def cmd_needle_sobol(args):
+    from .studies.sobol import needle_sobol
+
+    res = needle_sobol(_needle_params(args), _tolerances(args), args.n, args.seed,
+                       n_jobs=args.n_jobs, progress=args.progress)
+    emit(args.format, obj=res.to_records(), frame=res.to_dataframe())
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="sewtol", description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="group", required=True)
@@ -107,6 +145,33 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--beta", type=float, default=None, help="beta (deg); default: the nominal")
     p.add_argument("--step-deg", type=float, default=1.0, help="crank-angle step (deg)")
     p.set_defaults(func=cmd_needle_deviation)
+
+    def study(p, seed=True):
+        p.add_argument("--tolerances", default="base",
+                       help="base, recommended, FILE.toml or FILE.toml:SET (default base)")
+        if seed:
+            p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+            p.add_argument("--n-jobs", type=int, default=1, help="parallel workers (joblib)")
+            p.add_argument("--progress", action="store_true", help="progress bar on stderr")
+
+    p = nsub.add_parser("scan", help="each tolerance at its limits, beta re-optimised")
+    common(p)
+    study(p, seed=False)
+    p.add_argument("--guide-shift-um", type=float, default=0.0,
+                   help="move the fixed guide along its normal (um)")
+    p.set_defaults(func=cmd_needle_scan)
+
+    p = nsub.add_parser("montecarlo", help="yield with beta fixed and adjusted per machine")
+    common(p)
+    study(p)
+    p.add_argument("--n", type=int, default=2000, help="machines (default 2000)")
+    p.set_defaults(func=cmd_needle_montecarlo)
+
+    p = nsub.add_parser("sobol", help="Sobol indices of SumDelta (SALib)")
+    common(p)
+    study(p)
+    p.add_argument("--n", type=int, default=256, help="base samples, a power of two")
+    p.set_defaults(func=cmd_needle_sobol)
     return ap
 
 

@@ -95,3 +95,15 @@ def as_dict(params) -> dict[str, Any]:
         v = getattr(params, f)
         out[f] = v.tolist() if isinstance(v, np.ndarray) else v
     return out
+
+
+def with_deviations(params, deviations: dict[str, np.ndarray]):
+    """A batch: nominal plus each machine's deviation (arrays of equal length) per named field."""
+    valid = field_names(type(params))
+    for name in deviations:
+        if name not in valid:
+            raise ParameterError(name, f"unknown parameter; valid names are {', '.join(valid)}",
+                                 name)
+    return dataclasses.replace(params, **{
+        k: np.asarray(getattr(params, k), float) + np.asarray(v, float)
+        for k, v in deviations.items()})

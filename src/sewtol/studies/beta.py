@@ -71,7 +71,8 @@ def check_range(range_deg, limit_um) -> None:
 
 
 def optimise_beta_columns(c: dict, range_deg=DEFAULT_RANGE_DEG, limit_um=DEFAULT_LIMIT_UM,
-                          grid_step_deg: float = 0.5) -> BetaOptimum:
+                          grid_step_deg: float = 0.5, window: bool = True) -> BetaOptimum:
+    """beta* per machine; with window=False the window is left NaN (half the work)."""
     check_range(range_deg, limit_um)
     lo, hi = map(float, range_deg)
     n = next(iter(c.values())).shape[0]
@@ -86,6 +87,10 @@ def optimise_beta_columns(c: dict, range_deg=DEFAULT_RANGE_DEG, limit_um=DEFAULT
     figs = nm.deviation_figures(nm.with_values(c, beta=b_opt))
     dead = ~np.isfinite(score).any(axis=1)
 
+    nan = np.full(n, np.nan)
+    if not window:
+        return BetaOptimum(np.where(dead, nan, b_opt), figs.plus_um, figs.minus_um, figs.total_um,
+                           nan, nan, np.zeros(n, bool), float(limit_um), (lo, hi))
     exceed = ~(tot <= limit_um)  # NaN (cannot run) counts as exceeding
     idx = np.arange(g)
     left_j = np.where(exceed & (idx <= i[:, None]), idx, -1).max(axis=1)
@@ -101,7 +106,6 @@ def optimise_beta_columns(c: dict, range_deg=DEFAULT_RANGE_DEG, limit_um=DEFAULT
 
     w_lo, clip_lo = crossing(lo, left_j, -1)
     w_hi, clip_hi = crossing(hi, right_j, g)
-    nan = np.full(n, np.nan)
     return BetaOptimum(
         beta_deg=np.where(dead, nan, b_opt), plus_um=figs.plus_um, minus_um=figs.minus_um,
         total_um=figs.total_um, window_low_deg=w_lo, window_high_deg=w_hi,
@@ -110,10 +114,10 @@ def optimise_beta_columns(c: dict, range_deg=DEFAULT_RANGE_DEG, limit_um=DEFAULT
 
 
 def optimise_beta(params, range_deg=DEFAULT_RANGE_DEG, limit_um=DEFAULT_LIMIT_UM,
-                  grid_step_deg: float = 0.5) -> BetaOptimum:
+                  grid_step_deg: float = 0.5, window: bool = True) -> BetaOptimum:
     """beta* and its window for one machine or a batch (guide fixed as in params)."""
     c, _ = nm.columns(params)
-    return optimise_beta_columns(c, range_deg, limit_um, grid_step_deg)
+    return optimise_beta_columns(c, range_deg, limit_um, grid_step_deg, window)
 
 
 @dataclass(frozen=True)

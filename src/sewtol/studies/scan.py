@@ -1,0 +1,105 @@
+"""Per-parameter tolerance scan in the layout of the source's table, and the tolerance search.
+
+Each parameter is set to its upper and then its lower limit with every other parameter nominal,
+the guide fixed (optionally shifted), and beta re-optimised. All 2k variants are one batch.
+The recommended-tolerance search finds, per parameter and side, the largest deviation that
+keeps SumDelta at beta* <= the limit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from ..mechanisms import params as P
+from ..metrics import needle as nm
+from ..optimize import bisect_root
+from ..tolerances import ToleranceSet
+from . import beta as sb
+
+
+@dataclass(frozen=True)
+class ScanResult:
+    rows: pd.DataFrame  # param, side, delta_mm, value_mm, beta_deg, plus_um, minus_um, total_um
+    nominal_row: dict
+    tolerances: str
+    guide_shift_um: float
+    limit_um: float
+
+    def to_dataframe(self) -> pd.DataFrame:
+        return self.rows.copy()
+
+    def to_records(self) -> list[dict]:
+        cols = ["param", "side", "delta_mm", "beta_deg", "plus_um", "minus_um", "total_um"]
+        return self.rows[cols].to_dict(orient="records")
+
+
+def scan(nominal, tolerances: ToleranceSet, guide_shift_um: float = 0.0,
+         limit_um: float = sb.DEFAULT_LIMIT_UM, range_deg=sb.DEFAULT_RANGE_DEG) -> ScanResult:
+    base = nominal.override(guide_shift_um=guide_shift_um)
+    params, sides, deltas = [], [], []
+    for t in tolerances.items:
+        for side, d in (("upper", t.upper), ("lower", t.lower)):
+            params.append(t.param)
+            sides.append(side)
+            deltas.append(d)
+    names = sorted(set(params), key=params.index)
+    dev = {k: np.array([d if p == k else 0.0 for p, d in zip(params, deltas, strict=True)])
+           for k in names}
+    batch = P.with_deviations(base, dev)
+    opt = sb.optimise_beta(batch, range_deg, limit_um, window=False)
+    values = [float(np.asarray(getattr(batch, p))[i]) for i, p in enumerate(params)]
+    rows = pd.DataFrame({
+        "param": params, "side": sides, "delta_mm": deltas, "value_mm": values,
+        "beta_deg": opt.beta_deg, "plus_um": opt.plus_um, "minus_um": opt.minus_um,
+        "total_um": opt.total_um,
+    })
+    nom = sb.optimise_beta(base, range_deg, limit_um, window=False)
+    nominal_row = {"beta_deg": float(nom.beta_deg[0]), "plus_um": float(nom.plus_um[0]),
+                   "minus_um": float(nom.minus_um[0]), "total_um": float(nom.total_um[0])}
+    return ScanResult(rows, nominal_row, tolerances.name, float(guide_shift_um), float(limit_um))
+
+
+def largest_tolerances(nominal, params: list[str], limit_um: float = sb.DEFAULT_LIMIT_UM,
+                       max_mm: float = 1.0, guide_shift_um: float = 0.0,
+                       range_deg=sb.DEFAULT_RANGE_DEG, xtol_mm: float = 1e-5) -> pd.DataFrame:
+    """Per parameter and side, the largest |deviation| <= max_mm with SumDelta(beta*) <= limit.
+
+    A geometric grid from 1 um to max_mm brackets the first crossing, bisection refines it to
+    xtol_mm. `reaches_max` marks sides where even max_mm keeps the limit.
+    """
+    base = nominal.override(guide_shift_um=guide_shift_um)
+    c0, _ = nm.columns(base)
+    grid = np.geomspace(1e-3, max_mm, 25)
+    jobs = [(p, s) for p in params for s in (1.0, -1.0)]
+
+    def totals(deltas):
+        deltas = np.asarray(deltas, float)
+        c = nm.repeat(c0, deltas.size)
+        for k, (p, s) in enumerate(jobs * (deltas.size // len(jobs))):
+            c[p] = c[p].copy()
+            c[p][k, 0] = c[p][k, 0] + s * deltas[k]
+        return sb.optimise_beta_columns(c, range_deg, limit_um, window=False).total_um
+
+    # grid: all jobs at every grid value in one batch
+    jm = len(jobs)
+    flat = np.repeat(grid, jm)
+    c = nm.repeat(c0, flat.size)
+    for k in range(flat.size):
+        p, s = jobs[k % jm]
+        c[p][k, 0] = c[p][k, 0] + s * flat[k]
+    tot = sb.optimise_beta_columns(c, range_deg, limit_um, window=False).total_um
+    tot = tot.reshape(grid.size, jm)
+    exceed = ~(tot <= limit_um)
+    first = np.where(exceed.any(axis=0), exceed.argmax(axis=0), -1)
+    lo = np.where(first > 0, grid[np.maximum(first - 1, 0)], 0.0)
+    hi = np.where(first >= 0, grid[np.maximum(first, 0)], max_mm)
+    edge = bisect_root(lambda d: totals(d) - limit_um, lo, hi, xtol=xtol_mm)
+    edge = np.where(first >= 0, edge, max_mm)
+    return pd.DataFrame({
+        "param": [p for p, _ in jobs], "side": ["upper" if s > 0 else "lower" for _, s in jobs],
+        "largest_delta_mm": [s * e for (_, s), e in zip(jobs, edge, strict=True)],
+        "reaches_max": first < 0,
+    })

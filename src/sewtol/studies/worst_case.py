@@ -1,0 +1,86 @@
+"""Worst case of SumDelta over the tolerance box, by bounded optimisation.
+
+Corners are not enough for a nonlinear path (a lateral shift and a shape change can peak
+inside the box), so every corner (up to 2^10) and the centre are evaluated as one batch, and the
+best starts are polished by L-BFGS-B inside the box. Two cases: beta fixed at the nominal
+machine's beta*, and beta re-optimised on each trial machine (the max over the box of the min
+over beta).
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from scipy.optimize import minimize
+
+from ..errors import ParameterError
+from ..tolerances import ToleranceSet
+from . import beta as sb
+from .needle_eval import evaluate
+
+
+@dataclass(frozen=True)
+class WorstCase:
+    case: str
+    total_um: float
+    corner_total_um: float
+    point: dict  # deviation per parameter (mm)
+    beta_deg: float
+    interior: bool  # True when the worst point is not a corner
+
+    def to_row(self) -> dict:
+        row = {"case": self.case, "total_um": self.total_um,
+               "worst_corner_total_um": self.corner_total_um, "beta_deg": self.beta_deg,
+               "interior": self.interior}
+        row.update({f"{k}_mm": v for k, v in self.point.items()})
+        return row
+
+
+def _objective(nominal, names, adjust, range_deg):
+    def totals(X):
+        X = np.atleast_2d(X)
+        out = evaluate(nominal, {k: X[:, i] for i, k in enumerate(names)}, adjust=adjust,
+                       range_deg=range_deg)
+        t = out.total_adjusted_um if adjust else out.total_fixed_um
+        return np.where(np.isnan(t), np.inf, t), out
+    return totals
+
+
+def worst_case(nominal, tolerances: ToleranceSet, adjust: bool, range_deg=sb.DEFAULT_RANGE_DEG,
+               starts: int = 3) -> WorstCase:
+    tol = tolerances.active()
+    names = tol.params
+    if len(names) > 10:
+        raise ParameterError("tolerances", "worst case enumerates corners; at most 10 parameters",
+                             len(names))
+    lo = np.array([t.lower for t in tol.items])
+    hi = np.array([t.upper for t in tol.items])
+    corners = np.array(list(itertools.product(*zip(lo, hi, strict=True))))
+    totals = _objective(nominal, names, adjust, range_deg)
+    cands = np.vstack([corners, 0.5 * (lo + hi)])
+    val, _ = totals(cands)
+    corner_best = float(np.max(val[:-1]))
+    order = np.argsort(-val)[:starts]
+    scale = np.where(hi > lo, hi - lo, 1.0)
+    best_x, best_v = cands[order[0]], float(val[order[0]])
+    for i in order:
+        def neg(z):
+            return -float(totals(lo + z * scale)[0][0])
+        z0 = (cands[i] - lo) / scale
+        res = minimize(neg, z0, method="L-BFGS-B", bounds=[(0, 1)] * len(names),
+                       options={"eps": 1e-6, "maxiter": 200})
+        if -res.fun > best_v:
+            best_v, best_x = float(-res.fun), lo + res.x * scale
+    _, out = totals(best_x)
+    at_corner = bool(np.all(np.isclose(best_x, lo) | np.isclose(best_x, hi)))
+    beta = float(out.beta_opt_deg[0]) if adjust else float(nominal.beta)
+    return WorstCase("adjusted_beta" if adjust else "fixed_beta", best_v, corner_best,
+                     dict(zip(names, map(float, best_x), strict=True)), beta, not at_corner)
+
+
+def worst_case_table(nominal, tolerances: ToleranceSet, range_deg=sb.DEFAULT_RANGE_DEG) -> pd.DataFrame:
+    return pd.DataFrame([worst_case(nominal, tolerances, a, range_deg).to_row()
+                         for a in (False, True)])

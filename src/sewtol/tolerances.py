@@ -1,0 +1,197 @@
+"""Tolerance specifications: limits and distributions for any parameter, built-in sets, TOML.
+
+A tolerance gives the lower and upper deviation from nominal (mm, or the parameter's own unit),
+and how machines scatter inside: `uniform` over the limits, `normal` with the limits at
++/-3 sigma around their midpoint, or `truncnorm`, a normal (sigma = width/6) cut at the limits.
+Built-in sets restate the source study (../shared/design/needle_208.md): `base` and
+`recommended`. CD has no base tolerance in the source; `base` leaves CD exact.
+
+TOML form (a file of one or more sets):
+
+    [sets.mine]
+    description = "what it is"
+    LF = { lower = -0.05, upper = 0.05, dist = "uniform" }
+    CD = { plus_minus = 0.01 }
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+from .errors import ParameterError
+
+DISTRIBUTIONS = ("uniform", "normal", "truncnorm")
+
+
+@dataclass(frozen=True)
+class Tolerance:
+    param: str
+    lower: float
+    upper: float
+    dist: str = "uniform"
+
+    def __post_init__(self):
+        if not (np.isfinite(self.lower) and np.isfinite(self.upper)):
+            raise ParameterError(f"{self.param}.limits", "must be finite numbers",
+                                 (self.lower, self.upper))
+        if self.lower > self.upper:
+            raise ParameterError(f"{self.param}.lower", "must not be above the upper limit",
+                                 (self.lower, self.upper))
+        if self.dist not in DISTRIBUTIONS:
+            raise ParameterError(f"{self.param}.dist",
+                                 f"must be one of {', '.join(DISTRIBUTIONS)}", self.dist)
+
+    @property
+    def mid(self) -> float:
+        return 0.5 * (self.lower + self.upper)
+
+    @property
+    def sigma(self) -> float:
+        return (self.upper - self.lower) / 6.0
+
+    def from_unit(self, u: np.ndarray) -> np.ndarray:
+        """Deviations for uniform numbers u in (0, 1) (inverse CDF; SALib and Monte-Carlo share it)."""
+        if self.upper == self.lower:
+            return np.full_like(u, self.lower, dtype=float)
+        if self.dist == "uniform":
+            return self.lower + (self.upper - self.lower) * u
+        if self.dist == "normal":
+            return self.mid + self.sigma * stats.norm.ppf(u)
+        return self.mid + self.sigma * stats.truncnorm.ppf(u, -3.0, 3.0)
+
+    def salib_dist(self) -> tuple[str, list[float]]:
+        """The same distribution as SALib's problem 'dists' and 'bounds' entries."""
+        if self.dist == "uniform":
+            return "unif", [self.lower, self.upper]
+        if self.dist == "normal":
+            return "norm", [self.mid, self.sigma]
+        return "truncnorm", [self.lower, self.upper, self.mid, self.sigma]
+
+
+@dataclass(frozen=True)
+class ToleranceSet:
+    name: str
+    items: tuple[Tolerance, ...]
+    description: str = ""
+    nominal_names: tuple[str, ...] = field(default=(), compare=False)
+
+    @property
+    def params(self) -> list[str]:
+        return [t.param for t in self.items]
+
+    def active(self) -> ToleranceSet:
+        """Only the tolerances with a non-zero width (the ones that scatter)."""
+        return ToleranceSet(self.name, tuple(t for t in self.items if t.upper > t.lower),
+                            self.description)
+
+    def check_names(self, valid: list[str]) -> ToleranceSet:
+        for t in self.items:
+            if t.param not in valid:
+                raise ParameterError(t.param, f"unknown parameter in tolerance set '{self.name}'; "
+                                     f"valid names are {', '.join(valid)}", t.param)
+        return self
+
+    def sample(self, rng: np.random.Generator, n: int) -> dict[str, np.ndarray]:
+        """n machines' deviations from nominal, one array per parameter."""
+        u = rng.random((n, len(self.items)))
+        return {t.param: t.from_unit(u[:, i]) for i, t in enumerate(self.items)}
+
+    def scaled(self, factors: dict[str, float]) -> ToleranceSet:
+        return ToleranceSet(self.name, tuple(
+            Tolerance(t.param, t.lower * factors.get(t.param, 1.0),
+                      t.upper * factors.get(t.param, 1.0), t.dist) for t in self.items),
+            self.description)
+
+    def as_dict(self) -> dict:
+        return {t.param: {"lower": t.lower, "upper": t.upper, "dist": t.dist} for t in self.items}
+
+
+def _sym(param, pm, dist="uniform"):
+    return Tolerance(param, -pm, pm, dist)
+
+
+NEEDLE_208_SETS = {
+    "base": ToleranceSet("base", (
+        _sym("LF", 0.05), _sym("LM", 0.5), _sym("AM", 0.1), _sym("AB", 0.05), _sym("BC", 0.05),
+        _sym("BE", 0.05)),
+        "source study, base tolerances (CD not toleranced in the source)"),
+    "recommended": ToleranceSet("recommended", (
+        Tolerance("LF", -0.8, 0.25), _sym("LM", 0.5), _sym("AM", 0.5), _sym("AB", 0.05),
+        _sym("BC", 0.05), _sym("BE", 0.05), _sym("CD", 0.01)),
+        "source study, recommended tolerances"),
+}
+
+
+def _parse_item(set_name: str, param: str, spec) -> Tolerance:
+    where = f"{set_name}.{param}"
+    if isinstance(spec, (int, float)):
+        return _sym(param, float(spec))
+    if not isinstance(spec, dict):
+        raise ParameterError(where, "must be a number (+/-) or a table with lower/upper or "
+                             "plus_minus", spec)
+    allowed = {"lower", "upper", "plus_minus", "dist"}
+    extra = set(spec) - allowed
+    if extra:
+        raise ParameterError(where, f"unknown keys {sorted(extra)}; allowed: {sorted(allowed)}",
+                             spec)
+    dist = spec.get("dist", "uniform")
+    if "plus_minus" in spec:
+        pm = float(spec["plus_minus"])
+        if pm < 0:
+            raise ParameterError(f"{where}.plus_minus", "must not be negative", pm)
+        return Tolerance(param, -pm, pm, dist)
+    if "lower" not in spec or "upper" not in spec:
+        raise ParameterError(where, "needs both lower and upper (or plus_minus)", spec)
+    return Tolerance(param, float(spec["lower"]), float(spec["upper"]), dist)
+
+
+def load_toml(path: str | Path, valid_params: list[str] | None = None) -> dict[str, ToleranceSet]:
+    """Tolerance sets from a TOML file; a syntax error reports its line and column."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise ParameterError(str(path), "is not valid TOML", str(exc)) from None
+    except OSError as exc:
+        raise ParameterError(str(path), "cannot be read", exc.strerror) from None
+    sets = data.get("sets")
+    if not isinstance(sets, dict) or not sets:
+        raise ParameterError(str(path), "must hold at least one [sets.NAME] table", list(data))
+    out = {}
+    for name, body in sets.items():
+        if not isinstance(body, dict):
+            raise ParameterError(f"sets.{name}", "must be a table", body)
+        desc = str(body.get("description", ""))
+        items = tuple(_parse_item(name, k, v) for k, v in body.items() if k != "description")
+        ts = ToleranceSet(name, items, desc)
+        if valid_params is not None:
+            ts.check_names(valid_params)
+        out[name] = ts
+    return out
+
+
+def resolve(name_or_path: str, builtin: dict[str, ToleranceSet],
+            valid_params: list[str]) -> ToleranceSet:
+    """A built-in set by name, or 'file.toml' (its only set) / 'file.toml:NAME'."""
+    if name_or_path in builtin:
+        return builtin[name_or_path]
+    path, _, set_name = name_or_path.partition(".toml")
+    if not _ and name_or_path not in builtin:
+        raise ParameterError("--tolerances", f"must be one of {', '.join(builtin)} or a .toml "
+                             "file", name_or_path)
+    sets = load_toml(path + ".toml", valid_params)
+    set_name = set_name.lstrip(":")
+    if not set_name:
+        if len(sets) != 1:
+            raise ParameterError("--tolerances", f"the file holds several sets; name one as "
+                                 f"FILE.toml:NAME, one of {', '.join(sets)}", name_or_path)
+        return next(iter(sets.values()))
+    if set_name not in sets:
+        raise ParameterError("--tolerances", f"no set '{set_name}' in the file; sets are "
+                             f"{', '.join(sets)}", name_or_path)
+    return sets[set_name]

@@ -1,0 +1,137 @@
+"""Tolerance studies: Sobol against Ishigami, yield against an exact case, scan against direct
+calls, determinism across workers, worst case against sampling."""
+
+import numpy as np
+import pytest
+
+from sewtol.errors import ParameterError
+from sewtol.optimize import bisect_root
+from sewtol.studies import beta as sb
+from sewtol.studies.montecarlo import montecarlo
+from sewtol.studies.scan import scan
+from sewtol.studies.sobol import sobol_indices
+from sewtol.studies.worst_case import worst_case
+from sewtol.tolerances import NEEDLE_208_SETS, Tolerance, ToleranceSet
+
+
+def test_sobol_pipeline_reproduces_ishigami_indices():
+    a, b = 7.0, 0.1
+    problem = {"num_vars": 3, "names": ["x1", "x2", "x3"], "bounds": [[-np.pi, np.pi]] * 3}
+
+    def ishigami(X):
+        return np.sin(X[:, 0]) + a * np.sin(X[:, 1]) ** 2 + b * X[:, 2] ** 4 * np.sin(X[:, 0])
+
+    idx, conv, failed = sobol_indices(ishigami, problem, 2**13, seed=11)
+    full = idx[idx.n == 2**13].set_index("param")
+    v = a**2 / 8 + b * np.pi**4 / 5 + b**2 * np.pi**8 / 18 + 0.5
+    v1 = 0.5 * (1 + b * np.pi**4 / 5) ** 2
+    v2 = a**2 / 8
+    v13 = b**2 * np.pi**8 * (1 / 18 - 1 / 50)
+    s1 = [v1 / v, v2 / v, 0.0]
+    st = [(v1 + v13) / v, v2 / v, v13 / v]
+    assert np.allclose(full["S1"], s1, atol=0.03)
+    assert np.allclose(full["ST"], st, atol=0.03)
+    assert failed == 0 and conv["max_abs_dST"].iloc[0] < 0.05
+
+
+def cd_only(width=0.01):
+    return ToleranceSet("cd", (Tolerance("CD", -width, width),))
+
+
+def test_montecarlo_yield_matches_exactly_computable_case(nominal):
+    """Only CD scatters, uniform +/-0.01: the exact yield is the share of [-0.01, 0.01] where
+    SumDelta <= 10 um, found by root finding on the deterministic model."""
+    from sewtol.metrics import needle as nm
+
+    c, _ = nm.columns(nominal)
+
+    def total(delta, adjust):
+        cc = nm.with_values(nm.repeat(c, np.size(delta)), CD=nominal.CD + np.atleast_1d(delta))
+        if adjust:
+            return sb.optimise_beta_columns(cc, window=False).total_um
+        return nm.deviation_figures(cc).total_um
+
+    grid = np.linspace(-0.01, 0.01, 401)
+    for adjust, case in ((False, "fixed"), (True, "adjusted")):
+        ok = total(grid, adjust) <= 10.0
+        # a single interval around nominal, so two roots give the exact yield
+        assert ok[200] and np.sum(np.abs(np.diff(ok.astype(int)))) <= 2
+        inside = grid[ok]
+        lo_edge = -0.01 if ok[0] else bisect_root(
+            lambda d, a=adjust: total(d, a) - 10.0, np.array([inside[0] - 5e-5]),
+            np.array([inside[0]]), xtol=1e-9)[0]
+        hi_edge = 0.01 if ok[-1] else bisect_root(
+            lambda d, a=adjust: total(d, a) - 10.0, np.array([inside[-1]]),
+            np.array([inside[-1] + 5e-5]), xtol=1e-9)[0]
+        exact = (hi_edge - lo_edge) / 0.02
+        res = montecarlo(nominal, cd_only(), 3000, seed=5)
+        sigma = np.sqrt(exact * (1 - exact) / 3000)
+        assert abs(res.yield_of(case) - exact) < 4 * sigma, (case, exact)
+
+
+def test_unassemblable_machines_are_counted_against_yield(nominal):
+    res = montecarlo(nominal, ToleranceSet("wild", (Tolerance("CD", -25.0, 0.0),)), 400, seed=1)
+    assert res.failed > 0
+    assert res.yield_of("adjusted") <= 1 - res.failed / res.n
+    assert res.to_dict()["failed"] == res.failed
+    assert np.isinf(res.quantiles("fixed")["p99"])
+
+
+def test_same_seed_same_machines_for_any_number_of_workers(nominal):
+    ts = NEEDLE_208_SETS["recommended"]
+    one = montecarlo(nominal, ts, 1200, seed=42, n_jobs=1, chunk_size=500)
+    two = montecarlo(nominal, ts, 1200, seed=42, n_jobs=2, chunk_size=500)
+    assert one.machines.equals(two.machines)
+    assert one.to_dict() == two.to_dict()
+    other = montecarlo(nominal, ts, 1200, seed=43)
+    assert not one.machines.equals(other.machines)
+
+
+def test_scan_rows_equal_direct_model_calls(nominal):
+    res = scan(nominal, NEEDLE_208_SETS["recommended"], guide_shift_um=20.0)
+    for param, side, delta in (("BC", "upper", 0.05), ("LF", "lower", -0.8), ("CD", "lower", -0.01)):
+        row = res.rows[(res.rows.param == param) & (res.rows.side == side)].iloc[0]
+        direct = sb.optimise_beta(nominal.override(**{param: getattr(nominal, param) + delta},
+                                                   guide_shift_um=20.0), window=False)
+        assert row.delta_mm == delta
+        assert abs(row.beta_deg - direct.beta_deg[0]) < 1e-6
+        assert abs(row.total_um - direct.total_um[0]) < 1e-9
+        assert abs(row.plus_um + row.minus_um - row.total_um) < 1e-12
+
+
+def test_guide_shift_moves_a_one_sided_path_by_the_shift(nominal):
+    """Shifting the guide by s along its normal changes d by -s everywhere."""
+    from sewtol.metrics import needle as nm
+
+    c, _ = nm.columns(nominal)
+    a = nm.deviation_figures(c)
+    b = nm.deviation_figures(nm.with_values(c, guide_shift_um=[100.0]))
+    # the path lies wholly on the minus side after a 100 um shift: Delta- = 100 + max d
+    assert b.plus_um[0] == 0.0
+    assert abs(b.minus_um[0] - (100.0 + a.plus_um[0])) < 1e-6
+
+
+def test_worst_case_bounds_every_sampled_machine(nominal):
+    ts = ToleranceSet("three", (Tolerance("LF", -0.05, 0.05), Tolerance("BC", -0.05, 0.05),
+                                Tolerance("CD", -0.01, 0.01)))
+    wc = worst_case(nominal, ts, adjust=False)
+    mc = montecarlo(nominal, ts, 500, seed=9)
+    assert wc.total_um >= mc.machines["total_fixed_um"].max() - 1e-9
+    assert wc.total_um >= wc.corner_total_um - 1e-12
+
+
+def test_tolerance_rules():
+    with pytest.raises(ParameterError, match="LF.lower: must not be above the upper limit"):
+        Tolerance("LF", 0.1, -0.1)
+    with pytest.raises(ParameterError, match="LF.dist: must be one of uniform, normal"):
+        Tolerance("LF", -0.1, 0.1, "cauchy")
+
+
+def test_normal_and_truncated_normal_draws():
+    rng = np.random.default_rng(3)
+    n = Tolerance("AB", -0.03, 0.03, "normal").from_unit(rng.random(200_000))
+    assert abs(n.std() - 0.01) < 2e-4 and abs(n.mean()) < 1e-4
+    t = Tolerance("AB", -0.03, 0.03, "truncnorm").from_unit(rng.random(200_000))
+    assert t.min() >= -0.03 and t.max() <= 0.03
+    u = Tolerance("LF", -0.8, 0.25).from_unit(rng.random(200_000))
+    assert abs(u.mean() - (-0.275)) < 2e-3
