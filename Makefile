@@ -19,6 +19,7 @@ report: $(STAMP)
 	$(BIN)/python studies/calibrate_needle_208.py --out $(REPORTS) --data $(REPORTS)/needle_208/calibrated_geometry.json
 	$(BIN)/python studies/needle_208_nominal.py --out $(REPORTS)
 	$(BIN)/python studies/needle_208_tolerances.py --out $(REPORTS) --n-jobs 2 --progress
+	$(BIN)/python studies/feed_131_report.py --out $(REPORTS) --n-jobs 2 --progress
 
 test: $(STAMP)
 	$(BIN)/ruff check src tests studies $(wildcard benchmarks)

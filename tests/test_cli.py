@@ -63,3 +63,31 @@ def test_bad_inputs_exit_nonzero_with_one_line():
         assert out == ""
         lines = err.strip().splitlines()
         assert len(lines) == 1 and message in lines[0], (extra, err)
+
+
+def test_feed_trajectory_csv_and_metrics_json():
+    code, out, _ = run("feed", "trajectory", "--step-deg", "2", "--format", "csv")
+    assert code == 0
+    frame = pd.read_csv(io.StringIO(out))
+    assert list(frame.columns) == ["phi_deg", "lower_x_mm", "lower_y_mm", "upper_x_mm",
+                                   "upper_y_mm"]
+    assert len(frame) == 180 and frame["phi_deg"].iloc[-1] == 358
+    code, out, _ = run("feed", "metrics", "--format", "json")
+    d = json.loads(out)
+    keys = {"feed_step_mm", "max_rise_mm", "max_rise_phi_deg", "entry_phi_deg", "exit_phi_deg",
+            "vertical_travel_mm"}
+    assert keys <= set(d["lower"]) and keys <= set(d["upper"])
+    assert abs(d["differential_ratio"] - d["upper"]["feed_step_mm"] / d["lower"]["feed_step_mm"]) \
+        < 1e-12
+    code, out2, _ = run("feed", "metrics", "--format", "json", "--set", "b=20")
+    assert json.loads(out2)["lower"]["feed_step_mm"] < d["lower"]["feed_step_mm"]
+
+
+def test_feed_bad_inputs():
+    code, out, err = run("feed", "metrics", "--set", "EN=50")
+    assert code == 2 and out == ""
+    assert err.strip().startswith("sewtol: error: dyad M-N-E cannot close at angle")
+    code, _, err = run("feed", "trajectory", "--set", "O9=1")
+    assert code == 2 and "valid names are O1F" in err
+    code, _, err = run("feed", "trajectory", "--step-deg", "0")
+    assert code == 2 and "step_deg: must be in (0, 90]" in err

@@ -122,6 +122,38 @@ def cmd_needle_sobol(args):
     emit(args.format, obj=res.to_records(), frame=res.to_dataframe())
 
 
+def _feed_params(args):
+    from .mechanisms.feed_131 import Feed131
+
+    return Feed131().override(**parse_sets(args.set, Feed131))
+
+
+def cmd_feed_trajectory(args):
+    from .feed import trajectory
+
+    emit(args.format, frame=trajectory(_feed_params(args), args.step_deg))
+
+
+def cmd_feed_metrics(args):
+    from .feed import metrics
+
+    m = metrics(_feed_params(args))
+    if args.format == "csv":
+        emit("csv", frame=m.to_dataframe())
+    else:
+        emit(args.format, obj=m.to_dict(), frame=m.to_dataframe())
+
+
+def cmd_feed_regulator(args):
+    from .feed import regulator_sweep
+
+    lo, hi, step = args.b_range
+    if not (lo < hi and step > 0):
+        raise ParameterError("--b-range", "must be LOW HIGH STEP with LOW < HIGH and STEP > 0",
+                             args.b_range)
+    emit(args.format, frame=regulator_sweep(_feed_params(args), np.arange(lo, hi + 1e-9, step)))
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="sewtol", description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="group", required=True)
@@ -172,6 +204,21 @@ def build_parser() -> argparse.ArgumentParser:
     study(p)
     p.add_argument("--n", type=int, default=256, help="base samples, a power of two")
     p.set_defaults(func=cmd_needle_sobol)
+
+    feed = sub.add_parser("feed", help="131-42+3 feed chains (lower and upper dog)")
+    fsub = feed.add_subparsers(dest="command", required=True)
+    p = fsub.add_parser("trajectory", help="both middle teeth over one turn")
+    common(p)
+    p.add_argument("--step-deg", type=float, default=1.0, help="main-shaft angle step (deg)")
+    p.set_defaults(func=cmd_feed_trajectory)
+    p = fsub.add_parser("metrics", help="feed step, rise, phases, travel; differential ratio")
+    common(p)
+    p.set_defaults(func=cmd_feed_metrics)
+    p = fsub.add_parser("regulator", help="feed steps and ratio against the regulator setting b")
+    common(p)
+    p.add_argument("--b-range", nargs=3, type=float, default=[0.0, 60.0, 2.0],
+                   metavar=("LOW", "HIGH", "STEP"), help="b values swept (deg)")
+    p.set_defaults(func=cmd_feed_regulator)
     return ap
 
 

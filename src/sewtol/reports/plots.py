@@ -125,3 +125,54 @@ def sobol_bars(indices, ax=None, title: str = ""):
     ax.grid(True, axis="y", lw=0.3)
     ax.legend(fontsize=7)
     return ax
+
+
+def tooth_paths(traj, plate_mm: float, material_mm: float = 0.0, ax=None):
+    """Both middle-tooth paths with the plate line (and the material's top, if any)."""
+    ax = ax or plt.gca()
+    for dog, color in (("lower", "C0"), ("upper", "C1")):
+        x, y = traj[f"{dog}_x_mm"], traj[f"{dog}_y_mm"]
+        ax.plot(np.r_[x, x[:1]], np.r_[y, y[:1]], color=color, label=f"{dog} dog, middle tooth")
+        ax.annotate("", xy=(x.iloc[6], y.iloc[6]), xytext=(x.iloc[0], y.iloc[0]),
+                    arrowprops={"arrowstyle": "->", "color": color})
+    ax.axhline(plate_mm, color="k", lw=1, label=f"needle plate y = {plate_mm:g} mm")
+    if material_mm > 0:
+        ax.axhline(plate_mm + material_mm, color="0.5", ls="--", lw=1,
+                   label=f"material top (+{material_mm:g} mm)")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(True, lw=0.3)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
+    return ax
+
+
+def feed_xy_vs_phi(traj, plate_mm: float, axes):
+    """x and y of both teeth against the main-shaft angle, on two axes."""
+    for dog, color in (("lower", "C0"), ("upper", "C1")):
+        axes[0].plot(traj["phi_deg"], traj[f"{dog}_x_mm"], color=color, label=f"{dog} dog")
+        axes[1].plot(traj["phi_deg"], traj[f"{dog}_y_mm"], color=color, label=f"{dog} dog")
+    axes[1].axhline(plate_mm, color="k", lw=1, label="needle plate")
+    axes[0].set_ylabel("x (mm)")
+    axes[1].set_ylabel("y (mm)")
+    for ax in axes:
+        ax.set_xlabel("main-shaft angle phi (deg)")
+        ax.set_xlim(0, 360)
+        ax.set_xticks(np.arange(0, 361, 60))
+        ax.grid(True, lw=0.3)
+        ax.legend(fontsize=7)
+    return axes
+
+
+def regulator_curve(sweep, b_nominal: float, ax=None):
+    """Feed step of both dogs against the regulator setting b, with neutral and reverse."""
+    ax = ax or plt.gca()
+    ax.plot(sweep["b_deg"], sweep["lower_step_mm"], color="C0", label="lower dog")
+    ax.plot(sweep["b_deg"], sweep["upper_step_mm"], color="C1", label="upper dog")
+    ax.axhline(0, color="k", lw=0.8)
+    ax.axvline(b_nominal, color="0.5", ls=":", label=f"b = {b_nominal:g} deg (data)")
+    ax.set_xlabel("regulator setting b (deg)")
+    ax.set_ylabel("feed step T (mm; > 0 forward, < 0 reverse)")
+    ax.grid(True, lw=0.3)
+    ax.legend(fontsize=7)
+    return ax

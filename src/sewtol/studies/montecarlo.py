@@ -21,10 +21,75 @@ from .parallel import child_generators, chunk_bounds, run_chunks
 CHUNK = 500
 
 
-def _chunk(nominal, tolerances: ToleranceSet, rng, m: int, adjust: bool, range_deg):
+def _chunk(model, nominal, tolerances: ToleranceSet, rng, m: int, kwargs):
     dev = tolerances.sample(rng, m)
-    out = evaluate(nominal, dev, adjust=adjust, range_deg=range_deg)
-    return dev, out
+    return dev, model(nominal, dev, **kwargs)
+
+
+def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
+                    n_jobs: int = 1, progress: bool = False, backend: str | None = None,
+                    chunk_size: int = CHUNK, desc: str = "Monte-Carlo", **kwargs) -> pd.DataFrame:
+    """Deviations and model outputs of n machines, one row each (generic over mechanisms).
+
+    model(nominal, deviations, **kwargs) returns a dict of output arrays. Chunk i of the fixed
+    chunk_size draws from child i of the seed, so any n_jobs gives the same rows.
+    """
+    from ..errors import ParameterError
+
+    if int(n) != n or n < 2:
+        raise ParameterError("n", "must be a whole number >= 2", n)
+    tol = tolerances.active()
+    if not tol.items:
+        raise ParameterError("tolerances", "has no tolerance with a non-zero width",
+                             tolerances.name)
+    bounds = chunk_bounds(int(n), chunk_size)
+    rngs = child_generators(seed, len(bounds))
+    parts = run_chunks(_chunk, [(model, nominal, tol, r, b - a, kwargs)
+                                for r, (a, b) in zip(rngs, bounds, strict=True)],
+                       n_jobs=n_jobs, progress=progress, desc=desc, backend=backend)
+    frames = []
+    for dev, out in parts:
+        f = pd.DataFrame(dict(dev))
+        for k, v in out.items():
+            f[k] = v
+        frames.append(f)
+    machines = pd.concat(frames, ignore_index=True)
+    machines.insert(0, "machine", np.arange(len(machines)))
+    return machines
+
+
+def contributors(machines: pd.DataFrame, params, output: str, bins: int = 20) -> pd.DataFrame:
+    """Contributors to the scatter of `output`: the correlation ratio eta^2 of each tolerance.
+
+    eta^2_i = Var(E[Y | X_i]) / Var(Y), with E[Y | X_i] from `bins` quantile bins of X_i: a
+    given-data estimate of the first-order effect that, unlike a linear regression, sees a
+    V-shaped response (SumDelta to a lateral shift). Bias-corrected (epsilon^2), since bins of
+    pure noise give eta^2 of about (bins-1)/n. Shares are normalised to 100 %.
+    """
+    m = machines.dropna(subset=[output])
+    y = m[output].to_numpy()
+    var = y.var()
+    rows = []
+    for p in params:
+        x = m[p].to_numpy()
+        ranks = np.argsort(np.argsort(x, kind="stable"), kind="stable")
+        b = ranks * bins // len(x)
+        counts = np.bincount(b, minlength=bins)
+        means = np.bincount(b, weights=y, minlength=bins) / np.maximum(counts, 1)
+        eta2 = float(np.sum(counts * (means - y.mean()) ** 2) / len(y) / var) if var > 0 else 0.0
+        eta2 = max(0.0, 1.0 - (1.0 - eta2) * (len(y) - 1) / (len(y) - bins))
+        rows.append({"param": p, "eta2": eta2})
+    frame = pd.DataFrame(rows).sort_values("eta2", ascending=False).reset_index(drop=True)
+    total = frame["eta2"].sum()
+    frame["share_pct"] = 100 * frame["eta2"] / total if total > 0 else 0.0
+    frame["cumulative_pct"] = frame["share_pct"].cumsum()
+    return frame
+
+
+def _needle_model(nominal, dev, range_deg):
+    out = evaluate(nominal, dev, adjust=True, range_deg=range_deg)
+    return {"total_fixed_um": out.total_fixed_um, "beta_opt_deg": out.beta_opt_deg,
+            "total_adjusted_um": out.total_adjusted_um}
 
 
 @dataclass(frozen=True)
@@ -76,31 +141,8 @@ class MonteCarloResult:
                 if p99865 > p50 else float("inf")}
 
     def pareto(self, case: str = "adjusted", bins: int = 20) -> pd.DataFrame:
-        """Contributors to SumDelta's scatter: the correlation ratio eta^2 of each tolerance.
-
-        eta^2_i = Var(E[Y | X_i]) / Var(Y), with E[Y | X_i] from `bins` quantile bins of X_i: a
-        given-data estimate of the first-order effect that, unlike a linear regression, sees the
-        V-shaped response of SumDelta to a lateral shift. Shares are normalised to 100 %.
-        """
-        m = self.machines.dropna(subset=[f"total_{case}_um"])
-        y = m[f"total_{case}_um"].to_numpy()
-        var = y.var()
-        rows = []
-        for p in self.params:
-            x = m[p].to_numpy()
-            ranks = np.argsort(np.argsort(x, kind="stable"), kind="stable")
-            b = ranks * bins // len(x)
-            counts = np.bincount(b, minlength=bins)
-            means = np.bincount(b, weights=y, minlength=bins) / np.maximum(counts, 1)
-            eta2 = float(np.sum(counts * (means - y.mean()) ** 2) / len(y) / var) if var > 0 else 0.0
-            # bias-corrected (epsilon^2): bins of pure noise give eta^2 of about (bins-1)/n
-            eta2 = max(0.0, 1.0 - (1.0 - eta2) * (len(y) - 1) / (len(y) - bins))
-            rows.append({"param": p, "eta2": eta2})
-        frame = pd.DataFrame(rows).sort_values("eta2", ascending=False).reset_index(drop=True)
-        total = frame["eta2"].sum()
-        frame["share_pct"] = 100 * frame["eta2"] / total if total > 0 else 0.0
-        frame["cumulative_pct"] = frame["share_pct"].cumsum()
-        return frame
+        """Contributors to SumDelta's scatter (see `contributors`)."""
+        return contributors(self.machines, self.params, f"total_{case}_um", bins)
 
     def to_dict(self) -> dict:
         lo, hi = self.yield_ci("adjusted")
@@ -136,26 +178,8 @@ def montecarlo(nominal, tolerances: ToleranceSet, n: int, seed: int, limit_um: f
                range_deg=sb.DEFAULT_RANGE_DEG, n_jobs: int = 1, progress: bool = False,
                backend: str | None = None, chunk_size: int = CHUNK) -> MonteCarloResult:
     """N machines in chunks of chunk_size, chunk i drawing from child i of the seed."""
-    from ..errors import ParameterError
-
-    if int(n) != n or n < 2:
-        raise ParameterError("n", "must be a whole number >= 2", n)
-    tol = tolerances.active()
-    if not tol.items:
-        raise ParameterError("tolerances", "has no tolerance with a non-zero width", tolerances.name)
-    bounds = chunk_bounds(int(n), chunk_size)
-    rngs = child_generators(seed, len(bounds))
-    parts = run_chunks(_chunk, [(nominal, tol, r, b - a, True, range_deg)
-                                for r, (a, b) in zip(rngs, bounds, strict=True)],
-                       n_jobs=n_jobs, progress=progress, desc="Monte-Carlo", backend=backend)
-    frames = []
-    for dev, out in parts:
-        f = pd.DataFrame({k: v for k, v in dev.items()})
-        f["total_fixed_um"] = out.total_fixed_um
-        f["beta_opt_deg"] = out.beta_opt_deg
-        f["total_adjusted_um"] = out.total_adjusted_um
-        frames.append(f)
-    machines = pd.concat(frames, ignore_index=True)
-    machines.insert(0, "machine", np.arange(len(machines)))
-    return MonteCarloResult(machines, tuple(tol.params), tolerances.name, int(seed),
-                            float(limit_um), float(nominal.beta), tuple(map(float, range_deg)))
+    machines = sample_machines(_needle_model, nominal, tolerances, n, seed, n_jobs, progress,
+                               backend, chunk_size, range_deg=range_deg)
+    return MonteCarloResult(machines, tuple(tolerances.active().params), tolerances.name,
+                            int(seed), float(limit_um), float(nominal.beta),
+                            tuple(map(float, range_deg)))

@@ -1,0 +1,187 @@
+"""Feed chains of the 131-42+3 class: lower and upper feed dogs ("vertical differential").
+
+Built group by group in the order of ../shared/design/feed_131-42-3.md (steps 1-23), with the
+analysis program's data. Frame origin O1 (main shaft), x right, y up, lengths mm, angles deg
+counter-clockwise from +x, phi = main-shaft angle. "RRR dyad X-J-Y, J left of X->Y" is
+engine.rrr(X, XJ, Y, YJ, +1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import engine
+from ..errors import AssemblyError
+from . import params as P
+
+DEG = np.pi / 180.0
+
+# dyads in the order of the chain: name, (first point, its link), (second point, its link), branch
+DYADS = ("O4-K-F", "D-B-A1", "O3-C-B", "M-N-E", "O6-R-C", "O8-V-S", "X-L-W", "O7-H-A2", "U-J-I")
+
+
+@dataclass(frozen=True)
+class Feed131:
+    """Every length, pivot, phase and the regulator setting b (mm, deg)."""
+
+    # lower dog, lift chain
+    O1F: float = 1.8
+    lift_phase: float = 224.0
+    O4x: float = 56.0
+    O4y: float = 7.5
+    O4K: float = 24.0
+    FK: float = 52.0
+    O4M: float = 25.0
+    M_angle: float = -98.0
+    # lower dog, feed chain and regulator
+    O1A1: float = 4.0
+    feed_phase: float = 0.0
+    O2x: float = -37.6
+    O2y: float = -16.6
+    O2D: float = 18.0
+    b: float = 30.0
+    DB: float = 18.0
+    A1B: float = 41.3
+    O3x: float = -63.0
+    O3y: float = -1.0
+    O3C: float = 20.0
+    BC: float = 18.0
+    O3E: float = 24.0
+    E_angle: float = 88.0
+    # lower dog bar
+    MN: float = 18.0
+    EN: float = 98.66
+    EP: float = 95.7
+    PN: float = 24.0
+    tooth1_u: float = 64.1
+    tooth1_v: float = 9.3
+    # upper dog, horizontal chain
+    O6x: float = 25.0
+    O6y: float = 181.0
+    O6R: float = 15.0
+    CR: float = 204.0
+    O6S: float = 20.0
+    RS: float = 20.0
+    O8x: float = -55.5
+    O8y: float = 104.9
+    O8V: float = 43.0
+    SV: float = 100.0
+    O8W: float = 52.5
+    Xx: float = -32.0
+    Xy: float = 72.0
+    XL: float = 20.0
+    WL: float = 23.25
+    # upper dog, lift chain
+    O5x: float = 0.0
+    O5y: float = 220.0
+    O5A2: float = 0.6
+    upper_phase: float = 87.0
+    O7x: float = -70.0
+    O7y: float = 160.9
+    O7H: float = 66.5
+    A2H: float = 69.0
+    O7I: float = 73.0
+    Ux: float = -36.0
+    Uy: float = 62.0
+    UJ: float = 26.0
+    IJ: float = 33.5
+    UY: float = 19.4
+    Y_angle: float = -99.56
+    # dog holder (RPR) and upper tooth
+    slot_offset: float = 8.0
+    tooth2_u: float = 29.0
+    tooth2_v: float = 27.9
+    # working settings
+    plate_mm: float = 32.5
+    material_mm: float = 0.0
+
+    LENGTHS = ("O1F", "O4K", "FK", "O4M", "O1A1", "O2D", "DB", "A1B", "O3C", "BC", "O3E", "MN",
+               "EN", "EP", "PN", "O6R", "CR", "O6S", "RS", "O8V", "SV", "O8W", "XL", "WL", "O5A2",
+               "O7H", "A2H", "O7I", "UJ", "IJ", "UY")
+
+    def __post_init__(self):
+        for f in P.field_names(type(self)):
+            P.finite(f, getattr(self, f))
+        for f in self.LENGTHS:
+            P.positive(f, getattr(self, f))
+        if np.any(np.asarray(self.material_mm) < 0):
+            raise P.ParameterError("material_mm", "must not be negative", self.material_mm)
+        s = (self.O6R**2 + self.O6S**2 - self.RS**2) / (2 * self.O6R * self.O6S)
+        if np.any(np.abs(np.asarray(s)) > 1):
+            raise P.ParameterError("RS", "the triangle O6-R-S must close: |O6R - O6S| <= RS <= "
+                                   "O6R + O6S", self.RS)
+
+    def override(self, **changes) -> Feed131:
+        return P.override(self, changes)
+
+
+def chains(c: dict, phi_rad) -> dict:
+    """Every joint of both chains over phi; derivatives are d/dphi. Closures per dyad."""
+    O1 = engine.fixed(0.0, 0.0)
+    fx = engine.fixed
+    closure = {}
+
+    def dyad(name, p1, r1, p2, r2, branch):
+        j, cl = engine.rrr(p1, r1, p2, r2, branch)
+        closure[name] = cl.miss_mm
+        return j
+
+    phi = engine.driving_angle(phi_rad)
+    # lower dog: lift chain
+    F = engine.polar(O1, c["O1F"], phi + c["lift_phase"] * DEG)
+    O4 = fx(c["O4x"], c["O4y"])
+    K = dyad("O4-K-F", O4, c["O4K"], F, c["FK"], 1.0)
+    M = engine.polar(O4, c["O4M"], engine.direction(O4, K) + c["M_angle"] * DEG)
+    # feed chain with the stitch regulator
+    A1 = engine.polar(O1, c["O1A1"], phi + c["feed_phase"] * DEG)
+    D = engine.polar(fx(c["O2x"], c["O2y"]), c["O2D"],
+                     engine.Angle(*(np.asarray(v) for v in ((90 + c["b"]) * DEG, 0.0, 0.0))))
+    B = dyad("D-B-A1", D, c["DB"], A1, c["A1B"], -1.0)
+    O3 = fx(c["O3x"], c["O3y"])
+    C = dyad("O3-C-B", O3, c["O3C"], B, c["BC"], 1.0)
+    E = engine.polar(O3, c["O3E"], engine.direction(O3, C) + c["E_angle"] * DEG)
+    # dog bar: right triangle E-N-P, axis u = unit(E->N) turned by atan(PN/EP)
+    N = dyad("M-N-E", M, c["MN"], E, c["EN"], 1.0)
+    u = engine.direction(E, N) + np.arctan2(c["PN"], c["EP"])
+    Q1 = engine.on_body(E, u, c["tooth1_u"] + 1j * c["tooth1_v"])
+    # upper dog: horizontal chain driven from C
+    O6 = fx(c["O6x"], c["O6y"])
+    R = dyad("O6-R-C", O6, c["O6R"], C, c["CR"], 1.0)
+    g4 = np.arccos((c["O6R"] ** 2 + c["O6S"] ** 2 - c["RS"] ** 2) / (2 * c["O6R"] * c["O6S"]))
+    S = engine.polar(O6, c["O6S"], engine.direction(O6, R) - g4)
+    O8 = fx(c["O8x"], c["O8y"])
+    V = dyad("O8-V-S", O8, c["O8V"], S, c["SV"], 1.0)
+    W = engine.polar(O8, c["O8W"], engine.direction(O8, V) + np.pi)
+    L = dyad("X-L-W", fx(c["Xx"], c["Xy"]), c["XL"], W, c["WL"], 1.0)
+    # upper lift chain on its own shaft O5, turning with -phi
+    A2 = engine.polar(fx(c["O5x"], c["O5y"]), c["O5A2"],
+                      engine.Angle(c["upper_phase"] * DEG - phi.a, -phi.da, -phi.dda))
+    O7 = fx(c["O7x"], c["O7y"])
+    H = dyad("O7-H-A2", O7, c["O7H"], A2, c["A2H"], 1.0)
+    I = engine.polar(O7, c["O7I"], engine.direction(O7, H) + np.pi)
+    U = fx(c["Ux"], c["Uy"])
+    J = dyad("U-J-I", U, c["UJ"], I, c["IJ"], -1.0)
+    Y = engine.polar(U, c["UY"], engine.direction(U, J) + c["Y_angle"] * DEG)
+    # dog holder: RPR group (slot at offset from L, block at Y)
+    f, cl = engine.rpr(L, Y, c["slot_offset"])
+    closure["L-slot-Y"] = cl.miss_mm
+    Q2 = engine.on_body(L, f, c["tooth2_u"] + 1j * (c["slot_offset"] - c["tooth2_v"]))
+    return {"F": F, "K": K, "M": M, "A1": A1, "D": D, "B": B, "C": C, "E": E, "N": N, "Q1": Q1,
+            "R": R, "S": S, "V": V, "W": W, "L": L, "A2": A2, "H": H, "I": I, "J": J, "Y": Y,
+            "Q2": Q2, "holder_angle": f, "closure": closure}
+
+
+def check_assembly(params: Feed131, phi_rad) -> None:
+    """Raise AssemblyError naming the first dyad (in chain order) that fails, and where."""
+    c = P.column(params, None)
+    out = chains(c, np.asarray(phi_rad, float))
+    for name, miss in out["closure"].items():
+        miss = np.broadcast_to(miss, np.shape(phi_rad))
+        bad = np.where(miss > 0)[0] if np.ndim(miss) else ([0] if miss > 0 else [])
+        if len(bad):
+            k = int(np.argmax(miss))
+            phi = float(np.degrees(np.ravel(phi_rad)[k]))
+            raise AssemblyError(name, phi, float(np.ravel(miss)[k]), P.as_dict(params),
+                                "main-shaft angle phi")
