@@ -25,8 +25,17 @@ test: $(STAMP)
 	$(BIN)/ruff check src tests studies $(wildcard benchmarks)
 	$(BIN)/python -m pytest -q
 
-bench: $(STAMP)
-	$(BIN)/python benchmarks/throughput.py --json
+# The benchmarks run in their own venv so the peer (pylinkage) is never a dependency of sewtol.
+BENCH := .venv-bench
+$(BENCH)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(BENCH)
+	$(BENCH)/bin/python -m pip install --quiet --upgrade pip
+	$(BENCH)/bin/python -m pip install --quiet -e . "pylinkage>=1.3"
+	touch $@
+
+bench: $(BENCH)/.installed
+	$(BENCH)/bin/python benchmarks/throughput.py --json
+	$(BENCH)/bin/python benchmarks/studies.py --json
 
 clean:
-	rm -rf $(VENV) .pytest_cache .hypothesis build src/*.egg-info
+	rm -rf $(VENV) $(BENCH) .pytest_cache .hypothesis build src/*.egg-info

@@ -1,0 +1,121 @@
+"""Positions per second on the 208 needle drive: sewtol's kernel, a plain per-angle Python loop
+of the same equations (the reference) and pylinkage (the Python linkage peer), in one process.
+
+    python benchmarks/throughput.py --json        (make bench: own venv with pylinkage)
+
+Every figure is a median over repeats; the ratios compare medians taken in this same process.
+Each solver runs on one thread (per core). Before timing, the three are checked to give the same
+needle-bar positions (max difference reported, must be below 1e-9 mm).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import statistics
+import sys
+import time
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+from sewtol.kernels import needle_positions as K  # noqa: E402
+from sewtol.mechanisms.needle_208 import Needle208  # noqa: E402
+
+
+def median_rate(fn, positions: int, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return positions / statistics.median(times)
+
+
+def build_pylinkage(p: Needle208, steps: int):
+    """The same mechanism in pylinkage 1.x: Crank, RRRDyad (branch by initial guess), FixedDyad."""
+    import pylinkage as pl
+
+    E0 = K.positions_loop(K.pack(p), np.array([0.0]))  # initial guesses on sewtol's branches
+    from sewtol.mechanisms import needle_208 as nd
+    from sewtol.metrics import needle as nm
+
+    o = nd.chain_from_crank(nm.columns(p)[0], np.array([[0.0]]))
+    F = pl.Ground(0.0, 0.0, name="F")
+    A = pl.Ground(p.Ax, p.Ay, name="A")
+    D = pl.Ground(p.Dx, p.Dy, name="D")
+    crank = pl.Crank(anchor=F, radius=p.LF, angular_velocity=2 * math.pi / steps,
+                     initial_angle=0.0, name="L")
+    M = pl.RRRDyad(anchor1=crank.output, anchor2=A, distance1=p.LM, distance2=p.AM,
+                   x=float(o["M"].x[0, 0]), y=float(o["M"].y[0, 0]), name="M")
+    B = pl.FixedDyad(anchor1=A, anchor2=M, distance=p.AB,
+                     angle=p.beta_sense * math.radians(p.beta), name="B")
+    C = pl.RRRDyad(anchor1=B, anchor2=D, distance1=p.BC, distance2=p.CD,
+                   x=float(o["C"].x[0, 0]), y=float(o["C"].y[0, 0]), name="C")
+    E = pl.FixedDyad(anchor1=B, anchor2=C, distance=p.BE, angle=math.radians(p.CBE), name="E")
+    linkage = pl.Linkage([F, A, D, crank, M, B, C, E])
+    return linkage, E0
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--json", action="store_true", help="print one JSON object")
+    ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--angles", type=int, default=3600)
+    ap.add_argument("--machines", type=int, default=200)
+    args = ap.parse_args(argv)
+
+    p = Needle208.nominal()
+    P1 = K.pack(p)
+    P = np.repeat(P1, args.machines, axis=0)
+    phi = np.linspace(0.0, 2 * math.pi, args.angles, endpoint=False)
+    ref = K.positions_loop(P1, phi)
+    fast = K.positions_kernel_serial(P, phi)  # compiles (cache) and checks
+    diff_loop = float(np.max(np.abs(fast[0] - ref[0])))
+
+    sewtol_rate = median_rate(lambda: K.positions_kernel_serial(P, phi), P.shape[0] * phi.size,
+                              args.repeats)
+    loop_angles = max(args.angles // 10, 36)
+    loop_rate = median_rate(lambda: K.positions_loop(P1, phi[:loop_angles]), loop_angles,
+                            max(3, args.repeats // 2))
+
+    result = {"sewtol_positions_per_s": sewtol_rate, "loop_positions_per_s": loop_rate,
+              "vs_loop": sewtol_rate / loop_rate, "max_diff_vs_loop_mm": diff_loop,
+              "threads": 1, "machines": args.machines, "angles": args.angles,
+              "repeats": args.repeats}
+    try:
+        import pylinkage
+    except ImportError:
+        result.update({"pylinkage_positions_per_s": None, "vs_pylinkage": None,
+                       "pylinkage": "not installed (make bench installs it in .venv-bench)"})
+    else:
+        linkage, _ = build_pylinkage(p, args.angles)
+        names = [c.name for c in linkage.components]
+        traj = linkage.step_fast(iterations=args.angles)
+        # pylinkage records the state after each step: step k is at crank angle (k+1) * dphi
+        e_pl = traj[:, names.index("E"), :]
+        e_ref = np.roll(fast[0], -1, axis=0)
+        diff_pl = float(np.nanmax(np.abs(e_pl - e_ref)))
+
+        def run_pylinkage():
+            linkage.step_fast(iterations=args.angles)
+
+        linkage.step_fast(iterations=args.angles)
+        pl_rate = median_rate(run_pylinkage, args.angles, args.repeats)
+        result.update({"pylinkage_positions_per_s": pl_rate, "vs_pylinkage": sewtol_rate / pl_rate,
+                       "pylinkage_version": pylinkage.__version__ if hasattr(pylinkage, "__version__")
+                       else "unknown", "pylinkage_solver": "Linkage.step_fast (numba)",
+                       "max_diff_vs_pylinkage_mm": diff_pl})
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        for k, v in result.items():
+            print(f"{k:28s} {v}")
+    return 0 if diff_loop < 1e-9 else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

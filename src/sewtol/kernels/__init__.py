@@ -1,0 +1,1 @@
+"""Compiled hot kernels (numba). The numpy engine stays the reference they are tested against."""
