@@ -9,6 +9,7 @@ Writes reports/feed_131-42-3/ (tables as CSV + Markdown, PNG plots, index.md).
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 import matplotlib.pyplot as plt
@@ -18,6 +19,8 @@ import pandas as pd
 from sewtol import feed
 from sewtol.io import write_text_atomic
 from sewtol.mechanisms.feed_131 import Feed131
+from sewtol.mechanisms.params import as_dict
+from sewtol.provenance import now, run_record
 from sewtol.reports import plots
 from sewtol.reports.tables import write_table
 from sewtol.studies.sobol import problem_of, sobol_indices
@@ -33,6 +36,7 @@ def main(argv=None) -> None:
     ap.add_argument("--n-jobs", type=int, default=1)
     ap.add_argument("--progress", action="store_true")
     args = ap.parse_args(argv)
+    started = now()
     out = Path(args.out) / "feed_131-42-3"
     p = Feed131()
     settings = {"data": "../shared/design/feed_131-42-3.md (the analysis program's link data)",
@@ -124,6 +128,12 @@ def main(argv=None) -> None:
         " [sobol.md](sobol.md)",
     ]
     write_text_atomic(out / "index.md", "\n".join(index) + "\n")
+    record = run_record(started, {"mechanism": "131-42+3 feed chains", "params": as_dict(p),
+                     "tolerance_set": {"name": ts.name, "description": ts.description,
+                                       "items": ts.as_dict()},
+                     "seed": args.seed, "n_mc": args.n_mc, "n_sobol": args.n_sobol,
+                     "n_jobs": args.n_jobs})
+    write_text_atomic(out / "run.json", json.dumps(record, indent=2) + "\n")
     print(f"wrote {out}")
 
 

@@ -15,7 +15,9 @@ import matplotlib.pyplot as plt
 
 from sewtol.io import write_text_atomic
 from sewtol.mechanisms.needle_208 import Needle208
+from sewtol.mechanisms.params import as_dict
 from sewtol.needle import deviation_table, nominal_figures
+from sewtol.provenance import now, run_record
 from sewtol.reports import plots
 from sewtol.reports.tables import write_table
 from sewtol.studies.allocation import allocate
@@ -46,6 +48,7 @@ def main(argv=None) -> None:
     ap.add_argument("--n-jobs", type=int, default=1)
     ap.add_argument("--progress", action="store_true")
     args = ap.parse_args(argv)
+    started = now()
     out = Path(args.out) / "needle_208"
     p = Needle208.nominal()
     guide = (f"fixed through ({p.guide_x:.3f}, {p.guide_y:.3f}) mm at {p.guide_angle:.4f} deg "
@@ -179,6 +182,12 @@ def main(argv=None) -> None:
         "- montecarlo_summary.json: the Monte-Carlo summaries as the CLI prints them",
     ]
     write_text_atomic(out / "index.md", "\n".join(index) + "\n")
+    record = run_record(started, {"mechanism": "208 needle drive", "params": as_dict(p),
+                     "tolerance_sets": {k: v.as_dict() for k, v in NEEDLE_208_SETS.items()},
+                     "seed": args.seed, "n_mc": args.n_mc, "n_sobol": args.n_sobol,
+                     "n_alloc": args.n_alloc, "n_guides": args.n_guides, "n_jobs": args.n_jobs,
+                     "beta_range_deg": [10.0, 35.0], "limit_um": 10.0})
+    write_text_atomic(out / "run.json", json.dumps(record, indent=2) + "\n")
     print(f"wrote {out}")
 
 

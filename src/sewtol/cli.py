@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -15,6 +16,13 @@ FORMATS = ("table", "json", "csv")
 
 class CliError(Exception):
     pass
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line naming the flag, like every other refusal."""
+
+    def error(self, message):
+        self.exit(2, f"sewtol: error: {message} (see {self.prog} --help)\n")
 
 
 def parse_sets(items, cls) -> dict:
@@ -66,6 +74,7 @@ def _needle_params(args):
 def cmd_needle_nominal(args):
     from .needle import nominal_figures
 
+    _check_beta_range(args)
     fig = nominal_figures(_needle_params(args), tuple(args.beta_range), args.limit_um)
     if args.format == "csv":
         raise CliError("--format: nominal prints json or table, not csv")
@@ -84,6 +93,15 @@ def cmd_needle_deviation(args):
     emit(args.format, frame=frame)
 
 
+def _study_nominal(args):
+    """The nominal machine of a study: it must assemble, or nothing is computed or written."""
+    from .mechanisms.needle_208 import check_assembly
+
+    params = _needle_params(args)
+    check_assembly(params)
+    return params
+
+
 def _tolerances(args):
     from .mechanisms.needle_208 import Needle208
     from .mechanisms.params import field_names
@@ -97,28 +115,100 @@ def _check_n(value, name="--n", minimum=2):
         raise ParameterError(name, f"must be >= {minimum}", value)
 
 
+def _check_study(args):
+    """Every study flag is checked before anything is computed or written."""
+    if getattr(args, "seed", 0) < 0:
+        raise ParameterError("--seed", "must be a whole number >= 0", args.seed)
+    if getattr(args, "n_jobs", 1) == 0 or getattr(args, "n_jobs", 1) < -1:
+        raise ParameterError("--n-jobs", "must be a positive number of workers or -1 (all cores)",
+                             args.n_jobs)
+    if getattr(args, "resume", False) and not getattr(args, "out", None):
+        raise ParameterError("--resume", "needs --out, the folder of the interrupted study",
+                             True)
+
+
+def _check_beta_range(args):
+    lo, hi = args.beta_range
+    if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
+        raise ParameterError("--beta-range", "must be LOW HIGH with LOW < HIGH (deg)",
+                             args.beta_range)
+    if not (np.isfinite(args.limit_um) and args.limit_um > 0):
+        raise ParameterError("--limit-um", "must be a positive number of um", args.limit_um)
+
+
+def _store(args, kind: str, params, tolerances):
+    """The checkpoint folder of a study run with --out (None without)."""
+    if not args.out:
+        return None
+    from .mechanisms.params import as_dict
+    from .studies.checkpoint import ChunkStore
+
+    manifest = {"study": kind, "n": args.n, "seed": args.seed, "params": as_dict(params),
+                "tolerances": {"name": tolerances.name, "items": tolerances.as_dict()}}
+    return ChunkStore(Path(args.out) / "chunks", manifest, args.resume, label=str(args.out))
+
+
+def _write_outputs(args, kind, params, tolerances, started, result_obj, frames):
+    """Results, machine tables and run.json into --out, each file atomically."""
+    if not args.out:
+        return
+    from .io import write_text_atomic
+    from .mechanisms.params import as_dict
+    from .provenance import run_record
+
+    out = Path(args.out)
+    write_text_atomic(out / f"{kind}.json", json.dumps(result_obj, indent=2,
+                                                       default=_json_default) + "\n")
+    for name, frame in frames.items():
+        write_text_atomic(out / f"{name}.csv", frame.to_csv(index=False, float_format="%.9g",
+                                                          lineterminator="\n"))
+    inputs = {"study": kind, "n": args.n, "seed": args.seed, "n_jobs": args.n_jobs,
+              "params": as_dict(params),
+              "tolerances": {"name": tolerances.name, "items": tolerances.as_dict()}}
+    write_text_atomic(out / "run.json", json.dumps(run_record(started, inputs), indent=2) + "\n")
+
+
 def cmd_needle_scan(args):
     from .studies.scan import scan
 
-    rows = scan(_needle_params(args), _tolerances(args), guide_shift_um=args.guide_shift_um)
+    rows = scan(_study_nominal(args), _tolerances(args), guide_shift_um=args.guide_shift_um)
     frame = rows.to_dataframe()
     emit(args.format, obj=rows.to_records(), frame=frame)
 
 
 def cmd_needle_montecarlo(args):
+    from .provenance import now
     from .studies.montecarlo import montecarlo
 
     _check_n(args.n)
-    res = montecarlo(_needle_params(args), _tolerances(args), args.n, args.seed,
-                     n_jobs=args.n_jobs, progress=args.progress)
+    _check_study(args)
+    params, tolerances = _study_nominal(args), _tolerances(args)
+    started = now()
+    store = _store(args, "montecarlo", params, tolerances)
+    res = montecarlo(params, tolerances, args.n, args.seed, n_jobs=args.n_jobs,
+                     progress=args.progress, store=store)
+    _write_outputs(args, "montecarlo", params, tolerances, started, res.to_dict(),
+                   {"machines": res.machines, "summary": res.summary_frame()})
     emit(args.format, obj=res.to_dict(), frame=res.summary_frame())
 
 
 def cmd_needle_sobol(args):
+    from .provenance import now
+    from .studies.sobol import _check_n as check_power_of_two
     from .studies.sobol import needle_sobol
 
-    res = needle_sobol(_needle_params(args), _tolerances(args), args.n, args.seed,
-                       n_jobs=args.n_jobs, progress=args.progress)
+    try:
+        check_power_of_two(args.n)
+    except ParameterError as exc:
+        raise ParameterError("--n", exc.rule, args.n) from None
+    _check_study(args)
+    params, tolerances = _study_nominal(args), _tolerances(args)
+    started = now()
+    store = _store(args, "sobol", params, tolerances)
+    res = needle_sobol(params, tolerances, args.n, args.seed, n_jobs=args.n_jobs,
+                       progress=args.progress, store=store)
+    _write_outputs(args, "sobol", params, tolerances, started, res.to_records(),
+                   {"indices": res.to_dataframe(), "convergence": res.convergence})
     emit(args.format, obj=res.to_records(), frame=res.to_dataframe())
 
 
@@ -155,10 +245,10 @@ def cmd_feed_regulator(args):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="sewtol", description=__doc__.splitlines()[0])
-    sub = ap.add_subparsers(dest="group", required=True)
+    ap = Parser(prog="sewtol", description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="group", required=True, parser_class=Parser)
     needle = sub.add_parser("needle", help="208-class needle drive")
-    nsub = needle.add_subparsers(dest="command", required=True)
+    nsub = needle.add_subparsers(dest="command", required=True, parser_class=Parser)
 
     def common(p):
         p.add_argument("--set", action="append", metavar="NAME=VALUE",
@@ -185,6 +275,11 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
             p.add_argument("--n-jobs", type=int, default=1, help="parallel workers (joblib)")
             p.add_argument("--progress", action="store_true", help="progress bar on stderr")
+            p.add_argument("--out", default=None, metavar="DIR",
+                           help="write results, machines, run.json and checkpoints here")
+            p.add_argument("--resume", action="store_true",
+                           help="continue the interrupted study in --out without recomputing "
+                                "its finished chunks")
 
     p = nsub.add_parser("scan", help="each tolerance at its limits, beta re-optimised")
     common(p)
@@ -206,7 +301,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_needle_sobol)
 
     feed = sub.add_parser("feed", help="131-42+3 feed chains (lower and upper dog)")
-    fsub = feed.add_subparsers(dest="command", required=True)
+    fsub = feed.add_subparsers(dest="command", required=True, parser_class=Parser)
     p = fsub.add_parser("trajectory", help="both middle teeth over one turn")
     common(p)
     p.add_argument("--step-deg", type=float, default=1.0, help="main-shaft angle step (deg)")
@@ -229,6 +324,12 @@ def main(argv=None) -> int:
     except (ParameterError, AssemblyError, CliError) as exc:
         print(f"sewtol: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        where = getattr(args, "out", None)
+        hint = (f"; finished chunks are saved in {where}/chunks: rerun the same command with "
+                "--resume" if where else "; nothing was saved (use --out DIR to keep chunks)")
+        print(f"sewtol: interrupted{hint}", file=sys.stderr)
+        return 130
     return 0
 
 

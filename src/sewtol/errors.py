@@ -10,7 +10,9 @@ class ParameterError(ValueError):
         self.field = field
         self.rule = rule
         self.value = value
-        super().__init__(f"{field}: {rule} (got {value!r})")
+        # a name typed with control characters is shown quoted, so the message stays one line
+        shown = field if str(field).isprintable() else repr(field)
+        super().__init__(f"{shown}: {rule} (got {value!r})")
 
 
 class AssemblyError(ValueError):

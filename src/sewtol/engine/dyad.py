@@ -17,9 +17,14 @@ from .motion import Motion
 
 @dataclass(frozen=True)
 class Closure:
-    """How well a dyad closes: miss_mm = 0 where it assembles, else the gap (mm) to closing."""
+    """How well a dyad closes: miss_mm = 0 where it assembles, else the gap (mm) to closing.
+
+    transmission_deg is the angle between the dyad's two links folded into [0, 90]: 0 is a
+    dead point, where the joint can pass to the other assembly (a branch flip).
+    """
 
     miss_mm: np.ndarray
+    transmission_deg: np.ndarray | None = None
 
     @property
     def ok(self) -> np.ndarray:
@@ -64,4 +69,6 @@ def rrr(p1: Motion, r1, p2: Motion, r2, branch) -> tuple[Motion, Closure]:
         (u1.conjugate() * p1.ddp).real - (w1.conjugate() * w1).real,
         (u2.conjugate() * p2.ddp).real - (w2.conjugate() * w2).real,
     )
-    return Motion(j, dj, ddj), Closure(np.broadcast_to(miss, j.shape))
+    sin_gamma = np.abs((u1.conjugate() * u2).imag) / (r1 * r2)
+    transmission = np.degrees(np.arcsin(np.minimum(sin_gamma, 1.0)))
+    return Motion(j, dj, ddj), Closure(np.broadcast_to(miss, j.shape), transmission)

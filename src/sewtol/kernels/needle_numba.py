@@ -23,6 +23,8 @@ FIELDS = ("AB", "BC", "BE", "CD", "CBE", "Ax", "Ay", "Dx", "Dy", "branch_C", "be
           "guide_x", "guide_y", "guide_angle", "guide_shift_um")
 _INVPHI = (math.sqrt(5.0) - 1.0) / 2.0
 N_CAND = 3
+# needle_208.DEAD_POINT_DEG as the sine the kernel compares with (kept equal by a test)
+SIN_DEAD_POINT = math.sin(math.radians(1.0))
 
 
 @nb.njit(cache=True, fastmath=False)
@@ -49,6 +51,8 @@ def _point(p, beta_deg, th):
     u1x, u1y = cx - bx, cy - by
     u2x, u2y = cx - dx, cy - dy
     det = u1x * u2y - u1y * u2x
+    if abs(det) < SIN_DEAD_POINT * BC * CD:  # dead point of B-C-D: counted as not running
+        return np.nan, np.nan, np.nan
     r1 = u1x * b1x + u1y * b1y
     c1x = (r1 * u2y) / det
     c1y = (-r1 * u2x) / det

@@ -18,6 +18,10 @@ from . import params as P
 
 DEG = np.pi / 180.0
 
+# a dyad closer than this to collinear is at a dead point (possible branch flip); checked on the
+# sampled cycle (single runs: every 0.5 deg; studies: the 720-point grid)
+DEAD_POINT_DEG = 1.0
+
 # dyads in the order of the chain: name, (first point, its link), (second point, its link), branch
 DYADS = ("O4-K-F", "D-B-A1", "O3-C-B", "M-N-E", "O6-R-C", "O8-V-S", "X-L-W", "O7-H-A2", "U-J-I")
 
@@ -121,11 +125,12 @@ def chains(c: dict, phi_rad) -> dict:
     """Every joint of both chains over phi; derivatives are d/dphi. Closures per dyad."""
     O1 = engine.fixed(0.0, 0.0)
     fx = engine.fixed
-    closure = {}
+    closure, transmission = {}, {}
 
     def dyad(name, p1, r1, p2, r2, branch):
         j, cl = engine.rrr(p1, r1, p2, r2, branch)
         closure[name] = cl.miss_mm
+        transmission[name] = cl.transmission_deg
         return j
 
     phi = engine.driving_angle(phi_rad)
@@ -170,7 +175,7 @@ def chains(c: dict, phi_rad) -> dict:
     Q2 = engine.on_body(L, f, c["tooth2_u"] + 1j * (c["slot_offset"] - c["tooth2_v"]))
     return {"F": F, "K": K, "M": M, "A1": A1, "D": D, "B": B, "C": C, "E": E, "N": N, "Q1": Q1,
             "R": R, "S": S, "V": V, "W": W, "L": L, "A2": A2, "H": H, "I": I, "J": J, "Y": Y,
-            "Q2": Q2, "holder_angle": f, "closure": closure}
+            "Q2": Q2, "holder_angle": f, "closure": closure, "transmission": transmission}
 
 
 def check_assembly(params: Feed131, phi_rad) -> None:
@@ -185,3 +190,13 @@ def check_assembly(params: Feed131, phi_rad) -> None:
             phi = float(np.degrees(np.ravel(phi_rad)[k]))
             raise AssemblyError(name, phi, float(np.ravel(miss)[k]), P.as_dict(params),
                                 "main-shaft angle phi")
+    for name, g in out["transmission"].items():
+        g = np.broadcast_to(g, np.shape(phi_rad))
+        k = int(np.nanargmin(g)) if np.ndim(g) else 0
+        if float(np.ravel(g)[k]) < DEAD_POINT_DEG:
+            raise AssemblyError(name, float(np.degrees(np.ravel(phi_rad)[k])), 0.0,
+                                P.as_dict(params),
+                                f"main-shaft angle phi; dead point: the links are "
+                                f"{float(np.ravel(g)[k]):.3f} deg from collinear "
+                                f"(< {DEAD_POINT_DEG:g}), the joint can flip to its other "
+                                "assembly (branch flip)")

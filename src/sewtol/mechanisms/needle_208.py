@@ -30,6 +30,9 @@ from . import params as P
 
 LENGTHS = ("LF", "LM", "AM", "AB", "BC", "BE", "CD")
 DEG = np.pi / 180.0
+# a dyad whose links come closer than this to collinear during the cycle is at a dead point,
+# where the real joint can flip to the other assembly: single runs refuse it, studies count it
+DEAD_POINT_DEG = 1.0
 
 
 @dataclass(frozen=True)
@@ -126,6 +129,42 @@ def rocker_interval(c):
     return lo, hi, miss, phi_fail
 
 
+def _transmission(r1, r2, s):
+    """Angle between links r1, r2 whose far ends are s apart, folded into [0, 90] deg."""
+    cos_g = np.clip((r1 * r1 + r2 * r2 - s * s) / (2 * r1 * r2), -1.0, 1.0)
+    g = np.degrees(np.arccos(cos_g))
+    return np.minimum(g, 180.0 - g)
+
+
+def transmission_extremes(c, lo, hi):
+    """Exact smallest transmission angle (deg) of L-M-A over a crank turn and of B-C-D over the
+    rocker interval, with the angle where it occurs (crank phi, rocker theta; rad).
+
+    The angle is monotonic in the distance between the dyad's outer points, so its smallest
+    value sits where that distance is extreme: |A - L| = |FA| -/+ LF, and |D - B| at the
+    interval ends or where B points at or away from D.
+    """
+    fa = np.hypot(c["Ax"], c["Ay"])
+    g_near = _transmission(c["LM"], c["AM"], fa - c["LF"])
+    g_far = _transmission(c["LM"], c["AM"], fa + c["LF"])
+    phi_a = np.arctan2(c["Ay"], c["Ax"])
+    g1 = np.minimum(g_near, g_far)
+    phi1 = np.where(g_near <= g_far, phi_a, phi_a + np.pi)
+    v = (c["Dx"] - c["Ax"]) + 1j * (c["Dy"] - c["Ay"])
+    off = _arm_angle(c)
+    g = np.angle(v)
+    t_near = lo + np.mod(g - off - lo, 2 * np.pi)
+    t_far = lo + np.mod(g - off + np.pi - lo, 2 * np.pi)
+    g2 = np.full(np.broadcast(lo, v).shape, np.inf)
+    t2 = np.zeros_like(g2)
+    for t in (lo, hi, np.where(t_near <= hi, t_near, lo), np.where(t_far <= hi, t_far, lo)):
+        gt = _transmission(c["BC"], c["CD"], np.abs(v - c["AB"] * np.exp(1j * (t + off))))
+        better = gt < g2
+        g2 = np.where(better, gt, g2)
+        t2 = np.where(better, t, t2)
+    return g1, phi1, g2, t2
+
+
 def second_dyad_miss(c, lo, hi):
     """How far dyad B-C-D is from closing over theta in [lo, hi], and the worst theta (rad)."""
     v = (c["Dx"] - c["Ax"]) + 1j * (c["Dy"] - c["Ay"])
@@ -194,3 +233,11 @@ def check_assembly(params: Needle208) -> None:
     if float(miss2) > 0:
         raise AssemblyError("B-C-D", np.degrees(float(t_fail)), float(miss2), P.as_dict(params),
                             "rocker angle theta = ang(A->M)")
+    g1, phi1, g2, t2 = transmission_extremes(c, lo, hi)
+    for group, gmin, at, what in (("L-M-A", g1, phi1, "crank angle"),
+                                  ("B-C-D", g2, t2, "rocker angle theta = ang(A->M)")):
+        if float(gmin) < DEAD_POINT_DEG:
+            raise AssemblyError(group, np.degrees(float(at)) % 360, 0.0, P.as_dict(params),
+                                f"{what}; dead point: the links are {float(gmin):.3f} deg from "
+                                f"collinear (< {DEAD_POINT_DEG:g}), the joint can flip to its "
+                                "other assembly (branch flip)")

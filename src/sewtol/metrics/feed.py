@@ -37,10 +37,14 @@ class DogFigures:
 
 
 def _tooth(c, phi, key):
+    """The tooth, and per point how far the chain is from running: the largest dyad gap (mm),
+    or inf at a dead point (a dyad within DEAD_POINT_DEG of collinear)."""
     out = fd.chains(c, phi)
     miss = np.zeros(np.shape(out[key].p))
     for m in out["closure"].values():
         miss = np.maximum(miss, m)
+    for g in out["transmission"].values():
+        miss = np.where(g < fd.DEAD_POINT_DEG, np.inf, miss)
     return out[key], miss
 
 

@@ -39,21 +39,35 @@ def with_values(c: dict, **cols) -> dict:
 
 @dataclass(frozen=True)
 class Feasibility:
-    """Per machine: can it run (first dyad over a full turn, second over the rocker interval)?"""
+    """Per machine: can it run (first dyad over a full turn, second over the rocker interval),
+    and does either dyad pass a dead point (a possible branch flip)?"""
 
     ok: np.ndarray
     miss_LMA_mm: np.ndarray
     miss_BCD_mm: np.ndarray
     lo: np.ndarray
     hi: np.ndarray
+    transmission_LMA_deg: np.ndarray
+    transmission_BCD_deg: np.ndarray
+
+    @property
+    def dead_point(self) -> np.ndarray:
+        closes = (self.miss_LMA_mm == 0) & (self.miss_BCD_mm == 0)
+        return closes & ((self.transmission_LMA_deg < nd.DEAD_POINT_DEG)
+                         | (self.transmission_BCD_deg < nd.DEAD_POINT_DEG))
 
 
+@np.errstate(invalid="ignore")
 def feasibility(c) -> Feasibility:
     lo, hi, miss1, _ = nd.rocker_interval(c)
     miss2, _ = nd.second_dyad_miss(c, lo, hi)
     miss2 = np.where(np.isnan(miss2), np.inf, miss2)
-    ok = (miss1 == 0) & (miss2 == 0)
-    return Feasibility(ok.ravel(), miss1.ravel(), miss2.ravel(), lo.ravel(), hi.ravel())
+    g1, _, g2, _ = nd.transmission_extremes(c, lo, hi)
+    g1 = np.where(np.isnan(g1), 0.0, g1)
+    g2 = np.where(np.isnan(g2), 0.0, g2)
+    ok = (miss1 == 0) & (miss2 == 0) & (g1 >= nd.DEAD_POINT_DEG) & (g2 >= nd.DEAD_POINT_DEG)
+    return Feasibility(ok.ravel(), miss1.ravel(), miss2.ravel(), lo.ravel(), hi.ravel(),
+                       np.broadcast_to(g1, lo.shape).ravel(), g2.ravel())
 
 
 def projection_extremes(c, w, lo, hi) -> Extremes:

@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from ..errors import ParameterError
 from ..tolerances import ToleranceSet
 from . import beta as sb
 from .needle_eval import evaluate
@@ -28,14 +29,13 @@ def _chunk(model, nominal, tolerances: ToleranceSet, rng, m: int, kwargs):
 
 def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
                     n_jobs: int = 1, progress: bool = False, backend: str | None = None,
-                    chunk_size: int = CHUNK, desc: str = "Monte-Carlo", **kwargs) -> pd.DataFrame:
+                    chunk_size: int = CHUNK, desc: str = "Monte-Carlo", store=None,
+                    **kwargs) -> pd.DataFrame:
     """Deviations and model outputs of n machines, one row each (generic over mechanisms).
 
     model(nominal, deviations, **kwargs) returns a dict of output arrays. Chunk i of the fixed
     chunk_size draws from child i of the seed, so any n_jobs gives the same rows.
     """
-    from ..errors import ParameterError
-
     if int(n) != n or n < 2:
         raise ParameterError("n", "must be a whole number >= 2", n)
     tol = tolerances.active()
@@ -46,7 +46,7 @@ def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
     rngs = child_generators(seed, len(bounds))
     parts = run_chunks(_chunk, [(model, nominal, tol, r, b - a, kwargs)
                                 for r, (a, b) in zip(rngs, bounds, strict=True)],
-                       n_jobs=n_jobs, progress=progress, desc=desc, backend=backend)
+                       n_jobs=n_jobs, progress=progress, desc=desc, backend=backend, store=store)
     frames = []
     for dev, out in parts:
         f = pd.DataFrame(dict(dev))
@@ -134,6 +134,8 @@ class MonteCarloResult:
     def capability(self, case: str) -> dict:
         """Cpu = (USL - mean) / 3 sigma, and the percentile form (USL - p50) / (p99.865 - p50)."""
         x = self.machines[f"total_{case}_um"].dropna().to_numpy()
+        if x.size < 2:  # (almost) every machine failed: no scatter to speak of
+            return {"Cpu": float("nan"), "Cpu_percentile": float("nan")}
         mean, sd = float(np.mean(x)), float(np.std(x, ddof=1))
         p50, p99865 = np.quantile(x, [0.5, 0.99865])
         return {"Cpu": (self.limit_um - mean) / (3 * sd) if sd > 0 else float("inf"),
@@ -176,10 +178,18 @@ class MonteCarloResult:
 
 def montecarlo(nominal, tolerances: ToleranceSet, n: int, seed: int, limit_um: float = 10.0,
                range_deg=sb.DEFAULT_RANGE_DEG, n_jobs: int = 1, progress: bool = False,
-               backend: str | None = None, chunk_size: int = CHUNK) -> MonteCarloResult:
-    """N machines in chunks of chunk_size, chunk i drawing from child i of the seed."""
+               backend: str | None = None, chunk_size: int = CHUNK,
+               store=None) -> MonteCarloResult:
+    """N machines in chunks of chunk_size, chunk i drawing from child i of the seed.
+
+    With a ChunkStore (studies.checkpoint) finished chunks are saved as they arrive and an
+    interrupted study resumes without recomputing them.
+    """
+    if not (np.isfinite(limit_um) and limit_um > 0):
+        raise ParameterError("limit_um", "must be a positive number of um", limit_um)
+    sb.check_range(range_deg, limit_um)
     machines = sample_machines(_needle_model, nominal, tolerances, n, seed, n_jobs, progress,
-                               backend, chunk_size, range_deg=range_deg)
+                               backend, chunk_size, store=store, range_deg=range_deg)
     return MonteCarloResult(machines, tuple(tolerances.active().params), tolerances.name,
                             int(seed), float(limit_um), float(nominal.beta),
                             tuple(map(float, range_deg)))

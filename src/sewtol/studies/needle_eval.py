@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ParameterError
+from ..mechanisms import needle_208 as nd
 from ..mechanisms import params as P
 from ..metrics import needle as nm
 from . import beta as sb
@@ -59,7 +60,8 @@ def _evaluate_numba(c, m, adjust, range_deg, grid_step_deg):
     packed = K.pack(c)
     # the rocker interval depends on the first four-bar only (not on beta)
     rocker = nm.feasibility(c)
-    r_lo = np.where(np.isfinite(rocker.miss_LMA_mm) & (rocker.miss_LMA_mm == 0), rocker.lo, np.nan)
+    first_ok = (rocker.miss_LMA_mm == 0) & (rocker.transmission_LMA_deg >= nd.DEAD_POINT_DEG)
+    r_lo = np.where(first_ok, rocker.lo, np.nan)
     r_hi = np.where(np.isnan(r_lo), np.nan, rocker.hi)
     fixed_ok = rocker.ok
     dev = K.deviation_batch(packed, c["beta"][:, 0].copy(), np.where(fixed_ok, r_lo, np.nan),

@@ -106,14 +106,15 @@ def _needle_chunk(nominal, names, X, range_deg):
 def needle_sobol(nominal, tolerances: ToleranceSet, n: int, seed: int,
                  range_deg=sb.DEFAULT_RANGE_DEG, n_jobs: int = 1, progress: bool = False,
                  backend: str | None = None, resamples: int = 200,
-                 chunk_size: int = 1000) -> SobolResult:
+                 chunk_size: int = 1000, store=None) -> SobolResult:
     """Sobol indices of SumDelta, beta fixed and beta adjusted, at n and n/2 base samples."""
     problem = problem_of(tolerances)
     X = sample(problem, n, seed)
     bounds = chunk_bounds(len(X), chunk_size)
     parts = run_chunks(_needle_chunk, [(nominal, problem["names"], X[a:b], range_deg)
                                        for a, b in bounds],
-                       n_jobs=n_jobs, progress=progress, desc="Sobol", backend=backend)
+                       n_jobs=n_jobs, progress=progress, desc="Sobol", backend=backend,
+                       store=store)
     y_fixed = np.concatenate([p[0] for p in parts])
     y_adj = np.concatenate([p[1] for p in parts])
     frames, convs = [], []
