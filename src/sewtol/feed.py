@@ -158,14 +158,7 @@ def default_tolerances(params: Feed131 | None = None, link_mm: float = 0.05,
 
 def scan(params: Feed131, tolerances: ToleranceSet) -> pd.DataFrame:
     """Each tolerance at its limits, others nominal: feed steps and ratio, and their changes."""
-    names, sides, deltas = [], [], []
-    for t in tolerances.items:
-        for side, d in (("upper", t.upper), ("lower", t.lower)):
-            names.append(t.param)
-            sides.append(side)
-            deltas.append(d)
-    dev = {k: np.array([d if p == k else 0.0 for p, d in zip(names, deltas, strict=True)])
-           for k in dict.fromkeys(names)}
+    names, sides, deltas, dev = tolerances.limit_variants()
     out = outputs(params, dev)
     nom = outputs(params, {})
     frame = pd.DataFrame({"param": names, "side": sides, "delta_mm": deltas, **out})

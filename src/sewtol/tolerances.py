@@ -101,6 +101,19 @@ class ToleranceSet:
         u = rng.random((n, len(self.items)))
         return {t.param: t.from_unit(u[:, i]) for i, t in enumerate(self.items)}
 
+    def limit_variants(self) -> tuple[list[str], list[str], list[float], dict[str, np.ndarray]]:
+        """One machine per tolerance and side (upper, then lower), the others nominal:
+        (param, side, deviation) per machine and the deviations as a batch."""
+        params, sides, deltas = [], [], []
+        for t in self.items:
+            for side, d in (("upper", t.upper), ("lower", t.lower)):
+                params.append(t.param)
+                sides.append(side)
+                deltas.append(d)
+        dev = {k: np.array([d if p == k else 0.0 for p, d in zip(params, deltas, strict=True)])
+               for k in dict.fromkeys(params)}
+        return params, sides, deltas, dev
+
     def scaled(self, factors: dict[str, float]) -> ToleranceSet:
         return ToleranceSet(self.name, tuple(
             Tolerance(t.param, t.lower * factors.get(t.param, 1.0),

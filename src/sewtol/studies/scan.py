@@ -39,15 +39,7 @@ class ScanResult:
 def scan(nominal, tolerances: ToleranceSet, guide_shift_um: float = 0.0,
          limit_um: float = sb.DEFAULT_LIMIT_UM, range_deg=sb.DEFAULT_RANGE_DEG) -> ScanResult:
     base = nominal.override(guide_shift_um=guide_shift_um)
-    params, sides, deltas = [], [], []
-    for t in tolerances.items:
-        for side, d in (("upper", t.upper), ("lower", t.lower)):
-            params.append(t.param)
-            sides.append(side)
-            deltas.append(d)
-    names = sorted(set(params), key=params.index)
-    dev = {k: np.array([d if p == k else 0.0 for p, d in zip(params, deltas, strict=True)])
-           for k in names}
+    params, sides, deltas, dev = tolerances.limit_variants()
     batch = P.with_deviations(base, dev)
     opt = sb.optimise_beta(batch, range_deg, limit_um, window=False)
     values = [float(np.asarray(getattr(batch, p))[i]) for i, p in enumerate(params)]
