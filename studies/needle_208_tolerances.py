@@ -2,7 +2,7 @@
 guide comparison. Writes reports/needle_208/ tables (CSV + Markdown), plots and index.md.
 
     python studies/needle_208_tolerances.py [--out reports] [--seed 2026] [--n-mc 10000]
-        [--n-sobol 1024] [--n-jobs 1] [--progress]
+        [--n-sobol 4096] [--n-jobs 1] [--progress]
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ def main(argv=None) -> None:
     ap.add_argument("--out", default="reports")
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--n-mc", type=int, default=10000)
-    ap.add_argument("--n-sobol", type=int, default=1024)
+    ap.add_argument("--n-sobol", type=int, default=4096)
     ap.add_argument("--n-alloc", type=int, default=2000)
     ap.add_argument("--n-guides", type=int, default=2000)
     ap.add_argument("--n-jobs", type=int, default=1)

@@ -204,3 +204,18 @@ def test_unassemblable_machine_says_which_dyad_and_angle(nominal):
     # the crank pin farthest from A is |FA| + LF away; the links reach LM + AM
     fa = np.hypot(nominal.Ax, nominal.Ay)
     assert exc.value.miss_mm == pytest.approx(fa + 6.75 - (30.0 + 17.0), abs=1e-12)
+
+
+def test_rerunning_the_calibration_reproduces_the_stored_geometry():
+    from sewtol.mechanisms.needle_208 import load_nominal_record
+    from sewtol.studies import needle_calibration as cal
+
+    record = load_nominal_record()
+    fit = cal.calibrate()
+    stored = record["provenance"]["frame_x"]
+    for k, v in zip(("Ax", "Ay", "AD", "AD_angle_deg"), fit.x, strict=True):
+        assert abs(v - stored[k]) < 1e-6, k
+    for k, v in fit.values.items():
+        assert abs(v - record["provenance"]["achieved"][k]) < 1e-5, k
+    for k in ("Ax", "Ay", "Dx", "Dy", "guide_x", "guide_y", "guide_angle", "beta"):
+        assert abs(getattr(fit.machine, k) - record["params"][k]) < 1e-6, k
