@@ -92,7 +92,7 @@ def main(argv=None) -> None:
     contrib = feed.contributor_table(mc, ts)
     write_table(contrib, out, "contributors", "Contributors (bias-corrected eta^2) per output",
                 tset)
-    top = list(dict.fromkeys(contrib[contrib.output == "lower_step_mm"]["param"]).keys())[:8]
+    top = contrib[contrib.output == "lower_step_mm"]["param"].tolist()[:8]
     sub = ToleranceSet("top8", tuple(t for t in ts.items if t.param in top), ts.description)
     problem = problem_of(sub)
     frames = []

@@ -193,8 +193,8 @@ def resolve(name_or_path: str, builtin: dict[str, ToleranceSet],
     """A built-in set by name, or 'file.toml' (its only set) / 'file.toml:NAME'."""
     if name_or_path in builtin:
         return builtin[name_or_path]
-    path, _, set_name = name_or_path.partition(".toml")
-    if not _ and name_or_path not in builtin:
+    path, suffix, set_name = name_or_path.partition(".toml")
+    if not suffix:
         raise ParameterError("--tolerances", f"must be one of {', '.join(builtin)} or a .toml "
                              "file", name_or_path)
     sets = load_toml(path + ".toml", valid_params)

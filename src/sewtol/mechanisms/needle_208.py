@@ -129,6 +129,21 @@ def rocker_interval(c):
     return lo, hi, miss, phi_fail
 
 
+def _bd_extreme_distances(c, lo, hi):
+    """(theta, |D - B|) at every rocker angle where |D - B| can be extreme on [lo, hi]: the
+    interval ends and, if inside, where B points at D or away from it.
+
+    |D - B|^2 = AD^2 + AB^2 - 2 AB AD cos(theta + off - ang(A->D)), so those are the only places.
+    """
+    v = (c["Dx"] - c["Ax"]) + 1j * (c["Dy"] - c["Ay"])
+    g = np.angle(v)
+    off = _arm_angle(c)
+    t_near = lo + np.mod(g - off - lo, 2 * np.pi)
+    t_far = lo + np.mod(g - off + np.pi - lo, 2 * np.pi)
+    ts = (lo, hi, np.where(t_near <= hi, t_near, lo), np.where(t_far <= hi, t_far, lo))
+    return [(t, np.abs(v - c["AB"] * np.exp(1j * (t + off)))) for t in ts]
+
+
 def _transmission(r1, r2, s):
     """Angle between links r1, r2 whose far ends are s apart, folded into [0, 90] deg."""
     cos_g = np.clip((r1 * r1 + r2 * r2 - s * s) / (2 * r1 * r2), -1.0, 1.0)
@@ -150,15 +165,11 @@ def transmission_extremes(c, lo, hi):
     phi_a = np.arctan2(c["Ay"], c["Ax"])
     g1 = np.minimum(g_near, g_far)
     phi1 = np.where(g_near <= g_far, phi_a, phi_a + np.pi)
-    v = (c["Dx"] - c["Ax"]) + 1j * (c["Dy"] - c["Ay"])
-    off = _arm_angle(c)
-    g = np.angle(v)
-    t_near = lo + np.mod(g - off - lo, 2 * np.pi)
-    t_far = lo + np.mod(g - off + np.pi - lo, 2 * np.pi)
-    g2 = np.full(np.broadcast(lo, v).shape, np.inf)
+    candidates = _bd_extreme_distances(c, lo, hi)
+    g2 = np.full(np.shape(candidates[0][1]), np.inf)
     t2 = np.zeros_like(g2)
-    for t in (lo, hi, np.where(t_near <= hi, t_near, lo), np.where(t_far <= hi, t_far, lo)):
-        gt = _transmission(c["BC"], c["CD"], np.abs(v - c["AB"] * np.exp(1j * (t + off))))
+    for t, dist in candidates:
+        gt = _transmission(c["BC"], c["CD"], dist)
         better = gt < g2
         g2 = np.where(better, gt, g2)
         t2 = np.where(better, t, t2)
@@ -167,18 +178,10 @@ def transmission_extremes(c, lo, hi):
 
 def second_dyad_miss(c, lo, hi):
     """How far dyad B-C-D is from closing over theta in [lo, hi], and the worst theta (rad)."""
-    v = (c["Dx"] - c["Ax"]) + 1j * (c["Dy"] - c["Ay"])
-    ad = np.abs(v)
-    g = np.angle(v)
-    off = _arm_angle(c)
-    # |D - B|^2 = AD^2 + AB^2 - 2 AB AD cos(theta + off - g): closest at theta = g - off (mod 2pi)
-    t_near = lo + np.mod(g - off - lo, 2 * np.pi)
-    t_far = lo + np.mod(g - off + np.pi - lo, 2 * np.pi)
-    ts = [lo, hi, np.where(t_near <= hi, t_near, lo), np.where(t_far <= hi, t_far, lo)]
-    worst_miss = np.zeros(np.broadcast(lo, ad).shape)
+    candidates = _bd_extreme_distances(c, lo, hi)
+    worst_miss = np.zeros(np.shape(candidates[0][1]))
     worst_t = np.broadcast_to(lo, worst_miss.shape).astype(float)
-    for t in ts:
-        dist = np.abs(v - c["AB"] * np.exp(1j * (t + off)))
+    for t, dist in candidates:
         miss = np.maximum(np.maximum(dist - (c["BC"] + c["CD"]), np.abs(c["BC"] - c["CD"]) - dist), 0)
         worse = miss > worst_miss
         worst_miss = np.where(worse, miss, worst_miss)

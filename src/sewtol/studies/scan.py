@@ -66,24 +66,20 @@ def largest_tolerances(nominal, params: list[str], limit_um: float = sb.DEFAULT_
     c0, _ = nm.columns(base)
     grid = np.geomspace(1e-3, max_mm, 25)
     jobs = [(p, s) for p in params for s in (1.0, -1.0)]
+    jm = len(jobs)
 
     def totals(deltas):
+        """SumDelta(beta*) of machine k = job k % jm at |deviation| deltas[k]."""
         deltas = np.asarray(deltas, float)
-        c = nm.repeat(c0, deltas.size)
-        for k, (p, s) in enumerate(jobs * (deltas.size // len(jobs))):
-            c[p] = c[p].copy()
-            c[p][k, 0] = c[p][k, 0] + s * deltas[k]
+        c = nm.repeat(c0, deltas.size)  # fresh arrays, safe to change in place
+        job = np.arange(deltas.size) % jm
+        for j, (p, s) in enumerate(jobs):
+            rows = job == j
+            c[p][rows, 0] = c[p][rows, 0] + s * deltas[rows]
         return sb.optimise_beta_columns(c, range_deg, limit_um, window=False).total_um
 
-    # grid: all jobs at every grid value in one batch
-    jm = len(jobs)
-    flat = np.repeat(grid, jm)
-    c = nm.repeat(c0, flat.size)
-    for k in range(flat.size):
-        p, s = jobs[k % jm]
-        c[p][k, 0] = c[p][k, 0] + s * flat[k]
-    tot = sb.optimise_beta_columns(c, range_deg, limit_um, window=False).total_um
-    tot = tot.reshape(grid.size, jm)
+    # grid: every job at every grid value in one batch
+    tot = totals(np.repeat(grid, jm)).reshape(grid.size, jm)
     exceed = ~(tot <= limit_um)
     first = np.where(exceed.any(axis=0), exceed.argmax(axis=0), -1)
     lo = np.where(first > 0, grid[np.maximum(first - 1, 0)], 0.0)
