@@ -1,18 +1,25 @@
-# Two commands for a newcomer: `make report` and `make test`. Both build .venv from scratch if needed.
+# Two commands for a newcomer: `make report` and `make test`. Both build .venv from the committed
+# lock (requirements.lock: exact versions and hashes for every platform and Python >= 3.11).
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+LOCK := requirements.lock
 REPORTS ?= reports
+# the narrowed CPU dispatch under which CI repeats the numerically sensitive tests: another
+# OpenBLAS kernel set, numpy's SIMD dispatch without AVX-512, numba compiled for a generic CPU
+NARROWED := OPENBLAS_CORETYPE=Prescott NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL AVX512_SPR" \
+	NUMBA_CPU_NAME=generic
 
-.PHONY: report test lint bench clean
+.PHONY: report test test-narrowed test-latest lint bench lock clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
-$(STAMP): pyproject.toml | $(BIN)/python
-	$(BIN)/python -m pip install --quiet -e ".[test]"
+$(STAMP): pyproject.toml $(LOCK) | $(BIN)/python
+	$(BIN)/python -m pip install --quiet --require-hashes -r $(LOCK)
+	$(BIN)/python -m pip install --quiet --no-deps -e .
 	touch $(STAMP)
 
 report: $(STAMP)
@@ -21,16 +28,43 @@ report: $(STAMP)
 	$(BIN)/python studies/needle_208_tolerances.py --out $(REPORTS) --n-jobs 2 --progress
 	$(BIN)/python studies/feed_131_report.py --out $(REPORTS) --n-jobs 2 --progress
 
-test: $(STAMP)
+lint: $(STAMP)
 	$(BIN)/ruff check src tests studies $(wildcard benchmarks)
+
+test: lint
 	$(BIN)/python -m pytest -q
+
+# the numerically sensitive tests again, under another CPU's kernels (see docs/reproducibility.md)
+test-narrowed: $(STAMP)
+	$(NARROWED) $(BIN)/python -m pytest -q -m numerics -p no:cacheprovider
+
+# the suite against the newest versions pyproject.toml allows (no lock): warns of a breaking
+# release the day it appears; CI runs it without letting it block the locked run
+LATEST := .venv-latest
+test-latest:
+	rm -rf $(LATEST)
+	$(PYTHON) -m venv $(LATEST)
+	$(LATEST)/bin/python -m pip install --quiet --upgrade pip
+	$(LATEST)/bin/python -m pip install --quiet --upgrade -e ".[test]"
+	$(LATEST)/bin/python -m pip list --format=freeze | grep -iE '^(numpy|scipy|pandas|numba|salib|joblib|distributed)=='
+	$(LATEST)/bin/python -m pytest -q -p no:cacheprovider
+
+# refresh the lock: uv resolves once for every platform and Python >= 3.11 (one version of each
+# package where possible); pip installs it with hash checking, so users need no extra tool
+lock:
+	$(PYTHON) -m venv .venv-lock
+	.venv-lock/bin/python -m pip install --quiet uv==0.13.8
+	.venv-lock/bin/uv pip compile pyproject.toml --extra test --universal --python-version 3.11 \
+		--fork-strategy fewest --generate-hashes -o $(LOCK)
 
 # The benchmarks run in their own venv so the peer (pylinkage) is never a dependency of sewtol.
 BENCH := .venv-bench
-$(BENCH)/.installed: pyproject.toml
+$(BENCH)/.installed: pyproject.toml $(LOCK)
 	$(PYTHON) -m venv $(BENCH)
 	$(BENCH)/bin/python -m pip install --quiet --upgrade pip
-	$(BENCH)/bin/python -m pip install --quiet -e . "pylinkage>=1.3"
+	$(BENCH)/bin/python -m pip install --quiet --require-hashes -r $(LOCK)
+	$(BENCH)/bin/python -m pip install --quiet --no-deps -e .
+	$(BENCH)/bin/python -m pip install --quiet "pylinkage==1.3.*"
 	touch $@
 
 bench: $(BENCH)/.installed
@@ -38,4 +72,4 @@ bench: $(BENCH)/.installed
 	$(BENCH)/bin/python benchmarks/studies.py --json
 
 clean:
-	rm -rf $(VENV) $(BENCH) .pytest_cache .hypothesis build src/*.egg-info
+	rm -rf $(VENV) $(BENCH) $(LATEST) .venv-lock .pytest_cache .hypothesis build src/*.egg-info
