@@ -67,3 +67,16 @@ def test_nominal_report_matches_the_committed_one_at_printed_precision(regenerat
         new = (regenerated / f"{name}.{ext}").read_text()
         old = (ROOT / "reports" / "needle_208" / f"{name}.{ext}").read_text()
         assert compare_printed(new, old) == [], f"{name}.{ext}"
+
+
+def test_csv_resolution_follows_the_unit_in_the_column_name():
+    import pandas as pd
+
+    from sewtol.reports.tables import to_csv, unit_of
+
+    assert [unit_of(c) for c in ("d_um_at_beta_opt", "SumDelta (um)", "beta* (deg)",
+                                 "deviation (mm)", "yield", "S1")] == ["um", "um", "deg", "mm",
+                                                                       None, None]
+    frame = pd.DataFrame({"total_um": [1.23456789012], "beta_deg": [22.58487993361],
+                          "p_fail": [4.1666666667e-6]})
+    assert to_csv(frame).splitlines()[1] == "1.234568,22.5848799,4.16666667e-06"

@@ -7,6 +7,7 @@ as '#' comment lines, so a table read alone still says where it came from.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pandas as pd
@@ -34,10 +35,13 @@ def to_markdown(frame: pd.DataFrame, title: str, settings: dict | None = None,
 DECIMALS_BY_UNIT = {"um": 6, "mm": 9, "deg": 7}
 
 
+_UNIT = re.compile(r"(?:_|\()(um|mm|deg)(?:_|\)|$)")
+
+
 def unit_of(column: str) -> str | None:
-    """The unit a column name carries as one of its '_' parts (d_um_at_beta_opt -> um)."""
-    parts = str(column).split("_")
-    return next((u for u in DECIMALS_BY_UNIT if u in parts[1:]), None)
+    """The unit a column name carries: d_um_at_beta_opt -> um, "SumDelta (um)" -> um."""
+    m = _UNIT.search(str(column))
+    return m.group(1) if m else None
 
 
 def _printable(frame: pd.DataFrame) -> pd.DataFrame:
