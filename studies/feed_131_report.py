@@ -50,6 +50,22 @@ def main(argv=None) -> None:
                  "horizontal mismatch while both grip (mm)": f"{m.mismatch_mm:.4f} over "
                  f"{m.overlap_deg:.1f} deg",
                  "units": "mm and deg; rise: lower above the plate, upper below plate + material"})
+    res = feed.readoff_residuals(p)
+    wide = res.wide()
+    write_table(wide, out, "readoffs", "The source's plot read-offs against the model, residual "
+                "(model - source) under each explanation a careful reader would test",
+                {**settings, "read-offs": "../shared/design/feed_131-42-3.md (thesis plots: lower "
+                 "top point, upper bottom point of the middle tooth)",
+                 "residuals": "phases wrapped to (-180, 180] deg; steps compared as lengths "
+                 "|T|, their sense as feed_direction (+1 forward, -1 reverse); NaN: the tooth "
+                 "never crosses that level"}, floatfmt=".3f")
+    write_table(res.summary(), out, "readoff_explanations",
+                "Each explanation: what it changes and its largest residuals per dog",
+                {**settings, **{e.name: (", ".join(f"{k} = {v:g}" for k, v in e.changes.items())
+                                         or "no change") + (f"; upper read on the side "
+                                                            f"{e.upper_side} the plate"
+                                                            if e.upper_side else "")
+                                for e in res.explanations}}, floatfmt=".3f")
     traj = feed.trajectory(p, 1.0)
     write_table(traj, out, "trajectory", "Middle-tooth paths over one turn", settings)
     f, ax = plt.subplots(figsize=(6, 5))
@@ -122,6 +138,8 @@ def main(argv=None) -> None:
         f"use an assumed set ({ts.description}), seed {args.seed}.",
         "",
         "- [figures.md](figures.md), [trajectory.md](trajectory.md), tooth_paths.png, xy_vs_phi.png",
+        "- [readoffs.md](readoffs.md), [readoff_explanations.md](readoff_explanations.md): the "
+        "source's read-offs against the model under each explanation",
         "- [regulator.md](regulator.md), regulator.png, "
         "[regulator_ratio_band.md](regulator_ratio_band.md)",
         "- [scan.md](scan.md), [montecarlo.md](montecarlo.md), [contributors.md](contributors.md),"
