@@ -168,9 +168,10 @@ def scan(params: Feed131, tolerances: ToleranceSet) -> pd.DataFrame:
 
 
 def montecarlo(params: Feed131, tolerances: ToleranceSet, n: int, seed: int, n_jobs: int = 1,
-               progress: bool = False) -> pd.DataFrame:
+               progress=False, scheduler=None) -> pd.DataFrame:
+    """Feed outputs of n machines (sample_machines: progress bar or callback, Dask cluster)."""
     return sample_machines(outputs, params, tolerances, n, seed, n_jobs, progress,
-                           desc="feed Monte-Carlo")
+                           desc="feed Monte-Carlo", scheduler=scheduler)
 
 
 def montecarlo_summary(machines: pd.DataFrame) -> pd.DataFrame:
