@@ -1,7 +1,7 @@
 """Feed chains of the 131-42+3: figures, tooth paths, regulator and tolerance studies.
 
     python studies/feed_131_report.py [--out reports] [--seed 2026] [--n-mc 2000]
-        [--n-sobol 256] [--n-jobs 1]
+        [--n-sobol 256] [--n-jobs 1 | --scheduler tcp://host:8786] [--progress]
 
 Writes reports/feed_131-42-3/ (tables as CSV + Markdown, PNG plots, index.md).
 """
@@ -35,6 +35,8 @@ def main(argv=None) -> None:
     ap.add_argument("--n-sobol", type=int, default=256)
     ap.add_argument("--n-jobs", type=int, default=1)
     ap.add_argument("--progress", action="store_true")
+    ap.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                    help="run the Monte-Carlo on a Dask cluster (same tables)")
     args = ap.parse_args(argv)
     started = now()
     out = Path(args.out) / "feed_131-42-3"
@@ -102,7 +104,8 @@ def main(argv=None) -> None:
     write_table(sc.reset_index(drop=True), out, "scan",
                 "Per-parameter scan of the feed (sorted by |change of the lower step|)", tset,
                 floatfmt=".5f")
-    mc = feed.montecarlo(p, ts, args.n_mc, args.seed, n_jobs=args.n_jobs, progress=args.progress)
+    mc = feed.montecarlo(p, ts, args.n_mc, args.seed, n_jobs=args.n_jobs, progress=args.progress,
+                         scheduler=args.scheduler)
     write_table(feed.montecarlo_summary(mc), out, "montecarlo",
                 f"Monte-Carlo of {args.n_mc} feed mechanisms", tset, floatfmt=".5f")
     contrib = feed.contributor_table(mc, ts)
