@@ -263,12 +263,12 @@ def test_readoff_explanations(readoffs):
 
 
 def test_fitted_upper_phase_is_the_brute_force_optimum(readoffs):
-    """The fitted phase of 'upper phi + c' against an independent 0.25 deg scan."""
+    """The fitted phase of 'upper phi + c' against an independent 0.5 deg scan."""
     from sewtol.metrics.feed import dog_figures
 
     name = next(e for e in readoffs.explanations if e.name.startswith("upper phi +")
                 and e.changes.get("upper_phase") is not None)
-    grid = np.arange(0.0, 360.0, 0.25)
+    grid = np.arange(0.0, 360.0, 0.5)
     c, _ = feed.columns(Feed131(upper_sense=1.0, upper_phase=grid))
     f = dog_figures(c, "upper")
     mis = np.max(np.abs([(getattr(f, k) - v + 180) % 360 - 180 for k, v in
@@ -278,3 +278,32 @@ def test_fitted_upper_phase_is_the_brute_force_optimum(readoffs):
         name.name, "upper_max_phase_residual_deg"]
     assert fitted <= np.nanmin(mis) + 1e-6
     assert abs(name.changes["upper_phase"] - grid[np.nanargmin(mis)]) < 0.5
+
+
+def test_feed_sobol_each_output_over_its_own_parameters():
+    from sewtol.studies.sobol import problem_of, sobol_indices
+
+    p = Feed131()
+    ts = feed.default_tolerances()
+    mc = feed.montecarlo(p, ts, 200, seed=3)
+    res, chosen = feed.sobol(p, ts, 8, seed=5, machines=mc, chunk_size=20,
+                             outputs_=("lower_step_mm", "differential_ratio"))
+    # the ratio's own contributors, not the lower step's
+    for output, names in chosen.items():
+        eta = feed.contributors(mc, ts.active().params, output)
+        assert names == eta["param"].tolist()[:len(names)]
+        assert 4 <= len(names) <= 12
+    assert chosen["differential_ratio"] != chosen["lower_step_mm"]
+    # the chunked run equals SALib on the whole sample in one call, output by output
+    for output, names in chosen.items():
+        sub = ts.active()
+        sub = type(sub)(sub.name, tuple(t for t in sub.items if t.param in names),
+                        sub.description)
+        problem = problem_of(sub)
+        ref, conv, _ = sobol_indices(
+            lambda X, o=output, pn=problem["names"]: feed.outputs(
+                p, {k: X[:, i] for i, k in enumerate(pn)})[o], problem, 8, 5, case=output)
+        got = res.indices[res.indices.case == output].reset_index(drop=True)
+        assert np.allclose(got[["S1", "ST"]].to_numpy(), ref[["S1", "ST"]].to_numpy(),
+                           atol=1e-12, equal_nan=True)
+    assert list(res.convergence["case"]) == ["lower_step_mm", "differential_ratio"]

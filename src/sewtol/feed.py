@@ -374,3 +374,55 @@ def readoff_residuals(params: Feed131 | None = None,
             rows.append({"explanation": e.name, "dog": dog, "figure": fig, "source": src,
                          "model": model, "residual": res})
     return ReadoffResiduals(pd.DataFrame(rows), tuple(explanations))
+
+
+# --- Sobol indices of the feed, each output over the tolerances that matter to it ----------
+
+SOBOL_OUTPUTS = ("lower_step_mm", "upper_step_mm", "differential_ratio")
+
+
+def important_parameters(machines: pd.DataFrame, tolerances: ToleranceSet, output: str,
+                         share: float = 0.9, min_params: int = 4,
+                         max_params: int = 12) -> list[str]:
+    """The tolerances that matter to `output`, from a Monte-Carlo's bias-corrected eta^2
+    (`contributors`): in falling order until they hold `share` of the summed first-order
+    effects, at least min_params and at most max_params."""
+    f = contributors(machines, tolerances.active().params, output)
+    k = int(np.searchsorted(f["cumulative_pct"].to_numpy(), 100.0 * share) + 1)
+    return f["param"].tolist()[:min(max(k, min_params), max_params, len(f))]
+
+
+def _sobol_chunk(params: Feed131, names, X, output):
+    return outputs(params, {k: X[:, i] for i, k in enumerate(names)})[output]
+
+
+def sobol(params: Feed131, tolerances: ToleranceSet, n: int, seed: int, machines: pd.DataFrame,
+          outputs_: tuple[str, ...] = SOBOL_OUTPUTS, n_jobs: int = 1, progress=False,
+          scheduler=None, chunk_size: int = 512, resamples: int = 200, **select):
+    """Sobol indices (SALib) of each feed output over its own important parameters (chosen
+    from `machines`, a Monte-Carlo of the same set; `select` goes to important_parameters),
+    at n and n / 2 base samples (the convergence table). Chunks run like every study
+    (n_jobs, progress, scheduler)."""
+    from .studies.parallel import chunk_bounds, run_chunks
+    from .studies.sobol import SobolResult, _indices_from, problem_of, sample
+
+    frames, convs, chosen = [], [], {}
+    for output in outputs_:
+        if output not in OUTPUTS:
+            raise ParameterError("output", f"must be one of {', '.join(OUTPUTS)}", output)
+        names = important_parameters(machines, tolerances, output, **select)
+        chosen[output] = names
+        problem = problem_of(ToleranceSet(tolerances.name, tuple(
+            t for t in tolerances.active().items if t.param in names), tolerances.description))
+        X = sample(problem, n, seed)
+        parts = run_chunks(_sobol_chunk, [(params, problem["names"], X[a:b], output)
+                                          for a, b in chunk_bounds(len(X), chunk_size)],
+                           n_jobs=n_jobs, progress=progress, desc=f"feed Sobol {output}",
+                           scheduler=scheduler)
+        f, c, _ = _indices_from(problem, np.concatenate(parts), n, seed, output, resamples)
+        c.insert(1, "params", len(names))
+        frames.append(f)
+        convs.append(c)
+    res = SobolResult(pd.concat(frames, ignore_index=True), pd.concat(convs, ignore_index=True),
+                      int(n), int(seed), {o: 0 for o in outputs_}, tolerances.name)
+    return res, chosen
