@@ -107,6 +107,7 @@ class Stop(Exception):
     pass
 
 
+@pytest.mark.filterwarnings("ignore:.*tasks which were still being processed:UserWarning")
 def test_an_interrupted_cluster_study_resumes_from_its_chunks(client, nominal, tmp_path):
     manifest = {"study": "test", "seed": 5}
 

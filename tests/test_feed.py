@@ -287,7 +287,7 @@ def test_feed_sobol_each_output_over_its_own_parameters():
     ts = feed.default_tolerances()
     mc = feed.montecarlo(p, ts, 200, seed=3)
     res, chosen = feed.sobol(p, ts, 8, seed=5, machines=mc, chunk_size=20,
-                             outputs_=("lower_step_mm", "differential_ratio"))
+                             which=("lower_step_mm", "differential_ratio"))
     # the ratio's own contributors, not the lower step's
     for output, names in chosen.items():
         eta = feed.contributors(mc, ts.active().params, output)

@@ -397,7 +397,7 @@ def _sobol_chunk(params: Feed131, names, X, output):
 
 
 def sobol(params: Feed131, tolerances: ToleranceSet, n: int, seed: int, machines: pd.DataFrame,
-          outputs_: tuple[str, ...] = SOBOL_OUTPUTS, n_jobs: int = 1, progress=False,
+          which: tuple[str, ...] = SOBOL_OUTPUTS, n_jobs: int = 1, progress=False,
           scheduler=None, chunk_size: int = 512, resamples: int = 200, **select):
     """Sobol indices (SALib) of each feed output over its own important parameters (chosen
     from `machines`, a Monte-Carlo of the same set; `select` goes to important_parameters),
@@ -407,7 +407,7 @@ def sobol(params: Feed131, tolerances: ToleranceSet, n: int, seed: int, machines
     from .studies.sobol import SobolResult, _indices_from, problem_of, sample
 
     frames, convs, chosen = [], [], {}
-    for output in outputs_:
+    for output in which:
         if output not in OUTPUTS:
             raise ParameterError("output", f"must be one of {', '.join(OUTPUTS)}", output)
         names = important_parameters(machines, tolerances, output, **select)
@@ -424,5 +424,5 @@ def sobol(params: Feed131, tolerances: ToleranceSet, n: int, seed: int, machines
         frames.append(f)
         convs.append(c)
     res = SobolResult(pd.concat(frames, ignore_index=True), pd.concat(convs, ignore_index=True),
-                      int(n), int(seed), {o: 0 for o in outputs_}, tolerances.name)
+                      int(n), int(seed), {o: 0 for o in which}, tolerances.name)
     return res, chosen

@@ -98,7 +98,7 @@ def run_chunks(fn: Callable, args: Sequence, n_jobs: int = 1, progress=False,
                 out[i] = store.load(i)
         todo = [i for i in todo if out[i] is None]
     done = len(args) - len(todo)
-    bar = tqdm(total=len(args), initial=done, desc=desc, disable=progress is not True,
+    bar = tqdm(total=len(args), initial=done, desc=desc, disable=report is not None or not progress,
                file=sys.stderr, leave=False)
     with bar, contextlib.ExitStack() as stack:
         if report is not None:
