@@ -1,7 +1,7 @@
 """Feed chains of the 131-42+3: figures, tooth paths, regulator and tolerance studies.
 
     python studies/feed_131_report.py [--out reports] [--seed 2026] [--n-mc 2000]
-        [--n-sobol 256] [--n-jobs 1 | --scheduler tcp://host:8786] [--progress]
+        [--n-sobol 512] [--n-jobs 1 | --scheduler tcp://host:8786] [--progress]
 
 Writes reports/feed_131-42-3/ (tables as CSV + Markdown, PNG plots, index.md).
 """
@@ -29,7 +29,7 @@ def main(argv=None) -> None:
     ap.add_argument("--out", default="reports")
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--n-mc", type=int, default=2000)
-    ap.add_argument("--n-sobol", type=int, default=256)
+    ap.add_argument("--n-sobol", type=int, default=512)
     ap.add_argument("--n-jobs", type=int, default=1)
     ap.add_argument("--progress", action="store_true")
     ap.add_argument("--scheduler", default=None, metavar="ADDRESS",
