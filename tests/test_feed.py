@@ -1,5 +1,7 @@
 """Feed chains of the 131-42+3: source figures, transfer functions, errors, regulator."""
 
+import math
+
 import numpy as np
 import pytest
 
@@ -128,3 +130,180 @@ def test_feed_montecarlo_reproducible():
     b = feed.montecarlo(Feed131(), ts, 300, seed=4, n_jobs=2)
     assert a.equals(b)
     assert a["lower_step_mm"].notna().all()
+
+
+# --- the analysis program's dog-bar arithmetic, from the note's formulas alone -------------
+
+def _e(a_deg):
+    return math.cos(math.radians(a_deg)), math.sin(math.radians(a_deg))
+
+
+def _dyad(X, XJ, Y, YJ, left):
+    """J at XJ from X and YJ from Y, on the left (or right) of X->Y."""
+    dx, dy = Y[0] - X[0], Y[1] - X[1]
+    d = math.hypot(dx, dy)
+    a = (XJ * XJ - YJ * YJ + d * d) / (2 * d)
+    h = math.sqrt(XJ * XJ - a * a) * (1 if left else -1)
+    return X[0] + (a * dx - h * dy) / d, X[1] + (a * dy + h * dx) / d
+
+
+def _ang(X, Y):
+    return math.degrees(math.atan2(Y[1] - X[1], Y[0] - X[0]))
+
+
+def _note_lower_tooth(phi, program):
+    """Steps 1-11 of ../shared/design/feed_131-42-3.md for one angle, in plain floats. With
+    program=True the axis u is the program's ((c EP - s PN) / EN, (s EP + c PN) / EN)."""
+    F = tuple(1.8 * v for v in _e(phi + 224))
+    O4 = (56.0, 7.5)
+    K = _dyad(O4, 24.0, F, 52.0, True)
+    c, s = _e(_ang(O4, K) - 98)
+    M = (O4[0] + 25 * c, O4[1] + 25 * s)
+    A1 = tuple(4.0 * v for v in _e(phi))
+    c, s = _e(90 + 30)
+    D = (-37.6 + 18 * c, -16.6 + 18 * s)
+    B = _dyad(D, 18.0, A1, 41.3, False)
+    O3 = (-63.0, -1.0)
+    C = _dyad(O3, 20.0, B, 18.0, True)
+    c, s = _e(_ang(O3, C) + 88)
+    E = (O3[0] + 24 * c, O3[1] + 24 * s)
+    N = _dyad(M, 18.0, E, 98.66, True)
+    EN = math.hypot(N[0] - E[0], N[1] - E[1])
+    c, s = (N[0] - E[0]) / EN, (N[1] - E[1]) / EN
+    if program:
+        u = ((c * 95.7 - s * 24.0) / 98.66, (s * 95.7 + c * 24.0) / 98.66)
+    else:
+        t = math.atan(24.0 / 95.7)
+        u = (c * math.cos(t) - s * math.sin(t), s * math.cos(t) + c * math.sin(t))
+    up = (-u[1], u[0])
+    return E[0] + 64.1 * u[0] + 9.3 * up[0], E[1] + 64.1 * u[1] + 9.3 * up[1]
+
+
+def _model_lower_tooth(params, phi_deg):
+    return fd.chains(P.column(params, None), np.radians(phi_deg))["Q1"].p
+
+
+def test_program_arithmetic_reproduces_the_note_formulas():
+    phi = np.arange(0.0, 360.0, 1.0)
+    for program in (False, True):
+        ref = np.array([complex(*_note_lower_tooth(float(a), program)) for a in phi])
+        q = _model_lower_tooth(Feed131(dog_bar_program=float(program)), phi)
+        assert np.max(np.abs(q - ref)) < 1e-9, program
+
+
+def test_program_and_exact_dog_bar_differ_by_the_documented_offset():
+    phi = np.arange(0.0, 360.0, 1.0)
+    d = (_model_lower_tooth(Feed131(dog_bar_program=1.0), phi)
+         - _model_lower_tooth(Feed131(), phi)) * 1e3  # um
+    # the program's u is hypot(95.7, 24) / 98.66 long: the tooth moves outward from E by that
+    # factor minus one times |E Q1| = hypot(64.1, 9.3), on every angle
+    scale = math.hypot(95.7, 24.0) / 98.66
+    assert abs(scale - 1.0000357) < 1e-7  # the note: 1.0000355 (truncated)
+    assert np.allclose(np.abs(d), (scale - 1) * math.hypot(64.1, 9.3) * 1e3, atol=1e-9)
+    assert abs(d.real.mean() - 2.28) < 0.01 and abs(d.imag.mean() - 0.34) < 0.01
+    assert np.ptp(d.real) < 0.02 and np.ptp(d.imag) < 0.1  # near-constant over the turn
+
+
+def test_program_arithmetic_is_only_a_flag():
+    with pytest.raises(ParameterError, match="dog_bar_program: must be 0"):
+        Feed131(dog_bar_program=0.5)
+    with pytest.raises(ParameterError, match="upper_sense: must be -1"):
+        Feed131(upper_sense=0.0)
+    # the upper chain has no such quirk: the flag leaves it untouched
+    phi = np.radians(np.arange(0.0, 360.0, 5.0))
+    a = fd.chains(P.column(Feed131(), None), phi)["Q2"].p
+    b = fd.chains(P.column(Feed131(dog_bar_program=1.0), None), phi)["Q2"].p
+    assert np.array_equal(a, b)
+
+
+# --- the source's read-offs against the model ----------------------------------------------
+
+@pytest.fixture(scope="module")
+def readoffs():
+    return feed.readoff_residuals()
+
+
+def test_readoff_residuals_are_the_models_figures(readoffs, nominal_metrics):
+    r = readoffs.to_dataframe()
+    assert len(r) == len(feed.READOFFS) * len(readoffs.explanations)
+    note = r[r.explanation == "note"].set_index(["dog", "figure"])
+    for dog in ("lower", "upper"):
+        m = getattr(nominal_metrics, dog)
+        assert abs(note.loc[(dog, "entry_phi_deg"), "model"] - m["entry_phi_deg"]) < 1e-9
+        assert abs(note.loc[(dog, "feed_step_mm"), "model"] - abs(m["feed_step_mm"])) < 1e-9
+        for fig, src in ((f, v) for d, f, v in feed.READOFFS if d == dog):
+            row = note.loc[(dog, fig)]
+            assert row.source == src
+            res = row.model - src
+            if fig.endswith("_deg"):
+                res = (res + 180) % 360 - 180
+            assert abs(row.residual - res) < 1e-9
+    # the documented note residuals: lower exit 38.0 against 9, rise 1.283 at 301.2
+    assert abs(note.loc[("lower", "exit_phi_deg"), "residual"] - 28.99) < 0.01
+    assert abs(note.loc[("lower", "max_rise_mm"), "residual"] - 0.183) < 0.001
+    assert abs(note.loc[("upper", "entry_phi_deg"), "residual"] - 161.34) < 0.01
+
+
+def test_readoff_explanations(readoffs):
+    s = readoffs.summary().set_index("explanation")
+    # y = 30 lies below the whole lower tooth path: nothing can be read there, and it is said
+    assert s.loc["plate 30", "not_produced"] == len(feed.READOFFS)
+    assert s.loc["plate 30", "lower_feeds"] == "n/a"
+    # the program's arithmetic moves the tooth by 2.3 um: no figure changes by more than
+    # 0.02 deg or 0.01 mm, it explains nothing
+    r = readoffs.to_dataframe().set_index(["explanation", "dog", "figure"])["model"]
+    diff = (r.loc["program dog bar"] - r.loc["note"]).abs()
+    assert diff.max() < 0.02
+    # the phase conventions that bring the upper phases near 4 .. 180 make it feed in reverse
+    for name in s.index:
+        if name.startswith("upper") and name != "upper return stroke":
+            assert s.loc[name, "upper_feeds"] == "reverse", name
+            assert s.loc[name, "upper_max_phase_residual_deg"] < 30, name
+    assert s.loc["note", "upper_max_phase_residual_deg"] > 170
+
+
+def test_fitted_upper_phase_is_the_brute_force_optimum(readoffs):
+    """The fitted phase of 'upper phi + c' against an independent 0.5 deg scan."""
+    from sewtol.metrics.feed import dog_figures
+
+    name = next(e for e in readoffs.explanations if e.name.startswith("upper phi +")
+                and e.changes.get("upper_phase") is not None)
+    grid = np.arange(0.0, 360.0, 0.5)
+    c, _ = feed.columns(Feed131(upper_sense=1.0, upper_phase=grid))
+    f = dog_figures(c, "upper")
+    mis = np.max(np.abs([(getattr(f, k) - v + 180) % 360 - 180 for k, v in
+                         (("entry_phi_deg", 4.0), ("exit_phi_deg", 180.0),
+                          ("max_rise_phi_deg", 102.0))]), axis=0)
+    fitted = readoffs.summary().set_index("explanation").loc[
+        name.name, "upper_max_phase_residual_deg"]
+    assert fitted <= np.nanmin(mis) + 1e-6
+    assert abs(name.changes["upper_phase"] - grid[np.nanargmin(mis)]) < 0.5
+
+
+def test_feed_sobol_each_output_over_its_own_parameters():
+    from sewtol.studies.sobol import problem_of, sobol_indices
+
+    p = Feed131()
+    ts = feed.default_tolerances()
+    mc = feed.montecarlo(p, ts, 200, seed=3)
+    res, chosen = feed.sobol(p, ts, 8, seed=5, machines=mc, chunk_size=20,
+                             which=("lower_step_mm", "differential_ratio"))
+    # the ratio's own contributors, not the lower step's
+    for output, names in chosen.items():
+        eta = feed.contributors(mc, ts.active().params, output)
+        assert names == eta["param"].tolist()[:len(names)]
+        assert 4 <= len(names) <= 12
+    assert chosen["differential_ratio"] != chosen["lower_step_mm"]
+    # the chunked run equals SALib on the whole sample in one call, output by output
+    for output, names in chosen.items():
+        sub = ts.active()
+        sub = type(sub)(sub.name, tuple(t for t in sub.items if t.param in names),
+                        sub.description)
+        problem = problem_of(sub)
+        ref, conv, _ = sobol_indices(
+            lambda X, o=output, pn=problem["names"]: feed.outputs(
+                p, {k: X[:, i] for i, k in enumerate(pn)})[o], problem, 8, 5, case=output)
+        got = res.indices[res.indices.case == output].reset_index(drop=True)
+        assert np.allclose(got[["S1", "ST"]].to_numpy(), ref[["S1", "ST"]].to_numpy(),
+                           atol=1e-12, equal_nan=True)
+    assert list(res.convergence["case"]) == ["lower_step_mm", "differential_ratio"]

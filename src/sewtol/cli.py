@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -125,6 +127,43 @@ def _check_study(args):
     if getattr(args, "resume", False) and not getattr(args, "out", None):
         raise ParameterError("--resume", "needs --out, the folder of the interrupted study",
                              True)
+    _scheduler(args)
+
+
+def _scheduler(args) -> tuple[str, str] | None:
+    """(flag, address) of the Dask scheduler from --scheduler or SEWTOL_SCHEDULER, or None for
+    this machine. Checked with the other flags, before anything is computed."""
+    if getattr(args, "scheduler", None) is not None:
+        flag, address = "--scheduler", args.scheduler
+    elif os.environ.get("SEWTOL_SCHEDULER", "").strip():
+        flag, address = "SEWTOL_SCHEDULER", os.environ["SEWTOL_SCHEDULER"]
+    else:
+        return None
+    if not address.strip() or any(ch.isspace() for ch in address):
+        raise ParameterError(flag, "must be a Dask scheduler address such as tcp://host:8786",
+                             address)
+    if getattr(args, "n_jobs", 1) != 1:
+        raise ParameterError("--n-jobs", f"is the single-machine path; with {flag} the "
+                             "cluster's workers set the parallelism", args.n_jobs)
+    return flag, address
+
+
+@contextlib.contextmanager
+def _cluster(args):
+    """A distributed.Client on the study's scheduler (None without one), closed afterwards."""
+    where = _scheduler(args)
+    if where is None:
+        yield None
+        return
+    from .studies.parallel import connect
+
+    flag, address = where
+    try:
+        client = connect(address)
+    except ParameterError as exc:
+        raise ParameterError(flag, exc.rule, address) from None
+    with client:
+        yield client
 
 
 def _check_beta_range(args):
@@ -162,7 +201,9 @@ def _write_outputs(args, kind, params, tolerances, started, result_obj, frames):
     for name, frame in frames.items():
         write_text_atomic(out / f"{name}.csv", frame.to_csv(index=False, float_format="%.9g",
                                                           lineterminator="\n"))
+    where = _scheduler(args)
     inputs = {"study": kind, "n": args.n, "seed": args.seed, "n_jobs": args.n_jobs,
+              "scheduler": where[1] if where else None,
               "params": as_dict(params),
               "tolerances": {"name": tolerances.name, "items": tolerances.as_dict()}}
     write_text_atomic(out / "run.json", json.dumps(run_record(started, inputs), indent=2) + "\n")
@@ -185,8 +226,9 @@ def cmd_needle_montecarlo(args):
     params, tolerances = _study_nominal(args), _tolerances(args)
     started = now()
     store = _store(args, "montecarlo", params, tolerances)
-    res = montecarlo(params, tolerances, args.n, args.seed, n_jobs=args.n_jobs,
-                     progress=args.progress, store=store)
+    with _cluster(args) as client:
+        res = montecarlo(params, tolerances, args.n, args.seed, n_jobs=args.n_jobs,
+                         progress=args.progress, store=store, scheduler=client)
     _write_outputs(args, "montecarlo", params, tolerances, started, res.to_dict(),
                    {"machines": res.machines, "summary": res.summary_frame()})
     emit(args.format, obj=res.to_dict(), frame=res.summary_frame())
@@ -205,8 +247,9 @@ def cmd_needle_sobol(args):
     params, tolerances = _study_nominal(args), _tolerances(args)
     started = now()
     store = _store(args, "sobol", params, tolerances)
-    res = needle_sobol(params, tolerances, args.n, args.seed, n_jobs=args.n_jobs,
-                       progress=args.progress, store=store)
+    with _cluster(args) as client:
+        res = needle_sobol(params, tolerances, args.n, args.seed, n_jobs=args.n_jobs,
+                           progress=args.progress, store=store, scheduler=client)
     _write_outputs(args, "sobol", params, tolerances, started, res.to_records(),
                    {"indices": res.to_dataframe(), "convergence": res.convergence})
     emit(args.format, obj=res.to_records(), frame=res.to_dataframe())
@@ -273,7 +316,11 @@ def build_parser() -> argparse.ArgumentParser:
                        help="base, recommended, FILE.toml or FILE.toml:SET (default base)")
         if seed:
             p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-            p.add_argument("--n-jobs", type=int, default=1, help="parallel workers (joblib)")
+            p.add_argument("--n-jobs", type=int, default=1,
+                           help="parallel workers on this machine (joblib)")
+            p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                           help="run on a Dask cluster, e.g. tcp://host:8786 (default: "
+                           "$SEWTOL_SCHEDULER, else this machine); same numbers as a local run")
             p.add_argument("--progress", action="store_true", help="progress bar on stderr")
             p.add_argument("--out", default=None, metavar="DIR",
                            help="write results, machines, run.json and checkpoints here")

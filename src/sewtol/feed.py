@@ -168,9 +168,10 @@ def scan(params: Feed131, tolerances: ToleranceSet) -> pd.DataFrame:
 
 
 def montecarlo(params: Feed131, tolerances: ToleranceSet, n: int, seed: int, n_jobs: int = 1,
-               progress: bool = False) -> pd.DataFrame:
+               progress=False, scheduler=None) -> pd.DataFrame:
+    """Feed outputs of n machines (sample_machines: progress bar or callback, Dask cluster)."""
     return sample_machines(outputs, params, tolerances, n, seed, n_jobs, progress,
-                           desc="feed Monte-Carlo")
+                           desc="feed Monte-Carlo", scheduler=scheduler)
 
 
 def montecarlo_summary(machines: pd.DataFrame) -> pd.DataFrame:
@@ -191,3 +192,237 @@ def contributor_table(machines: pd.DataFrame, tolerances: ToleranceSet, top: int
         f.insert(0, "output", k)
         frames.append(f)
     return pd.concat(frames, ignore_index=True)
+
+
+# The source's read-offs from its plots of the program's output (../shared/design/
+# feed_131-42-3.md, "The thesis read-offs in full"): (dog, figure, value). Lower: top point of
+# the middle tooth; upper: bottom point of the middle tooth; plate level not stated. The steps
+# are read as travel (a length); feed_direction is +1 where the tooth feeds forward (T > 0), as
+# the source's dogs both do ("vertical differential": both feed in step).
+READOFFS = (
+    ("lower", "entry_phi_deg", 202.0), ("lower", "exit_phi_deg", 9.0),
+    ("lower", "feed_step_mm", 2.2), ("lower", "feed_direction", 1.0),
+    ("lower", "max_rise_mm", 1.1),
+    ("lower", "max_rise_phi_deg", 285.0), ("lower", "vertical_travel_mm", 2.2),
+    ("upper", "entry_phi_deg", 4.0), ("upper", "exit_phi_deg", 180.0),
+    ("upper", "feed_step_mm", 3.1), ("upper", "feed_direction", 1.0),
+    ("upper", "max_rise_mm", 1.2),
+    ("upper", "max_rise_phi_deg", 102.0), ("upper", "vertical_travel_mm", 2.5),
+)
+
+
+@dataclass(frozen=True)
+class Explanation:
+    """One way a careful reader could have read the source: parameter changes to the note's
+    data and the working side each dog's figures are read on (None: the dog's own)."""
+
+    name: str
+    changes: dict
+    why: str
+    upper_side: str | None = None
+
+
+def _wrap_deg(r):
+    return 180.0 - np.mod(180.0 - np.asarray(r, float), 360.0)
+
+
+def _phase_misfit(figs, dog: str) -> np.ndarray:
+    """Largest |phase residual| (deg) of a dog's entry, exit and rise phase, per machine."""
+    src = {f: v for d, f, v in READOFFS if d == dog and f.endswith("_deg")}
+    return np.max(np.abs(np.stack([_wrap_deg(getattr(figs, f) - v) for f, v in src.items()])),
+                  axis=0)
+
+
+def _rise_level(params: Feed131, values: dict) -> np.ndarray:
+    """Per machine, the plate level at which the lower dog's highest rise is the read 1.1 mm
+    (the highest point from a 1 deg grid, Newton-polished on the analytic velocity)."""
+    from .metrics.feed import _polish
+
+    c, _ = columns(params.override(**values))
+    y = fd.chains(c, np.radians(np.arange(0.0, 360.0, 1.0)).reshape(1, -1))["Q1"].p.imag
+    y = np.broadcast_to(y, (c["b"].shape[0], y.shape[-1]))
+    _, top = _polish(c, "Q1", np.radians(np.argmax(y, axis=1)).reshape(-1, 1))
+    return np.maximum(top.ravel(), y.max(axis=1)) - 1.1
+
+
+def _grid_fit(params: Feed131, name: str, lo: float, hi: float, step: float, dog: str,
+              plate_from_rise: bool, fixed: dict | None = None) -> float:
+    """The value of `name` in [lo, hi] with the smallest largest phase residual of `dog`: a grid
+    search at `step`, then a grid of step / 20 around the best point (first of ties)."""
+    from .metrics.feed import dog_figures
+
+    def misfit(grid):
+        values = {name: grid, **(fixed or {})}
+        if plate_from_rise:
+            values["plate_mm"] = _rise_level(params, values)
+        c, _ = columns(params.override(**values))
+        m = _phase_misfit(dog_figures(c, dog), dog)
+        return np.where(np.isfinite(m), m, np.inf)
+
+    grid = np.arange(lo, hi + step / 2, step)
+    best = grid[int(np.argmin(misfit(grid)))]
+    fine = np.round(best + np.arange(-20, 21) * step / 20, 9)
+    return float(fine[int(np.argmin(misfit(fine)))])
+
+
+def readoff_explanations(params: Feed131) -> tuple[Explanation, ...]:
+    """The explanations tested against the read-offs (see docs/feed_131.md). Fitted values come
+    from grid searches (2 deg on phases, 2 mm along the bar, then a grid 20 times finer around
+    the best), each scored by its dog's largest phase residual."""
+    h_rise = round(float(_rise_level(params, {})[0]), 4)
+    tooth_u = _grid_fit(params, "tooth1_u", 30.0, 100.0, 2.0, "lower", True)
+    h_tooth = round(float(_rise_level(params, {"tooth1_u": np.array([tooth_u])})[0]), 4)
+    lift = _grid_fit(params, "lift_phase", 0.0, 358.0, 2.0, "lower", True)
+    h_lift = round(float(_rise_level(params, {"lift_phase": np.array([lift])})[0]), 4)
+    upper_c = _grid_fit(params, "upper_phase", 0.0, 358.0, 2.0, "upper", False,
+                        fixed={"upper_sense": 1.0})
+    return (
+        Explanation("note", {}, "the note's data, plate y = 32.5 (sewtol's default)"),
+        Explanation("plate 30", {"plate_mm": 30.0}, "plate drawn at y = 30"),
+        Explanation("plate 33.5", {"plate_mm": 33.5}, "plate drawn at y = 33.5"),
+        Explanation(f"plate {h_rise:g}", {"plate_mm": h_rise},
+                    "the plate level at which the lower rise is the read 1.1 mm"),
+        Explanation("program dog bar", {"dog_bar_program": 1.0},
+                    "the program's dog-bar arithmetic (u from EN = 98.66)"),
+        Explanation(f"lower tooth at u = {tooth_u:g}", {"tooth1_u": tooth_u, "plate_mm": h_tooth},
+                    "another tooth of the lower dog: the point along the bar (30 ... 100 mm "
+                    "from E, v = 9.3) fitted to the lower phases, plate at the 1.1 mm rise"),
+        Explanation(f"lower lift phase {lift:g}", {"lift_phase": lift, "plate_mm": h_lift},
+                    "the lift eccentric's phase fitted to the lower phases (data 224), plate at "
+                    "the 1.1 mm rise"),
+        Explanation("upper return stroke", {}, "the upper read-offs describe where its tooth is "
+                    "above the plate (its return), not below", upper_side="above"),
+        Explanation(f"upper {params.upper_phase + 180:g} - phi",
+                    {"upper_phase": params.upper_phase + 180.0},
+                    f"upper eccentric half a turn off: A2 = O5 + {params.O5A2:g} "
+                    f"e({params.upper_phase + 180:g} - phi)"),
+        Explanation(f"upper phi + {params.upper_phase:g}", {"upper_sense": 1.0},
+                    f"upper shaft turning with the main shaft: A2 = O5 + {params.O5A2:g} "
+                    f"e(phi + {params.upper_phase:g})"),
+        Explanation(f"upper phi + {upper_c:g}", {"upper_sense": 1.0, "upper_phase": upper_c},
+                    "upper shaft turning with the main shaft, its phase fitted to the upper "
+                    "phases"),
+    )
+
+
+@dataclass(frozen=True)
+class ReadoffResiduals:
+    """The model against every read-off of the source, under each explanation."""
+
+    rows: pd.DataFrame  # explanation, dog, figure, source, model, residual
+    explanations: tuple[Explanation, ...]
+
+    def to_dataframe(self) -> pd.DataFrame:
+        return self.rows.copy()
+
+    def wide(self) -> pd.DataFrame:
+        """One row per read-off, model value and residual per explanation side by side."""
+        base = self.rows[self.rows.explanation == self.explanations[0].name][
+            ["dog", "figure", "source"]].reset_index(drop=True)
+        for e in self.explanations:
+            r = self.rows[self.rows.explanation == e.name].reset_index(drop=True)
+            base[f"{e.name}: model"] = r["model"]
+            base[f"{e.name}: residual"] = r["residual"]
+        return base
+
+    def summary(self) -> pd.DataFrame:
+        """Per explanation: largest |residual| of the phases (deg) and lengths (mm) per dog,
+        and how many read-offs it cannot produce (no crossing: NaN)."""
+        out = []
+        for e in self.explanations:
+            r = self.rows[self.rows.explanation == e.name]
+            row = {"explanation": e.name, "why": e.why}
+            for dog in ("lower", "upper"):
+                d = r[r.dog == dog]
+                ph = d[d.figure.str.endswith("_deg")]["residual"].abs()
+                mm = d[d.figure.str.endswith("_mm")]["residual"].abs()
+                sense = d[d.figure == "feed_direction"]["model"].iloc[0]
+                row[f"{dog}_feeds"] = ("n/a" if not np.isfinite(sense) else
+                                       "forward" if sense > 0 else "reverse")
+                row[f"{dog}_max_phase_residual_deg"] = ph.max() if ph.notna().all() else np.nan
+                row[f"{dog}_max_length_residual_mm"] = mm.max() if mm.notna().all() else np.nan
+            row["not_produced"] = int(r["model"].isna().sum())
+            out.append(row)
+        return pd.DataFrame(out)
+
+
+def readoff_residuals(params: Feed131 | None = None,
+                      explanations: tuple[Explanation, ...] | None = None) -> ReadoffResiduals:
+    """Residual (model - source) of every read-off under each explanation. Phase residuals are
+    wrapped to (-180, 180]; the feed step keeps its sign (the source's T is positive forward).
+    The step is compared as a length (|T|) and its sense as feed_direction (+1 forward). A
+    figure the variant cannot produce (its tooth never crosses the level) is NaN."""
+    from .metrics.feed import dog_figures
+
+    params = params or Feed131()
+    explanations = explanations or readoff_explanations(params)
+    rows = []
+    for e in explanations:
+        c, _ = columns(params.override(**e.changes))
+        figs = {"lower": dog_figures(c, "lower").to_dict(),
+                "upper": dog_figures(c, "upper", side=e.upper_side).to_dict()}
+        for dog, fig, src in READOFFS:
+            if fig == "feed_direction":
+                model = float(np.sign(figs[dog]["feed_step_mm"]))
+            elif fig == "feed_step_mm":
+                model = abs(figs[dog][fig])
+            else:
+                model = figs[dog][fig]
+            res = model - src
+            if fig.endswith("_deg"):
+                res = float(_wrap_deg(res))
+            rows.append({"explanation": e.name, "dog": dog, "figure": fig, "source": src,
+                         "model": model, "residual": res})
+    return ReadoffResiduals(pd.DataFrame(rows), tuple(explanations))
+
+
+# --- Sobol indices of the feed, each output over the tolerances that matter to it ----------
+
+SOBOL_OUTPUTS = ("lower_step_mm", "upper_step_mm", "differential_ratio")
+
+
+def important_parameters(machines: pd.DataFrame, tolerances: ToleranceSet, output: str,
+                         share: float = 0.9, min_params: int = 4,
+                         max_params: int = 12) -> list[str]:
+    """The tolerances that matter to `output`, from a Monte-Carlo's bias-corrected eta^2
+    (`contributors`): in falling order until they hold `share` of the summed first-order
+    effects, at least min_params and at most max_params."""
+    f = contributors(machines, tolerances.active().params, output)
+    k = int(np.searchsorted(f["cumulative_pct"].to_numpy(), 100.0 * share) + 1)
+    return f["param"].tolist()[:min(max(k, min_params), max_params, len(f))]
+
+
+def _sobol_chunk(params: Feed131, names, X, output):
+    return outputs(params, {k: X[:, i] for i, k in enumerate(names)})[output]
+
+
+def sobol(params: Feed131, tolerances: ToleranceSet, n: int, seed: int, machines: pd.DataFrame,
+          which: tuple[str, ...] = SOBOL_OUTPUTS, n_jobs: int = 1, progress=False,
+          scheduler=None, chunk_size: int = 512, resamples: int = 200, **select):
+    """Sobol indices (SALib) of each feed output over its own important parameters (chosen
+    from `machines`, a Monte-Carlo of the same set; `select` goes to important_parameters),
+    at n and n / 2 base samples (the convergence table). Chunks run like every study
+    (n_jobs, progress, scheduler)."""
+    from .studies.parallel import chunk_bounds, run_chunks
+    from .studies.sobol import SobolResult, _indices_from, problem_of, sample
+
+    frames, convs, chosen = [], [], {}
+    for output in which:
+        if output not in OUTPUTS:
+            raise ParameterError("output", f"must be one of {', '.join(OUTPUTS)}", output)
+        names = important_parameters(machines, tolerances, output, **select)
+        chosen[output] = names
+        problem = problem_of(ToleranceSet(tolerances.name, tuple(
+            t for t in tolerances.active().items if t.param in names), tolerances.description))
+        X = sample(problem, n, seed)
+        parts = run_chunks(_sobol_chunk, [(params, problem["names"], X[a:b], output)
+                                          for a, b in chunk_bounds(len(X), chunk_size)],
+                           n_jobs=n_jobs, progress=progress, desc=f"feed Sobol {output}",
+                           scheduler=scheduler)
+        f, c, _ = _indices_from(problem, np.concatenate(parts), n, seed, output, resamples)
+        c.insert(1, "params", len(names))
+        frames.append(f)
+        convs.append(c)
+    res = SobolResult(pd.concat(frames, ignore_index=True), pd.concat(convs, ignore_index=True),
+                      int(n), int(seed), {o: 0 for o in which}, tolerances.name)
+    return res, chosen

@@ -61,6 +61,11 @@ class Feed131:
     PN: float = 24.0
     tooth1_u: float = 64.1
     tooth1_v: float = 9.3
+    # 0: the exact right triangle E-N-P of the note's step 10 (default); 1: the analysis
+    # program's arithmetic, u = ((c EP - s PN) / EN, (s EP + c PN) / EN) with the data value
+    # EN = 98.66, so u is hypot(EP, PN) / EN = 1.0000357 long and the tooth sits ~2.3 um further
+    # along the bar (docs/feed_131.md)
+    dog_bar_program: float = 0.0
     # upper dog, horizontal chain
     O6x: float = 25.0
     O6y: float = 181.0
@@ -82,6 +87,10 @@ class Feed131:
     O5y: float = 220.0
     O5A2: float = 0.6
     upper_phase: float = 87.0
+    # sense of the upper lift eccentric: -1 (the note): A2 = O5 + O5A2 e(upper_phase - phi);
+    # +1: e(upper_phase + phi), the shaft turning with the main shaft (a convention tested
+    # against the source's read-offs in feed.readoff_residuals)
+    upper_sense: float = -1.0
     O7x: float = -70.0
     O7y: float = 160.9
     O7H: float = 66.5
@@ -110,6 +119,12 @@ class Feed131:
             P.finite(f, getattr(self, f))
         for f in self.LENGTHS:
             P.positive(f, getattr(self, f))
+        if not np.all(np.isin(np.asarray(self.dog_bar_program, float), (0.0, 1.0))):
+            raise P.ParameterError("dog_bar_program", "must be 0 (exact right triangle) or 1 "
+                                   "(the analysis program's arithmetic)", self.dog_bar_program)
+        if not np.all(np.isin(np.asarray(self.upper_sense, float), (-1.0, 1.0))):
+            raise P.ParameterError("upper_sense", "must be -1 (A2 turns as upper_phase - phi) or "
+                                   "+1 (upper_phase + phi)", self.upper_sense)
         if np.any(np.asarray(self.material_mm) < 0):
             raise P.ParameterError("material_mm", "must not be negative", self.material_mm)
         s = (self.O6R**2 + self.O6S**2 - self.RS**2) / (2 * self.O6R * self.O6S)
@@ -150,7 +165,10 @@ def chains(c: dict, phi_rad) -> dict:
     # dog bar: right triangle E-N-P, axis u = unit(E->N) turned by atan(PN/EP)
     N = dyad("M-N-E", M, c["MN"], E, c["EN"], 1.0)
     u = engine.direction(E, N) + np.arctan2(c["PN"], c["EP"])
-    Q1 = engine.on_body(E, u, c["tooth1_u"] + 1j * c["tooth1_v"])
+    # the program's u is longer than a unit vector by hypot(EP, PN) / EN: its tooth point is the
+    # exact one scaled about E by that factor
+    bar_scale = np.where(c["dog_bar_program"] == 1.0, np.hypot(c["EP"], c["PN"]) / c["EN"], 1.0)
+    Q1 = engine.on_body(E, u, bar_scale * (c["tooth1_u"] + 1j * c["tooth1_v"]))
     # upper dog: horizontal chain driven from C
     O6 = fx(c["O6x"], c["O6y"])
     R = dyad("O6-R-C", O6, c["O6R"], C, c["CR"], 1.0)
@@ -161,8 +179,10 @@ def chains(c: dict, phi_rad) -> dict:
     W = engine.polar(O8, c["O8W"], engine.direction(O8, V) + np.pi)
     L = dyad("X-L-W", fx(c["Xx"], c["Xy"]), c["XL"], W, c["WL"], 1.0)
     # upper lift chain on its own shaft O5, turning with -phi
+    sense = c["upper_sense"]
     A2 = engine.polar(fx(c["O5x"], c["O5y"]), c["O5A2"],
-                      engine.Angle(c["upper_phase"] * DEG - phi.a, -phi.da, -phi.dda))
+                      engine.Angle(c["upper_phase"] * DEG + sense * phi.a, sense * phi.da,
+                                   sense * phi.dda))
     O7 = fx(c["O7x"], c["O7y"])
     H = dyad("O7-H-A2", O7, c["O7H"], A2, c["A2H"], 1.0)
     I = engine.polar(O7, c["O7I"], engine.direction(O7, H) + np.pi)

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import ParameterError
 from ..mechanisms import feed_131 as fd
 
 N_GRID = 720
@@ -65,17 +66,26 @@ def _polish(c, key, t, iters=6):
     return t, qq.p.imag
 
 
-def dog_figures(c: dict, which: str, n_grid: int = N_GRID) -> DogFigures:
-    """Figures of the 'lower' or 'upper' dog for machines in c (columns of shape (n, 1))."""
+def dog_figures(c: dict, which: str, n_grid: int = N_GRID, side: str | None = None) -> DogFigures:
+    """Figures of the 'lower' or 'upper' dog for machines in c (columns of shape (n, 1)).
+
+    side: the working side, "above" or "below" the level; default the dog's own (lower above,
+    upper below). The other side reads the figures of the return stroke (used to test how the
+    source read its plots, feed.readoff_residuals).
+    """
+    if side not in (None, "above", "below"):
+        raise ParameterError("side", "must be 'above' or 'below'", side)
     key = {"lower": "Q1", "upper": "Q2"}[which]
-    n = np.broadcast(*[np.asarray(v) for v in c.values()]).shape[0] if c else 1
+    # np.broadcast takes at most 64 arrays; the machine count is the longest first axis
+    n = max((np.shape(v)[0] for v in c.values() if np.ndim(v) > 0), default=1)
     phi = np.linspace(0.0, 2 * np.pi, n_grid, endpoint=False).reshape(1, -1)
     q, miss = _tooth(c, phi, key)
     y = np.broadcast_to(q.p.imag, (n, n_grid))
     level = np.broadcast_to(
         np.asarray(c["plate_mm"], float) + (np.asarray(c["material_mm"], float)
                                             if which == "upper" else 0.0), (n, 1))
-    sign = 1.0 if which == "lower" else -1.0
+    side = side or ("above" if which == "lower" else "below")
+    sign = 1.0 if side == "above" else -1.0
     depth = sign * (y - level)  # > 0 on the working side
     work = depth > 0
     nxt = np.roll(work, -1, axis=1)

@@ -21,7 +21,7 @@ DEFAULT_VARIANTS = (
 
 def compare_guides(nominal, tolerances: ToleranceSet, n: int, seed: int,
                    variants=DEFAULT_VARIANTS, range_deg=sb.DEFAULT_RANGE_DEG,
-                   n_jobs: int = 1) -> pd.DataFrame:
+                   n_jobs: int = 1, progress=False, scheduler=None) -> pd.DataFrame:
     """One row per guide setting (shift um along the guide normal, turn deg about its point)."""
     rows = []
     for label, shift_um, dangle in variants:
@@ -29,7 +29,8 @@ def compare_guides(nominal, tolerances: ToleranceSet, n: int, seed: int,
                              guide_angle=nominal.guide_angle + dangle)
         fig = nominal_figures(p, range_deg)
         mc = montecarlo(p.override(beta=fig.beta_opt_deg), tolerances, n, seed,
-                        range_deg=range_deg, n_jobs=n_jobs)
+                        range_deg=range_deg, n_jobs=n_jobs, progress=progress,
+                        scheduler=scheduler)
         rows.append({
             "guide": label, "shift_um": shift_um, "angle_from_vertical_deg": p.guide_angle,
             "beta_opt_deg": fig.beta_opt_deg, "total_um": fig.total_um,

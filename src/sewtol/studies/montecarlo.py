@@ -28,13 +28,15 @@ def _chunk(model, nominal, tolerances: ToleranceSet, rng, m: int, kwargs):
 
 
 def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
-                    n_jobs: int = 1, progress: bool = False, backend: str | None = None,
+                    n_jobs: int = 1, progress=False, backend: str | None = None,
                     chunk_size: int = CHUNK, desc: str = "Monte-Carlo", store=None,
-                    **kwargs) -> pd.DataFrame:
+                    scheduler=None, **kwargs) -> pd.DataFrame:
     """Deviations and model outputs of n machines, one row each (generic over mechanisms).
 
     model(nominal, deviations, **kwargs) returns a dict of output arrays. Chunk i of the fixed
-    chunk_size draws from child i of the seed, so any n_jobs gives the same rows.
+    chunk_size draws from child i of the seed, so any n_jobs or cluster gives the same rows.
+    progress: True (bar on stderr) or progress(done, total) in chunks; scheduler: a Dask
+    scheduler address or distributed.Client to run the chunks on (parallel.run_chunks).
     """
     if int(n) != n or n < 2:
         raise ParameterError("n", "must be a whole number >= 2", n)
@@ -46,7 +48,8 @@ def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
     rngs = child_generators(seed, len(bounds))
     parts = run_chunks(_chunk, [(model, nominal, tol, r, b - a, kwargs)
                                 for r, (a, b) in zip(rngs, bounds, strict=True)],
-                       n_jobs=n_jobs, progress=progress, desc=desc, backend=backend, store=store)
+                       n_jobs=n_jobs, progress=progress, desc=desc, backend=backend, store=store,
+                       scheduler=scheduler)
     frames = []
     for dev, out in parts:
         f = pd.DataFrame(dict(dev))
@@ -177,19 +180,22 @@ class MonteCarloResult:
 
 
 def montecarlo(nominal, tolerances: ToleranceSet, n: int, seed: int, limit_um: float = 10.0,
-               range_deg=sb.DEFAULT_RANGE_DEG, n_jobs: int = 1, progress: bool = False,
+               range_deg=sb.DEFAULT_RANGE_DEG, n_jobs: int = 1, progress=False,
                backend: str | None = None, chunk_size: int = CHUNK,
-               store=None) -> MonteCarloResult:
+               store=None, scheduler=None) -> MonteCarloResult:
     """N machines in chunks of chunk_size, chunk i drawing from child i of the seed.
 
     With a ChunkStore (studies.checkpoint) finished chunks are saved as they arrive and an
-    interrupted study resumes without recomputing them.
+    interrupted study resumes without recomputing them. progress: True (bar on stderr) or a
+    callable progress(done, total) in chunks; scheduler: run on a Dask cluster (address or
+    distributed.Client), same machines as a local run.
     """
     if not (np.isfinite(limit_um) and limit_um > 0):
         raise ParameterError("limit_um", "must be a positive number of um", limit_um)
     sb.check_range(range_deg, limit_um)
     machines = sample_machines(_needle_model, nominal, tolerances, n, seed, n_jobs, progress,
-                               backend, chunk_size, store=store, range_deg=range_deg)
+                               backend, chunk_size, store=store, scheduler=scheduler,
+                               range_deg=range_deg)
     return MonteCarloResult(machines, tuple(tolerances.active().params), tolerances.name,
                             int(seed), float(limit_um), float(nominal.beta),
                             tuple(map(float, range_deg)))

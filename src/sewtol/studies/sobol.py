@@ -104,17 +104,20 @@ def _needle_chunk(nominal, names, X, range_deg):
 
 
 def needle_sobol(nominal, tolerances: ToleranceSet, n: int, seed: int,
-                 range_deg=sb.DEFAULT_RANGE_DEG, n_jobs: int = 1, progress: bool = False,
+                 range_deg=sb.DEFAULT_RANGE_DEG, n_jobs: int = 1, progress=False,
                  backend: str | None = None, resamples: int = 200,
-                 chunk_size: int = 1000, store=None) -> SobolResult:
-    """Sobol indices of SumDelta, beta fixed and beta adjusted, at n and n/2 base samples."""
+                 chunk_size: int = 1000, store=None, scheduler=None) -> SobolResult:
+    """Sobol indices of SumDelta, beta fixed and beta adjusted, at n and n/2 base samples.
+
+    progress: True (bar on stderr) or progress(done, total) in chunks; scheduler: run the model
+    on a Dask cluster (address or distributed.Client; parallel.run_chunks)."""
     problem = problem_of(tolerances)
     X = sample(problem, n, seed)
     bounds = chunk_bounds(len(X), chunk_size)
     parts = run_chunks(_needle_chunk, [(nominal, problem["names"], X[a:b], range_deg)
                                        for a, b in bounds],
                        n_jobs=n_jobs, progress=progress, desc="Sobol", backend=backend,
-                       store=store)
+                       store=store, scheduler=scheduler)
     y_fixed = np.concatenate([p[0] for p in parts])
     y_adj = np.concatenate([p[1] for p in parts])
     frames, convs = [], []
