@@ -168,11 +168,11 @@ def test_interrupted_study_resumes_to_the_same_tables(tmp_path):
                             stderr=subprocess.PIPE, text=True)
     chunks = out / "chunks"
     deadline = time.time() + 120
-    while time.time() < deadline and len(list(chunks.glob("chunk_*.pkl"))) < 2:
+    while time.time() < deadline and len(list(chunks.glob("chunk_*.npz"))) < 2:
         time.sleep(0.02)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)
-    saved = len(list(chunks.glob("chunk_*.pkl")))
+    saved = len(list(chunks.glob("chunk_*.npz")))
     assert proc.returncode == 130, err
     assert "interrupted; finished chunks are saved" in err and "--resume" in err
     assert 2 <= saved < 16

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import os
+import signal
 import sys
 from pathlib import Path
 
@@ -12,6 +15,14 @@ import numpy as np
 from .errors import AssemblyError, ParameterError
 
 FORMATS = ("table", "json", "csv")
+MIN_STEP_DEG = 1e-3  # 360 000 angles per turn; finer steps only fill memory
+BETA_LIMIT_DEG = 360.0
+MAX_SWEEP_POINTS = 100_000
+SOBOL_RESAMPLES, SOBOL_CONF_LEVEL = 200, 0.95
+
+
+class Terminated(Exception):
+    """SIGTERM (a scheduler, `timeout`): stop like Ctrl-C, so the workers are stopped too."""
 
 
 class CliError(Exception):
@@ -47,18 +58,33 @@ def parse_sets(items, cls) -> dict:
     return out
 
 
-def _json_default(o):
-    if isinstance(o, np.generic):
-        return o.item()
+def strict(o):
+    """JSON-ready data with every NaN or infinity as None (null): JSON has no NaN or Infinity.
+
+    What null means for each key is listed in the README (e.g. a quantile beyond every machine
+    that runs, a Cpu without scatter, a window that does not exist).
+    """
+    if isinstance(o, dict):
+        return {str(k): strict(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [strict(v) for v in o]
     if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(type(o))
+        return strict(o.tolist())
+    if isinstance(o, np.generic):
+        o = o.item()
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    return o
+
+
+def to_json(data) -> str:
+    return json.dumps(strict(data), indent=2, allow_nan=False) + "\n"
 
 
 def emit(fmt: str, *, obj=None, frame=None) -> None:
     if fmt == "json":
         data = obj if obj is not None else frame.to_dict(orient="records")
-        sys.stdout.write(json.dumps(data, indent=2, default=_json_default, allow_nan=True) + "\n")
+        sys.stdout.write(to_json(data))
     elif fmt == "csv":
         sys.stdout.write(frame.to_csv(index=False, float_format="%.9g", lineterminator="\n"))
     else:
@@ -84,8 +110,7 @@ def cmd_needle_nominal(args):
 def cmd_needle_deviation(args):
     from .needle import deviation_table
 
-    if not (0 < args.step_deg <= 90):
-        raise ParameterError("--step-deg", "must be in (0, 90]", args.step_deg)
+    _check_step(args.step_deg)
     p = _needle_params(args)
     if args.beta is not None:
         p = p.override(beta=args.beta)
@@ -115,6 +140,30 @@ def _check_n(value, name="--n", minimum=2):
         raise ParameterError(name, f"must be >= {minimum}", value)
 
 
+def _check_step(value, name="--step-deg"):
+    if not (MIN_STEP_DEG <= value <= 90):
+        raise ParameterError(name, f"must be in [{MIN_STEP_DEG:g}, 90]", value)
+
+
+def _check_out(args):
+    """--out must be (or become) a writable folder; checked before anything is written."""
+    out = getattr(args, "out", None)
+    if not out:
+        return
+    path = Path(out)
+    if path.exists() and not path.is_dir():
+        raise ParameterError("--out", "must be a folder, not a file", out)
+    probe = path
+    while not probe.exists():
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    if not probe.is_dir():
+        raise ParameterError("--out", f"cannot be created: {probe} is not a folder", out)
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise ParameterError("--out", f"cannot be written: no write permission in {probe}", out)
+
+
 def _check_study(args):
     """Every study flag is checked before anything is computed or written."""
     if getattr(args, "seed", 0) < 0:
@@ -132,40 +181,70 @@ def _check_beta_range(args):
     if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
         raise ParameterError("--beta-range", "must be LOW HIGH with LOW < HIGH (deg)",
                              args.beta_range)
+    if not (-BETA_LIMIT_DEG <= lo and hi <= BETA_LIMIT_DEG):
+        raise ParameterError("--beta-range", f"must lie within +/-{BETA_LIMIT_DEG:g} deg",
+                             args.beta_range)
     if not (np.isfinite(args.limit_um) and args.limit_um > 0):
         raise ParameterError("--limit-um", "must be a positive number of um", args.limit_um)
 
 
-def _store(args, kind: str, params, tolerances):
-    """The checkpoint folder of a study run with --out (None without)."""
+def _inputs(args, kind, params, tolerances, **extra) -> dict:
+    """Every input that decides a study's numbers (the manifest binds its chunks to these)."""
+    from .mechanisms.params import as_dict
+    from .provenance import version_record
+
+    return {"study": kind, "n": args.n, "seed": args.seed, "params": as_dict(params),
+            "tolerances": {"name": tolerances.name, "items": tolerances.as_dict()},
+            **version_record(), **extra}
+
+
+def _store(args, inputs: dict):
+    """The checkpoint folder of a study run with --out (None without); takes its lock."""
     if not args.out:
         return None
-    from .mechanisms.params import as_dict
     from .studies.checkpoint import ChunkStore
 
-    manifest = {"study": kind, "n": args.n, "seed": args.seed, "params": as_dict(params),
-                "tolerances": {"name": tolerances.name, "items": tolerances.as_dict()}}
-    return ChunkStore(Path(args.out) / "chunks", manifest, args.resume, label=str(args.out))
+    return ChunkStore(Path(args.out) / "chunks", inputs, args.resume, label=str(args.out))
 
 
-def _write_outputs(args, kind, params, tolerances, started, result_obj, frames):
-    """Results, machine tables and run.json into --out, each file atomically."""
+def _history(store, started: str) -> list:
+    """Start times of every run into this folder (the first, then each --resume)."""
+    if store is None:
+        return [{"started_utc": started, "resumed": False}]
+    from .io import write_text_atomic
+
+    path = store.folder / "runs.json"
+    try:
+        runs = json.loads(path.read_text(encoding="utf-8")) if path.exists() else []
+        runs = [r for r in runs if isinstance(r, dict)] if isinstance(runs, list) else []
+    except (OSError, ValueError):
+        runs = []
+    runs = [{"started_utc": str(r.get("started_utc")), "resumed": bool(r.get("resumed"))}
+            for r in runs] + [{"started_utc": started, "resumed": bool(runs) or store.resumed}]
+    write_text_atomic(path, json.dumps(runs, indent=2) + "\n")
+    return runs
+
+
+def _write_outputs(args, kind, inputs, started, result_obj, frames, runs):
+    """Tables, then the result, then run.json into --out, each file atomically (a run.json
+    means the folder is complete)."""
     if not args.out:
         return
     from .io import write_text_atomic
-    from .mechanisms.params import as_dict
     from .provenance import run_record
 
     out = Path(args.out)
-    write_text_atomic(out / f"{kind}.json", json.dumps(result_obj, indent=2,
-                                                       default=_json_default) + "\n")
-    for name, frame in frames.items():
-        write_text_atomic(out / f"{name}.csv", frame.to_csv(index=False, float_format="%.9g",
-                                                          lineterminator="\n"))
-    inputs = {"study": kind, "n": args.n, "seed": args.seed, "n_jobs": args.n_jobs,
-              "params": as_dict(params),
-              "tolerances": {"name": tolerances.name, "items": tolerances.as_dict()}}
-    write_text_atomic(out / "run.json", json.dumps(run_record(started, inputs), indent=2) + "\n")
+    try:
+        for name, frame in frames.items():
+            write_text_atomic(out / f"{name}.csv", frame.to_csv(
+                index=False, float_format="%.9g", lineterminator="\n"))
+        write_text_atomic(out / f"{kind}.json", to_json(result_obj))
+        record = run_record(started, {**inputs, "n_jobs": args.n_jobs}, runs=runs)
+        write_text_atomic(out / "run.json", to_json(record))
+    except OSError as exc:
+        raise ParameterError("--out", f"cannot be written ({exc.strerror}); the finished chunks "
+                             "are kept: free the space and rerun with --resume",
+                             str(exc.filename or out)) from None
 
 
 def cmd_needle_scan(args):
@@ -178,24 +257,37 @@ def cmd_needle_scan(args):
 
 def cmd_needle_montecarlo(args):
     from .provenance import now
-    from .studies.montecarlo import montecarlo
+    from .studies import beta as sb
+    from .studies.montecarlo import CHUNK, check_sampling, montecarlo
 
     _check_n(args.n)
     _check_study(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
+    limit, rng = sb.DEFAULT_LIMIT_UM, sb.DEFAULT_RANGE_DEG
+    check_sampling(params, tolerances, args.n, args.seed, CHUNK)
     started = now()
-    store = _store(args, "montecarlo", params, tolerances)
-    res = montecarlo(params, tolerances, args.n, args.seed, n_jobs=args.n_jobs,
-                     progress=args.progress, store=store)
-    _write_outputs(args, "montecarlo", params, tolerances, started, res.to_dict(),
-                   {"machines": res.machines, "summary": res.summary_frame()})
+    inputs = _inputs(args, "montecarlo", params, tolerances, limit_um=limit,
+                     beta_search_range_deg=list(rng), chunk_size=CHUNK,
+                     strategy="beta fixed at nominal and beta re-optimised per machine")
+    store = _store(args, inputs)
+    try:
+        runs = _history(store, started)
+        res = montecarlo(params, tolerances, args.n, args.seed, limit_um=limit, range_deg=rng,
+                         n_jobs=args.n_jobs, progress=args.progress, store=store,
+                         chunk_size=CHUNK)
+        _write_outputs(args, "montecarlo", inputs, started, res.to_dict(),
+                       {"machines": res.machines, "summary": res.summary_frame()}, runs)
+    finally:
+        if store is not None:
+            store.close()
     emit(args.format, obj=res.to_dict(), frame=res.summary_frame())
 
 
 def cmd_needle_sobol(args):
     from .provenance import now
+    from .studies import beta as sb
+    from .studies.sobol import CHUNK, check_sobol, needle_sobol
     from .studies.sobol import _check_n as check_power_of_two
-    from .studies.sobol import needle_sobol
 
     try:
         check_power_of_two(args.n)
@@ -203,12 +295,25 @@ def cmd_needle_sobol(args):
         raise ParameterError("--n", exc.rule, args.n) from None
     _check_study(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
+    check_sobol(params, tolerances, args.n, args.seed)
+    rng = sb.DEFAULT_RANGE_DEG
     started = now()
-    store = _store(args, "sobol", params, tolerances)
-    res = needle_sobol(params, tolerances, args.n, args.seed, n_jobs=args.n_jobs,
-                       progress=args.progress, store=store)
-    _write_outputs(args, "sobol", params, tolerances, started, res.to_records(),
-                   {"indices": res.to_dataframe(), "convergence": res.convergence})
+    inputs = _inputs(args, "sobol", params, tolerances, beta_search_range_deg=list(rng),
+                     chunk_size=CHUNK, resamples=SOBOL_RESAMPLES,
+                     confidence_level=SOBOL_CONF_LEVEL,
+                     strategy="beta fixed at nominal and beta re-optimised per sample")
+    store = _store(args, inputs)
+    try:
+        runs = _history(store, started)
+        res = needle_sobol(params, tolerances, args.n, args.seed, range_deg=rng,
+                           n_jobs=args.n_jobs, progress=args.progress, store=store,
+                           resamples=SOBOL_RESAMPLES, conf_level=SOBOL_CONF_LEVEL,
+                           chunk_size=CHUNK)
+        _write_outputs(args, "sobol", inputs, started, res.to_records(),
+                       {"indices": res.to_dataframe(), "convergence": res.convergence}, runs)
+    finally:
+        if store is not None:
+            store.close()
     emit(args.format, obj=res.to_records(), frame=res.to_dataframe())
 
 
@@ -221,6 +326,7 @@ def _feed_params(args):
 def cmd_feed_trajectory(args):
     from .feed import trajectory
 
+    _check_step(args.step_deg)
     emit(args.format, frame=trajectory(_feed_params(args), args.step_deg))
 
 
@@ -238,14 +344,22 @@ def cmd_feed_regulator(args):
     from .feed import regulator_sweep
 
     lo, hi, step = args.b_range
-    if not (lo < hi and step > 0):
-        raise ParameterError("--b-range", "must be LOW HIGH STEP with LOW < HIGH and STEP > 0",
-                             args.b_range)
+    if not (np.isfinite([lo, hi, step]).all() and lo < hi and step > 0):
+        raise ParameterError("--b-range", "must be finite LOW HIGH STEP with LOW < HIGH and "
+                             "STEP > 0", args.b_range)
+    if (hi - lo) / step + 1 > MAX_SWEEP_POINTS:
+        raise ParameterError("--b-range", f"gives more than {MAX_SWEEP_POINTS} settings; use a "
+                             "larger STEP", args.b_range)
     emit(args.format, frame=regulator_sweep(_feed_params(args), np.arange(lo, hi + 1e-9, step)))
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from . import __version__
+    from .provenance import git_revision
+
     ap = Parser(prog="sewtol", description=__doc__.splitlines()[0])
+    ap.add_argument("--version", action="version",
+                    version=f"sewtol {__version__} (revision {git_revision()})")
     sub = ap.add_subparsers(dest="group", required=True, parser_class=Parser)
     needle = sub.add_parser("needle", help="208-class needle drive")
     nsub = needle.add_subparsers(dest="command", required=True, parser_class=Parser)
@@ -317,19 +431,33 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+def _on_sigterm(signum, frame):
+    raise Terminated()
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    previous = None
+    try:  # only the main thread may set handlers; a library caller's threads run without
+        previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    except ValueError:
+        pass
     try:
+        _check_out(args)
         args.func(args)
     except (ParameterError, AssemblyError, CliError) as exc:
         print(f"sewtol: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, Terminated) as exc:
         where = getattr(args, "out", None)
         hint = (f"; finished chunks are saved in {where}/chunks: rerun the same command with "
                 "--resume" if where else "; nothing was saved (use --out DIR to keep chunks)")
-        print(f"sewtol: interrupted{hint}", file=sys.stderr)
-        return 130
+        what = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
+        print(f"sewtol: {what}{hint}", file=sys.stderr)
+        return 143 if isinstance(exc, Terminated) else 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     return 0
 
 

@@ -2,7 +2,9 @@
 
 Each machine draws its deviations from the tolerance set; SumDelta is computed with beta fixed at
 the nominal machine's beta* and with beta re-optimised on the machine (the assembly adjustment).
-Machines that cannot assemble are counted as failed and count against both yields.
+Machines that cannot assemble are counted as failed and count against both yields; each case
+has its own count (a machine may fail at the nominal beta and assemble at its adjusted beta), and
+every summary satisfies ok + out_of_spec + failed = n (studies/needle_status.py).
 """
 
 from __future__ import annotations
@@ -16,10 +18,44 @@ from scipy import stats
 from ..errors import ParameterError
 from ..tolerances import ToleranceSet
 from . import beta as sb
+from . import needle_status as ns
 from .needle_eval import evaluate
 from .parallel import child_generators, chunk_bounds, run_chunks
 
 CHUNK = 500
+# bytes per machine and column of a study table (float64) plus pandas' working copies
+BYTES_PER_CELL = 8 * 4
+
+
+def check_seed(seed) -> int:
+    """A seed is a whole number >= 0 (checked before anything is computed)."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ParameterError("seed", "must be a whole number >= 0", seed)
+    return int(seed)
+
+
+def available_memory_bytes() -> int | None:
+    try:
+        for line in open("/proc/meminfo"):
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        import os
+
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_memory(n: int, columns: int, what: str = "n") -> None:
+    """Refuse a study whose result table cannot fit in the memory available now."""
+    need = int(n) * int(columns) * BYTES_PER_CELL
+    have = available_memory_bytes()
+    if have is not None and need > have:
+        raise ParameterError(what, f"needs about {need / 2**30:.3g} GiB for {columns} columns of "
+                             f"{int(n)} rows, more than the {have / 2**30:.3g} GiB available", n)
 
 
 def _chunk(model, nominal, tolerances: ToleranceSet, rng, m: int, kwargs):
@@ -36,17 +72,33 @@ def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
     model(nominal, deviations, **kwargs) returns a dict of output arrays. Chunk i of the fixed
     chunk_size draws from child i of the seed, so any n_jobs gives the same rows.
     """
-    if int(n) != n or n < 2:
-        raise ParameterError("n", "must be a whole number >= 2", n)
+    check_sampling(nominal, tolerances, n, seed, chunk_size)
     tol = tolerances.active()
-    if not tol.items:
-        raise ParameterError("tolerances", "has no tolerance with a non-zero width",
-                             tolerances.name)
     bounds = chunk_bounds(int(n), chunk_size)
     rngs = child_generators(seed, len(bounds))
+
+    def validate(i, part):
+        """A saved chunk must hold exactly the machines chunk i draws from the seed."""
+        try:
+            dev, out = part
+            m = bounds[i][1] - bounds[i][0]
+            if sorted(dev) != sorted(tol.params):
+                return f"holds deviations of {sorted(dev)}, not {sorted(tol.params)}"
+            for k, v in list(dev.items()) + list(out.items()):
+                if np.shape(v) != (m,):
+                    return f"column {k} has shape {np.shape(v)}, not ({m},)"
+            again = tol.sample(child_generators(seed, len(bounds))[i], m)
+            for k, v in again.items():
+                if not np.allclose(dev[k], v, rtol=1e-12, atol=0.0):
+                    return f"its {k} deviations are not the ones chunk {i} draws from the seed"
+        except (TypeError, ValueError, KeyError) as exc:
+            return f"malformed ({exc})"
+        return None
+
     parts = run_chunks(_chunk, [(model, nominal, tol, r, b - a, kwargs)
                                 for r, (a, b) in zip(rngs, bounds, strict=True)],
-                       n_jobs=n_jobs, progress=progress, desc=desc, backend=backend, store=store)
+                       n_jobs=n_jobs, progress=progress, desc=desc, backend=backend, store=store,
+                       validate=validate)
     frames = []
     for dev, out in parts:
         f = pd.DataFrame(dict(dev))
@@ -56,6 +108,22 @@ def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
     machines = pd.concat(frames, ignore_index=True)
     machines.insert(0, "machine", np.arange(len(machines)))
     return machines
+
+
+def check_sampling(nominal, tolerances: ToleranceSet, n, seed, chunk_size: int = CHUNK,
+                   columns: int | None = None) -> None:
+    """Every input of a Monte-Carlo that can be checked before it runs (nothing is written)."""
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer, float)) or int(n) != n or n < 2:
+        raise ParameterError("n", "must be a whole number >= 2", n)
+    check_seed(seed)
+    if isinstance(chunk_size, bool) or int(chunk_size) != chunk_size or chunk_size < 1:
+        raise ParameterError("chunk_size", "must be a whole number >= 1", chunk_size)
+    tol = tolerances.active()
+    if not tol.items:
+        raise ParameterError("tolerances", "has no tolerance with a non-zero width",
+                             tolerances.name)
+    tolerances.check_against(nominal)
+    check_memory(n, columns if columns is not None else 2 * len(tol.items) + 16)
 
 
 def contributors(machines: pd.DataFrame, params, output: str, bins: int = 20) -> pd.DataFrame:
@@ -108,7 +176,20 @@ class MonteCarloResult:
 
     @property
     def failed(self) -> int:
-        return int(np.isnan(self.machines["total_fixed_um"]).sum())
+        """Machines that cannot run at the nominal beta (the fixed case; see `counts`)."""
+        return self.counts("fixed")["failed"]
+
+    def status(self, case: str) -> np.ndarray:
+        col = f"status_{case}"
+        if col in self.machines:
+            return self.machines[col].to_numpy(object)
+        total = self.machines[f"total_{case}_um"].to_numpy(float)
+        return np.where(np.isnan(total), "unexplained",
+                        np.where(total <= self.limit_um, "ok", "out_of_spec")).astype(object)
+
+    def counts(self, case: str) -> dict[str, int]:
+        """ok, out_of_spec, failed (= cannot_close + dead_point + unexplained) and n of a case."""
+        return ns.counts(self.status(case))
 
     def passed(self, case: str) -> np.ndarray:
         return (self.machines[f"total_{case}_um"] <= self.limit_um).to_numpy()
@@ -151,6 +232,8 @@ class MonteCarloResult:
         return {
             "n": self.n,
             "failed": self.failed,
+            "counts": {"fixed_beta": self.counts("fixed"),
+                       "adjusted_beta": self.counts("adjusted")},
             "yield_fixed_beta": self.yield_of("fixed"),
             "yield_adjusted_beta": self.yield_of("adjusted"),
             "yield_ci": [lo, hi],
@@ -161,6 +244,7 @@ class MonteCarloResult:
             "tolerances": self.tolerances,
             "limit_um": self.limit_um,
             "nominal_beta_deg": self.nominal_beta_deg,
+            "beta_search_range_deg": list(self.range_deg),
         }
 
     def summary_frame(self) -> pd.DataFrame:
@@ -169,7 +253,10 @@ class MonteCarloResult:
             q = self.quantiles(case)
             lo, hi = self.yield_ci(case)
             cap = self.capability(case)
-            rows.append({"case": f"{case}_beta", "n": self.n, "failed": self.failed,
+            k = self.counts(case)
+            rows.append({"case": f"{case}_beta", "n": self.n, "ok": k["ok"],
+                         "out_of_spec": k["out_of_spec"], "failed": k["failed"],
+                         "cannot_close": k["cannot_close"], "dead_point": k["dead_point"],
                          "yield": self.yield_of(case), "yield_ci_low": lo, "yield_ci_high": hi,
                          "p50_um": q["p50"], "p95_um": q["p95"], "p99_um": q["p99"],
                          "Cpu": cap["Cpu"], "Cpu_percentile": cap["Cpu_percentile"]})
@@ -188,8 +275,12 @@ def montecarlo(nominal, tolerances: ToleranceSet, n: int, seed: int, limit_um: f
     if not (np.isfinite(limit_um) and limit_um > 0):
         raise ParameterError("limit_um", "must be a positive number of um", limit_um)
     sb.check_range(range_deg, limit_um)
+    params = tuple(tolerances.active().params)
+    check_sampling(nominal, tolerances, n, seed, chunk_size, columns=len(params) + 14)
     machines = sample_machines(_needle_model, nominal, tolerances, n, seed, n_jobs, progress,
                                backend, chunk_size, store=store, range_deg=range_deg)
-    return MonteCarloResult(machines, tuple(tolerances.active().params), tolerances.name,
+    status = ns.machine_status(nominal, machines, params, float(limit_um))
+    machines = pd.concat([machines, status], axis=1)
+    return MonteCarloResult(machines, params, tolerances.name,
                             int(seed), float(limit_um), float(nominal.beta),
                             tuple(map(float, range_deg)))
