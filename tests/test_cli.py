@@ -90,4 +90,4 @@ def test_feed_bad_inputs():
     code, _, err = run("feed", "trajectory", "--set", "O9=1")
     assert code == 2 and "valid names are O1F" in err
     code, _, err = run("feed", "trajectory", "--step-deg", "0")
-    assert code == 2 and "step_deg: must be in (0, 90]" in err
+    assert code == 2 and "--step-deg: must be in [0.001, 90] (got 0.0)" in err
