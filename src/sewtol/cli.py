@@ -145,6 +145,19 @@ def _check_step(value, name="--step-deg"):
         raise ParameterError(name, f"must be in [{MIN_STEP_DEG:g}, 90]", value)
 
 
+FLAGS = {"n": "--n", "seed": "--seed", "tolerances": "--tolerances", "n_jobs": "--n-jobs"}
+
+
+def _as_flags(check, *a):
+    """Run a library check; its error names the CLI flag rather than the keyword argument."""
+    try:
+        check(*a)
+    except ParameterError as exc:
+        if exc.field in FLAGS:
+            raise ParameterError(FLAGS[exc.field], exc.rule, exc.value) from None
+        raise
+
+
 def _check_out(args):
     """--out must be (or become) a writable folder; checked before anything is written."""
     out = getattr(args, "out", None)
@@ -264,7 +277,7 @@ def cmd_needle_montecarlo(args):
     _check_study(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
     limit, rng = sb.DEFAULT_LIMIT_UM, sb.DEFAULT_RANGE_DEG
-    check_sampling(params, tolerances, args.n, args.seed, CHUNK)
+    _as_flags(check_sampling, params, tolerances, args.n, args.seed, CHUNK)
     started = now()
     inputs = _inputs(args, "montecarlo", params, tolerances, limit_um=limit,
                      beta_search_range_deg=list(rng), chunk_size=CHUNK,
@@ -295,7 +308,7 @@ def cmd_needle_sobol(args):
         raise ParameterError("--n", exc.rule, args.n) from None
     _check_study(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
-    check_sobol(params, tolerances, args.n, args.seed)
+    _as_flags(check_sobol, params, tolerances, args.n, args.seed)
     rng = sb.DEFAULT_RANGE_DEG
     started = now()
     inputs = _inputs(args, "sobol", params, tolerances, beta_search_range_deg=list(rng),

@@ -49,13 +49,14 @@ def available_memory_bytes() -> int | None:
         return None
 
 
-def check_memory(n: int, columns: int, what: str = "n") -> None:
+def check_memory(n: int, columns: int, what: str = "n", value=None) -> None:
     """Refuse a study whose result table cannot fit in the memory available now."""
     need = int(n) * int(columns) * BYTES_PER_CELL
     have = available_memory_bytes()
     if have is not None and need > have:
         raise ParameterError(what, f"needs about {need / 2**30:.3g} GiB for {columns} columns of "
-                             f"{int(n)} rows, more than the {have / 2**30:.3g} GiB available", n)
+                             f"{int(n)} rows, more than the memory available "
+                             f"({have / 2**30:.3g} GiB)", n if value is None else value)
 
 
 def _chunk(model, nominal, tolerances: ToleranceSet, rng, m: int, kwargs):

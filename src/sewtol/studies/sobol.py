@@ -51,7 +51,7 @@ def check_sobol(nominal, tolerances: ToleranceSet, n, seed) -> None:
                              tolerances.name)
     tolerances.check_against(nominal)
     # the sample matrix (N (D + 2) rows of D columns) and two outputs per row
-    check_memory(int(n) * (d + 2), d + 2)
+    check_memory(int(n) * (d + 2), d + 2, value=n)
 
 
 def sample(problem: dict, n: int, seed: int) -> np.ndarray:
