@@ -274,3 +274,25 @@ def test_version_flag_and_module_entry_point():
     proc = subprocess.run([sys.executable, "-m", "sewtol", "--version"], capture_output=True,
                           text=True, timeout=60)
     assert proc.returncode == 0 and proc.stdout == out
+
+
+def test_a_full_disk_while_saving_a_chunk_is_one_line(tmp_path, monkeypatch):
+    from sewtol.studies import checkpoint
+
+    real = checkpoint.write_bytes_atomic
+    calls = []
+
+    def full(path, data):
+        calls.append(path)
+        if len(calls) > 1:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+        return real(path, data)
+
+    monkeypatch.setattr(checkpoint, "write_bytes_atomic", full)
+    out = tmp_path / "o"
+    code, stdout, err = run("needle", "montecarlo", "--n", "1500", "--out", str(out))
+    assert code == 2 and stdout == "" and err.count("\n") == 1
+    assert "chunk_00001.npz: No space left on device" in err and "--resume" in err
+    monkeypatch.setattr(checkpoint, "write_bytes_atomic", real)
+    code, _, err = run("needle", "montecarlo", "--n", "1500", "--out", str(out), "--resume")
+    assert code == 0 and "recomputing" not in err

@@ -461,6 +461,13 @@ def main(argv=None) -> int:
     except (ParameterError, AssemblyError, CliError) as exc:
         print(f"sewtol: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # e.g. the disk filled up while a chunk was saved
+        where = getattr(args, "out", None)
+        kept = (f"; finished chunks are kept in {where}/chunks: rerun with --resume" if where
+                else "")
+        print(f"sewtol: error: {exc.filename or 'output'}: {exc.strerror or exc}{kept}",
+              file=sys.stderr)
+        return 2
     except (KeyboardInterrupt, Terminated) as exc:
         where = getattr(args, "out", None)
         hint = (f"; finished chunks are saved in {where}/chunks: rerun the same command with "
