@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import signal
 import sys
@@ -13,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import AssemblyError, ParameterError
+from .io import strict, to_json  # noqa: F401  (strict is part of the CLI's API)
 
 FORMATS = ("table", "json", "csv")
 MIN_STEP_DEG = 1e-3  # 360 000 angles per turn; finer steps only fill memory
@@ -56,29 +56,6 @@ def parse_sets(items, cls) -> dict:
             raise ParameterError(name, "must be a number", text) from None
         out[name] = value
     return out
-
-
-def strict(o):
-    """JSON-ready data with every NaN or infinity as None (null): JSON has no NaN or Infinity.
-
-    What null means for each key is listed in the README (e.g. a quantile beyond every machine
-    that runs, a Cpu without scatter, a window that does not exist).
-    """
-    if isinstance(o, dict):
-        return {str(k): strict(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [strict(v) for v in o]
-    if isinstance(o, np.ndarray):
-        return strict(o.tolist())
-    if isinstance(o, np.generic):
-        o = o.item()
-    if isinstance(o, float) and not math.isfinite(o):
-        return None
-    return o
-
-
-def to_json(data) -> str:
-    return json.dumps(strict(data), indent=2, allow_nan=False) + "\n"
 
 
 def emit(fmt: str, *, obj=None, frame=None) -> None:

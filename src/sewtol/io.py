@@ -6,9 +6,37 @@ so a study folder shared through group permissions stays readable by the group.
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import tempfile
 from pathlib import Path
+
+import numpy as np
+
+
+def strict(o):
+    """JSON-ready data with every NaN or infinity as None (null): JSON has no NaN or Infinity.
+
+    What null means for each key is listed in the README (e.g. a quantile beyond every machine
+    that runs, a Cpu without scatter, a window that does not exist).
+    """
+    if isinstance(o, dict):
+        return {str(k): strict(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [strict(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return strict(o.tolist())
+    if isinstance(o, np.generic):
+        o = o.item()
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    return o
+
+
+def to_json(data) -> str:
+    """Strict JSON text (indent 2, a final newline) of data, as every sewtol output writes it."""
+    return json.dumps(strict(data), indent=2, allow_nan=False) + "\n"
 
 
 def umask() -> int:
