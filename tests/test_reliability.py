@@ -60,7 +60,7 @@ def test_dead_points_count_as_failures_in_studies(nominal):
     cd0 = stretched_CD(nominal)
     base = nominal.override(CD=cd0 + 0.3)
     ts = ToleranceSet("near", (Tolerance("CD", -0.35, 0.05),))
-    res = montecarlo(base, ts, 400, seed=2)
+    res = montecarlo(base, ts, 400, seed=2, fixed_beta="as_given")  # cd0 is at this beta
     d = res.machines["CD"].to_numpy() + 0.3  # CD - cd0
     runs = res.machines["total_fixed_um"].notna().to_numpy()
     # d < 0: cannot close; 0 < d < ~0.04 mm: links within 1 deg of collinear (dead point)

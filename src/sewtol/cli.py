@@ -258,7 +258,8 @@ def cmd_needle_montecarlo(args):
     started = now()
     inputs = _inputs(args, "montecarlo", params, tolerances, limit_um=limit,
                      beta_search_range_deg=list(rng), chunk_size=CHUNK,
-                     strategy="beta fixed at nominal and beta re-optimised per machine")
+                     strategy="beta fixed at the nominal's beta* (fixed_beta=optimum) and beta "
+                     "re-optimised per machine")
     store = _store(args, inputs)
     try:
         runs = _history(store, started)
@@ -291,7 +292,8 @@ def cmd_needle_sobol(args):
     inputs = _inputs(args, "sobol", params, tolerances, beta_search_range_deg=list(rng),
                      chunk_size=CHUNK, resamples=SOBOL_RESAMPLES,
                      confidence_level=SOBOL_CONF_LEVEL,
-                     strategy="beta fixed at nominal and beta re-optimised per sample")
+                     strategy="beta fixed at the nominal's beta* (fixed_beta=optimum) and beta "
+                     "re-optimised per sample")
     store = _store(args, inputs)
     try:
         runs = _history(store, started)

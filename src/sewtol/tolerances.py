@@ -163,11 +163,26 @@ class ToleranceSet:
                for k in dict.fromkeys(params)}
         return params, sides, deltas, dev
 
-    def scaled(self, factors: dict[str, float]) -> ToleranceSet:
-        return ToleranceSet(self.name, tuple(
+    def scaled(self, factors: dict[str, float], name: str | None = None) -> ToleranceSet:
+        """Each named tolerance's limits times its factor. The copy gets a new name (by default
+        the factors appended, e.g. "recommended*CD=0.5"), so results of a scaled set are never
+        labelled as the original set."""
+        unknown = sorted(set(factors) - set(self.params))
+        if unknown:
+            raise ParameterError("factors", f"name tolerances not in set '{self.name}' "
+                                 f"({', '.join(self.params)})", unknown)
+        for k, f in factors.items():
+            if isinstance(f, bool) or not isinstance(f, (int, float, np.integer, np.floating)) \
+                    or not (np.isfinite(f) and f >= 0):
+                raise ParameterError(f"factors.{k}", "must be a finite number >= 0", f)
+        changed = {k: f for k, f in factors.items() if f != 1.0}
+        if name is None:
+            name = self.name + "".join(f"*{k}={float(f):g}" for k, f in changed.items())
+        return ToleranceSet(name, tuple(
             Tolerance(t.param, t.lower * factors.get(t.param, 1.0),
                       t.upper * factors.get(t.param, 1.0), t.dist) for t in self.items),
-            self.description)
+            self.description + (f" (scaled: {', '.join(f'{k} x{float(f):g}' for k, f in changed.items())})"
+                                if changed else ""))
 
     def as_dict(self) -> dict:
         return {t.param: {"lower": t.lower, "upper": t.upper, "dist": t.dist} for t in self.items}

@@ -168,8 +168,9 @@ class MonteCarloResult:
     tolerances: str
     seed: int
     limit_um: float
-    nominal_beta_deg: float
+    nominal_beta_deg: float  # the beta of the fixed case (see `montecarlo`'s fixed_beta)
     range_deg: tuple[float, float]
+    fixed_beta: str = "optimum"
 
     @property
     def n(self) -> int:
@@ -180,7 +181,17 @@ class MonteCarloResult:
         """Machines that cannot run at the nominal beta (the fixed case; see `counts`)."""
         return self.counts("fixed")["failed"]
 
+    @staticmethod
+    def case_of(case: str) -> str:
+        """'fixed' or 'adjusted'; the output names 'fixed_beta' and 'adjusted_beta' work too."""
+        c = case[: -len("_beta")] if isinstance(case, str) and case.endswith("_beta") else case
+        if c not in ("fixed", "adjusted"):
+            raise ParameterError("case", "must be fixed, adjusted, fixed_beta or adjusted_beta",
+                                 case)
+        return c
+
     def status(self, case: str) -> np.ndarray:
+        case = self.case_of(case)
         col = f"status_{case}"
         if col in self.machines:
             return self.machines[col].to_numpy(object)
@@ -193,6 +204,7 @@ class MonteCarloResult:
         return ns.counts(self.status(case))
 
     def passed(self, case: str) -> np.ndarray:
+        case = self.case_of(case)
         return (self.machines[f"total_{case}_um"] <= self.limit_um).to_numpy()
 
     def yield_of(self, case: str) -> float:
@@ -200,11 +212,13 @@ class MonteCarloResult:
 
     def yield_ci(self, case: str = "adjusted", level: float = 0.95) -> tuple[float, float]:
         """Clopper-Pearson interval of the yield."""
+        case = self.case_of(case)
         k = int(self.passed(case).sum())
         ci = stats.binomtest(k, self.n).proportion_ci(confidence_level=level, method="exact")
         return float(ci.low), float(ci.high)
 
     def quantiles(self, case: str) -> dict:
+        case = self.case_of(case)
         # failed machines rank as infinitely bad, so they are not hidden by the quantiles
         x = self.machines[f"total_{case}_um"].fillna(np.inf).to_numpy()
         return {f"p{q}": float(np.quantile(x, q / 100, method="higher")) for q in (50, 95, 99)}
@@ -215,6 +229,7 @@ class MonteCarloResult:
 
     def capability(self, case: str) -> dict:
         """Cpu = (USL - mean) / 3 sigma, and the percentile form (USL - p50) / (p99.865 - p50)."""
+        case = self.case_of(case)
         x = self.machines[f"total_{case}_um"].dropna().to_numpy()
         if x.size < 2:  # (almost) every machine failed: no scatter to speak of
             return {"Cpu": float("nan"), "Cpu_percentile": float("nan")}
@@ -226,6 +241,7 @@ class MonteCarloResult:
 
     def pareto(self, case: str = "adjusted", bins: int = 20) -> pd.DataFrame:
         """Contributors to SumDelta's scatter (see `contributors`)."""
+        case = self.case_of(case)
         return contributors(self.machines, self.params, f"total_{case}_um", bins)
 
     def to_dict(self) -> dict:
@@ -237,7 +253,11 @@ class MonteCarloResult:
                        "adjusted_beta": self.counts("adjusted")},
             "yield_fixed_beta": self.yield_of("fixed"),
             "yield_adjusted_beta": self.yield_of("adjusted"),
-            "yield_ci": [lo, hi],
+            "yield_ci": [lo, hi],  # adjusted beta (kept for compatibility)
+            "yield_ci_95": {"fixed_beta": list(self.yield_ci("fixed")),
+                            "adjusted_beta": [lo, hi]},
+            "capability": {"fixed_beta": self.capability("fixed"),
+                           "adjusted_beta": self.capability("adjusted")},
             "beta_range_deg": list(self.beta_range()),
             "total_um_quantiles": {"fixed_beta": self.quantiles("fixed"),
                                    "adjusted_beta": self.quantiles("adjusted")},
@@ -245,6 +265,7 @@ class MonteCarloResult:
             "tolerances": self.tolerances,
             "limit_um": self.limit_um,
             "nominal_beta_deg": self.nominal_beta_deg,
+            "fixed_beta": self.fixed_beta,
             "beta_search_range_deg": list(self.range_deg),
         }
 
@@ -264,24 +285,46 @@ class MonteCarloResult:
         return pd.DataFrame(rows)
 
 
+FIXED_BETA = ("optimum", "as_given")
+
+
+def fixed_beta_of(nominal, fixed_beta: str, range_deg, limit_um) -> float:
+    """The beta every machine keeps in the fixed case.
+
+    "optimum": the nominal machine's beta* in range_deg, exactly what `sewtol needle nominal`
+    prints for the same parameters (so a study of a shifted guide is fixed at that guide's beta*,
+    as an assembler would set it); "as_given": the nominal's own beta parameter.
+    """
+    if fixed_beta == "as_given":
+        return float(nominal.beta)
+    if fixed_beta != "optimum":
+        raise ParameterError("fixed_beta", f"must be one of {', '.join(FIXED_BETA)}", fixed_beta)
+    from ..needle import nominal_figures
+
+    return float(nominal_figures(nominal, tuple(range_deg), limit_um).beta_opt_deg)
+
+
 def montecarlo(nominal, tolerances: ToleranceSet, n: int, seed: int, limit_um: float = 10.0,
                range_deg=sb.DEFAULT_RANGE_DEG, n_jobs: int = 1, progress: bool = False,
                backend: str | None = None, chunk_size: int = CHUNK,
-               store=None) -> MonteCarloResult:
+               store=None, fixed_beta: str = "optimum") -> MonteCarloResult:
     """N machines in chunks of chunk_size, chunk i drawing from child i of the seed.
 
-    With a ChunkStore (studies.checkpoint) finished chunks are saved as they arrive and an
-    interrupted study resumes without recomputing them.
+    The fixed case keeps every machine at the nominal machine's beta* (fixed_beta="optimum",
+    the default) or at the nominal's own beta parameter (fixed_beta="as_given"); the adjusted case
+    re-optimises beta per machine in range_deg. With a ChunkStore (studies.checkpoint) finished
+    chunks are saved as they arrive and an interrupted study resumes without recomputing them.
     """
     if not (np.isfinite(limit_um) and limit_um > 0):
         raise ParameterError("limit_um", "must be a positive number of um", limit_um)
     sb.check_range(range_deg, limit_um)
     params = tuple(tolerances.active().params)
     check_sampling(nominal, tolerances, n, seed, chunk_size, columns=len(params) + 14)
+    nominal = nominal.override(beta=fixed_beta_of(nominal, fixed_beta, range_deg, limit_um))
     machines = sample_machines(_needle_model, nominal, tolerances, n, seed, n_jobs, progress,
                                backend, chunk_size, store=store, range_deg=range_deg)
     status = ns.machine_status(nominal, machines, params, float(limit_um))
     machines = pd.concat([machines, status], axis=1)
     return MonteCarloResult(machines, params, tolerances.name,
                             int(seed), float(limit_um), float(nominal.beta),
-                            tuple(map(float, range_deg)))
+                            tuple(map(float, range_deg)), fixed_beta)

@@ -127,10 +127,18 @@ def _needle_chunk(nominal, names, X, range_deg):
 def needle_sobol(nominal, tolerances: ToleranceSet, n: int, seed: int,
                  range_deg=sb.DEFAULT_RANGE_DEG, n_jobs: int = 1, progress: bool = False,
                  backend: str | None = None, resamples: int = 200,
-                 chunk_size: int = CHUNK, store=None, conf_level: float = 0.95) -> SobolResult:
-    """Sobol indices of SumDelta, beta fixed and beta adjusted, at n and n/2 base samples."""
+                 chunk_size: int = CHUNK, store=None, conf_level: float = 0.95,
+                 fixed_beta: str = "optimum", limit_um: float = sb.DEFAULT_LIMIT_UM
+                 ) -> SobolResult:
+    """Sobol indices of SumDelta, beta fixed and beta adjusted, at n and n/2 base samples.
+
+    beta fixed means what it means in `montecarlo` (fixed_beta: "optimum", the nominal's beta*
+    as `sewtol needle nominal` prints it, or "as_given")."""
+    from .montecarlo import fixed_beta_of
+
     check_sobol(nominal, tolerances, n, seed)
-    sb.check_range(range_deg, sb.DEFAULT_LIMIT_UM)
+    sb.check_range(range_deg, limit_um)
+    nominal = nominal.override(beta=fixed_beta_of(nominal, fixed_beta, range_deg, limit_um))
     problem = problem_of(tolerances)
     X = sample(problem, n, seed)
     bounds = chunk_bounds(len(X), chunk_size)
