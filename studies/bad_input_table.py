@@ -60,6 +60,7 @@ CASES = [
     "needle montecarlo --out {d}/a_file",
     "needle montecarlo --out {d}/a_file/study",
     "needle sobol --n 100",
+    "needle sobol --n 2",
     "needle sobol --tolerances {d}/zero.toml",
     "needle scan --tolerances nope",
     "needle montecarlo --tolerances {d}/bad1.toml",

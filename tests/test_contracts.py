@@ -339,3 +339,21 @@ def test_scaled_sets_are_renamed():
         rec.scaled({"QQ": 2.0})
     with pytest.raises(ParameterError, match="factors.CD: must be a finite number >= 0"):
         rec.scaled({"CD": -1.0})
+
+
+def test_issue_14_contract_fixes(nominal):
+    code, out, _ = run("needle", "scan", "--format", "json")
+    rows = strict_loads(out)
+    lf = next(r for r in rows if r["param"] == "LF" and r["side"] == "upper")
+    assert lf["value_mm"] == pytest.approx(nominal.LF + lf["delta_mm"], abs=1e-12)
+    code, out, err = run("needle", "nominal", "--format", "csv")
+    assert code == 2 and out == "" and "invalid choice: 'csv'" in err
+    code, out, _ = run("feed", "metrics", "--help")
+    assert code == 0 and "--set b=25" in out and "LF=6.8" not in out
+    code, out, err = run("needle", "sobol", "--n", "8")
+    assert code == 2 and "must be a power of two >= 16" in err
+    code, out, _ = run("needle", "montecarlo", "--n", "200", "--format", "json")
+    d = strict_loads(out)
+    assert d["yield_ci_95"]["adjusted_beta"] == d["yield_ci"]
+    assert set(d["capability"]["fixed_beta"]) == {"Cpu", "Cpu_percentile"}
+    assert d["beta_search_range_deg"] == [10.0, 35.0]

@@ -79,8 +79,6 @@ def cmd_needle_nominal(args):
 
     _check_beta_range(args)
     fig = nominal_figures(_needle_params(args), tuple(args.beta_range), args.limit_um)
-    if args.format == "csv":
-        raise CliError("--format: nominal prints json or table, not csv")
     emit(args.format, obj=fig.to_dict(), frame=fig.to_dataframe())
 
 
@@ -356,13 +354,13 @@ def build_parser() -> argparse.ArgumentParser:
     needle = sub.add_parser("needle", help="208-class needle drive")
     nsub = needle.add_subparsers(dest="command", required=True, parser_class=Parser)
 
-    def common(p):
+    def common(p, example="LF=6.8", formats=FORMATS):
         p.add_argument("--set", action="append", metavar="NAME=VALUE",
-                       help="override a parameter (repeatable), e.g. --set LF=6.8")
-        p.add_argument("--format", choices=FORMATS, default="table")
+                       help=f"override a parameter (repeatable), e.g. --set {example}")
+        p.add_argument("--format", choices=formats, default="table")
 
     p = nsub.add_parser("nominal", help="beta*, deviation figures, window, guide, stroke")
-    common(p)
+    common(p, formats=("table", "json"))
     p.add_argument("--beta-range", nargs=2, type=float, default=[10.0, 35.0],
                    metavar=("LOW", "HIGH"), help="regulating range searched for beta* (deg)")
     p.add_argument("--limit-um", type=float, default=10.0, help="SumDelta limit of the window")
@@ -409,14 +407,14 @@ def build_parser() -> argparse.ArgumentParser:
     feed = sub.add_parser("feed", help="131-42+3 feed chains (lower and upper dog)")
     fsub = feed.add_subparsers(dest="command", required=True, parser_class=Parser)
     p = fsub.add_parser("trajectory", help="both middle teeth over one turn")
-    common(p)
+    common(p, example="b=25")
     p.add_argument("--step-deg", type=float, default=1.0, help="main-shaft angle step (deg)")
     p.set_defaults(func=cmd_feed_trajectory)
     p = fsub.add_parser("metrics", help="feed step, rise, phases, travel; differential ratio")
-    common(p)
+    common(p, example="b=25")
     p.set_defaults(func=cmd_feed_metrics)
     p = fsub.add_parser("regulator", help="feed steps and ratio against the regulator setting b")
-    common(p)
+    common(p, example="b=25")
     p.add_argument("--b-range", nargs=3, type=float, default=[0.0, 60.0, 2.0],
                    metavar=("LOW", "HIGH", "STEP"), help="b values swept (deg)")
     p.set_defaults(func=cmd_feed_regulator)

@@ -34,9 +34,15 @@ def problem_of(tolerances: ToleranceSet) -> dict:
     return {"num_vars": len(names), "names": names, "bounds": bounds, "dists": dists}
 
 
+# the convergence check compares the indices at N and N/2; below 8 base samples SALib's
+# estimators and their bootstrap intervals are noise, so smaller N is refused, not printed
+MIN_N = 16
+
+
 def _check_n(n):
-    if int(n) != n or n < 2 or (int(n) & (int(n) - 1)) != 0:
-        raise ParameterError("n", "must be a power of two >= 2 (Sobol' sequence balance)", n)
+    if isinstance(n, bool) or int(n) != n or n < MIN_N or (int(n) & (int(n) - 1)) != 0:
+        raise ParameterError("n", f"must be a power of two >= {MIN_N} (Sobol' sequence balance; "
+                             "the convergence check uses N/2)", n)
 
 
 def check_sobol(nominal, tolerances: ToleranceSet, n, seed) -> None:
