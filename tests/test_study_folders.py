@@ -12,6 +12,7 @@ import sys
 import time
 import zipfile
 from contextlib import redirect_stderr, redirect_stdout
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -63,11 +64,24 @@ def store_in(folder, resume=False, manifest=MANIFEST):
     return ChunkStore(folder, manifest, resume, label=str(folder))
 
 
-def test_a_pickle_in_the_folder_is_never_loaded(tmp_path, reference, capsys):
-    marker = tmp_path / "MARKER"
-    folder = tmp_path / "chunks"
+@pytest.fixture(scope="module")
+def pristine(tmp_path_factory):
+    """A complete chunk folder of the study, computed once and copied by each test."""
+    folder = tmp_path_factory.mktemp("pristine") / "chunks"
     with store_in(folder) as s:
-        study(tmp_path, s)
+        study(None, s)
+    return folder
+
+
+def copy_of(pristine, tmp_path):
+    import shutil
+
+    return Path(shutil.copytree(pristine, tmp_path / "chunks"))
+
+
+def test_a_pickle_in_the_folder_is_never_loaded(tmp_path, reference, pristine, capsys):
+    marker = tmp_path / "MARKER"
+    folder = copy_of(pristine, tmp_path)
     for name in ("chunk_00001.pkl", "chunk_00001.npz.pkl", "manifest.pkl"):
         (folder / name).write_bytes(pickle.dumps(Poison(marker)))
     # an .npz whose array is a pickled object: np.load(allow_pickle=False) refuses it
@@ -124,10 +138,8 @@ def damage(folder, how):
     ("forged", "are not the ones chunk 1 draws from the seed"),
     ("other_study", "belongs to a different study"),
 ])
-def test_a_bad_chunk_is_named_and_recomputed(tmp_path, reference, capsys, how, why):
-    folder = tmp_path / "chunks"
-    with store_in(folder) as s:
-        study(tmp_path, s)
+def test_a_bad_chunk_is_named_and_recomputed(tmp_path, reference, pristine, capsys, how, why):
+    folder = copy_of(pristine, tmp_path)
     damage(folder, how)
     capsys.readouterr()
     with store_in(folder, resume=True) as s:
@@ -193,10 +205,9 @@ def test_files_get_the_users_umask(tmp_path):
     assert stat.S_IMODE((tmp_path / "b.txt").stat().st_mode) == 0o664
 
 
-def test_chunk_files_hold_no_pickles(tmp_path):
-    with store_in(tmp_path / "c") as s:
-        study(tmp_path, s)
-    for p in (tmp_path / "c").glob("chunk_*.npz"):
+def test_chunk_files_hold_no_pickles(pristine):
+    assert len(list(pristine.glob("chunk_*.npz"))) == 3
+    for p in pristine.glob("chunk_*.npz"):
         with zipfile.ZipFile(p) as z:
             for name in z.namelist():
                 with z.open(name) as fh:
@@ -218,25 +229,48 @@ def _running(pid):
         return False
 
 
+WORKERS = """
+import os, sys, time
+from sewtol.studies.parallel import run_chunks
+
+def work(folder, i):
+    open(os.path.join(folder, f"started_{i}_{os.getpid()}"), "w").close()
+    time.sleep(120)
+
+run_chunks(work, [(sys.argv[1], i) for i in range(4)], n_jobs=2)
+"""
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
-@pytest.mark.parametrize("sig,code", [(signal.SIGKILL, -9), (signal.SIGTERM, 143)])
-def test_workers_die_with_their_parent(tmp_path, sig, code):
-    cmd = [sys.executable, "-m", "sewtol", "needle", "montecarlo", "--n", "400000",
-           "--n-jobs", "2", "--out", str(tmp_path / "o")]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    chunks = tmp_path / "o" / "chunks"
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
+def test_workers_die_with_their_parent(tmp_path, sig):
+    """The main process killed while its two workers compute: they must not compute on."""
+    proc = subprocess.Popen([sys.executable, "-c", WORKERS, str(tmp_path)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.time() + 120
-    while time.time() < deadline and len(list(chunks.glob("chunk_*.npz"))) < 2:
+    while time.time() < deadline and len(list(tmp_path.glob("started_*"))) < 2:
         time.sleep(0.05)
-    workers = _children(proc.pid)
-    assert workers
+    workers = sorted({int(p.name.split("_")[2]) for p in tmp_path.glob("started_*")})
+    assert len(workers) == 2 and all(_running(w) for w in workers)
     proc.send_signal(sig)
-    # stdout closes once every process holding it (the workers too) is gone
-    _, err = proc.communicate(timeout=30)
-    assert proc.returncode == code, err
+    proc.communicate(timeout=60)  # stdout closes once every process holding it is gone
     deadline = time.time() + 10
     while time.time() < deadline and any(_running(w) for w in workers):
         time.sleep(0.1)
     assert not any(_running(w) for w in workers)
-    if sig == signal.SIGTERM:
-        assert "terminated (SIGTERM); finished chunks are saved" in err
+
+
+def test_sigterm_stops_a_study_like_ctrl_c(tmp_path):
+    out = tmp_path / "o"
+    cmd = [sys.executable, "-m", "sewtol", "needle", "montecarlo", "--n", "400000",
+           "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while time.time() < deadline and not list((out / "chunks").glob("chunk_*.npz")):
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, err
+    assert err.strip().splitlines()[-1].startswith(
+        "sewtol: terminated (SIGTERM); finished chunks are saved in")
+    assert list((out / "chunks").glob("chunk_*.npz")) and not (out / "run.json").exists()
