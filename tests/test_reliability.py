@@ -25,6 +25,15 @@ from sewtol.studies.montecarlo import montecarlo
 from sewtol.tolerances import Tolerance, ToleranceSet
 
 
+def _refuse(name):
+    raise ValueError(f"not JSON: {name}")
+
+
+def strict_loads(text):
+    """json.loads that refuses NaN, Infinity and -Infinity (Python's default accepts them)."""
+    return json.loads(text, parse_constant=_refuse)
+
+
 def run(*argv):
     out, err = io.StringIO(), io.StringIO()
     with redirect_stdout(out), redirect_stderr(err):
@@ -183,6 +192,6 @@ def test_interrupted_study_resumes_to_the_same_tables(tmp_path):
                            text=True, timeout=300)
     assert resumed.returncode == 0 and whole.returncode == 0
     assert resumed.stdout == whole.stdout
-    assert json.loads(resumed.stdout)["n"] == 8000
+    assert strict_loads(resumed.stdout)["n"] == 8000
     assert (out / "machines.csv").read_bytes() == (tmp_path / "whole" / "machines.csv").read_bytes()
     assert os.path.getsize(out / "run.json") > 0

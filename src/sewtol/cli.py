@@ -21,8 +21,9 @@ MAX_SWEEP_POINTS = 100_000
 SOBOL_RESAMPLES, SOBOL_CONF_LEVEL = 200, 0.95
 
 
-class Terminated(Exception):
-    """SIGTERM (a scheduler, `timeout`): stop like Ctrl-C, so the workers are stopped too."""
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (a scheduler, `timeout`): stop exactly like Ctrl-C (joblib stops its workers;
+    no `except Exception` on the way can swallow it)."""
 
 
 class CliError(Exception):

@@ -92,8 +92,8 @@ def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
             for k, v in again.items():
                 if not np.allclose(dev[k], v, rtol=1e-12, atol=0.0):
                     return f"its {k} deviations are not the ones chunk {i} draws from the seed"
-        except (TypeError, ValueError, KeyError) as exc:
-            return f"malformed ({exc})"
+        except (TypeError, ValueError, KeyError, AttributeError) as exc:
+            return f"malformed ({type(exc).__name__}: {exc})"
         return None
 
     parts = run_chunks(_chunk, [(model, nominal, tol, r, b - a, kwargs)
