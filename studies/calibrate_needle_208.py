@@ -10,10 +10,9 @@ reproduces the stored geometry (the fit is deterministic).
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
-from sewtol.io import write_text_atomic
+from sewtol.io import to_json, write_text_atomic
 from sewtol.mechanisms import params as P
 from sewtol.studies import needle_calibration as cal
 
@@ -44,7 +43,7 @@ def main(argv=None) -> None:
             "cost": fit.cost,
         },
     }
-    write_text_atomic(Path(args.data), json.dumps(record, indent=2) + "\n")
+    write_text_atomic(Path(args.data), to_json(record))
 
     lines = [
         "# 208 needle drive: reconstruction of the frame (A, D)",

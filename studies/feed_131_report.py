@@ -9,14 +9,13 @@ Writes reports/feed_131-42-3/ (tables as CSV + Markdown, PNG plots, index.md).
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import matplotlib.pyplot as plt
 import numpy as np
 
 from sewtol import feed
-from sewtol.io import write_text_atomic
+from sewtol.io import to_json, write_text_atomic
 from sewtol.mechanisms.feed_131 import Feed131
 from sewtol.mechanisms.params import as_dict
 from sewtol.provenance import now, run_record
@@ -148,7 +147,7 @@ def main(argv=None) -> None:
                                        "items": ts.as_dict()},
                      "seed": args.seed, "n_mc": args.n_mc, "n_sobol": args.n_sobol,
                      "n_jobs": args.n_jobs})
-    write_text_atomic(out / "run.json", json.dumps(record, indent=2) + "\n")
+    write_text_atomic(out / "run.json", to_json(record))
     print(f"wrote {out}")
 
 

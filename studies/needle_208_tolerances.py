@@ -8,12 +8,11 @@ guide comparison. Writes reports/needle_208/ tables (CSV + Markdown), plots and 
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import matplotlib.pyplot as plt
 
-from sewtol.io import write_text_atomic
+from sewtol.io import to_json, write_text_atomic
 from sewtol.mechanisms.needle_208 import Needle208
 from sewtol.mechanisms.params import as_dict
 from sewtol.needle import deviation_table, nominal_figures
@@ -144,7 +143,7 @@ def main(argv=None) -> None:
                 {"machines per setting": args.n_guides, "seed": args.seed,
                  "tolerance set": f"base ({tol_text(NEEDLE_208_SETS['base'])})",
                  "units": "shift um, angles deg, SumDelta um, yields fractions"})
-    write_text_atomic(out / "montecarlo_summary.json", json.dumps(summary, indent=2) + "\n")
+    write_text_atomic(out / "montecarlo_summary.json", to_json(summary))
 
     index = [
         "# 208 needle drive: reports",
@@ -187,7 +186,7 @@ def main(argv=None) -> None:
                      "seed": args.seed, "n_mc": args.n_mc, "n_sobol": args.n_sobol,
                      "n_alloc": args.n_alloc, "n_guides": args.n_guides, "n_jobs": args.n_jobs,
                      "beta_range_deg": [10.0, 35.0], "limit_um": 10.0})
-    write_text_atomic(out / "run.json", json.dumps(record, indent=2) + "\n")
+    write_text_atomic(out / "run.json", to_json(record))
     print(f"wrote {out}")
 
 

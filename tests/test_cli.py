@@ -11,6 +11,15 @@ from sewtol.cli import main
 from sewtol.needle import deviation_table
 
 
+def _refuse(name):
+    raise ValueError(f"not JSON: {name}")
+
+
+def strict_loads(text):
+    """json.loads that refuses NaN, Infinity and -Infinity (Python's default accepts them)."""
+    return json.loads(text, parse_constant=_refuse)
+
+
 def run(*argv):
     out, err = io.StringIO(), io.StringIO()
     with redirect_stdout(out), redirect_stderr(err):
@@ -21,7 +30,7 @@ def run(*argv):
 def test_nominal_json_keys_and_values():
     code, out, _ = run("needle", "nominal", "--format", "json")
     assert code == 0
-    d = json.loads(out)
+    d = strict_loads(out)
     for key in ("beta_opt_deg", "total_um", "plus_um", "minus_um", "window_deg", "guide",
                 "stroke_mm", "A_mm", "D_mm"):
         assert key in d
@@ -45,7 +54,7 @@ def test_deviation_csv_columns_match_the_model(nominal):
 def test_set_overrides_reach_the_model():
     _, a, _ = run("needle", "nominal", "--format", "json")
     _, b, _ = run("needle", "nominal", "--format", "json", "--set", "CD=30.01")
-    assert json.loads(a)["beta_opt_deg"] != json.loads(b)["beta_opt_deg"]
+    assert strict_loads(a)["beta_opt_deg"] != strict_loads(b)["beta_opt_deg"]
 
 
 def test_bad_inputs_exit_nonzero_with_one_line():
@@ -73,14 +82,14 @@ def test_feed_trajectory_csv_and_metrics_json():
                                    "upper_y_mm"]
     assert len(frame) == 180 and frame["phi_deg"].iloc[-1] == 358
     code, out, _ = run("feed", "metrics", "--format", "json")
-    d = json.loads(out)
+    d = strict_loads(out)
     keys = {"feed_step_mm", "max_rise_mm", "max_rise_phi_deg", "entry_phi_deg", "exit_phi_deg",
             "vertical_travel_mm"}
     assert keys <= set(d["lower"]) and keys <= set(d["upper"])
     assert abs(d["differential_ratio"] - d["upper"]["feed_step_mm"] / d["lower"]["feed_step_mm"]) \
         < 1e-12
     code, out2, _ = run("feed", "metrics", "--format", "json", "--set", "b=20")
-    assert json.loads(out2)["lower"]["feed_step_mm"] < d["lower"]["feed_step_mm"]
+    assert strict_loads(out2)["lower"]["feed_step_mm"] < d["lower"]["feed_step_mm"]
 
 
 def test_feed_bad_inputs():
@@ -90,4 +99,4 @@ def test_feed_bad_inputs():
     code, _, err = run("feed", "trajectory", "--set", "O9=1")
     assert code == 2 and "valid names are O1F" in err
     code, _, err = run("feed", "trajectory", "--step-deg", "0")
-    assert code == 2 and "step_deg: must be in (0, 90]" in err
+    assert code == 2 and "--step-deg: must be in [0.001, 90] (got 0.0)" in err

@@ -149,8 +149,8 @@ def test_cli_scheduler_writes_the_local_bytes(cluster, tmp_path, nominal, capsys
     finally:
         del os.environ["SEWTOL_SCHEDULER"]
     # and Sobol through the API on the cluster gives the local indices
-    a = needle_sobol(nominal, REC, 8, seed=2, chunk_size=40, scheduler=address)
-    b = needle_sobol(nominal, REC, 8, seed=2, chunk_size=40)
+    a = needle_sobol(nominal, REC, 16, seed=2, chunk_size=80, scheduler=address)
+    b = needle_sobol(nominal, REC, 16, seed=2, chunk_size=80)
     assert a.to_dataframe().equals(b.to_dataframe())
 
 

@@ -6,14 +6,25 @@ import argparse
 import contextlib
 import json
 import os
+import signal
 import sys
 from pathlib import Path
 
 import numpy as np
 
 from .errors import AssemblyError, ParameterError
+from .io import strict, to_json  # noqa: F401  (strict is part of the CLI's API)
 
 FORMATS = ("table", "json", "csv")
+MIN_STEP_DEG = 1e-3  # 360 000 angles per turn; finer steps only fill memory
+BETA_LIMIT_DEG = 360.0
+MAX_SWEEP_POINTS = 100_000
+SOBOL_RESAMPLES, SOBOL_CONF_LEVEL = 200, 0.95
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (a scheduler, `timeout`): stop exactly like Ctrl-C (joblib stops its workers;
+    no `except Exception` on the way can swallow it)."""
 
 
 class CliError(Exception):
@@ -49,20 +60,14 @@ def parse_sets(items, cls) -> dict:
     return out
 
 
-def _json_default(o):
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(type(o))
-
-
 def emit(fmt: str, *, obj=None, frame=None) -> None:
     if fmt == "json":
         data = obj if obj is not None else frame.to_dict(orient="records")
-        sys.stdout.write(json.dumps(data, indent=2, default=_json_default, allow_nan=True) + "\n")
+        sys.stdout.write(to_json(data))
     elif fmt == "csv":
-        sys.stdout.write(frame.to_csv(index=False, float_format="%.9g", lineterminator="\n"))
+        from .reports.tables import to_csv
+
+        sys.stdout.write(to_csv(frame))
     else:
         sys.stdout.write(frame.to_markdown(index=False, floatfmt=".4f") + "\n")
 
@@ -78,16 +83,13 @@ def cmd_needle_nominal(args):
 
     _check_beta_range(args)
     fig = nominal_figures(_needle_params(args), tuple(args.beta_range), args.limit_um)
-    if args.format == "csv":
-        raise CliError("--format: nominal prints json or table, not csv")
     emit(args.format, obj=fig.to_dict(), frame=fig.to_dataframe())
 
 
 def cmd_needle_deviation(args):
     from .needle import deviation_table
 
-    if not (0 < args.step_deg <= 90):
-        raise ParameterError("--step-deg", "must be in (0, 90]", args.step_deg)
+    _check_step(args.step_deg)
     p = _needle_params(args)
     if args.beta is not None:
         p = p.override(beta=args.beta)
@@ -115,6 +117,43 @@ def _tolerances(args):
 def _check_n(value, name="--n", minimum=2):
     if value < minimum:
         raise ParameterError(name, f"must be >= {minimum}", value)
+
+
+def _check_step(value, name="--step-deg"):
+    if not (MIN_STEP_DEG <= value <= 90):
+        raise ParameterError(name, f"must be in [{MIN_STEP_DEG:g}, 90]", value)
+
+
+FLAGS = {"n": "--n", "seed": "--seed", "tolerances": "--tolerances", "n_jobs": "--n-jobs"}
+
+
+def _as_flags(check, *a):
+    """Run a library check; its error names the CLI flag rather than the keyword argument."""
+    try:
+        check(*a)
+    except ParameterError as exc:
+        if exc.field in FLAGS:
+            raise ParameterError(FLAGS[exc.field], exc.rule, exc.value) from None
+        raise
+
+
+def _check_out(args):
+    """--out must be (or become) a writable folder; checked before anything is written."""
+    out = getattr(args, "out", None)
+    if not out:
+        return
+    path = Path(out)
+    if path.exists() and not path.is_dir():
+        raise ParameterError("--out", "must be a folder, not a file", out)
+    probe = path
+    while not probe.exists():
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    if not probe.is_dir():
+        raise ParameterError("--out", f"cannot be created: {probe} is not a folder", out)
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise ParameterError("--out", f"cannot be written: no write permission in {probe}", out)
 
 
 def _check_study(args):
@@ -171,42 +210,72 @@ def _check_beta_range(args):
     if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
         raise ParameterError("--beta-range", "must be LOW HIGH with LOW < HIGH (deg)",
                              args.beta_range)
+    if not (-BETA_LIMIT_DEG <= lo and hi <= BETA_LIMIT_DEG):
+        raise ParameterError("--beta-range", f"must lie within +/-{BETA_LIMIT_DEG:g} deg",
+                             args.beta_range)
     if not (np.isfinite(args.limit_um) and args.limit_um > 0):
         raise ParameterError("--limit-um", "must be a positive number of um", args.limit_um)
 
 
-def _store(args, kind: str, params, tolerances):
-    """The checkpoint folder of a study run with --out (None without)."""
+def _inputs(args, kind, params, tolerances, **extra) -> dict:
+    """Every input that decides a study's numbers (the manifest binds its chunks to these)."""
+    from .mechanisms.params import as_dict
+    from .provenance import version_record
+
+    return {"study": kind, "n": args.n, "seed": args.seed, "params": as_dict(params),
+            "tolerances": {"name": tolerances.name, "items": tolerances.as_dict()},
+            **version_record(), **extra}
+
+
+def _store(args, inputs: dict):
+    """The checkpoint folder of a study run with --out (None without); takes its lock."""
     if not args.out:
         return None
-    from .mechanisms.params import as_dict
     from .studies.checkpoint import ChunkStore
 
-    manifest = {"study": kind, "n": args.n, "seed": args.seed, "params": as_dict(params),
-                "tolerances": {"name": tolerances.name, "items": tolerances.as_dict()}}
-    return ChunkStore(Path(args.out) / "chunks", manifest, args.resume, label=str(args.out))
+    return ChunkStore(Path(args.out) / "chunks", inputs, args.resume, label=str(args.out))
 
 
-def _write_outputs(args, kind, params, tolerances, started, result_obj, frames):
-    """Results, machine tables and run.json into --out, each file atomically."""
+def _history(store, started: str) -> list:
+    """Start times of every run into this folder (the first, then each --resume)."""
+    if store is None:
+        return [{"started_utc": started, "resumed": False}]
+    from .io import write_text_atomic
+
+    path = store.folder / "runs.json"
+    try:
+        runs = json.loads(path.read_text(encoding="utf-8")) if path.exists() else []
+        runs = [r for r in runs if isinstance(r, dict)] if isinstance(runs, list) else []
+    except (OSError, ValueError):
+        runs = []
+    runs = [{"started_utc": str(r.get("started_utc")), "resumed": bool(r.get("resumed"))}
+            for r in runs] + [{"started_utc": started, "resumed": bool(runs) or store.resumed}]
+    write_text_atomic(path, json.dumps(runs, indent=2) + "\n")
+    return runs
+
+
+def _write_outputs(args, kind, inputs, started, result_obj, frames, runs):
+    """Tables, then the result, then run.json into --out, each file atomically (a run.json
+    means the folder is complete)."""
     if not args.out:
         return
     from .io import write_text_atomic
-    from .mechanisms.params import as_dict
     from .provenance import run_record
+    from .reports.tables import to_csv
 
     out = Path(args.out)
-    write_text_atomic(out / f"{kind}.json", json.dumps(result_obj, indent=2,
-                                                       default=_json_default) + "\n")
-    for name, frame in frames.items():
-        write_text_atomic(out / f"{name}.csv", frame.to_csv(index=False, float_format="%.9g",
-                                                          lineterminator="\n"))
-    where = _scheduler(args)
-    inputs = {"study": kind, "n": args.n, "seed": args.seed, "n_jobs": args.n_jobs,
-              "scheduler": where[1] if where else None,
-              "params": as_dict(params),
-              "tolerances": {"name": tolerances.name, "items": tolerances.as_dict()}}
-    write_text_atomic(out / "run.json", json.dumps(run_record(started, inputs), indent=2) + "\n")
+    try:
+        for name, frame in frames.items():
+            write_text_atomic(out / f"{name}.csv", to_csv(frame))
+        write_text_atomic(out / f"{kind}.json", to_json(result_obj))
+        where = _scheduler(args)
+        record = run_record(started, {**inputs, "n_jobs": args.n_jobs,
+                                      "scheduler": where[1] if where else None}, runs=runs)
+        write_text_atomic(out / "run.json", to_json(record))
+    except OSError as exc:
+        raise ParameterError("--out", f"cannot be written ({exc.strerror}); the finished chunks "
+                             "are kept: free the space and rerun with --resume",
+                             str(exc.filename or out)) from None
 
 
 def cmd_needle_scan(args):
@@ -219,25 +288,39 @@ def cmd_needle_scan(args):
 
 def cmd_needle_montecarlo(args):
     from .provenance import now
-    from .studies.montecarlo import montecarlo
+    from .studies import beta as sb
+    from .studies.montecarlo import CHUNK, check_sampling, montecarlo
 
     _check_n(args.n)
     _check_study(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
+    limit, rng = sb.DEFAULT_LIMIT_UM, sb.DEFAULT_RANGE_DEG
+    _as_flags(check_sampling, params, tolerances, args.n, args.seed, CHUNK)
     started = now()
-    store = _store(args, "montecarlo", params, tolerances)
-    with _cluster(args) as client:
-        res = montecarlo(params, tolerances, args.n, args.seed, n_jobs=args.n_jobs,
-                         progress=args.progress, store=store, scheduler=client)
-    _write_outputs(args, "montecarlo", params, tolerances, started, res.to_dict(),
-                   {"machines": res.machines, "summary": res.summary_frame()})
+    inputs = _inputs(args, "montecarlo", params, tolerances, limit_um=limit,
+                     beta_search_range_deg=list(rng), chunk_size=CHUNK,
+                     strategy="beta fixed at the nominal's beta* (fixed_beta=optimum) and beta "
+                     "re-optimised per machine")
+    store = _store(args, inputs)
+    try:
+        runs = _history(store, started)
+        with _cluster(args) as client:
+            res = montecarlo(params, tolerances, args.n, args.seed, limit_um=limit,
+                             range_deg=rng, n_jobs=args.n_jobs, progress=args.progress,
+                             store=store, chunk_size=CHUNK, scheduler=client)
+        _write_outputs(args, "montecarlo", inputs, started, res.to_dict(),
+                       {"machines": res.machines, "summary": res.summary_frame()}, runs)
+    finally:
+        if store is not None:
+            store.close()
     emit(args.format, obj=res.to_dict(), frame=res.summary_frame())
 
 
 def cmd_needle_sobol(args):
     from .provenance import now
+    from .studies import beta as sb
+    from .studies.sobol import CHUNK, check_sobol, needle_sobol
     from .studies.sobol import _check_n as check_power_of_two
-    from .studies.sobol import needle_sobol
 
     try:
         check_power_of_two(args.n)
@@ -245,13 +328,27 @@ def cmd_needle_sobol(args):
         raise ParameterError("--n", exc.rule, args.n) from None
     _check_study(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
+    _as_flags(check_sobol, params, tolerances, args.n, args.seed)
+    rng = sb.DEFAULT_RANGE_DEG
     started = now()
-    store = _store(args, "sobol", params, tolerances)
-    with _cluster(args) as client:
-        res = needle_sobol(params, tolerances, args.n, args.seed, n_jobs=args.n_jobs,
-                           progress=args.progress, store=store, scheduler=client)
-    _write_outputs(args, "sobol", params, tolerances, started, res.to_records(),
-                   {"indices": res.to_dataframe(), "convergence": res.convergence})
+    inputs = _inputs(args, "sobol", params, tolerances, beta_search_range_deg=list(rng),
+                     chunk_size=CHUNK, resamples=SOBOL_RESAMPLES,
+                     confidence_level=SOBOL_CONF_LEVEL,
+                     strategy="beta fixed at the nominal's beta* (fixed_beta=optimum) and beta "
+                     "re-optimised per sample")
+    store = _store(args, inputs)
+    try:
+        runs = _history(store, started)
+        with _cluster(args) as client:
+            res = needle_sobol(params, tolerances, args.n, args.seed, range_deg=rng,
+                               n_jobs=args.n_jobs, progress=args.progress, store=store,
+                               resamples=SOBOL_RESAMPLES, conf_level=SOBOL_CONF_LEVEL,
+                               chunk_size=CHUNK, scheduler=client)
+        _write_outputs(args, "sobol", inputs, started, res.to_records(),
+                       {"indices": res.to_dataframe(), "convergence": res.convergence}, runs)
+    finally:
+        if store is not None:
+            store.close()
     emit(args.format, obj=res.to_records(), frame=res.to_dataframe())
 
 
@@ -264,6 +361,7 @@ def _feed_params(args):
 def cmd_feed_trajectory(args):
     from .feed import trajectory
 
+    _check_step(args.step_deg)
     emit(args.format, frame=trajectory(_feed_params(args), args.step_deg))
 
 
@@ -281,25 +379,33 @@ def cmd_feed_regulator(args):
     from .feed import regulator_sweep
 
     lo, hi, step = args.b_range
-    if not (lo < hi and step > 0):
-        raise ParameterError("--b-range", "must be LOW HIGH STEP with LOW < HIGH and STEP > 0",
-                             args.b_range)
+    if not (np.isfinite([lo, hi, step]).all() and lo < hi and step > 0):
+        raise ParameterError("--b-range", "must be finite LOW HIGH STEP with LOW < HIGH and "
+                             "STEP > 0", args.b_range)
+    if (hi - lo) / step + 1 > MAX_SWEEP_POINTS:
+        raise ParameterError("--b-range", f"gives more than {MAX_SWEEP_POINTS} settings; use a "
+                             "larger STEP", args.b_range)
     emit(args.format, frame=regulator_sweep(_feed_params(args), np.arange(lo, hi + 1e-9, step)))
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from . import __version__
+    from .provenance import git_revision
+
     ap = Parser(prog="sewtol", description=__doc__.splitlines()[0])
+    ap.add_argument("--version", action="version",
+                    version=f"sewtol {__version__} (revision {git_revision()})")
     sub = ap.add_subparsers(dest="group", required=True, parser_class=Parser)
     needle = sub.add_parser("needle", help="208-class needle drive")
     nsub = needle.add_subparsers(dest="command", required=True, parser_class=Parser)
 
-    def common(p):
+    def common(p, example="LF=6.8", formats=FORMATS):
         p.add_argument("--set", action="append", metavar="NAME=VALUE",
-                       help="override a parameter (repeatable), e.g. --set LF=6.8")
-        p.add_argument("--format", choices=FORMATS, default="table")
+                       help=f"override a parameter (repeatable), e.g. --set {example}")
+        p.add_argument("--format", choices=formats, default="table")
 
     p = nsub.add_parser("nominal", help="beta*, deviation figures, window, guide, stroke")
-    common(p)
+    common(p, formats=("table", "json"))
     p.add_argument("--beta-range", nargs=2, type=float, default=[10.0, 35.0],
                    metavar=("LOW", "HIGH"), help="regulating range searched for beta* (deg)")
     p.add_argument("--limit-um", type=float, default=10.0, help="SumDelta limit of the window")
@@ -350,33 +456,54 @@ def build_parser() -> argparse.ArgumentParser:
     feed = sub.add_parser("feed", help="131-42+3 feed chains (lower and upper dog)")
     fsub = feed.add_subparsers(dest="command", required=True, parser_class=Parser)
     p = fsub.add_parser("trajectory", help="both middle teeth over one turn")
-    common(p)
+    common(p, example="b=25")
     p.add_argument("--step-deg", type=float, default=1.0, help="main-shaft angle step (deg)")
     p.set_defaults(func=cmd_feed_trajectory)
     p = fsub.add_parser("metrics", help="feed step, rise, phases, travel; differential ratio")
-    common(p)
+    common(p, example="b=25")
     p.set_defaults(func=cmd_feed_metrics)
     p = fsub.add_parser("regulator", help="feed steps and ratio against the regulator setting b")
-    common(p)
+    common(p, example="b=25")
     p.add_argument("--b-range", nargs=3, type=float, default=[0.0, 60.0, 2.0],
                    metavar=("LOW", "HIGH", "STEP"), help="b values swept (deg)")
     p.set_defaults(func=cmd_feed_regulator)
     return ap
 
 
+def _on_sigterm(signum, frame):
+    raise Terminated()
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    previous = None
+    try:  # only the main thread may set handlers; a library caller's threads run without
+        previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    except ValueError:
+        pass
     try:
+        _check_out(args)
         args.func(args)
     except (ParameterError, AssemblyError, CliError) as exc:
         print(f"sewtol: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except OSError as exc:  # e.g. the disk filled up while a chunk was saved
+        where = getattr(args, "out", None)
+        kept = (f"; finished chunks are kept in {where}/chunks: rerun with --resume" if where
+                else "")
+        print(f"sewtol: error: {exc.filename or 'output'}: {exc.strerror or exc}{kept}",
+              file=sys.stderr)
+        return 2
+    except (KeyboardInterrupt, Terminated) as exc:
         where = getattr(args, "out", None)
         hint = (f"; finished chunks are saved in {where}/chunks: rerun the same command with "
                 "--resume" if where else "; nothing was saved (use --out DIR to keep chunks)")
-        print(f"sewtol: interrupted{hint}", file=sys.stderr)
-        return 130
+        what = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
+        print(f"sewtol: {what}{hint}", file=sys.stderr)
+        return 143 if isinstance(exc, Terminated) else 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     return 0
 
 

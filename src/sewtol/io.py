@@ -1,10 +1,55 @@
-"""Atomic file output: write to a temporary file in the same folder, then rename."""
+"""Atomic file output: write to a temporary file in the same folder, then rename.
+
+Files get the permissions of a plain `open()` (0666 less the user's umask), not mkstemp's 0600,
+so a study folder shared through group permissions stays readable by the group.
+"""
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import tempfile
 from pathlib import Path
+
+import numpy as np
+
+
+def strict(o):
+    """JSON-ready data with every NaN or infinity as None (null): JSON has no NaN or Infinity.
+
+    What null means for each key is listed in the README (e.g. a quantile beyond every machine
+    that runs, a Cpu without scatter, a window that does not exist).
+    """
+    if isinstance(o, dict):
+        return {str(k): strict(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [strict(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return strict(o.tolist())
+    if isinstance(o, np.generic):
+        o = o.item()
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    return o
+
+
+def to_json(data) -> str:
+    """Strict JSON text (indent 2, a final newline) of data, as every sewtol output writes it."""
+    return json.dumps(strict(data), indent=2, allow_nan=False) + "\n"
+
+
+def umask() -> int:
+    """The process umask (read from /proc where it can, so it is never changed even briefly)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    old = os.umask(0o022)
+    os.umask(old)
+    return old
 
 
 def write_text_atomic(path: Path, text: str) -> None:
@@ -19,6 +64,7 @@ def write_bytes_atomic(path: Path, data: bytes) -> None:
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
+            os.fchmod(fh.fileno(), 0o666 & ~umask())
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

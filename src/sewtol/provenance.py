@@ -4,31 +4,34 @@ from __future__ import annotations
 
 import datetime as dt
 import platform
-import subprocess
 import sys
-from pathlib import Path
 
 from . import __version__
 
 
 def git_revision() -> str:
-    """The checkout's commit (with '+dirty' when it has changes), or 'unknown' outside git."""
-    here = Path(__file__).resolve().parent
+    """The commit sewtol was installed from ('+dirty' with uncommitted changes), recorded by
+    setup.py at install time; 'unknown' when none was recorded. No git process runs here (a
+    repository's hooks or fsmonitor would run with it), and a checkout made while a study runs
+    does not change what it records."""
     try:
-        rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True,
-                             text=True, timeout=5, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here,
-                               capture_output=True, text=True, timeout=5).stdout.strip()
-        return rev + ("+dirty" if dirty else "")
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
+        from ._revision import REVISION
+    except ImportError:
+        return "unknown (not recorded at install)"
+    return str(REVISION)
+
+
+def version_record() -> dict:
+    """What identifies the code: bound into every study manifest and run.json."""
+    return {"sewtol_version": __version__, "git_revision": git_revision()}
 
 
 def now() -> str:
     return dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
 
 
-def run_record(started: str, inputs: dict, argv: list[str] | None = None) -> dict:
+def run_record(started: str, inputs: dict, argv: list[str] | None = None,
+               runs: list | None = None) -> dict:
     """The run.json record; `inputs` holds every parameter, tolerance set and seed used."""
     from importlib.metadata import PackageNotFoundError, version
 
@@ -48,4 +51,5 @@ def run_record(started: str, inputs: dict, argv: list[str] | None = None) -> dic
         "libraries": {name: ver(name) for name in
                       ("numpy", "scipy", "pandas", "SALib", "joblib", "numba", "matplotlib")},
         "inputs": inputs,
+        **({"runs": runs} if runs is not None else {}),
     }

@@ -16,6 +16,7 @@ TOML form (a file of one or more sets):
 
 from __future__ import annotations
 
+import stat
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,6 +27,13 @@ from scipy import stats
 from .errors import ParameterError
 
 DISTRIBUTIONS = ("uniform", "normal", "truncnorm")
+# a limit beyond this (mm, deg or um) is a typo, not a tolerance
+MAX_ABS_LIMIT = 1e6
+# the largest |z| a normal draw can reach: ppf of the smallest and largest doubles rng.random()
+# gives (2**-53 and 1 - 2**-53) is -8.29 and +8.13 sigma
+NORMAL_REACH_SIGMA = 8.3
+# a tolerance file is a few lines; anything bigger (or not a regular file) is refused unread
+MAX_TOML_BYTES = 1 << 20
 
 
 @dataclass(frozen=True)
@@ -36,9 +44,16 @@ class Tolerance:
     dist: str = "uniform"
 
     def __post_init__(self):
+        for side in ("lower", "upper"):
+            v = getattr(self, side)
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+                raise ParameterError(f"{self.param}.{side}", "must be a number", v)
         if not (np.isfinite(self.lower) and np.isfinite(self.upper)):
             raise ParameterError(f"{self.param}.limits", "must be finite numbers",
                                  (self.lower, self.upper))
+        if max(abs(self.lower), abs(self.upper)) > MAX_ABS_LIMIT:
+            raise ParameterError(f"{self.param}.limits", f"must be within +/-{MAX_ABS_LIMIT:g} "
+                                 "(mm, deg or um)", (self.lower, self.upper))
         if self.lower > self.upper:
             raise ParameterError(f"{self.param}.lower", "must not be above the upper limit",
                                  (self.lower, self.upper))
@@ -53,6 +68,13 @@ class Tolerance:
     @property
     def sigma(self) -> float:
         return (self.upper - self.lower) / 6.0
+
+    def reach(self) -> tuple[float, float]:
+        """The smallest and largest deviation a machine can draw."""
+        if self.dist == "normal":
+            return (self.mid - NORMAL_REACH_SIGMA * self.sigma,
+                    self.mid + NORMAL_REACH_SIGMA * self.sigma)
+        return self.lower, self.upper
 
     def from_unit(self, u: np.ndarray) -> np.ndarray:
         """Deviations for uniform numbers u in (0, 1) (inverse CDF; SALib and Monte-Carlo share it)."""
@@ -79,6 +101,33 @@ class ToleranceSet:
     items: tuple[Tolerance, ...]
     description: str = ""
     nominal_names: tuple[str, ...] = field(default=(), compare=False)
+
+    def __post_init__(self):
+        seen = set()
+        for t in self.items:
+            if t.param in seen:
+                raise ParameterError(t.param, f"is named twice in tolerance set '{self.name}'",
+                                     t.param)
+            seen.add(t.param)
+
+    def check_against(self, nominal) -> ToleranceSet:
+        """Refuse a set that can draw a machine the parameter rules reject (a length <= 0, a
+        branch sign other than +/-1, a non-finite value) before anything runs."""
+        from .mechanisms import params as P
+
+        valid = P.field_names(type(nominal))
+        self.check_names(valid)
+        for t in self.active().items:
+            for side, d in zip(("lower", "upper"), t.reach(), strict=True):
+                try:
+                    P.with_deviations(nominal, {t.param: np.array([d])})
+                except ParameterError as exc:
+                    value = float(np.asarray(getattr(nominal, t.param), float)) + d
+                    where = side if t.dist != "normal" else f"{side} reach ({NORMAL_REACH_SIGMA:g} sigma)"
+                    raise ParameterError(f"{self.name}.{t.param}.{side}",
+                                         f"its {where} gives machines with {t.param} = "
+                                         f"{value:.6g}, but {t.param} {exc.rule}", d) from None
+        return self
 
     @property
     def params(self) -> list[str]:
@@ -114,11 +163,26 @@ class ToleranceSet:
                for k in dict.fromkeys(params)}
         return params, sides, deltas, dev
 
-    def scaled(self, factors: dict[str, float]) -> ToleranceSet:
-        return ToleranceSet(self.name, tuple(
+    def scaled(self, factors: dict[str, float], name: str | None = None) -> ToleranceSet:
+        """Each named tolerance's limits times its factor. The copy gets a new name (by default
+        the factors appended, e.g. "recommended*CD=0.5"), so results of a scaled set are never
+        labelled as the original set."""
+        unknown = sorted(set(factors) - set(self.params))
+        if unknown:
+            raise ParameterError("factors", f"name tolerances not in set '{self.name}' "
+                                 f"({', '.join(self.params)})", unknown)
+        for k, f in factors.items():
+            if isinstance(f, bool) or not isinstance(f, (int, float, np.integer, np.floating)) \
+                    or not (np.isfinite(f) and f >= 0):
+                raise ParameterError(f"factors.{k}", "must be a finite number >= 0", f)
+        changed = {k: f for k, f in factors.items() if f != 1.0}
+        if name is None:
+            name = self.name + "".join(f"*{k}={float(f):g}" for k, f in changed.items())
+        return ToleranceSet(name, tuple(
             Tolerance(t.param, t.lower * factors.get(t.param, 1.0),
                       t.upper * factors.get(t.param, 1.0), t.dist) for t in self.items),
-            self.description)
+            self.description + (f" (scaled: {', '.join(f'{k} x{float(f):g}' for k, f in changed.items())})"
+                                if changed else ""))
 
     def as_dict(self) -> dict:
         return {t.param: {"lower": t.lower, "upper": t.upper, "dist": t.dist} for t in self.items}
@@ -140,36 +204,66 @@ NEEDLE_208_SETS = {
 }
 
 
+def _number(where: str, v) -> float:
+    # TOML has real numbers: true, "0.1" or [1, 2] are mistakes, not tolerances
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise ParameterError(where, "must be a number", v)
+    return float(v)
+
+
 def _parse_item(set_name: str, param: str, spec) -> Tolerance:
     where = f"{set_name}.{param}"
-    if isinstance(spec, (int, float)):
-        return _sym(param, float(spec))
     if not isinstance(spec, dict):
-        raise ParameterError(where, "must be a number (+/-) or a table with lower/upper or "
-                             "plus_minus", spec)
+        if isinstance(spec, bool) or not isinstance(spec, (int, float)):
+            raise ParameterError(where, "must be a number (+/-) or a table with lower/upper or "
+                                 "plus_minus", spec)
+        pm = _number(where, spec)
+        if pm < 0:
+            raise ParameterError(where, "must not be negative (it is a +/- limit)", pm)
+        return _sym(param, pm)
     allowed = {"lower", "upper", "plus_minus", "dist"}
     extra = set(spec) - allowed
     if extra:
         raise ParameterError(where, f"unknown keys {sorted(extra)}; allowed: {sorted(allowed)}",
                              spec)
     dist = spec.get("dist", "uniform")
+    if not isinstance(dist, str):
+        raise ParameterError(f"{where}.dist", f"must be one of {', '.join(DISTRIBUTIONS)}", dist)
     if "plus_minus" in spec:
-        pm = float(spec["plus_minus"])
+        if "lower" in spec or "upper" in spec:
+            raise ParameterError(where, "give either plus_minus or lower and upper, not both",
+                                 spec)
+        pm = _number(f"{where}.plus_minus", spec["plus_minus"])
         if pm < 0:
             raise ParameterError(f"{where}.plus_minus", "must not be negative", pm)
         return Tolerance(param, -pm, pm, dist)
     if "lower" not in spec or "upper" not in spec:
         raise ParameterError(where, "needs both lower and upper (or plus_minus)", spec)
-    return Tolerance(param, float(spec["lower"]), float(spec["upper"]), dist)
+    return Tolerance(param, _number(f"{where}.lower", spec["lower"]),
+                     _number(f"{where}.upper", spec["upper"]), dist)
 
 
 def load_toml(path: str | Path, valid_params: list[str] | None = None) -> dict[str, ToleranceSet]:
     """Tolerance sets from a TOML file; a syntax error reports its line and column."""
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        # stat first: a FIFO would block and /dev/zero would never end
+        st = path.stat()
+        if not stat.S_ISREG(st.st_mode):
+            raise ParameterError(str(path), "is not a regular file", _kind(st.st_mode))
+        if st.st_size > MAX_TOML_BYTES:
+            raise ParameterError(str(path), f"is larger than {MAX_TOML_BYTES} bytes; a tolerance "
+                                 "file is a few lines", st.st_size)
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_TOML_BYTES + 1)
+        if len(raw) > MAX_TOML_BYTES:
+            raise ParameterError(str(path), f"is larger than {MAX_TOML_BYTES} bytes", len(raw))
+        data = tomllib.loads(raw.decode("utf-8"))
     except tomllib.TOMLDecodeError as exc:
         raise ParameterError(str(path), "is not valid TOML", str(exc)) from None
+    except UnicodeDecodeError as exc:
+        raise ParameterError(str(path), "is not UTF-8 text (TOML files are UTF-8)",
+                             f"byte {exc.object[exc.start]:#04x} at offset {exc.start}") from None
     except OSError as exc:
         raise ParameterError(str(path), "cannot be read", exc.strerror) from None
     sets = data.get("sets")
@@ -186,6 +280,15 @@ def load_toml(path: str | Path, valid_params: list[str] | None = None) -> dict[s
             ts.check_names(valid_params)
         out[name] = ts
     return out
+
+
+def _kind(mode: int) -> str:
+    for test, name in ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return name
+    return "not a regular file"
 
 
 def resolve(name_or_path: str, builtin: dict[str, ToleranceSet],

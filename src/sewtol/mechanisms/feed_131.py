@@ -115,6 +115,7 @@ class Feed131:
                "O7H", "A2H", "O7I", "UJ", "IJ", "UY")
 
     def __post_init__(self):
+        P.freeze(self)
         for f in P.field_names(type(self)):
             P.finite(f, getattr(self, f))
         for f in self.LENGTHS:

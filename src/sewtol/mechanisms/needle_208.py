@@ -61,6 +61,7 @@ class Needle208:
     beta_sense: float = 1.0
 
     def __post_init__(self):
+        P.freeze(self)
         for name in LENGTHS:
             P.positive(name, getattr(self, name))
         for name in ("CBE", "beta", "Ax", "Ay", "Dx", "Dy", "guide_x", "guide_y", "guide_angle",

@@ -15,6 +15,22 @@ import numpy as np
 from ..errors import ParameterError
 
 
+def freeze(params) -> None:
+    """Called first in __post_init__: every array field becomes a read-only float copy, so a
+    frozen set neither shares memory with the caller nor can be changed through an array
+    (`p.LF[0] = -1` raises instead of bypassing the checks)."""
+    for f in dataclasses.fields(params):
+        v = getattr(params, f.name)
+        if isinstance(v, (np.ndarray, list, tuple)):
+            try:
+                a = np.array(v, dtype=float)  # a copy
+            except (TypeError, ValueError):
+                raise ParameterError(f.name, "must be a number or an array of numbers",
+                                     v) from None
+            a.setflags(write=False)
+            object.__setattr__(params, f.name, a)
+
+
 def positive(name: str, value) -> None:
     v = np.asarray(value, float)
     if not np.all(np.isfinite(v)):

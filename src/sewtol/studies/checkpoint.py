@@ -1,51 +1,209 @@
 """Checkpoints of a chunked study: each finished chunk is saved at once, atomically, so an
 interrupted study keeps its finished part and `--resume` continues without recomputing it.
 
-The folder holds manifest.json (what the study is: everything that decides its numbers) and
-chunk_NNNNN.pkl files. Resuming into a folder whose manifest differs is refused, so chunks of
-two different studies are never mixed.
+A study folder is data, never code: nothing in it is executed or trusted unchecked.
+
+- manifest.json says what the study is (every input that decides its numbers, with the sewtol
+  version and revision); the study hash is the SHA-256 of its canonical JSON.
+- chunk_NNNNN.npz holds one chunk's arrays (numeric dtypes only, read with
+  allow_pickle=False, so a file cannot run code) and a JSON header naming the format, the study
+  hash, the chunk index, the layout of the result and a SHA-256 of the arrays.
+- A chunk is used only if all of that matches (and the study's own check of its rows passes);
+  otherwise it is recomputed and stderr says which chunk and why. Files of any other name
+  (e.g. an old or crafted chunk_00001.pkl) are never opened.
+- An exclusive lock (filelock) on the folder keeps two runs from writing into one study.
+
+The checksum detects corruption, truncation and chunks copied between studies or positions; it
+is not a signature: someone who may write into the folder can forge numbers (never code), so
+share study folders only with people you trust with the results.
 """
 
 from __future__ import annotations
 
+import hashlib
+import io
 import json
-import pickle
+import sys
 from pathlib import Path
+
+import numpy as np
 
 from ..errors import ParameterError
 from ..io import write_bytes_atomic, write_text_atomic
 
+FORMAT = "sewtol-chunk-1"
+MAX_CHUNK_BYTES = 512 * 2**20  # a chunk larger than this is not one of ours
+LOCK_NAME = ".sewtol.lock"
+
+
+def canonical(obj) -> str:
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=False, default=str)
+
+
+def study_hash(manifest: dict) -> str:
+    return hashlib.sha256(canonical(manifest).encode()).hexdigest()
+
+
+def _encode(obj, arrays: list) -> object:
+    """The layout of a result made of tuples, lists, str-keyed dicts and numeric arrays."""
+    if isinstance(obj, (tuple, list)):
+        return {"seq": [_encode(x, arrays) for x in obj]}
+    if isinstance(obj, dict):
+        if not all(isinstance(k, str) for k in obj):
+            raise TypeError("chunk results may only hold dicts with str keys")
+        return {"dict": [[k, _encode(v, arrays)] for k, v in obj.items()]}
+    a = np.asarray(obj)
+    if a.dtype.kind not in "biuf":
+        raise TypeError(f"chunk results may only hold numeric arrays, not {a.dtype}")
+    arrays.append(np.ascontiguousarray(a))
+    return {"array": len(arrays) - 1, "scalar": bool(np.ndim(obj) == 0 and not isinstance(
+        obj, np.ndarray))}
+
+
+def _decode(layout, arrays: list):
+    if not isinstance(layout, dict) or len(layout) not in (1, 2):
+        raise ValueError("malformed layout")
+    if "seq" in layout:
+        return tuple(_decode(x, arrays) for x in layout["seq"])
+    if "dict" in layout:
+        return {str(k): _decode(v, arrays) for k, v in layout["dict"]}
+    a = arrays[int(layout["array"])]
+    return a[()].item() if layout.get("scalar") else a
+
+
+def arrays_digest(arrays: list[np.ndarray]) -> str:
+    h = hashlib.sha256()
+    for a in arrays:
+        h.update(f"{a.dtype.str}{a.shape};".encode())
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
 
 class ChunkStore:
+    """The chunk folder of one study (see the module docstring).
+
+    Taking the store takes the folder's lock; `close()` (or the end of a `with` block, or the end
+    of the process) releases it.
+    """
+
     def __init__(self, folder: str | Path, manifest: dict, resume: bool, label: str | None = None):
+        from filelock import FileLock, Timeout
+
         self.folder = Path(folder)
-        label = label or str(self.folder)
-        self.manifest = json.loads(json.dumps(manifest, sort_keys=True, default=str))
+        self.label = label or str(self.folder)
+        self.manifest = json.loads(canonical(manifest))
+        self.hash = study_hash(self.manifest)
+        self.resumed = False
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self._lock = FileLock(str(self.folder / LOCK_NAME))
+        try:
+            self._lock.acquire(timeout=0)
+        except Timeout:
+            raise ParameterError("--out", "another sewtol run is writing into this folder "
+                                 "(it holds the lock); wait for it or choose another folder",
+                                 self.label) from None
+        try:
+            self._open(resume)
+        except BaseException:
+            self.close()
+            raise
+
+    def _open(self, resume: bool) -> None:
         path = self.folder / "manifest.json"
         if path.exists():
-            old = json.loads(path.read_text())
+            try:
+                old = json.loads(path.read_text(encoding="utf-8"))
+            except (OSError, ValueError, UnicodeDecodeError):
+                old = None
             if not resume:
                 raise ParameterError("--out", "holds a study already; add --resume to continue "
-                                     "it or choose an empty folder", label)
+                                     "it or choose an empty folder", self.label)
+            if not isinstance(old, dict):
+                raise ParameterError("--resume", "the folder's manifest.json is not a sewtol "
+                                     "manifest", self.label)
             if old != self.manifest:
                 diff = sorted(k for k in set(old) | set(self.manifest)
                               if old.get(k) != self.manifest.get(k))
                 raise ParameterError("--resume", "the folder holds a different study (differs "
-                                     f"in {', '.join(diff)})", label)
-        else:
-            write_text_atomic(path, json.dumps(self.manifest, indent=2, sort_keys=True) + "\n")
+                                     f"in {', '.join(diff)})", self.label)
+            self.resumed = True
+            return
+        if not resume and self.done():
+            raise ParameterError("--out", "holds chunks of an earlier run; add --resume to "
+                                 "check and reuse them, or choose an empty folder", self.label)
+        write_text_atomic(path, json.dumps(self.manifest, indent=2, sort_keys=True) + "\n")
+        self.resumed = resume and bool(self.done())
+
+    def close(self) -> None:
+        if self._lock.is_locked:
+            self._lock.release()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
 
     def _path(self, i: int) -> Path:
-        return self.folder / f"chunk_{i:05d}.pkl"
+        return self.folder / f"chunk_{i:05d}.npz"
 
     def load(self, i: int):
+        """(result, None) for a valid chunk i, (None, why) for a missing or rejected one."""
         p = self._path(i)
-        if not p.exists():
-            return None
-        return pickle.loads(p.read_bytes())
+        try:
+            if not p.is_file():
+                return None, "missing"
+            if p.stat().st_size > MAX_CHUNK_BYTES:
+                return None, f"larger than {MAX_CHUNK_BYTES} bytes"
+            with np.load(p, allow_pickle=False) as z:
+                names = list(z.files)
+                if "header" not in names:
+                    return None, "no header"
+                header = json.loads(bytes(z["header"]).decode("utf-8"))
+                count = int(header["arrays"])
+                if sorted(names) != sorted(["header"] + [f"a{k}" for k in range(count)]):
+                    return None, "unexpected arrays"
+                arrays = [z[f"a{k}"] for k in range(count)]
+        except Exception as exc:  # any unreadable file is a rejected chunk, never a crash
+            return None, f"unreadable ({type(exc).__name__}: {exc})"
+        if header.get("format") != FORMAT:
+            return None, "not a sewtol chunk of this format"
+        if header.get("study") != self.hash:
+            return None, "belongs to a different study (study hash differs)"
+        if header.get("chunk") != i:
+            return None, f"holds chunk {header.get('chunk')!r}, not chunk {i}"
+        if header.get("sha256") != arrays_digest(arrays):
+            return None, "checksum mismatch (the arrays were changed or damaged)"
+        try:
+            return _decode(header["layout"], arrays), None
+        except (KeyError, IndexError, TypeError, ValueError) as exc:
+            return None, f"malformed layout ({exc})"
 
     def save(self, i: int, result) -> None:
-        write_bytes_atomic(self._path(i), pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL))
+        arrays: list[np.ndarray] = []
+        layout = _encode(result, arrays)
+        header = {"format": FORMAT, "study": self.hash, "chunk": int(i), "arrays": len(arrays),
+                  "layout": layout, "sha256": arrays_digest(arrays)}
+        buf = io.BytesIO()
+        np.savez(buf, header=np.frombuffer(canonical(header).encode(), np.uint8),
+                 **{f"a{k}": a for k, a in enumerate(arrays)})
+        write_bytes_atomic(self._path(i), buf.getvalue())
 
     def done(self) -> list[int]:
-        return sorted(int(p.stem.split("_")[1]) for p in self.folder.glob("chunk_*.pkl"))
+        """Indices of the chunk files present (not yet checked)."""
+        out = []
+        for p in self.folder.glob("chunk_*.npz"):
+            digits = p.stem.split("_", 1)[1]
+            if digits.isdigit() and p.name == f"chunk_{int(digits):05d}.npz":
+                out.append(int(digits))
+        return sorted(out)
+
+    def others(self) -> list[str]:
+        """Files in the folder that are not ours (never opened)."""
+        ours = {"manifest.json", "runs.json", LOCK_NAME} | {self._path(i).name for i in self.done()}
+        return sorted(p.name for p in self.folder.iterdir()
+                      if p.name not in ours and not p.name.startswith("."))
+
+    def warn(self, i: int, why: str) -> None:
+        print(f"sewtol: chunk {i} in {self.label}: {why}; recomputing it", file=sys.stderr)
+

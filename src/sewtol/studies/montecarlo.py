@@ -2,7 +2,9 @@
 
 Each machine draws its deviations from the tolerance set; SumDelta is computed with beta fixed at
 the nominal machine's beta* and with beta re-optimised on the machine (the assembly adjustment).
-Machines that cannot assemble are counted as failed and count against both yields.
+Machines that cannot assemble are counted as failed and count against both yields; each case
+has its own count (a machine may fail at the nominal beta and assemble at its adjusted beta), and
+every summary satisfies ok + out_of_spec + failed = n (studies/needle_status.py).
 """
 
 from __future__ import annotations
@@ -16,10 +18,45 @@ from scipy import stats
 from ..errors import ParameterError
 from ..tolerances import ToleranceSet
 from . import beta as sb
+from . import needle_status as ns
 from .needle_eval import evaluate
 from .parallel import child_generators, chunk_bounds, run_chunks
 
 CHUNK = 500
+# bytes per machine and column of a study table (float64) plus pandas' working copies
+BYTES_PER_CELL = 8 * 4
+
+
+def check_seed(seed) -> int:
+    """A seed is a whole number >= 0 (checked before anything is computed)."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ParameterError("seed", "must be a whole number >= 0", seed)
+    return int(seed)
+
+
+def available_memory_bytes() -> int | None:
+    try:
+        for line in open("/proc/meminfo"):
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        import os
+
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_memory(n: int, columns: int, what: str = "n", value=None) -> None:
+    """Refuse a study whose result table cannot fit in the memory available now."""
+    need = int(n) * int(columns) * BYTES_PER_CELL
+    have = available_memory_bytes()
+    if have is not None and need > have:
+        raise ParameterError(what, f"needs about {need / 2**30:.3g} GiB for {columns} columns of "
+                             f"{int(n)} rows, more than the memory available "
+                             f"({have / 2**30:.3g} GiB)", n if value is None else value)
 
 
 def _chunk(model, nominal, tolerances: ToleranceSet, rng, m: int, kwargs):
@@ -38,18 +75,33 @@ def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
     progress: True (bar on stderr) or progress(done, total) in chunks; scheduler: a Dask
     scheduler address or distributed.Client to run the chunks on (parallel.run_chunks).
     """
-    if int(n) != n or n < 2:
-        raise ParameterError("n", "must be a whole number >= 2", n)
+    check_sampling(nominal, tolerances, n, seed, chunk_size)
     tol = tolerances.active()
-    if not tol.items:
-        raise ParameterError("tolerances", "has no tolerance with a non-zero width",
-                             tolerances.name)
     bounds = chunk_bounds(int(n), chunk_size)
     rngs = child_generators(seed, len(bounds))
+
+    def validate(i, part):
+        """A saved chunk must hold exactly the machines chunk i draws from the seed."""
+        try:
+            dev, out = part
+            m = bounds[i][1] - bounds[i][0]
+            if sorted(dev) != sorted(tol.params):
+                return f"holds deviations of {sorted(dev)}, not {sorted(tol.params)}"
+            for k, v in list(dev.items()) + list(out.items()):
+                if np.shape(v) != (m,):
+                    return f"column {k} has shape {np.shape(v)}, not ({m},)"
+            again = tol.sample(child_generators(seed, len(bounds))[i], m)
+            for k, v in again.items():
+                if not np.allclose(dev[k], v, rtol=1e-12, atol=0.0):
+                    return f"its {k} deviations are not the ones chunk {i} draws from the seed"
+        except (TypeError, ValueError, KeyError, AttributeError) as exc:
+            return f"malformed ({type(exc).__name__}: {exc})"
+        return None
+
     parts = run_chunks(_chunk, [(model, nominal, tol, r, b - a, kwargs)
                                 for r, (a, b) in zip(rngs, bounds, strict=True)],
                        n_jobs=n_jobs, progress=progress, desc=desc, backend=backend, store=store,
-                       scheduler=scheduler)
+                       validate=validate, scheduler=scheduler)
     frames = []
     for dev, out in parts:
         f = pd.DataFrame(dict(dev))
@@ -59,6 +111,22 @@ def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
     machines = pd.concat(frames, ignore_index=True)
     machines.insert(0, "machine", np.arange(len(machines)))
     return machines
+
+
+def check_sampling(nominal, tolerances: ToleranceSet, n, seed, chunk_size: int = CHUNK,
+                   columns: int | None = None) -> None:
+    """Every input of a Monte-Carlo that can be checked before it runs (nothing is written)."""
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer, float)) or int(n) != n or n < 2:
+        raise ParameterError("n", "must be a whole number >= 2", n)
+    check_seed(seed)
+    if isinstance(chunk_size, bool) or int(chunk_size) != chunk_size or chunk_size < 1:
+        raise ParameterError("chunk_size", "must be a whole number >= 1", chunk_size)
+    tol = tolerances.active()
+    if not tol.items:
+        raise ParameterError("tolerances", "has no tolerance with a non-zero width",
+                             tolerances.name)
+    tolerances.check_against(nominal)
+    check_memory(n, columns if columns is not None else 2 * len(tol.items) + 16)
 
 
 def contributors(machines: pd.DataFrame, params, output: str, bins: int = 20) -> pd.DataFrame:
@@ -102,8 +170,9 @@ class MonteCarloResult:
     tolerances: str
     seed: int
     limit_um: float
-    nominal_beta_deg: float
+    nominal_beta_deg: float  # the beta of the fixed case (see `montecarlo`'s fixed_beta)
     range_deg: tuple[float, float]
+    fixed_beta: str = "optimum"
 
     @property
     def n(self) -> int:
@@ -111,9 +180,33 @@ class MonteCarloResult:
 
     @property
     def failed(self) -> int:
-        return int(np.isnan(self.machines["total_fixed_um"]).sum())
+        """Machines that cannot run at the nominal beta (the fixed case; see `counts`)."""
+        return self.counts("fixed")["failed"]
+
+    @staticmethod
+    def case_of(case: str) -> str:
+        """'fixed' or 'adjusted'; the output names 'fixed_beta' and 'adjusted_beta' work too."""
+        c = case[: -len("_beta")] if isinstance(case, str) and case.endswith("_beta") else case
+        if c not in ("fixed", "adjusted"):
+            raise ParameterError("case", "must be fixed, adjusted, fixed_beta or adjusted_beta",
+                                 case)
+        return c
+
+    def status(self, case: str) -> np.ndarray:
+        case = self.case_of(case)
+        col = f"status_{case}"
+        if col in self.machines:
+            return self.machines[col].to_numpy(object)
+        total = self.machines[f"total_{case}_um"].to_numpy(float)
+        return np.where(np.isnan(total), "unexplained",
+                        np.where(total <= self.limit_um, "ok", "out_of_spec")).astype(object)
+
+    def counts(self, case: str) -> dict[str, int]:
+        """ok, out_of_spec, failed (= cannot_close + dead_point + unexplained) and n of a case."""
+        return ns.counts(self.status(case))
 
     def passed(self, case: str) -> np.ndarray:
+        case = self.case_of(case)
         return (self.machines[f"total_{case}_um"] <= self.limit_um).to_numpy()
 
     def yield_of(self, case: str) -> float:
@@ -121,11 +214,13 @@ class MonteCarloResult:
 
     def yield_ci(self, case: str = "adjusted", level: float = 0.95) -> tuple[float, float]:
         """Clopper-Pearson interval of the yield."""
+        case = self.case_of(case)
         k = int(self.passed(case).sum())
         ci = stats.binomtest(k, self.n).proportion_ci(confidence_level=level, method="exact")
         return float(ci.low), float(ci.high)
 
     def quantiles(self, case: str) -> dict:
+        case = self.case_of(case)
         # failed machines rank as infinitely bad, so they are not hidden by the quantiles
         x = self.machines[f"total_{case}_um"].fillna(np.inf).to_numpy()
         return {f"p{q}": float(np.quantile(x, q / 100, method="higher")) for q in (50, 95, 99)}
@@ -136,6 +231,7 @@ class MonteCarloResult:
 
     def capability(self, case: str) -> dict:
         """Cpu = (USL - mean) / 3 sigma, and the percentile form (USL - p50) / (p99.865 - p50)."""
+        case = self.case_of(case)
         x = self.machines[f"total_{case}_um"].dropna().to_numpy()
         if x.size < 2:  # (almost) every machine failed: no scatter to speak of
             return {"Cpu": float("nan"), "Cpu_percentile": float("nan")}
@@ -147,6 +243,7 @@ class MonteCarloResult:
 
     def pareto(self, case: str = "adjusted", bins: int = 20) -> pd.DataFrame:
         """Contributors to SumDelta's scatter (see `contributors`)."""
+        case = self.case_of(case)
         return contributors(self.machines, self.params, f"total_{case}_um", bins)
 
     def to_dict(self) -> dict:
@@ -154,9 +251,15 @@ class MonteCarloResult:
         return {
             "n": self.n,
             "failed": self.failed,
+            "counts": {"fixed_beta": self.counts("fixed"),
+                       "adjusted_beta": self.counts("adjusted")},
             "yield_fixed_beta": self.yield_of("fixed"),
             "yield_adjusted_beta": self.yield_of("adjusted"),
-            "yield_ci": [lo, hi],
+            "yield_ci": [lo, hi],  # adjusted beta (kept for compatibility)
+            "yield_ci_95": {"fixed_beta": list(self.yield_ci("fixed")),
+                            "adjusted_beta": [lo, hi]},
+            "capability": {"fixed_beta": self.capability("fixed"),
+                           "adjusted_beta": self.capability("adjusted")},
             "beta_range_deg": list(self.beta_range()),
             "total_um_quantiles": {"fixed_beta": self.quantiles("fixed"),
                                    "adjusted_beta": self.quantiles("adjusted")},
@@ -164,6 +267,8 @@ class MonteCarloResult:
             "tolerances": self.tolerances,
             "limit_um": self.limit_um,
             "nominal_beta_deg": self.nominal_beta_deg,
+            "fixed_beta": self.fixed_beta,
+            "beta_search_range_deg": list(self.range_deg),
         }
 
     def summary_frame(self) -> pd.DataFrame:
@@ -172,30 +277,59 @@ class MonteCarloResult:
             q = self.quantiles(case)
             lo, hi = self.yield_ci(case)
             cap = self.capability(case)
-            rows.append({"case": f"{case}_beta", "n": self.n, "failed": self.failed,
+            k = self.counts(case)
+            rows.append({"case": f"{case}_beta", "n": self.n, "ok": k["ok"],
+                         "out_of_spec": k["out_of_spec"], "failed": k["failed"],
+                         "cannot_close": k["cannot_close"], "dead_point": k["dead_point"],
                          "yield": self.yield_of(case), "yield_ci_low": lo, "yield_ci_high": hi,
                          "p50_um": q["p50"], "p95_um": q["p95"], "p99_um": q["p99"],
                          "Cpu": cap["Cpu"], "Cpu_percentile": cap["Cpu_percentile"]})
         return pd.DataFrame(rows)
 
 
+FIXED_BETA = ("optimum", "as_given")
+
+
+def fixed_beta_of(nominal, fixed_beta: str, range_deg, limit_um) -> float:
+    """The beta every machine keeps in the fixed case.
+
+    "optimum": the nominal machine's beta* in range_deg, exactly what `sewtol needle nominal`
+    prints for the same parameters (so a study of a shifted guide is fixed at that guide's beta*,
+    as an assembler would set it); "as_given": the nominal's own beta parameter.
+    """
+    if fixed_beta == "as_given":
+        return float(nominal.beta)
+    if fixed_beta != "optimum":
+        raise ParameterError("fixed_beta", f"must be one of {', '.join(FIXED_BETA)}", fixed_beta)
+    from ..needle import nominal_figures
+
+    return float(nominal_figures(nominal, tuple(range_deg), limit_um).beta_opt_deg)
+
+
 def montecarlo(nominal, tolerances: ToleranceSet, n: int, seed: int, limit_um: float = 10.0,
                range_deg=sb.DEFAULT_RANGE_DEG, n_jobs: int = 1, progress=False,
                backend: str | None = None, chunk_size: int = CHUNK,
-               store=None, scheduler=None) -> MonteCarloResult:
+               store=None, fixed_beta: str = "optimum", scheduler=None) -> MonteCarloResult:
     """N machines in chunks of chunk_size, chunk i drawing from child i of the seed.
 
-    With a ChunkStore (studies.checkpoint) finished chunks are saved as they arrive and an
-    interrupted study resumes without recomputing them. progress: True (bar on stderr) or a
-    callable progress(done, total) in chunks; scheduler: run on a Dask cluster (address or
-    distributed.Client), same machines as a local run.
+    The fixed case keeps every machine at the nominal machine's beta* (fixed_beta="optimum",
+    the default) or at the nominal's own beta parameter (fixed_beta="as_given"); the adjusted case
+    re-optimises beta per machine in range_deg. With a ChunkStore (studies.checkpoint) finished
+    chunks are saved as they arrive and an interrupted study resumes without recomputing them.
+    progress: True (bar on stderr) or a callable progress(done, total) in chunks; scheduler: run
+    on a Dask cluster (address or distributed.Client), same machines as a local run.
     """
     if not (np.isfinite(limit_um) and limit_um > 0):
         raise ParameterError("limit_um", "must be a positive number of um", limit_um)
     sb.check_range(range_deg, limit_um)
+    params = tuple(tolerances.active().params)
+    check_sampling(nominal, tolerances, n, seed, chunk_size, columns=len(params) + 14)
+    nominal = nominal.override(beta=fixed_beta_of(nominal, fixed_beta, range_deg, limit_um))
     machines = sample_machines(_needle_model, nominal, tolerances, n, seed, n_jobs, progress,
                                backend, chunk_size, store=store, scheduler=scheduler,
                                range_deg=range_deg)
-    return MonteCarloResult(machines, tuple(tolerances.active().params), tolerances.name,
+    status = ns.machine_status(nominal, machines, params, float(limit_um))
+    machines = pd.concat([machines, status], axis=1)
+    return MonteCarloResult(machines, params, tolerances.name,
                             int(seed), float(limit_um), float(nominal.beta),
-                            tuple(map(float, range_deg)))
+                            tuple(map(float, range_deg)), fixed_beta)

@@ -12,7 +12,10 @@ progress(done, total)) and the checkpoint store follow the work, in any order of
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
+import threading
+import time
 from collections.abc import Callable, Sequence
 
 import joblib
@@ -64,14 +67,67 @@ def numba_threads_on_worker() -> int | None:
     return share
 
 
-def _indexed(fn: Callable, i: int, args: Sequence, on_cluster: bool):
+_WATCHDOG: list[int] = []  # the parent pid this worker process watches (set once)
+
+
+def _parent_alive(pid: int, ppid_at_start: int) -> bool:
+    if ppid_at_start == pid:  # our direct parent: re-parenting means it is gone
+        return os.getppid() == pid
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    try:  # a killed parent not yet reaped by its own parent is a zombie: gone too
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return True
+
+
+def _watch_parent(pid: int, every_s: float = 0.25) -> None:
+    """In a worker: exit at once when the process that started the study is gone.
+
+    SIGKILL of the main process (a scheduler, `timeout -s KILL`, the OOM killer) gives it no
+    chance to stop its workers; without this they would compute on, holding its stdout open.
+    """
+    if os.getpid() == pid or _WATCHDOG:
+        return
+    _WATCHDOG.append(pid)
+    ppid = os.getppid()
+    if ppid == pid and sys.platform.startswith("linux"):
+        # the kernel's own parent-death signal acts at once, even while a numba kernel holds
+        # the GIL; the polling thread below covers other platforms and indirect parents
+        with contextlib.suppress(OSError, AttributeError):
+            import ctypes
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(1, 9, 0, 0, 0)  # PR_SET_PDEATHSIG, SIGKILL
+            if os.getppid() != pid:  # the parent died before the call
+                os._exit(1)
+
+    def loop():
+        while _parent_alive(pid, ppid):
+            time.sleep(every_s)
+        os._exit(1)
+
+    threading.Thread(target=loop, name="sewtol-parent-watch", daemon=True).start()
+
+
+def _indexed(fn: Callable, i: int, args: Sequence, parent_pid: int | None, on_cluster: bool):
+    """Chunk i's result with its index (results arrive in any order). A local worker process
+    watches the main process (parent_pid); a cluster's workers outlive it by design."""
+    if parent_pid is not None:
+        _watch_parent(parent_pid)
     if on_cluster:
         numba_threads_on_worker()
     return i, fn(*args)
 
 
 def run_chunks(fn: Callable, args: Sequence, n_jobs: int = 1, progress=False,
-               desc: str = "", backend: str | None = None, store=None, scheduler=None) -> list:
+               desc: str = "", backend: str | None = None, store=None,
+               validate: Callable | None = None, scheduler=None) -> list:
     """[fn(*a) for a in args] in order, in parallel when n_jobs != 1 or on a Dask cluster.
 
     progress: True for a tqdm bar on stderr, or a callable progress(done, total) called once
@@ -80,7 +136,10 @@ def run_chunks(fn: Callable, args: Sequence, n_jobs: int = 1, progress=False,
     the parallelism, so n_jobs must stay 1). A worker that dies has its chunks recomputed
     elsewhere by the scheduler; every chunk's numbers depend only on its index.
     With a ChunkStore, chunks saved by an earlier (interrupted) run are loaded instead of
-    computed, and each newly finished chunk is saved as soon as it arrives.
+    computed, and each newly finished chunk is saved as soon as it arrives. A saved chunk is used
+    only if the store accepts it (study hash, index, checksum) and `validate(i, result)` (the
+    study's own check of its rows) returns None; any other chunk is recomputed and stderr says
+    which one and why. Local workers exit when the main process is gone (see `_watch_parent`).
     """
     if n_jobs == 0 or n_jobs < -1:
         raise ParameterError("n_jobs", "must be a positive number of workers or -1 (all cores)",
@@ -94,30 +153,46 @@ def run_chunks(fn: Callable, args: Sequence, n_jobs: int = 1, progress=False,
     todo = list(range(len(args)))
     if store is not None:
         for i in store.done():
-            if i < len(args):
-                out[i] = store.load(i)
+            if i >= len(args):
+                store.warn(i, f"the study has only {len(args)} chunks; ignoring it")
+                continue
+            result, why = store.load(i)
+            if why is None and validate is not None:
+                why = validate(i, result)
+            if why is None:
+                out[i] = result
+            else:
+                store.warn(i, why)
+        others = store.others()
+        if others:
+            print(f"sewtol: {store.label}: ignoring {len(others)} file(s) that are not chunks of "
+                  f"this format (never opened): {', '.join(others[:5])}", file=sys.stderr)
         todo = [i for i in todo if out[i] is None]
     done = len(args) - len(todo)
-    bar = tqdm(total=len(args), initial=done, desc=desc, disable=report is not None or not progress,
-               file=sys.stderr, leave=False)
+    bar = tqdm(total=len(args), initial=done, desc=desc,
+               disable=report is not None or not progress, file=sys.stderr, leave=False)
     with bar, contextlib.ExitStack() as stack:
         if report is not None:
             report(done, len(args))
         if scheduler is None and n_jobs == 1 and backend is None:
-            results = (_indexed(fn, i, args[i], False) for i in todo)
+            results = (_indexed(fn, i, args[i], None, False) for i in todo)
         else:
             batch = "auto"
-            if scheduler is not None:
-                client = (connect(scheduler) if isinstance(scheduler, str) else scheduler)
+            on_cluster = scheduler is not None
+            if on_cluster:
+                client = connect(scheduler) if isinstance(scheduler, str) else scheduler
                 if isinstance(scheduler, str):
                     stack.enter_context(client)
                 stack.enter_context(joblib.parallel_config(backend="dask", client=client))
                 n_jobs, batch = -1, 1  # one chunk per task: progress and resume per chunk
             elif backend:
                 stack.enter_context(joblib.parallel_config(backend=backend))
+            # local worker processes watch this one; a cluster's workers outlive it by design
+            local = not on_cluster and backend in (None, "loky", "multiprocessing")
+            parent = os.getpid() if local else None
             results = joblib.Parallel(n_jobs=n_jobs, return_as="generator_unordered",
                                       batch_size=batch)(
-                joblib.delayed(_indexed)(fn, i, args[i], scheduler is not None) for i in todo)
+                joblib.delayed(_indexed)(fn, i, args[i], parent, on_cluster) for i in todo)
         for i, r in results:
             out[i] = r
             if store is not None:

@@ -32,7 +32,8 @@ class ScanResult:
         return self.rows.copy()
 
     def to_records(self) -> list[dict]:
-        cols = ["param", "side", "delta_mm", "beta_deg", "plus_um", "minus_um", "total_um"]
+        cols = ["param", "side", "delta_mm", "value_mm", "beta_deg", "plus_um", "minus_um",
+                "total_um"]
         return self.rows[cols].to_dict(orient="records")
 
 

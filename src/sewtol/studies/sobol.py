@@ -21,6 +21,8 @@ from . import beta as sb
 from .needle_eval import evaluate
 from .parallel import chunk_bounds, run_chunks
 
+CHUNK = 1000
+
 
 def problem_of(tolerances: ToleranceSet) -> dict:
     names, bounds, dists = [], [], []
@@ -32,9 +34,30 @@ def problem_of(tolerances: ToleranceSet) -> dict:
     return {"num_vars": len(names), "names": names, "bounds": bounds, "dists": dists}
 
 
+# the convergence check compares the indices at N and N/2; below 8 base samples SALib's
+# estimators and their bootstrap intervals are noise, so smaller N is refused, not printed
+MIN_N = 16
+
+
 def _check_n(n):
-    if int(n) != n or n < 2 or (int(n) & (int(n) - 1)) != 0:
-        raise ParameterError("n", "must be a power of two >= 2 (Sobol' sequence balance)", n)
+    if isinstance(n, bool) or int(n) != n or n < MIN_N or (int(n) & (int(n) - 1)) != 0:
+        raise ParameterError("n", f"must be a power of two >= {MIN_N} (Sobol' sequence balance; "
+                             "the convergence check uses N/2)", n)
+
+
+def check_sobol(nominal, tolerances: ToleranceSet, n, seed) -> None:
+    """Every input of a Sobol study that can be checked before it runs (nothing is written)."""
+    from .montecarlo import check_memory, check_seed
+
+    _check_n(n)
+    check_seed(seed)
+    d = len(tolerances.active().items)
+    if d == 0:
+        raise ParameterError("tolerances", "has no tolerance with a non-zero width",
+                             tolerances.name)
+    tolerances.check_against(nominal)
+    # the sample matrix (N (D + 2) rows of D columns) and two outputs per row
+    check_memory(int(n) * (d + 2), d + 2, value=n)
 
 
 def sample(problem: dict, n: int, seed: int) -> np.ndarray:
@@ -44,6 +67,10 @@ def sample(problem: dict, n: int, seed: int) -> np.ndarray:
 
 def analyze(problem: dict, y: np.ndarray, seed: int, resamples: int = 200,
             conf_level: float = 0.95) -> pd.DataFrame:
+    if isinstance(resamples, bool) or int(resamples) != resamples or resamples < 2:
+        raise ParameterError("resamples", "must be a whole number >= 2", resamples)
+    if not (0 < conf_level < 1):
+        raise ParameterError("conf_level", "must be in (0, 1)", conf_level)
     res = sobol_analyze.analyze(problem, y, calc_second_order=False, num_resamples=resamples,
                                 conf_level=conf_level, seed=seed)
     return pd.DataFrame({"param": problem["names"], "S1": res["S1"], "S1_conf": res["S1_conf"],
@@ -75,7 +102,7 @@ def sobol_indices(model, problem: dict, n: int, seed: int, case: str = "y",
     return _indices_from(problem, y, n, seed, case, resamples)
 
 
-def _indices_from(problem, y, n, seed, case, resamples):
+def _indices_from(problem, y, n, seed, case, resamples, conf_level=0.95):
     d = problem["num_vars"]
     failed = int(np.isnan(y).sum())
     if failed:
@@ -84,7 +111,7 @@ def _indices_from(problem, y, n, seed, case, resamples):
                              failed)
     frames = []
     for m in (n // 2, n):
-        f = analyze(problem, y[: m * (d + 2)], seed, resamples)
+        f = analyze(problem, y[: m * (d + 2)], seed, resamples, conf_level)
         f["case"] = case
         f["n"] = m
         frames.append(f)
@@ -106,23 +133,40 @@ def _needle_chunk(nominal, names, X, range_deg):
 def needle_sobol(nominal, tolerances: ToleranceSet, n: int, seed: int,
                  range_deg=sb.DEFAULT_RANGE_DEG, n_jobs: int = 1, progress=False,
                  backend: str | None = None, resamples: int = 200,
-                 chunk_size: int = 1000, store=None, scheduler=None) -> SobolResult:
+                 chunk_size: int = CHUNK, store=None, conf_level: float = 0.95,
+                 fixed_beta: str = "optimum", limit_um: float = sb.DEFAULT_LIMIT_UM,
+                 scheduler=None) -> SobolResult:
     """Sobol indices of SumDelta, beta fixed and beta adjusted, at n and n/2 base samples.
 
-    progress: True (bar on stderr) or progress(done, total) in chunks; scheduler: run the model
-    on a Dask cluster (address or distributed.Client; parallel.run_chunks)."""
+    beta fixed means what it means in `montecarlo` (fixed_beta: "optimum", the nominal's beta*
+    as `sewtol needle nominal` prints it, or "as_given"). progress: True (bar on stderr) or
+    progress(done, total) in chunks; scheduler: run the model on a Dask cluster (address or
+    distributed.Client; parallel.run_chunks)."""
+    from .montecarlo import fixed_beta_of
+
+    check_sobol(nominal, tolerances, n, seed)
+    sb.check_range(range_deg, limit_um)
+    nominal = nominal.override(beta=fixed_beta_of(nominal, fixed_beta, range_deg, limit_um))
     problem = problem_of(tolerances)
     X = sample(problem, n, seed)
     bounds = chunk_bounds(len(X), chunk_size)
+
+    def validate(i, part):
+        m = bounds[i][1] - bounds[i][0]
+        if not (isinstance(part, tuple) and len(part) == 2
+                and all(np.shape(p) == (m,) for p in part)):
+            return f"does not hold two outputs of {m} samples"
+        return None
+
     parts = run_chunks(_needle_chunk, [(nominal, problem["names"], X[a:b], range_deg)
                                        for a, b in bounds],
                        n_jobs=n_jobs, progress=progress, desc="Sobol", backend=backend,
-                       store=store, scheduler=scheduler)
+                       store=store, validate=validate, scheduler=scheduler)
     y_fixed = np.concatenate([p[0] for p in parts])
     y_adj = np.concatenate([p[1] for p in parts])
     frames, convs = [], []
     for case, y in (("fixed_beta", y_fixed), ("adjusted_beta", y_adj)):
-        f, c, _ = _indices_from(problem, y, n, seed, case, resamples)
+        f, c, _ = _indices_from(problem, y, n, seed, case, resamples, conf_level)
         frames.append(f)
         convs.append(c)
     return SobolResult(pd.concat(frames, ignore_index=True), pd.concat(convs, ignore_index=True),
