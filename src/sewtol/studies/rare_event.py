@@ -150,7 +150,7 @@ def _fmt_ppm(p: float) -> str:
     ppm = p * 1e6
     if ppm >= 1000:
         return f"{ppm:,.0f} ppm"
-    return f"{ppm:.3g} ppm" if ppm >= 0.01 else f"{ppm:.2e} ppm"
+    return f"{ppm:.3g} ppm"
 
 
 @dataclass(frozen=True)
@@ -420,18 +420,21 @@ def _acs_level(ls: LimitState, seeds_z, seeds_out, b, n, rng, lam, target_accept
 
 def subset_simulation(ls: LimitState, n_per_level: int, rng: np.random.Generator,
                       p0: float = 0.1, max_levels: int = 25, down_to: float | None = None,
-                      examples_per_mode: int = 3) -> RareEventResult:
+                      p_floor: float = 1e-12, examples_per_mode: int = 3) -> RareEventResult:
     """Subset simulation (Au & Beck 2001) with adaptive conditional sampling.
 
     Intermediate thresholds are the (1 - p0) quantiles of the margin value - limit; the run stops
     when a threshold reaches the limit (P = prod p_j * fraction failing at the last level) or,
     with down_to, when the probability reached falls below down_to (for an exceedance curve that
-    reaches far past the limit). Each level has delta_j^2 = (1-p_j)/(N p_j) (1+gamma_j), gamma_j
-    the chain correlation factor. The levels are correlated (the seeds of one level are samples
-    of the previous), so sqrt(sum delta_j^2) (`cov_independent` in the levels' notes, Au & Beck's
-    figure) understates the scatter; the c.o.v. reported and its 95 % interval use the fully
-    correlated bound sum delta_j (Au & Beck 2001, section 5), which repeated runs of the
-    validation cases stay inside (docs/rare_event.md)."""
+    reaches far past the limit). A limit that the inputs cannot reach (bounded tolerances whose
+    worst case stays below it) makes the thresholds creep towards the largest value; the run then
+    stops once the probability reached is below p_floor and, with no failure at that level,
+    reports the 95 % bound P(level) x (1 - 0.05^(1/N)) as "< X". Each level has
+    delta_j^2 = (1-p_j)/(N p_j) (1+gamma_j), gamma_j the chain correlation factor. The levels
+    are correlated (the seeds of one level are samples of the previous), so sqrt(sum delta_j^2)
+    (Au & Beck's usual figure, given in the notes) understates the scatter; the c.o.v. reported
+    and its 95 % interval use the fully correlated bound sum delta_j (Au & Beck 2001), which
+    repeated runs of the validation cases stay inside (docs/rare_event.md)."""
     _check_common(rng, n_per_level, "n_per_level", 10)
     if not (0 < p0 <= 0.5):
         raise ParameterError("p0", "must be in (0, 0.5]", p0)
@@ -453,7 +456,7 @@ def subset_simulation(ls: LimitState, n_per_level: int, rng: np.random.Generator
         b = 0.5 * (m_sorted[ns_target - 1] + m_sorted[ns_target])
         if not np.isfinite(b):  # more than p0 of the samples fail a mode without a value
             b = 0.0
-        stop = b >= 0 if down_to is None else weight * p0 < down_to
+        stop = (b >= 0 or weight * p0 < p_floor) if down_to is None else weight * p0 < down_to
         final = bool(stop or level == max_levels)
         if final and down_to is None:
             b = 0.0
@@ -487,7 +490,18 @@ def subset_simulation(ls: LimitState, n_per_level: int, rng: np.random.Generator
 
     k = int(np.sum(labels > 0))
     last = rows[-1]["cov"]
-    if k > 0:
+    method = "subset"
+    if len(rows) == 1 and down_to is None:
+        # the limit lies within the first, plain Monte-Carlo level: report it as that
+        method = "subset (level 0 = Monte-Carlo)"
+        ci = stats.binomtest(k, n).proportion_ci(confidence_level=0.95, method="exact")
+        ci90 = stats.binomtest(k, n).proportion_ci(confidence_level=0.90, method="exact")
+        p = k / n
+        cov = float(np.sqrt((1 - p) / (n * p))) if k > 0 else float("nan")
+        lo, hi = float(ci.low), float(ci.high)
+        upper = hi if k > 0 else float(ci90.high)
+        cov_ind = cov
+    elif k > 0:
         frac = float(np.mean(labels > 0)) if down_to is None else float(np.mean(margin > 0))
         p = weight * frac
         if down_to is not None:  # the last level's threshold is not the limit: its own term
@@ -502,14 +516,19 @@ def subset_simulation(ls: LimitState, n_per_level: int, rng: np.random.Generator
     else:
         p, cov, cov_ind = 0.0, float("nan"), float("nan")
         lo, hi = 0.0, float("nan")
-        upper = weight * (1 - 0.05 ** (1 / n))
+        # the level's own probability is uncertain too: its one-sided 95 % log-normal bound
+        s = np.sqrt(np.log1p(sum_delta**2))
+        upper = weight * float(np.exp(1.645 * s)) * (1 - 0.05 ** (1 / n))
     counts, shares = _shares(labels, np.ones(labels.size), ls.mode_names)
     note = (f"p0 = {p0}, {n} samples per level, {len(rows)} levels; c.o.v. = sum of the levels' "
-            f"delta (fully correlated bound; levels taken independent: {cov_ind:.3f}); "
+            f"delta (fully correlated bound; levels taken independent: {cov_ind:.3g}); "
             "log-normal 95 % interval from the c.o.v.")
     if down_to is not None:
         note += f"; run down to P = {down_to:g} for the exceedance curve"
-    return RareEventResult("subset", p, cov, lo, hi, upper, calls, k, counts, shares, ls.limit,
+    elif k == 0:
+        note += (f"; no failure: the levels stopped at P = {weight:.3g} with the largest "
+                 f"{ls.output} found {np.max(value[np.isfinite(value)], initial=-np.inf):.6g}")
+    return RareEventResult(method, p, cov, lo, hi, upper, calls, k, counts, shares, ls.limit,
                            ls.output, _examples(ls, z, value, labels, examples_per_mode),
                            pd.DataFrame(rows), tuple(cv), tuple(cw), tuple(cc), tuple(cg),
                            tuple(cf), note)
@@ -645,7 +664,8 @@ def estimate(ls: LimitState, rng: np.random.Generator, method: str = "auto",
     if chosen == "subset":
         # each level after the first costs (1 - p0) N new calls
         n = int(budget / (1 + 0.9 * levels)) // 10 * 10
-        return subset_simulation(ls, max(n, 100), rng, examples_per_mode=examples_per_mode)
+        return subset_simulation(ls, max(n, 100), rng, p_floor=target / 100,
+                                 examples_per_mode=examples_per_mode)
     n = int(budget / (levels + 2)) // 10 * 10
     return nais(ls, max(n, 100), rng, n_final=max(n, 100) * 2,
                 examples_per_mode=examples_per_mode)
