@@ -129,7 +129,7 @@ def test_union_of_failure_modes_with_shares():
     assert set(res.mode_shares) == {"value > limit", "cannot assemble"}
     assert sum(res.mode_shares.values()) == pytest.approx(1.0)
     assert sum(res.mode_counts.values()) == res.failures
-    # share of the mode without a value: exact mode / union (0.26); binomial band on failures
+    # share of the mode without a value: exact mode / union (0.496); binomial band on failures
     share = res.mode_shares["cannot assemble"]
     sd = math.sqrt(share * (1 - share) / res.failures) * 3  # chains correlate: x3 of binomial
     assert abs(share - mode / union) <= 4 * sd
