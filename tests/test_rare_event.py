@@ -243,6 +243,7 @@ def test_cli_needle_ppm_json_and_refusals(tmp_path):
     assert (tmp_path / "o" / "ppm.json").exists() and (tmp_path / "o" / "run.json").exists()
     for argv, msg in ((("--budget", "5"), "--budget: must be a whole number of model calls"),
                       (("--target", "0"), "--target: must be a probability in (0, 1)"),
-                      (("--limit-um", "-1"), "--limit-um: must be a positive number")):
+                      (("--limit-um", "-1"), "--limit-um: must be a positive number"),
+                      (("--out", str(tmp_path / "r"), "--resume"), "--resume: is not offered")):
         code, out, err = run("needle", "ppm", *argv)
         assert code == 2 and err.count("\n") == 1 and msg in err and out == ""

@@ -220,6 +220,9 @@ def cmd_needle_ppm(args):
 
     _check_study(args)
     _check_beta_range(args)
+    if args.resume:
+        raise ParameterError("--resume", "is not offered by needle ppm (it keeps no checkpoints; "
+                             "rerun with the same seed)", True)
     if not (np.isfinite(args.target) and 0 < args.target < 1):
         raise ParameterError("--target", "must be a probability in (0, 1)", args.target)
     if args.budget < 100:
@@ -230,7 +233,7 @@ def cmd_needle_ppm(args):
                               tuple(args.beta_range))
     started = now()
     res = R.estimate(ls, np.random.default_rng(args.seed), args.method, args.target,
-                     args.budget, n_jobs=args.n_jobs)
+                     args.budget, n_jobs=args.n_jobs, progress=args.progress)
     obj = {**res.to_dict(), "tolerances": tolerances.name, "adjust": args.adjust,
            "seed": args.seed, "target": args.target, "budget": args.budget}
     if args.out:

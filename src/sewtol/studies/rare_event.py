@@ -647,7 +647,7 @@ def choose_method(target: float, budget: int) -> str:
 
 def estimate(ls: LimitState, rng: np.random.Generator, method: str = "auto",
              target: float = 1e-6, budget: int = 20000, n_jobs: int = 1,
-             examples_per_mode: int = 3) -> RareEventResult:
+             examples_per_mode: int = 3, progress: bool = False) -> RareEventResult:
     """P(failure) with the method chosen by choose_method(target, budget), or the one named.
 
     budget is the number of model calls (subset simulation and NAIS take about that many; plain
@@ -659,7 +659,7 @@ def estimate(ls: LimitState, rng: np.random.Generator, method: str = "auto",
         choose_method(target, budget)  # the same checks of target and budget
     if chosen == "montecarlo":
         return monte_carlo(ls, int(budget), rng, n_jobs=n_jobs,
-                           examples_per_mode=examples_per_mode)
+                           examples_per_mode=examples_per_mode, progress=progress)
     levels = max(int(np.ceil(-np.log10(target))), 1)
     if chosen == "subset":
         # each level after the first costs (1 - p0) N new calls
