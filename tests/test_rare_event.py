@@ -135,6 +135,9 @@ def test_union_of_failure_modes_with_shares():
     assert abs(share - mode / union) <= 4 * sd
     assert set(res.examples["mode"]) == {"value > limit", "cannot assemble"}
     assert np.isnan(res.examples.loc[res.examples["mode"] == "cannot assemble", "z0"]).all()
+    imp = R.nais(union_problem(), 2000, np.random.default_rng(4))
+    assert imp.ci_low <= union <= imp.ci_high
+    assert abs(imp.mode_shares["cannot assemble"] - mode / union) < 0.1
     mc = R.monte_carlo(union_problem(), 20000, np.random.default_rng(4))
     assert sum(mc.mode_counts.values()) == mc.failures  # counts add up; no mode dropped
 

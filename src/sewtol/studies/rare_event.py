@@ -590,7 +590,8 @@ def nais(ls: LimitState, n_per_step: int, rng: np.random.Generator, n_final: int
         x = sample(n)
         value, margin, labels = ls.evaluate(x)
         calls += n
-        g = min(float(np.quantile(margin, 1 - rho)), 0.0)
+        # "higher": an actual sample, so modes without a value (margin +inf) never give NaN
+        g = min(float(np.quantile(margin, 1 - rho, method="higher")), 0.0)
         w = np.exp(log_ratio(x)) * (margin >= g)
         rows.append({"level": step, "threshold": g + ls.limit, "samples": n,
                      "conditional_probability": float(np.mean(margin >= g)), "gamma": 0.0,
