@@ -352,6 +352,70 @@ def cmd_needle_sobol(args):
     emit(args.format, obj=res.to_records(), frame=res.to_dataframe())
 
 
+# --- needle ppm (rare-event probability of failure after adjustment; issue 15) ---------------
+
+def cmd_needle_ppm(args):
+    from .provenance import now
+    from .studies import rare_event as R
+
+    _check_study(args)
+    _check_beta_range(args)
+    if args.resume:
+        raise ParameterError("--resume", "is not offered by needle ppm (it keeps no checkpoints; "
+                             "rerun with the same seed)", True)
+    if not (np.isfinite(args.target) and 0 < args.target < 1):
+        raise ParameterError("--target", "must be a probability in (0, 1)", args.target)
+    if args.budget < 100:
+        raise ParameterError("--budget", "must be a whole number of model calls >= 100",
+                             args.budget)
+    params, tolerances = _study_nominal(args), _tolerances(args)
+    ls = R.needle_limit_state(params, tolerances, args.limit_um, args.adjust,
+                              tuple(args.beta_range))
+    started = now()
+    res = R.estimate(ls, np.random.default_rng(args.seed), args.method, args.target,
+                     args.budget, n_jobs=args.n_jobs, progress=args.progress)
+    obj = {**res.to_dict(), "tolerances": tolerances.name, "adjust": args.adjust,
+           "seed": args.seed, "target": args.target, "budget": args.budget}
+    if args.out:
+        from .io import write_text_atomic
+        from .mechanisms.params import as_dict
+        from .provenance import run_record
+
+        out = Path(args.out)
+        write_text_atomic(out / "ppm.json", json.dumps(obj, indent=2, default=_json_default)
+                          + "\n")
+        for name, frame in (("levels", res.levels), ("failing_examples", res.examples)):
+            write_text_atomic(out / f"{name}.csv", frame.to_csv(
+                index=False, float_format="%.9g", lineterminator="\n"))
+        inputs = {"study": "ppm", "method": args.method, "target": args.target,
+                  "budget": args.budget, "seed": args.seed, "adjust": args.adjust,
+                  "limit_um": args.limit_um, "params": as_dict(params),
+                  "tolerances": {"name": tolerances.name, "items": tolerances.as_dict()}}
+        write_text_atomic(out / "run.json", json.dumps(run_record(started, inputs), indent=2)
+                          + "\n")
+    frame = res.to_dataframe().assign(tolerances=tolerances.name, adjust=args.adjust)
+    emit(args.format, obj=obj, frame=frame)
+    if args.format == "table":
+        print(f"\nP(SumDelta > {args.limit_um:g} um or no value) = {res.statement}")
+
+
+def add_needle_ppm(nsub, common, study) -> None:
+    p = nsub.add_parser("ppm", help="failures per million after adjustment (rare-event methods)")
+    common(p)
+    study(p)
+    p.add_argument("--adjust", choices=("none", "beta"), default="beta",
+                   help="assembly adjustment: none (beta fixed at nominal beta*) or beta")
+    p.add_argument("--limit-um", type=float, default=10.0, help="SumDelta limit (um)")
+    p.add_argument("--beta-range", nargs=2, type=float, default=[10.0, 35.0],
+                   metavar=("LOW", "HIGH"), help="regulating range searched for beta (deg)")
+    p.add_argument("--method", choices=("auto", "montecarlo", "subset", "nais"), default="auto",
+                   help="auto: Monte-Carlo if budget * target >= 10, else subset simulation")
+    p.add_argument("--target", type=float, default=1e-6,
+                   help="smallest probability to resolve (default 1e-6)")
+    p.add_argument("--budget", type=int, default=20000, help="model calls (default 20000)")
+    p.set_defaults(func=cmd_needle_ppm)
+
+
 def _feed_params(args):
     from .mechanisms.feed_131 import Feed131
 
@@ -452,6 +516,8 @@ def build_parser() -> argparse.ArgumentParser:
     study(p)
     p.add_argument("--n", type=int, default=256, help="base samples, a power of two")
     p.set_defaults(func=cmd_needle_sobol)
+
+    add_needle_ppm(nsub, common, study)
 
     feed = sub.add_parser("feed", help="131-42+3 feed chains (lower and upper dog)")
     fsub = feed.add_subparsers(dest="command", required=True, parser_class=Parser)
