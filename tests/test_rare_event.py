@@ -237,7 +237,12 @@ def test_cli_needle_ppm_json_and_refusals(tmp_path):
                        "--method", "montecarlo", "--budget", "2000", "--seed", "3",
                        "--format", "json", "--out", str(tmp_path / "o"))
     assert code == 0
-    d = json.loads(out)
+
+    def refuse(token):
+        raise ValueError(f"not JSON: {token}")
+
+    d = json.loads(out, parse_constant=refuse)  # strict: no NaN or Infinity
+    json.loads((tmp_path / "o" / "ppm.json").read_text(), parse_constant=refuse)
     for key in ("probability", "ppm", "cov", "ci95", "upper_95", "model_calls", "method",
                 "failures", "mode_shares", "statement"):
         assert key in d

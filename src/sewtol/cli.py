@@ -222,7 +222,8 @@ def _inputs(args, kind, params, tolerances, **extra) -> dict:
     from .mechanisms.params import as_dict
     from .provenance import version_record
 
-    return {"study": kind, "n": args.n, "seed": args.seed, "params": as_dict(params),
+    return {"study": kind, "n": getattr(args, "n", None), "seed": args.seed,
+            "params": as_dict(params),
             "tolerances": {"name": tolerances.name, "items": tolerances.as_dict()},
             **version_record(), **extra}
 
@@ -363,6 +364,9 @@ def cmd_needle_ppm(args):
     if args.resume:
         raise ParameterError("--resume", "is not offered by needle ppm (it keeps no checkpoints; "
                              "rerun with the same seed)", True)
+    if _scheduler(args) is not None:
+        raise ParameterError("--scheduler", "is not offered by needle ppm (its levels run on "
+                             "this machine; use --n-jobs)", _scheduler(args)[1])
     if not (np.isfinite(args.target) and 0 < args.target < 1):
         raise ParameterError("--target", "must be a probability in (0, 1)", args.target)
     if args.budget < 100:
@@ -378,21 +382,21 @@ def cmd_needle_ppm(args):
            "seed": args.seed, "target": args.target, "budget": args.budget}
     if args.out:
         from .io import write_text_atomic
-        from .mechanisms.params import as_dict
         from .provenance import run_record
+        from .reports.tables import to_csv
 
         out = Path(args.out)
-        write_text_atomic(out / "ppm.json", json.dumps(obj, indent=2, default=_json_default)
-                          + "\n")
-        for name, frame in (("levels", res.levels), ("failing_examples", res.examples)):
-            write_text_atomic(out / f"{name}.csv", frame.to_csv(
-                index=False, float_format="%.9g", lineterminator="\n"))
-        inputs = {"study": "ppm", "method": args.method, "target": args.target,
-                  "budget": args.budget, "seed": args.seed, "adjust": args.adjust,
-                  "limit_um": args.limit_um, "params": as_dict(params),
-                  "tolerances": {"name": tolerances.name, "items": tolerances.as_dict()}}
-        write_text_atomic(out / "run.json", json.dumps(run_record(started, inputs), indent=2)
-                          + "\n")
+        inputs = _inputs(args, "ppm", params, tolerances, method=args.method,
+                         target=args.target, budget=args.budget, adjust=args.adjust,
+                         limit_um=args.limit_um, beta_search_range_deg=list(args.beta_range))
+        try:
+            write_text_atomic(out / "ppm.json", to_json(obj))
+            for name, frame in (("levels", res.levels), ("failing_examples", res.examples)):
+                write_text_atomic(out / f"{name}.csv", to_csv(frame))
+            write_text_atomic(out / "run.json", to_json(run_record(started, inputs)))
+        except OSError as exc:
+            raise ParameterError("--out", f"cannot be written ({exc.strerror})",
+                                 str(exc.filename or out)) from None
     frame = res.to_dataframe().assign(tolerances=tolerances.name, adjust=args.adjust)
     emit(args.format, obj=obj, frame=frame)
     if args.format == "table":
