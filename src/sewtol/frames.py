@@ -69,21 +69,32 @@ class Frame:
                 "provenance": self.provenance, "published": list(self.published)}
 
     def summary_row(self) -> dict:
+        """One line per frame: where it is, what it was fitted to and how well it meets the
+        published figures (every number in full: to_dict / `--format json`)."""
         p = self.provenance
-        cond = p.get("conditioning") or {}
+        scaled = {k: p["residuals"][k] / p["scales"][k] for k in p["targets"]}
+        worst = max(scaled, key=lambda k: abs(scaled[k]))
         row = {"frame": self.name, "version": self.version,
-               "default": self.name == DEFAULT_FRAME,
+               "default": self.name == DEFAULT_FRAME, "kind": p.get("kind", "window"),
                "family": _family_label(self.family), "lm_direction": self.lm_direction,
                "A_mm": f"({self.params['Ax']:.3f}, {self.params['Ay']:.3f})",
                "D_mm": f"({self.params['Dx']:.3f}, {self.params['Dy']:.3f})",
-               "guide_angle_deg": self.params["guide_angle"], "cost": p.get("cost")}
-        for k, v in p["residuals"].items():
-            row[f"res_{k}"] = v
-        row["condition_number"] = cond.get("condition_number")
+               "guide_angle_deg": self.params["guide_angle"], "beta_deg": self.params["beta"],
+               "cost": p.get("cost"), "worst_target": worst,
+               "worst_residual": p["residuals"][worst]}
+        nominal = {r["param"]: r["model"] for r in self.published if r.get("kind") == "nominal"}
+        for key, label in (("SumDelta at beta* (um)", "total_um_at_beta_opt"),
+                           ("SumDelta at beta 19 (um)", "total_um_at_19"),
+                           ("SumDelta at beta 25 (um)", "total_um_at_25")):
+            if key in nominal:
+                row[label] = nominal[key]
         pub = [r for r in self.published if r.get("kind") == "delta"]
         if pub:
             row["table41_delta_rms_um"] = (sum(r["residual_um"] ** 2 for r in pub)
                                            / len(pub)) ** 0.5
+        betas = [r for r in self.published if r.get("kind") == "beta"]
+        if betas:
+            row["table41_beta_in_near_set"] = f"{sum(r['in_near_set'] for r in betas)}/{len(betas)}"
         return row
 
 
