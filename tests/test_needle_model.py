@@ -238,8 +238,8 @@ def test_stored_frames_are_optima_of_their_targets():
     from sewtol.studies import needle_calibration as cal
 
     for f, prob in _problems():
-        J = cal.jacobian_of(prob.fun, prob.x, step=1e-3)
         r = prob.fun(prob.x)
+        J = cal.jacobian_of(prob.fun, prob.x, step=1e-3)
         g = J.T @ r
         decrease = 0.5 * g @ np.linalg.solve(J.T @ J, g)
         assert decrease < 1e-5, (f.name, decrease)
