@@ -7,9 +7,11 @@
 data (src/sewtol/data/frames/) and writes DIR/needle_208/calibration.md, so the report shows the
 same geometry as every other table. Without --stored the named frame is rebuilt: `window` by the
 global search over all 16 families (studies.needle_calibration.search) and a converged least
-squares; `sewtol-0.1` from the frozen 0.1 geometry (src/sewtol/data/needle_208.json). The
+squares; `table41` from the stored window frame, fitted to Table 4.1; `sewtol-0.1` from the
+frozen 0.1 geometry (src/sewtol/data/needle_208.json). The
 rebuilt record goes to DIR/needle_208/frame_<NAME>.json and its report to
 DIR/needle_208/calibration_<NAME>.md; package data is only written with --write-package-data.
+(sewtol 0.1's `--data FILE` still works: a stored report, FILE gets the default frame's record.)
 """
 
 from __future__ import annotations
@@ -204,8 +206,15 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="reports", help="report folder (default: reports)")
     ap.add_argument("--write-package-data", action="store_true",
                     help="also write the rebuilt frame to src/sewtol/data/frames/NAME.json")
+    ap.add_argument("--data", default=None, help=argparse.SUPPRESS)  # sewtol 0.1's flag
     args = ap.parse_args(argv)
     out = Path(args.out) / "needle_208"
+    if args.data:
+        # sewtol 0.1's `make report` step (--data FILE): now a stored report, and FILE gets the
+        # default frame's record (what that file held: the geometry the report uses)
+        args.stored = True
+        write_text_atomic(Path(args.data), json.dumps(load_frame(DEFAULT_FRAME).to_dict(),
+                                                      indent=2) + "\n")
     try:
         if args.stored:
             names = frame_names() if args.frame == "all" else [load_frame(args.frame).name]

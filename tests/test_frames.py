@@ -118,3 +118,40 @@ def test_unknown_frame_on_the_command_line_is_one_line_exit_2(capsys):
     assert main(["needle", "nominal", "--frame", "nope"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "frame" in err and "nope" in err
+
+
+def _calibration_script():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "studies" / "calibrate_needle_208.py"
+    spec = importlib.util.spec_from_file_location("calibrate_needle_208", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_calibration_report_uses_the_packaged_frames_and_never_writes_package_data(tmp_path):
+    mod = _calibration_script()
+    package = {p.name: p.read_bytes() for p in mod.PACKAGE_FRAMES.iterdir()}
+    assert mod.main(["--stored", "--out", str(tmp_path)]) == 0
+    text = (tmp_path / "needle_208" / "calibration.md").read_text()
+    for f in list_frames():
+        assert f"## Frame `{f.name}`" in text
+        # one geometry throughout: the report prints the packaged frame's numbers
+        assert f"A = ({f.params['Ax']:.4f}, {f.params['Ay']:.4f}) mm" in text
+        assert f"- beta = {f.params['beta']:.4f} deg" in text
+    assert "singular values" in text and "poorly determined" in text
+    # sewtol 0.1's --data flag: the default frame's record, nothing refitted
+    assert mod.main(["--out", str(tmp_path), "--data", str(tmp_path / "g.json")]) == 0
+    assert json.loads((tmp_path / "g.json").read_text())["params"] == load_frame(
+        DEFAULT_FRAME).params
+    assert {p.name: p.read_bytes() for p in mod.PACKAGE_FRAMES.iterdir()} == package
+
+
+def test_calibration_script_refuses_an_unknown_frame(tmp_path, capsys):
+    mod = _calibration_script()
+    assert mod.main(["--frame", "nope", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--frame" in err and "nope" in err
+    assert not (tmp_path / "needle_208").exists()
