@@ -66,11 +66,20 @@ def verdicts(res: dict) -> list[tuple[str, str, str]]:
     top3 = [set(r["worst"].sort_values(ascending=False).index[:3]) for r in res.values()]
     add("the three most critical links in the scan (largest SumDelta at a recommended limit)",
         ["/".join(sorted(t)) for t in top3], [t == top3[0] for t in top3])
+    sob2 = [set(r["st"].sort_values(ascending=False).index[:2]) for r in res.values()]
+    add("the two largest total Sobol indices (recommended, beta adjusted)",
+        ["/".join(sorted(t)) for t in sob2], [t == sob2[0] for t in sob2])
     sob_top = [r["st"].idxmax() for r in res.values()]
-    add("largest total Sobol index (recommended, beta adjusted)", sob_top,
+    add("the single largest total Sobol index", [f"{s} ({r['st'][s]:.3f})" for s, r in
+                                                 zip(sob_top, res.values(), strict=True)],
         [s == sob_top[0] for s in sob_top])
+    tight4 = [set(r["largest"].sort_values().index[:4]) for r in res.values()]
+    add("the four tightest links by largest single tolerance",
+        ["/".join(sorted(t)) for t in tight4], [t == tight4[0] for t in tight4])
     least = [r["largest"].idxmin() for r in res.values()]
-    add("tightest link by largest single tolerance", least, [s == least[0] for s in least])
+    add("the tightest link by largest single tolerance",
+        [f"{s} ({r['largest'][s]:.4f} mm)" for s, r in zip(least, res.values(), strict=True)],
+        [s == least[0] for s in least])
     lm = [np.sign(r["lm_up"] - r["lm_low"]) for r in res.values()]
     add("beta* grows with LM (Table 4.1: 24 at UL, 19 at LL)",
         [f"{r['lm_up']:.2f}/{r['lm_low']:.2f}" for r in res.values()], [s > 0 for s in lm])
