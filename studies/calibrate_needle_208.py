@@ -141,7 +141,11 @@ def render(rec: dict) -> list[str]:
             "printed digits (the forward map is reproducible to 1e-12 across CPU dispatch).", ""]
     search = p.get("search") or []
     if search:
-        out += ["Global search (every family fitted from its best screened start):", "",
+        title = ("Converged refit of the same family from this frame (not shipped):"
+                 if any(r.get("note") for r in search) else
+                 "Global search, every fit (the screen table in the frame's JSON lists every "
+                 "family and start, with the twins that were not refitted):")
+        out += [title, "",
                 "| family | LM dir | Ax | Ay | AD | ang AD | cost | beta* | SumDelta 19 | "
                 "SumDelta 25 |", "|---|---|---|---|---|---|---|---|---|---|"]
         for r in search:
@@ -150,8 +154,7 @@ def render(rec: dict) -> list[str]:
                        f"{xx['Ay']:.3f} | {xx['AD']:.4f} | {xx['AD_angle_deg']:.3f} | "
                        f"{r['cost']:.4f} | {_f(r.get('beta_opt_deg'), '.3f')} | "
                        f"{_f(r.get('total_um_at_beta_19'), '.3f')} | "
-                       f"{_f(r.get('total_um_at_beta_25'), '.3f')} |"
-                       + (f" {r['note']}" if r.get("note") else ""))
+                       f"{_f(r.get('total_um_at_beta_25'), '.3f')} |")
         out.append("")
     out += ["### Residuals against every published figure", "",
             "Nominal statements (guide fixed as stored; beta* searched in 10..35):", "",
@@ -164,7 +167,10 @@ def render(rec: dict) -> list[str]:
             f"rows with the guide moved 50 um, the study's '+50 um' read as "
             f"{p['table41_guide_sign'] * 50:+g} um along sewtol's normal, the sign that fits "
             "better). beta*: the published value against the near-set, the betas in 19..25 "
-            "whose SumDelta is within 0.1 um of the row's best (0.01 deg grid).", "",
+            "whose SumDelta is within 0.1 um of the row's best (0.01 deg grid); where the "
+            "near-set is wider than 0.5 deg, SumDelta varies by < 0.1 um over it and beta* is no property "
+            "of the machine ('flat'; Delta+ and Delta- at the optimum are still determined).",
+            "",
             "| row | published beta* | model beta* | near-set (deg) | in it | distance (deg) | "
             "published D+/D- | model D+/D- |", "|---|---|---|---|---|---|---|---|"]
     deltas = {(r["param"], r["side"]): r for r in rec["published"] if r["kind"] == "delta"}
@@ -174,7 +180,10 @@ def render(rec: dict) -> list[str]:
         dp = deltas[(r["param"], f"{r['side']} Delta+")]
         dm = deltas[(r["param"], f"{r['side']} Delta-")]
         ns = ", ".join(f"{a:.2f}..{b:.2f}" for a, b in r["near_set_deg"])
-        out.append(f"| {r['param']} {r['side']} | {r['published']:g} | {r['model']:.2f} | {ns} | "
+        # on a flat optimum (a wide near-set) beta* is the optimiser's pick, not a property
+        wide = any(b - a > 0.5 for a, b in r["near_set_deg"])
+        model = "flat" if wide else f"{r['model']:.2f}"
+        out.append(f"| {r['param']} {r['side']} | {r['published']:g} | {model} | {ns} | "
                    f"{'yes' if r['in_near_set'] else 'no'} | {r['distance_deg']:.2f} | "
                    f"+{dp['published']:g}/-{dm['published']:g} | "
                    f"+{dp['model']:.2f}/-{dm['model']:.2f} |")
