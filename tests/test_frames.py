@@ -165,3 +165,14 @@ def test_calibration_script_refuses_an_unknown_frame(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--frame" in err and "nope" in err
     assert not (tmp_path / "needle_208").exists()
+
+
+def test_frame_files_are_strict_json():
+    from importlib import resources
+
+    def refuse(c):
+        raise ValueError(f"non-standard JSON constant {c}")
+
+    folder = resources.files("sewtol.data").joinpath("frames")
+    for name in frame_names():
+        json.loads(folder.joinpath(f"{name}.json").read_text(), parse_constant=refuse)

@@ -455,7 +455,7 @@ def nominal_statements(nominal: Needle208) -> list:
         rows.append({"kind": "nominal", "param": f"SumDelta at beta {b:g} (um)", "side": "<= 10",
                      "published": 10.0, "model": v, "residual": v - 10.0})
     rows.append({"kind": "nominal", "param": "SumDelta at beta* (um)", "side": "",
-                 "published": float("nan"), "model": fig.total_um, "residual": float("nan")})
+                 "published": None, "model": fig.total_um, "residual": None})
     for end, pub, v in (("low", 19.0, fig.window_deg[0]), ("high", 25.0, fig.window_deg[1])):
         rows.append({"kind": "nominal", "param": f"window {end} end (deg)", "side": "",
                      "published": pub, "model": v, "residual": v - pub})
