@@ -75,7 +75,16 @@ def emit(fmt: str, *, obj=None, frame=None) -> None:
 def _needle_params(args):
     from .mechanisms.needle_208 import Needle208
 
-    return Needle208.nominal().override(**parse_sets(args.set, Needle208))
+    return Needle208.nominal(args.frame).override(**parse_sets(args.set, Needle208))
+
+
+def cmd_needle_frames(args):
+    from .frames import frames_table, list_frames
+
+    if args.format == "json":
+        emit("json", obj=[f.to_dict() for f in list_frames()])
+    else:
+        emit(args.format, frame=frames_table())
 
 
 def cmd_needle_nominal(args):
@@ -472,15 +481,23 @@ def build_parser() -> argparse.ArgumentParser:
                        help=f"override a parameter (repeatable), e.g. --set {example}")
         p.add_argument("--format", choices=formats, default="table")
 
+    def needle_common(p, **kwargs):
+        from .frames import DEFAULT_FRAME
+
+        common(p, **kwargs)
+        p.add_argument("--frame", default=None, metavar="NAME",
+                       help=f"named frame of the 208 (default {DEFAULT_FRAME}); "
+                            "list them with `sewtol needle frames`")
+
     p = nsub.add_parser("nominal", help="beta*, deviation figures, window, guide, stroke")
-    common(p, formats=("table", "json"))
+    needle_common(p, formats=("table", "json"))
     p.add_argument("--beta-range", nargs=2, type=float, default=[10.0, 35.0],
                    metavar=("LOW", "HIGH"), help="regulating range searched for beta* (deg)")
     p.add_argument("--limit-um", type=float, default=10.0, help="SumDelta limit of the window")
     p.set_defaults(func=cmd_needle_nominal)
 
     p = nsub.add_parser("deviation", help="E and d(phi) over one crank turn")
-    common(p)
+    needle_common(p)
     p.add_argument("--beta", type=float, default=None, help="beta (deg); default: the nominal")
     p.add_argument("--step-deg", type=float, default=1.0, help="crank-angle step (deg)")
     p.set_defaults(func=cmd_needle_deviation)
@@ -503,25 +520,29 @@ def build_parser() -> argparse.ArgumentParser:
                                 "its finished chunks")
 
     p = nsub.add_parser("scan", help="each tolerance at its limits, beta re-optimised")
-    common(p)
+    needle_common(p)
     study(p, seed=False)
     p.add_argument("--guide-shift-um", type=float, default=0.0,
                    help="move the fixed guide along its normal (um)")
     p.set_defaults(func=cmd_needle_scan)
 
     p = nsub.add_parser("montecarlo", help="yield with beta fixed and adjusted per machine")
-    common(p)
+    needle_common(p)
     study(p)
     p.add_argument("--n", type=int, default=2000, help="machines (default 2000)")
     p.set_defaults(func=cmd_needle_montecarlo)
 
     p = nsub.add_parser("sobol", help="Sobol indices of SumDelta (SALib)")
-    common(p)
+    needle_common(p)
     study(p)
     p.add_argument("--n", type=int, default=256, help="base samples, a power of two")
     p.set_defaults(func=cmd_needle_sobol)
 
-    add_needle_ppm(nsub, common, study)
+    add_needle_ppm(nsub, needle_common, study)
+
+    p = nsub.add_parser("frames", help="the named frames of the 208 with their residuals")
+    p.add_argument("--format", choices=FORMATS, default="table")
+    p.set_defaults(func=cmd_needle_frames)
 
     feed = sub.add_parser("feed", help="131-42+3 feed chains (lower and upper dog)")
     fsub = feed.add_subparsers(dest="command", required=True, parser_class=Parser)

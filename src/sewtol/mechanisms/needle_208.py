@@ -71,15 +71,22 @@ class Needle208:
             P.branch(name, getattr(self, name))
 
     @classmethod
-    def nominal(cls) -> Needle208:
-        """The reconstructed nominal machine stored as package data (studies/calibrate_needle_208.py)."""
-        return cls(**load_nominal_record()["params"])
+    def nominal(cls, frame=None) -> Needle208:
+        """The reconstructed nominal machine of a named frame (package data, see sewtol.frames).
+
+        `frame` is a frame name, a sewtol.frames.Frame, or None for the default frame
+        (sewtol.frames.DEFAULT_FRAME); studies/calibrate_needle_208.py rebuilds the frames."""
+        from ..frames import resolve
+
+        return cls(**resolve(frame).params)
 
     def override(self, **changes) -> Needle208:
         return P.override(self, changes)
 
 
 def load_nominal_record() -> dict:
+    """The geometry file of sewtol 0.1 (kept so old reports stay reproducible; it is the frame
+    `sewtol-0.1`)."""
     text = resources.files("sewtol.data").joinpath("needle_208.json").read_text()
     return json.loads(text)
 
