@@ -19,8 +19,8 @@ Algorithm, per machine:
    both window ends of every grid window fall on nodes; d is replaced by its cubic Hermite
    interpolant p, whose error is |d''''| h^4 / 384 (estimated per cell from the jump between
    p'' and the exact d'' at the nodes: err = h^2 |p'' - d''| / 32; h is halved until the
-   estimate is below 1e-4 um). With the measured |d''''| <= ~120 mm/rad^4 and h = 1 deg that is
-   ~3e-5 um.
+   estimate is below 1e-3 um). With the measured |d''''| <= ~120 mm/rad^4 (recommended and base
+   sets) and h = 2 deg that is ~4e-4 um (3e-5 um at 1 deg).
 3. Every cell's exact extremes (nodes and the roots of p'), hence F and G at any u in O(1) from
    the cells inside the window and the two partial end cells. SumDelta at every grid u.
 4. A lower bound per u-cell from the cells inside every window of that cell; cells whose bound
@@ -49,7 +49,7 @@ COLUMNS = ("beta_deg", "total_um", "plus_um", "minus_um", "beta_low_deg", "beta_
            "shift_um", "shift_low_um", "shift_high_um", "status", "surrogate_err_um",
            "min_total_um")
 STATUS = ("ok", "cannot assemble", "dead point")
-SURROGATE_TOL_MM = 1e-7   # 1e-4 um: the Hermite interpolant's estimated error
+SURROGATE_TOL_MM = 1e-6   # 1e-3 um: the Hermite interpolant's estimated error
 SAMPLE_TOL_MM = 2e-6      # 2e-3 um: K delta^2 / 8 for the sampling inside a candidate u-cell
 
 
@@ -413,7 +413,7 @@ def _optimise_one(p, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, out):
 
 
 @nb.njit(cache=True, parallel=True)
-def optimise_batch(P, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active, h_deg=1.0,
+def optimise_batch(P, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active, h_deg=2.0,
                    tol_um=1e-3):
     """Per machine (rows of P follow needle_numba.FIELDS; lo, hi the rocker interval in rad,
     NaN where L-M-A fails): the columns of COLUMNS. With shift_active False the guide shift is

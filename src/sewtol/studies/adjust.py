@@ -90,9 +90,9 @@ def check_boxes(active: dict) -> dict[str, tuple[float, float]]:
     return boxes
 
 
-def _rocker(c):
+def _rocker(c, feas=None):
     """Rocker interval (rad) where L-M-A runs (NaN elsewhere) and its status code."""
-    f = nm.feasibility(c)
+    f = feas if feas is not None else nm.feasibility(c)
     miss_ok = f.miss_LMA_mm == 0
     lma_ok = miss_ok & (f.transmission_LMA_deg >= nd.DEAD_POINT_DEG)
     r_lo = np.where(lma_ok, f.lo, np.nan)
@@ -101,13 +101,16 @@ def _rocker(c):
     return r_lo, r_hi, code
 
 
-def optimise(c: dict, active: dict, engine: str = "numba", h_deg: float = 1.0,
-             tol_um: float = PLATEAU_TOL_UM, angle_grid: int = 9) -> AdjustResult:
-    """Joint optimum of the active compensators for machines given as parameter columns."""
+def optimise(c: dict, active: dict, engine: str = "numba", h_deg: float = 2.0,
+             tol_um: float = PLATEAU_TOL_UM, angle_grid: int = 9, feas=None) -> AdjustResult:
+    """Joint optimum of the active compensators for machines given as parameter columns
+    (c from metrics.needle.columns, each (n, 1)); `active` maps compensator names to their
+    (low, high) box (None: DEFAULT_BOXES). feas: metrics.needle.feasibility(c) if known (the
+    rocker interval does not depend on any compensator)."""
     if engine not in ("numba", "numpy"):
         raise ParameterError("engine", "must be 'numba' or 'numpy'", engine)
     boxes = check_boxes(active)
-    r_lo, r_hi, code = _rocker(c)
+    r_lo, r_hi, code = _rocker(c, feas)
     if "guide_angle" in boxes:
         return _with_angle(c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um, angle_grid)
     out = _inner(c, boxes, r_lo, r_hi, engine, h_deg, tol_um)
