@@ -21,8 +21,8 @@ import numba as nb
 import numpy as np
 
 from sewtol.kernels import needle_numba as KB
-from sewtol.mechanisms.needle_208 import Needle208
 from sewtol.mechanisms import params as P
+from sewtol.mechanisms.needle_208 import Needle208
 from sewtol.metrics import needle as nm
 from sewtol.studies import adjust as ad
 from sewtol.studies.parallel import child_generators, chunk_bounds
@@ -135,7 +135,8 @@ def main(argv=None):
     excess_set = r.total_um - bf[:, 0]  # at the reported setting (plateau centre)
     worst = int(np.nanargmax(np.where(both, excess, -np.inf)))
     print(f"machines: {a.n} ({a.tolerances}, seed 2026), compensators {active}")
-    print(f"status: {dict(zip(*np.unique(r.status, return_counts=True)))}; brute force finite: "
+    names, counts = np.unique(r.status, return_counts=True)
+    print(f"status: {dict(zip(names, counts.tolist(), strict=True))}; brute force finite: "
           f"{int(np.isfinite(bf[:, 0]).sum())}; disagreeing feasibility: "
           f"{int((ok != np.isfinite(bf[:, 0])).sum())}")
     print(f"exact optimum {t_fast:.1f} s, brute force (step {a.step_deg} deg) {t_brute:.1f} s")

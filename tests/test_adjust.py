@@ -270,3 +270,21 @@ def test_evaluate_uses_the_exact_optimum(chunk, nominal):
     opt = sb.optimise_beta_columns(_row(chunk, 155), window=False)
     assert opt.beta_deg[0] == pytest.approx(out.beta_opt_deg[5], abs=1e-9)
     assert not opt.at_bound[0]
+
+
+@pytest.mark.parametrize("tset", ["recommended", "base"])
+def test_fixed_beta_figures_are_exact(nominal, tset):
+    """The fixed-beta kernel (Hermite surrogate to locate, Newton on the exact d to polish)
+    equals the engine's exact extremes (metrics.needle.deviation_figures)."""
+    from sewtol.kernels import needle_window as KW
+
+    dev = NEEDLE_208_SETS[tset].sample(np.random.default_rng(36), 400)
+    c = _columns(nominal, dev)
+    feas = nm.feasibility(c)
+    ref = nm.deviation_figures(c, feas)
+    lo = np.where(feas.ok, feas.lo, np.nan)
+    hi = np.where(feas.ok, feas.hi, np.nan)
+    out = KW.fixed_batch(KB.pack(c), c["beta"][:, 0].copy(), lo, hi)
+    assert np.array_equal(np.isnan(out[:, 0]), np.isnan(ref.plus_um))
+    assert np.nanmax(np.abs(out[:, 0] - ref.plus_um)) < 1e-9
+    assert np.nanmax(np.abs(out[:, 1] - ref.minus_um)) < 1e-9

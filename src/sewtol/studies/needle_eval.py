@@ -70,6 +70,7 @@ def evaluate(nominal, deviations: dict[str, np.ndarray], adjust: bool = True,
 
 def _fixed_numba(c, rocker):
     from ..kernels import needle_numba as K
+    from ..kernels import needle_window as KW
 
     packed = K.pack(c)
     # the rocker interval depends on the first four-bar only (not on beta)
@@ -77,6 +78,6 @@ def _fixed_numba(c, rocker):
     r_lo = np.where(first_ok, rocker.lo, np.nan)
     r_hi = np.where(np.isnan(r_lo), np.nan, rocker.hi)
     fixed_ok = rocker.ok
-    dev = K.deviation_batch(packed, c["beta"][:, 0].copy(), np.where(fixed_ok, r_lo, np.nan),
-                            np.where(fixed_ok, r_hi, np.nan), 48)
+    dev = KW.fixed_batch(packed, c["beta"][:, 0].copy(), np.where(fixed_ok, r_lo, np.nan),
+                         np.where(fixed_ok, r_hi, np.nan))
     return dev[:, 0] + dev[:, 1]
