@@ -288,3 +288,20 @@ def test_fixed_beta_figures_are_exact(nominal, tset):
     assert np.array_equal(np.isnan(out[:, 0]), np.isnan(ref.plus_um))
     assert np.nanmax(np.abs(out[:, 0] - ref.plus_um)) < 1e-9
     assert np.nanmax(np.abs(out[:, 1] - ref.minus_um)) < 1e-9
+
+
+def test_beta_sense_mirrors_the_range(nominal):
+    """psi = theta + s beta: the frame with s = +1 over (-35, -10) is the same set of windows as
+    s = -1 over (10, 35), so the optimum is the same and beta* is mirrored."""
+    dev = NEEDLE_208_SETS["recommended"].sample(np.random.default_rng(37), 12)
+    c = _columns(nominal, dev)
+    flipped = dict(c)
+    flipped["beta_sense"] = -c["beta_sense"]
+    for eng in ("numba", "numpy"):
+        a = ad.optimise(c, {"beta": (10.0, 35.0)}, engine=eng)
+        b = ad.optimise(flipped, {"beta": (-35.0, -10.0)}, engine=eng)
+        assert np.max(np.abs(a.min_total_um - b.min_total_um)) < 1e-6
+        assert np.max(np.abs(a.settings["beta"] + b.settings["beta"])) < 1e-6
+        assert np.max(np.abs(a.low["beta"] + b.high["beta"])) < 1e-6
+    best, b_best = brute_force(_row(flipped, 0), blo=-35.0, bhi=-10.0)
+    assert b.min_total_um[0] <= best + 0.01
