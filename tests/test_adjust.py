@@ -305,3 +305,63 @@ def test_beta_sense_mirrors_the_range(nominal):
         assert np.max(np.abs(a.low["beta"] + b.high["beta"])) < 1e-6
     best, b_best = brute_force(_row(flipped, 0), blo=-35.0, bhi=-10.0)
     assert b.min_total_um[0] <= best + 0.01
+
+
+def test_discrete_beta_equals_a_search_over_its_steps(nominal):
+    """A graduated clamp (beta in steps of 0.5 deg): the exact figures at every allowed beta
+    (the engine's deviation_figures) give the same minimum; it never beats the continuous one,
+    and a fine step comes close to it."""
+    dev = NEEDLE_208_SETS["recommended"].sample(np.random.default_rng(38), 15)
+    c = _columns(nominal, dev)
+    disc = ad.optimise_discrete(c, {"beta": (10.0, 35.0)}, {"beta": 0.5})
+    cont = ad.optimise(c, {"beta": (10.0, 35.0)})
+    grid = sb.totals_on_grid(c, np.arange(10.0, 35.0 + 1e-9, 0.5))
+    assert np.max(np.abs(disc.total_um - np.nanmin(grid, axis=1))) < 1e-6
+    assert np.all(np.isin(np.round(disc.settings["beta"], 9), np.round(np.arange(10, 35.01, 0.5), 9)))
+    assert np.all(disc.total_um >= cont.min_total_um - 3e-3)
+    fine = ad.optimise_discrete(c, {"beta": (10.0, 35.0)}, {"beta": 0.01})
+    assert np.all(fine.total_um >= cont.min_total_um - 3e-3)
+    assert np.all(fine.total_um <= cont.min_total_um + 0.02)
+    assert np.all(fine.total_um <= disc.total_um + 1e-9)  # the 0.5 steps are among the 0.01
+
+
+def test_discrete_shift_and_beta_never_beat_continuous(nominal):
+    dev = NEEDLE_208_SETS["base"].sample(np.random.default_rng(39), 12)
+    c = _columns(nominal, dev)
+    box = {"beta": (10.0, 35.0), "guide_shift_um": (-50.0, 50.0)}
+    cont = ad.optimise(c, box)
+    shim = ad.optimise_discrete(c, box, {"guide_shift_um": 10.0})
+    both = ad.optimise_discrete(c, box, {"beta": 0.5, "guide_shift_um": 10.0})
+    beta_steps = ad.optimise_discrete(c, box, {"beta": 0.5})
+    for r in (shim, both, beta_steps):
+        assert np.all(r.total_um >= cont.min_total_um - 3e-3)
+        assert np.all(np.abs(r.total_um - r.plus_um - r.minus_um) < 1e-9)
+    # the shim steps: the best of the exact beta optima with the guide fixed at each step
+    for i in range(3):
+        vals = [brute_force(nm.with_values(_row(c, i), guide_shift_um=[t]))[0]
+                for t in np.arange(-50.0, 50.1, 10.0)]
+        assert shim.total_um[i] <= min(vals) + 0.01
+        assert shim.total_um[i] >= min(vals) - 0.01
+    # coarser freedom never helps: both discrete >= either one discrete
+    assert np.all(both.total_um >= shim.total_um - 3e-3)
+    assert np.all(both.total_um >= beta_steps.total_um - 1e-9)
+    # the settings reproduce the figures on the model
+    c1 = nm.with_values(c, beta=both.settings["beta"], guide_shift_um=both.settings["guide_shift_um"])
+    assert np.max(np.abs(nm.deviation_figures(c1).total_um - both.total_um)) < 1e-6
+    with pytest.raises(ParameterError, match="positive"):
+        ad.optimise_discrete(c, box, {"beta": 0.0})
+
+
+def test_resolution_worst_case(nominal):
+    """Setting beta only to +/- r/2: the worst case is at least the optimum, grows with r, is
+    the optimum at r = 0 and equals a direct evaluation at the interval's ends."""
+    dev = NEEDLE_208_SETS["recommended"].sample(np.random.default_rng(40), 10)
+    c = _columns(nominal, dev)
+    r = ad.optimise(c, {"beta": (10.0, 35.0)})
+    w0 = ad.worst_within_resolution(c, r, 0.0)
+    w1 = ad.worst_within_resolution(c, r, 0.2)
+    w2 = ad.worst_within_resolution(c, r, 1.0)
+    assert np.max(np.abs(w0 - r.total_um)) < 1e-3  # the surrogate's bound
+    assert np.all(w1 >= w0 - 1e-9) and np.all(w2 >= w1 - 1e-9)
+    ends = np.maximum(sb.total_at(c, r.settings["beta"] - 0.5), sb.total_at(c, r.settings["beta"] + 0.5))
+    assert np.all(w2 >= ends - 1e-6)

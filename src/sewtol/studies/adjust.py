@@ -417,3 +417,150 @@ def _window_feasible(c, u, w):
         gam = np.degrees(np.arccos(np.clip(cos_g, -1, 1)))
         ok &= closes & (np.minimum(gam, 180 - gam) >= nd.DEAD_POINT_DEG)
     return ok
+
+
+# --- discrete compensators (issue 13 item 2): settings on a grid of steps ----------------------
+
+@dataclass(frozen=True)
+class DiscreteResult:
+    """What the assembler achieves when a compensator can only take the values low + k * step
+    of its box (a shim set, a graduated clamp): per machine the minimum SumDelta over those
+    settings (joint with the continuous compensators), the settings and Delta+/-."""
+
+    total_um: np.ndarray
+    plus_um: np.ndarray
+    minus_um: np.ndarray
+    settings: dict[str, np.ndarray]
+    status: np.ndarray
+    steps: dict[str, float]
+    boxes: dict[str, tuple[float, float]]
+
+    def to_dataframe(self) -> pd.DataFrame:
+        cols = {"status": self.status, "total_um": self.total_um, "plus_um": self.plus_um,
+                "minus_um": self.minus_um}
+        cols.update(self.settings)
+        return pd.DataFrame(cols)
+
+
+def step_grid(name, box, step) -> np.ndarray:
+    step = float(step)
+    if not (np.isfinite(step) and step > 0):
+        raise ParameterError(f"{name} step", "must be a positive number", step)
+    lo, hi = box
+    k = int(np.floor((hi - lo) / step + 1e-9))
+    if k > 100_000:
+        raise ParameterError(f"{name} step", "gives more than 100,000 settings in the box", step)
+    return lo + step * np.arange(k + 1)
+
+
+def optimise_discrete(c: dict, active: dict, steps: dict[str, float]) -> DiscreteResult:
+    """Joint optimum when the compensators named in `steps` take only the values low + k * step
+    (beta and guide_shift_um; the others stay continuous, solved exactly). Exact: with beta
+    discrete every allowed beta's window extremes F, G are computed exactly (and the shift is
+    the closed form or the best of its steps); with only the shift discrete, each allowed shift
+    is a fixed guide for the exact beta optimum."""
+    from ..kernels import needle_numba as KB
+    from ..kernels import needle_window as KW
+
+    boxes = check_boxes(active)
+    for name in steps:
+        if name not in boxes:
+            raise ParameterError(name, "has a step but is not an active compensator", name)
+        if name == "guide_angle":
+            raise ParameterError(name, "discrete steps are supported for beta and "
+                                 "guide_shift_um", name)
+    if "guide_angle" in boxes:
+        raise ParameterError("guide_angle", "is not supported with discrete steps", "guide_angle")
+    n = len(c["LF"])
+    r_lo, r_hi, code = _rocker(c)
+    own = np.broadcast_to(np.asarray(c["guide_shift_um"], float).reshape(-1), (n,))
+    shift_box = boxes.get("guide_shift_um")
+    shifts = step_grid("guide_shift_um", shift_box, steps["guide_shift_um"]) \
+        if "guide_shift_um" in steps else None
+    settings = {}
+    if "beta" in steps:
+        betas = step_grid("beta", boxes["beta"], steps["beta"])
+        fg = KW.window_extremes_batch(KB.pack(c), r_lo, r_hi,
+                                      np.ascontiguousarray(np.broadcast_to(betas, (n, betas.size))))
+        F, G = fg[..., 0] * 1e3, fg[..., 1] * 1e3  # um, (n, k)
+        if shifts is not None:  # best allowed shift for every beta
+            tot_t = (np.maximum(0, F[..., None] - shifts) + np.maximum(0, shifts - G[..., None]))
+            jt = np.nanargmin(np.where(np.isnan(tot_t), np.inf, tot_t), axis=-1)
+            t = shifts[jt]
+        elif shift_box is not None:  # continuous shift: the closed form, the centre of its range
+            tl = np.maximum(G, shift_box[0])
+            th = np.minimum(F, shift_box[1])
+            near = np.where(G > shift_box[1], shift_box[1], shift_box[0])
+            t = np.where(tl > th, near, 0.5 * (tl + th))
+        else:
+            t = np.broadcast_to(own[:, None], F.shape)
+        tot = np.maximum(0, F - t) + np.maximum(0, t - G)
+        score = np.where(np.isnan(tot), np.inf, tot)
+        k = np.argmin(score, axis=1)
+        rows = np.arange(n)
+        ok = np.isfinite(score[rows, k]) & (code == 0)
+        nan = np.full(n, np.nan)
+        tk = t[rows, k]
+        plus = np.where(ok, np.maximum(0, F[rows, k] - tk), nan)
+        minus = np.where(ok, np.maximum(0, tk - G[rows, k]), nan)
+        settings["beta"] = np.where(ok, betas[k], nan)
+        if shift_box is not None:
+            settings["guide_shift_um"] = np.where(ok, tk, nan)
+        status_code = np.where(code > 0, code, np.where(ok, 0, _no_window_status(c, r_lo, r_hi,
+                                                                                 boxes)))
+    else:  # beta continuous, the shift on its steps: each step is a fixed guide
+        best_min = np.full(n, np.inf)
+        plus = np.full(n, np.nan)
+        minus = np.full(n, np.nan)
+        settings = {"beta": np.full(n, np.nan), "guide_shift_um": np.full(n, np.nan)}
+        status = None
+        for t in shifts:
+            cc = dict(c)
+            cc["guide_shift_um"] = np.full((n, 1), t)
+            r = optimise(cc, {"beta": boxes["beta"]})
+            status = r.status if status is None else status
+            better = r.min_total_um < best_min  # NaN (cannot run) is never better
+            best_min[better] = r.min_total_um[better]
+            plus[better] = r.plus_um[better]
+            minus[better] = r.minus_um[better]
+            settings["beta"][better] = r.settings["beta"][better]
+            settings["guide_shift_um"][better] = t
+        status_code = np.array([STATUS.index(s) for s in status])
+    status_code = np.asarray(status_code, int)
+    return DiscreteResult(total_um=plus + minus, plus_um=plus, minus_um=minus, settings=settings,
+                          status=np.array(STATUS, dtype=object)[status_code],
+                          steps={k: float(v) for k, v in steps.items()}, boxes=boxes)
+
+
+def _no_window_status(c, r_lo, r_hi, boxes):
+    """Status code of machines with no feasible allowed setting (from the continuous solver)."""
+    r = optimise(c, {"beta": boxes["beta"]})
+    codes = np.array([STATUS.index(s) for s in r.status])
+    return np.where(codes == 0, 2, codes)  # feasible only between the steps: a dead point
+
+
+def worst_within_resolution(c: dict, result: AdjustResult, resolution_deg: float,
+                            samples: int = 41) -> np.ndarray:
+    """SumDelta (um) the assembler can end up with when beta is set to the reported setting
+    only to +/- resolution_deg / 2 (the other compensators as reported): the worst of `samples`
+    exact evaluations across that interval (sampled: between samples SumDelta can exceed the
+    worst sample by at most its slope times half the spacing). NaN where not ok."""
+    from ..kernels import needle_numba as KB
+    from ..kernels import needle_window as KW
+
+    r = float(resolution_deg)
+    if not (np.isfinite(r) and r >= 0):
+        raise ParameterError("beta resolution", "must be a number of degrees >= 0", r)
+    n = len(c["LF"])
+    r_lo, r_hi, _ = _rocker(c)
+    b0 = result.settings["beta"]
+    ok = np.isfinite(b0)
+    offs = np.linspace(-0.5 * r, 0.5 * r, samples)
+    betas = np.where(ok, b0, 0.0)[:, None] + offs[None, :]
+    fg = KW.window_extremes_batch(KB.pack(c), np.where(ok, r_lo, np.nan), r_hi,
+                                  np.ascontiguousarray(betas))
+    own = np.broadcast_to(np.asarray(c["guide_shift_um"], float).reshape(-1), (n,))
+    t = result.settings.get("guide_shift_um", own)[:, None]
+    tot = np.maximum(0, fg[..., 0] * 1e3 - t) + np.maximum(0, t - fg[..., 1] * 1e3)
+    worst = np.max(np.where(np.isnan(tot), np.inf, tot), axis=1)  # infeasible: unbounded
+    return np.where(ok, worst, np.nan)
