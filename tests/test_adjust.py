@@ -365,3 +365,27 @@ def test_resolution_worst_case(nominal):
     assert np.all(w1 >= w0 - 1e-9) and np.all(w2 >= w1 - 1e-9)
     ends = np.maximum(sb.total_at(c, r.settings["beta"] - 0.5), sb.total_at(c, r.settings["beta"] + 0.5))
     assert np.all(w2 >= ends - 1e-6)
+
+
+def test_cd_sliding_head_against_a_grid(nominal):
+    """CD as a compensator (the sliding head, +/-0.3 mm about the machine's own CD): the outer
+    search around the exact beta optimum against a 121-point CD grid, and never worse than beta
+    alone (CD's own value is inside the box)."""
+    dev = NEEDLE_208_SETS["recommended"].sample(np.random.default_rng(41), 6)
+    c = _columns(nominal, dev)
+    r = ad.optimise(c, {"beta": (10.0, 35.0), "CD": (-0.3, 0.3)})
+    beta_only = ad.optimise(c, {"beta": (10.0, 35.0)})
+    vals = []
+    for d in np.linspace(-0.3, 0.3, 121):
+        cc = dict(c)
+        cc["CD"] = c["CD"] + d
+        vals.append(ad.optimise(cc, {"beta": (10.0, 35.0)}).min_total_um)
+    best = np.nanmin(np.array(vals), axis=0)
+    assert np.all(r.min_total_um <= best + 0.01)
+    assert np.all(r.min_total_um <= beta_only.min_total_um + 3e-3)
+    assert np.all(np.abs(r.settings["CD"]) <= 0.3 + 1e-12)
+    # the setting reproduces the figure on the model
+    c1 = nm.with_values(c, CD=c["CD"][:, 0] + r.settings["CD"], beta=r.settings["beta"])
+    assert np.max(np.abs(nm.deviation_figures(c1).total_um - r.total_um)) < 2e-3
+    with pytest.raises(ParameterError, match="at most one"):
+        ad.optimise(c, {"beta": (10, 35), "CD": (-0.1, 0.1), "guide_angle": (-0.1, 0.1)})

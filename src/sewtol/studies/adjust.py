@@ -9,8 +9,9 @@ high). The minimum is the global one in the box:
   (numba) and `_reference_beta` here (numpy) solve that sliding-window problem exactly;
 - the guide shift t turns SumDelta into max(F - G, F - T1, T0 - G), so it is solved inside the
   same search, and t's optimal range at beta* is [max(G, T0), min(F, T1)];
-- the guide angle changes d(psi) itself; it is an outer search (a grid over its box, then golden
-  section around every grid minimum) around the exact inner optimum.
+- the guide angle and CD change d(psi) itself; each is an outer search (a grid over its box,
+  then golden section around each machine's best grid point) around the exact inner optimum:
+  checked against a dense grid in the tests, not proven global. One outer compensator at a time.
 
 Where the optimum is a plateau (SumDelta within `tol_um` of the minimum over an interval) the
 range is reported and its centre is the setting.
@@ -27,9 +28,13 @@ from ..errors import ParameterError
 from ..mechanisms import needle_208 as nd
 from ..metrics import needle as nm
 
-COMPENSATORS = ("beta", "guide_shift_um", "guide_angle")
+COMPENSATORS = ("beta", "guide_shift_um", "guide_angle", "CD")
 DEFAULT_BOXES = {"beta": (10.0, 35.0), "guide_shift_um": (-100.0, 100.0),
-                 "guide_angle": (-0.1, 0.1)}
+                 "guide_angle": (-0.1, 0.1), "CD": (-0.3, 0.3)}
+# compensators that change d(psi) itself: an outer search around the exact inner optimum; their
+# box and setting are relative to the machine's own value (deg, mm)
+OUTER = ("guide_angle", "CD")
+OUTER_GRID = {"guide_angle": 21, "CD": 61}  # default grid points of the outer search
 STATUS = ("ok", "cannot assemble", "dead point")
 PLATEAU_TOL_UM = 1e-3
 
@@ -102,7 +107,7 @@ def _rocker(c, feas=None):
 
 
 def optimise(c: dict, active: dict, engine: str = "numba", h_deg: float = 2.0,
-             tol_um: float = PLATEAU_TOL_UM, angle_grid: int = 9, feas=None) -> AdjustResult:
+             tol_um: float = PLATEAU_TOL_UM, angle_grid: int | None = None, feas=None) -> AdjustResult:
     """Joint optimum of the active compensators for machines given as parameter columns
     (c from metrics.needle.columns, each (n, 1)); `active` maps compensator names to their
     (low, high) box (None: DEFAULT_BOXES). feas: metrics.needle.feasibility(c) if known (the
@@ -111,8 +116,13 @@ def optimise(c: dict, active: dict, engine: str = "numba", h_deg: float = 2.0,
         raise ParameterError("engine", "must be 'numba' or 'numpy'", engine)
     boxes = check_boxes(active)
     r_lo, r_hi, code = _rocker(c, feas)
-    if "guide_angle" in boxes:
-        return _with_angle(c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um, angle_grid)
+    outer = [k for k in OUTER if k in boxes]
+    if len(outer) > 1:
+        raise ParameterError("compensators", "at most one of guide_angle, CD at a time",
+                             sorted(boxes))
+    if outer:
+        return _with_outer(outer[0], c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um,
+                           angle_grid)
     out = _inner(c, boxes, r_lo, r_hi, engine, h_deg, tol_um)
     return _result(out, boxes, code, tol_um)
 
@@ -131,7 +141,7 @@ def _inner(c, boxes, r_lo, r_hi, engine, h_deg, tol_um):
                              h_deg, tol_um)
 
 
-def _result(out, boxes, code, tol_um, angle=None) -> AdjustResult:
+def _result(out, boxes, code, tol_um, outer=None) -> AdjustResult:
     status_code = np.where(code > 0, code, out[:, 9]).astype(int)
     ok = status_code == 0
     nan = np.full(len(out), np.nan)
@@ -145,73 +155,82 @@ def _result(out, boxes, code, tol_um, angle=None) -> AdjustResult:
     if "guide_shift_um" in boxes:
         settings["guide_shift_um"], low["guide_shift_um"], high["guide_shift_um"] = (
             col(6), col(7), col(8))
-    if angle is not None:
-        settings["guide_angle"], low["guide_angle"], high["guide_angle"] = angle
+    if outer is not None:
+        name, vals = outer
+        settings[name], low[name], high[name] = (np.where(ok, v, nan) for v in vals)
     at_bound = {}
     for k, (blo, bhi) in boxes.items():
         eps = 1e-9 * max(1.0, abs(blo), abs(bhi))
-        if k == "guide_angle":
-            at_bound[k] = ok & ((low[k] <= blo + eps) | (high[k] >= bhi - eps))
-        else:
-            at_bound[k] = ok & ((low[k] <= blo + eps) | (high[k] >= bhi - eps))
+        at_bound[k] = ok & ((low[k] <= blo + eps) | (high[k] >= bhi - eps))
     return AdjustResult(total_um=col(1), plus_um=col(2), minus_um=col(3), min_total_um=col(11),
                         settings=settings, low=low, high=high, at_bound=at_bound,
                         status=np.array(STATUS, dtype=object)[status_code], boxes=boxes,
                         tol_um=float(tol_um))
 
 
-# --- the guide angle: an outer search around the exact inner optimum --------------------------
+# --- the guide angle or CD: an outer search around the exact inner optimum ---------------------
 
-def _with_angle(c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um, angle_grid):
-    """Outer search over the guide angle (relative to each machine's own angle): a grid over the
-    box, then golden section around the best grid point of each machine."""
-    alo, ahi = boxes["guide_angle"]
-    inner_boxes = {k: v for k, v in boxes.items() if k != "guide_angle"}
-    own = np.broadcast_to(np.asarray(c["guide_angle"], float).reshape(-1), r_lo.shape).copy()
+def _with_outer(name, c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um, angle_grid):
+    """Outer search over `name` (relative to each machine's own value): a grid over the box,
+    then golden section around the best grid point of each machine."""
+    alo, ahi = boxes[name]
+    inner_boxes = {k: v for k, v in boxes.items() if k != name}
+    own = np.broadcast_to(np.asarray(c[name], float).reshape(-1), r_lo.shape).copy()
     n = own.size
 
     def run(rel):
         cc = dict(c)
-        cc["guide_angle"] = (own + rel).reshape(-1, 1)
+        cc[name] = (own + rel).reshape(-1, 1)
         return _inner(cc, inner_boxes, r_lo, r_hi, engine, h_deg, tol_um)
 
     if ahi == alo:
         out = run(np.full(n, alo))
-        return _result(out, boxes, code, tol_um, (np.full(n, alo),) * 3)
-    grid = np.linspace(alo, ahi, max(int(angle_grid), 3))
-    vals = np.stack([run(np.full(n, a))[:, 11] for a in grid], axis=1)
+        return _result(out, boxes, code, tol_um, (name, (np.full(n, alo),) * 3))
+    n_grid = int(angle_grid) if angle_grid else OUTER_GRID[name]
+    grid = np.linspace(alo, ahi, max(n_grid, 3))
+    vals = np.stack([run(np.full(n, g))[:, 11] for g in grid], axis=1)
     vals = np.where(np.isnan(vals), np.inf, vals)
-    i = np.argmin(vals, axis=1)
-    a = grid[np.maximum(i - 1, 0)]
-    b = grid[np.minimum(i + 1, grid.size - 1)]
+    # golden section around each of the best three local minima of the grid
+    left_n = np.concatenate([np.full((n, 1), np.inf), vals[:, :-1]], axis=1)
+    right_n = np.concatenate([vals[:, 1:], np.full((n, 1), np.inf)], axis=1)
+    score = np.where((vals <= left_n) & (vals <= right_n), vals, np.inf)
+    rows = np.arange(n)
+    i0 = np.argmin(vals, axis=1)
+    best_rel = grid[i0]
+    best_val = vals[rows, i0]
     invphi = (np.sqrt(5.0) - 1.0) / 2.0
-    x1 = b - invphi * (b - a)
-    x2 = a + invphi * (b - a)
-    f1 = run(x1)[:, 11]
-    f2 = run(x2)[:, 11]
-    for _ in range(40):
-        if np.all(b - a < 1e-9):
+    for _ in range(3):
+        i = np.argmin(score, axis=1)
+        has = np.isfinite(score[rows, i])
+        score[rows, i] = np.inf
+        if not has.any():
             break
-        left = ~(f1 >= f2)  # NaN counts as worse
-        b = np.where(left, x2, b)
-        a = np.where(left, a, x1)
-        nx1 = np.where(left, b - invphi * (b - a), x2)
-        nx2 = np.where(left, x1, a + invphi * (b - a))
-        nf1 = np.where(left, np.nan, f2)
-        nf2 = np.where(left, f1, np.nan)
-        x1, x2 = nx1, nx2
-        fresh = run(np.where(left, x1, x2))[:, 11]
-        f1 = np.where(left, fresh, nf1)
-        f2 = np.where(left, nf2, fresh)
-    best_rel = 0.5 * (a + b)
+        a = grid[np.maximum(i - 1, 0)]
+        b = grid[np.minimum(i + 1, grid.size - 1)]
+        x1 = b - invphi * (b - a)
+        x2 = a + invphi * (b - a)
+        f1 = run(x1)[:, 11]
+        f2 = run(x2)[:, 11]
+        for _ in range(40):
+            if np.all(b - a < 1e-9):
+                break
+            left = ~(f1 >= f2)  # NaN counts as worse
+            b = np.where(left, x2, b)
+            a = np.where(left, a, x1)
+            nx1 = np.where(left, b - invphi * (b - a), x2)
+            nx2 = np.where(left, x1, a + invphi * (b - a))
+            nf1 = np.where(left, np.nan, f2)
+            nf2 = np.where(left, f1, np.nan)
+            x1, x2 = nx1, nx2
+            fresh = run(np.where(left, x1, x2))[:, 11]
+            f1 = np.where(left, fresh, nf1)
+            f2 = np.where(left, nf2, fresh)
+        for xx, ff in ((x1, f1), (x2, f2)):
+            better = has & (ff < best_val)  # never worse than the grid itself
+            best_val = np.where(better, ff, best_val)
+            best_rel = np.where(better, xx, best_rel)
     out = run(best_rel)
-    grid_best = grid[i]
-    grid_val = vals[np.arange(n), i]
-    worse = ~(out[:, 11] <= grid_val)
-    if worse.any():  # never worse than the grid itself
-        best_rel = np.where(worse, grid_best, best_rel)
-        out = run(best_rel)
-    return _result(out, boxes, code, tol_um, (best_rel, best_rel, best_rel))
+    return _result(out, boxes, code, tol_um, (name, (best_rel, best_rel, best_rel)))
 
 
 # --- the numpy reference: exact local extrema of d(psi), a fine window grid, golden polish -----
@@ -466,11 +485,12 @@ def optimise_discrete(c: dict, active: dict, steps: dict[str, float]) -> Discret
     for name in steps:
         if name not in boxes:
             raise ParameterError(name, "has a step but is not an active compensator", name)
-        if name == "guide_angle":
+        if name in OUTER:
             raise ParameterError(name, "discrete steps are supported for beta and "
                                  "guide_shift_um", name)
-    if "guide_angle" in boxes:
-        raise ParameterError("guide_angle", "is not supported with discrete steps", "guide_angle")
+    for name in OUTER:
+        if name in boxes:
+            raise ParameterError(name, "is not supported with discrete steps", name)
     n = len(c["LF"])
     r_lo, r_hi, code = _rocker(c)
     own = np.broadcast_to(np.asarray(c["guide_shift_um"], float).reshape(-1), (n,))
