@@ -10,8 +10,9 @@ needle-bar positions (max difference reported, must be below 1e-9 mm).
 
 The machine's practical limit (issue 11) is estimated by a hand-fused, SIMD-friendly loop of the
 same equations: machines in structure-of-arrays columns, the angle loop outside and the machine
-loop inside (contiguous, branch-free, fastmath so LLVM vectorises sqrt and division), every
-per-machine constant hoisted. It costs 63 flops per position (incl. 2 divisions and 2 square
+loop inside (contiguous, branch-free; fastmath and numpy's error model, i.e. no division-by-zero
+check, so LLVM vectorises sqrt and division: vsqrtpd in its assembly), every per-machine
+constant hoisted. It costs 63 flops per position (incl. 2 divisions and 2 square
 roots); its rate, its GFLOP/s and the kernel's distance from it are printed. Targets: the
 kernel at >= 25x pylinkage's step_fast and within 3x of the practical limit.
 """
@@ -74,7 +75,7 @@ def build_pylinkage(p: Needle208, steps: int):
 FLOPS_PER_POSITION = 63
 
 
-@nb.njit(cache=True, fastmath=True)
+@nb.njit(cache=True, fastmath=True, error_model="numpy")
 def _limit_soa(cols, cphi, sphi, out_x, out_y):
     """The hand-fused loop: cols (16, n) in needle_positions.FIELDS order, angles outside."""
     n = cols.shape[1]
