@@ -48,34 +48,38 @@ def test_fixed_beta_kernel_equals_reference(nominal):
 
 
 def test_beta_kernel_matches_reference_on_small_deviations(nominal, rng):
-    """Small deviations keep SumDelta(beta) unimodal: both searches reach the same minimum.
-    beta* itself is unique only where the minimum is sharp: where both extreme touches lie
-    inside the rocker window, SumDelta does not depend on beta over a plateau."""
+    """Both engines reach the same minimum (the kernel's cubic surrogate is within its 1e-3 um
+    error estimate, the sampling bound 2e-3 um). beta* is unique only where the minimum is
+    sharp: where both extreme touches lie inside the rocker window SumDelta does not depend on
+    beta over a plateau, and each engine reports the plateau's range, which must overlap."""
     dev = {k: rng.uniform(-0.004, 0.004, 60) for k in ("LF", "AM", "BC", "CD")}
     a = evaluate(nominal, dev, engine="numba")
     b = evaluate(nominal, dev, engine="numpy")
-    assert np.max(np.abs(a.total_adjusted_um - b.total_adjusted_um)) < 1e-6
+    assert np.max(np.abs(a.adjusted.min_total_um - b.adjusted.min_total_um)) < 3e-3
+    assert np.all(a.beta_low_deg <= b.beta_high_deg + 1e-6)
+    assert np.all(b.beta_low_deg <= a.beta_high_deg + 1e-6)
     c, _ = nm.columns(P.with_deviations(nominal, dev))
     rise = np.minimum(sb.total_at(c, b.beta_opt_deg - 0.05), sb.total_at(c, b.beta_opt_deg + 0.05))
     sharp = rise - b.total_adjusted_um > 1e-3
     assert sharp.sum() >= 10 and (~sharp).sum() >= 1  # both kinds occur in this sample
-    assert np.max(np.abs(a.beta_opt_deg - b.beta_opt_deg)[sharp]) < 1e-5
+    # a sharp optimum has a short plateau (SumDelta within 1e-3 um), both engines inside it
+    assert np.max(np.abs(a.beta_opt_deg - b.beta_opt_deg)[sharp]) < 0.02
 
 
-def test_beta_kernel_reports_true_local_minima(nominal):
-    """On any machine the kernel's SumDelta is the reference value at its beta*, and beta* is a
-    local minimum (machines from the recommended set, many with multimodal SumDelta(beta))."""
-    dev = NEEDLE_208_SETS["recommended"].sample(np.random.default_rng(9), 200)
+def test_beta_kernel_reports_global_minima(nominal):
+    """On any machine the kernel's SumDelta is the model's value at its beta* (to the
+    surrogate's 1e-3 um) and no beta of a 0.1-deg grid over the range does better (machines
+    from the recommended set, many with multimodal SumDelta(beta); the dense brute force is in
+    tests/test_adjust.py)."""
+    dev = NEEDLE_208_SETS["recommended"].sample(np.random.default_rng(9), 60)
     out = evaluate(nominal, dev, engine="numba")
     c, _ = nm.columns(P.with_deviations(nominal, dev))
     ok = np.isfinite(out.beta_opt_deg)
     assert ok.all()
     ref = sb.total_at(c, out.beta_opt_deg)
-    assert np.max(np.abs(ref - out.total_adjusted_um)) < 1e-9
-    inside = (out.beta_opt_deg > 10.01) & (out.beta_opt_deg < 34.99)
-    for step in (-1e-3, 1e-3):
-        near = sb.total_at(c, out.beta_opt_deg + step)
-        assert np.all(near[inside] >= out.total_adjusted_um[inside] - 1e-9)
+    assert np.max(np.abs(ref - out.total_adjusted_um)) < 1e-3
+    grid = sb.totals_on_grid(c, np.linspace(10, 35, 251))
+    assert np.all(out.adjusted.min_total_um <= np.nanmin(grid, axis=1) + 1e-3)
 
 
 def test_kernel_packs_fields_in_order(nominal):

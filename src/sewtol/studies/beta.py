@@ -1,8 +1,9 @@
 """Optimisation of the regulating angle beta with the guide fixed, batched over machines.
 
-beta* minimises SumDelta over the regulating range: a coarse grid finds the basin, golden-section
-search polishes it to 1e-7 deg, and the window where SumDelta <= limit is found by bisection
-outwards from beta*. Every machine of a batch steps together.
+beta* minimises SumDelta over the regulating range exactly (the sliding-window optimum of
+studies/adjust.py: the global minimum, and where SumDelta is flat the centre of the plateau,
+reported as beta_low/high_deg); the window where SumDelta <= limit is found by bisection
+outwards from beta* on a grid of grid_step_deg. Every machine of a batch steps together.
 """
 
 from __future__ import annotations
@@ -26,6 +27,8 @@ class BetaOptimum:
 
     window_low/high_deg are NaN where even beta* exceeds the limit; where the window reaches the
     end of the searched range it is clipped there and `window_clipped` is True.
+    beta_low/high_deg: the plateau of the optimum (SumDelta within 1e-3 um of the minimum);
+    beta_deg is its centre; `at_bound`: the plateau reaches the end of the searched range.
     """
 
     beta_deg: np.ndarray
@@ -37,6 +40,9 @@ class BetaOptimum:
     window_clipped: np.ndarray
     limit_um: float
     range_deg: tuple[float, float]
+    beta_low_deg: np.ndarray | None = None
+    beta_high_deg: np.ndarray | None = None
+    at_bound: np.ndarray | None = None
 
     def to_dataframe(self) -> pd.DataFrame:
         return pd.DataFrame({
@@ -46,6 +52,9 @@ class BetaOptimum:
             "total_um": np.atleast_1d(self.total_um),
             "window_low_deg": np.atleast_1d(self.window_low_deg),
             "window_high_deg": np.atleast_1d(self.window_high_deg),
+            "beta_low_deg": np.atleast_1d(self.beta_low_deg),
+            "beta_high_deg": np.atleast_1d(self.beta_high_deg),
+            "at_bound": np.atleast_1d(self.at_bound),
         })
 
 
@@ -71,30 +80,37 @@ def check_range(range_deg, limit_um) -> None:
 
 
 def optimise_beta_columns(c: dict, range_deg=DEFAULT_RANGE_DEG, limit_um=DEFAULT_LIMIT_UM,
-                          grid_step_deg: float = 0.5, window: bool = True) -> BetaOptimum:
+                          grid_step_deg: float = 0.5, window: bool = True,
+                          engine: str = "numba") -> BetaOptimum:
     """beta* per machine; with window=False the window is left NaN (half the work)."""
+    from .adjust import optimise
+
     check_range(range_deg, limit_um)
     lo, hi = map(float, range_deg)
     n = next(iter(c.values())).shape[0]
-    g = max(int(np.ceil((hi - lo) / grid_step_deg)) + 1, 3)
-    betas = np.linspace(lo, hi, g)
-    tot = totals_on_grid(c, betas)
-    score = np.where(np.isnan(tot), np.inf, tot)
-    i = np.argmin(score, axis=1)
-    a = betas[np.maximum(i - 1, 0)]
-    b = betas[np.minimum(i + 1, g - 1)]
-    b_opt, _ = golden_min(lambda x: total_at(c, x), a, b, xtol=1e-7)
-    figs = nm.deviation_figures(nm.with_values(c, beta=b_opt))
-    dead = ~np.isfinite(score).any(axis=1)
+    c = {k: np.broadcast_to(np.asarray(v, float).reshape(-1, 1), (n, 1)).copy()
+         for k, v in c.items()}
+    opt = optimise(c, {"beta": (lo, hi)}, engine=engine)
+    b_opt = opt.settings["beta"]
+    dead = ~np.isfinite(b_opt)
+    figs = nm.deviation_figures(nm.with_values(c, beta=np.where(dead, 0.5 * (lo + hi), b_opt)))
+    figs = nm.DeviationFigures(*(np.where(dead, np.nan, v)
+                                 for v in (figs.plus_um, figs.minus_um, figs.total_um)))
+    extra = dict(beta_low_deg=opt.low["beta"], beta_high_deg=opt.high["beta"],
+                 at_bound=opt.at_bound["beta"])
 
     nan = np.full(n, np.nan)
     if not window:
-        return BetaOptimum(np.where(dead, nan, b_opt), figs.plus_um, figs.minus_um, figs.total_um,
-                           nan, nan, np.zeros(n, bool), float(limit_um), (lo, hi))
+        return BetaOptimum(b_opt, figs.plus_um, figs.minus_um, figs.total_um,
+                           nan, nan, np.zeros(n, bool), float(limit_um), (lo, hi), **extra)
+    g = max(int(np.ceil((hi - lo) / grid_step_deg)) + 1, 3)
+    betas = np.linspace(lo, hi, g)
+    tot = totals_on_grid(c, betas)
     exceed = ~(tot <= limit_um)  # NaN (cannot run) counts as exceeding
     idx = np.arange(g)
-    left_j = np.where(exceed & (idx <= i[:, None]), idx, -1).max(axis=1)
-    right_j = np.where(exceed & (idx >= i[:, None]), idx, g).min(axis=1)
+    b_safe = np.where(dead, lo, b_opt)[:, None]
+    left_j = np.where(exceed & (betas[None, :] < b_safe), idx, -1).max(axis=1)
+    right_j = np.where(exceed & (betas[None, :] > b_safe), idx, g).min(axis=1)
     inside = figs.total_um <= limit_um
 
     def crossing(fixed_end, j, none_value):
@@ -110,6 +126,7 @@ def optimise_beta_columns(c: dict, range_deg=DEFAULT_RANGE_DEG, limit_um=DEFAULT
         beta_deg=np.where(dead, nan, b_opt), plus_um=figs.plus_um, minus_um=figs.minus_um,
         total_um=figs.total_um, window_low_deg=w_lo, window_high_deg=w_hi,
         window_clipped=clip_lo | clip_hi, limit_um=float(limit_um), range_deg=(lo, hi),
+        **extra,
     )
 
 
