@@ -99,6 +99,25 @@ def build_sewtol01(progress) -> dict:
     return rec
 
 
+def reevaluate(name: str, progress) -> dict:
+    """A stored frame's record recomputed with the current model, its geometry and search kept
+    (after a change of the optimiser or the figures: no refit, the frame's numbers only)."""
+    old = load_frame(name)
+    prov = old.provenance
+    fam = cal.Family(**prov["family"])
+    kind = prov.get("kind", "window")
+    targets = (cal.table41_targets(fam.lean) if kind == "table41"
+               else cal.window_targets(fam.lean))
+    progress(f"{name}: re-evaluating the stored geometry ({kind} targets)")
+    rec = cal.frame_record(name, old.summary, old.machine(), fam, targets, prov["method"],
+                           prov.get("search"), kind=kind, x=list(prov["frame_x"].values()),
+                           guide_sign=prov["table41_guide_sign"])
+    for key in ("screen", "release_provenance"):
+        if key in prov:
+            rec["provenance"][key] = prov[key]
+    return rec
+
+
 def _f(v, fmt=".4f"):
     if v is None or (isinstance(v, float) and not np.isfinite(v)):
         return "-"
@@ -214,6 +233,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="reports", help="report folder (default: reports)")
     ap.add_argument("--write-package-data", action="store_true",
                     help="also write the rebuilt frame to src/sewtol/data/frames/NAME.json")
+    ap.add_argument("--reevaluate", action="store_true",
+                    help="recompute the stored frame's record with the current model, no refit")
     ap.add_argument("--data", default=None, help=argparse.SUPPRESS)  # sewtol 0.1's flag
     args = ap.parse_args(argv)
     out = Path(args.out) / "needle_208"
@@ -247,8 +268,11 @@ def main(argv=None) -> int:
     def progress(msg):
         print(msg, file=sys.stderr, flush=True)
 
-    rec = {"window": build_window, "table41": build_table41,
-           "sewtol-0.1": build_sewtol01}[args.frame](progress)
+    if args.reevaluate:
+        rec = reevaluate(args.frame, progress)
+    else:
+        rec = {"window": build_window, "table41": build_table41,
+               "sewtol-0.1": build_sewtol01}[args.frame](progress)
     text = to_json(rec)
     write_text_atomic(out / f"frame_{args.frame}.json", text)
     lines = [f"# 208 needle drive: rebuilt frame `{args.frame}`", ""] + render(rec)
