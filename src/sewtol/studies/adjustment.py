@@ -43,7 +43,7 @@ from . import beta as sb
 from .compensators import Compensator, Strategy
 
 N_DENSE = 129
-PLATEAU_TOL_UM = 0.01   # settings whose SumDelta is within this of the optimum form the plateau
+PLATEAU_TOL_UM = 1e-3  # settings within this of the optimum form its plateau (centre chosen)
 ANGLE_GRID = 5
 STATUSES = ("ok", "out of spec", "cannot assemble", "dead point")
 # grid spacing of the outer search per compensator (default: 12 cells over the range)

@@ -1,0 +1,188 @@
+"""Yield by adjustment strategy (issue 13): the same machines adjusted under each strategy.
+
+Every strategy sees the SAME machines (common random numbers: one draw of deviations from the
+seed), so differences between rows are the strategies', not sampling noise. Per row: counts
+ok + out of spec + cannot assemble + dead point = n, the yield with its Clopper-Pearson
+interval (failures count against it), p50/p95/p99 of SumDelta (a machine that cannot run ranks
+as infinitely bad), Cpk (one-sided, upper limit only: (USL - mean) / 3 s over the machines that
+run), the share of machines with any compensator at a limit, and for each discrete compensator
+the number of distinct settings (shim sizes) the machines in spec need.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from ..errors import ParameterError
+from ..mechanisms import params as P
+from ..metrics import needle as nm
+from ..tolerances import ToleranceSet
+from .adjustment import STATUSES, Adjustment, adjust
+from .compensators import Strategy, strategy_of
+from .montecarlo import contributors
+
+# the issue's rows, in order
+STRATEGY_ROWS = {
+    "none": (),
+    "beta": ("beta",),
+    "beta+shift": ("beta", "guide_shift_um"),
+    "beta+shift+angle": ("beta", "guide_shift_um", "guide_angle"),
+    "beta+CD": ("beta", "CD"),
+    "all": ("beta", "guide_shift_um", "guide_angle", "CD"),
+}
+
+
+def default_strategies(table=None) -> list[Strategy]:
+    return [strategy_of(names, table, name) for name, names in STRATEGY_ROWS.items()]
+
+
+def columns_of(nominal, deviations: dict) -> dict:
+    """Parameter columns (n, 1) of the machines nominal + deviations."""
+    m = len(next(iter(deviations.values())))
+    c, _ = nm.columns(P.with_deviations(nominal, deviations))
+    return {k: np.broadcast_to(v, (m, 1)).copy() for k, v in c.items()}
+
+
+def summarise(adj: Adjustment) -> dict:
+    """One row of the strategies table (see the module docstring)."""
+    n = adj.n
+    counts = adj.counts()
+    assert sum(counts.values()) == n
+    k = counts["ok"]
+    ci = stats.binomtest(k, n).proportion_ci(confidence_level=0.95, method="exact")
+    x = np.where(np.isfinite(adj.total_um), adj.total_um, np.inf)
+    q = {f"p{p}_um": float(np.quantile(x, p / 100, method="higher")) for p in (50, 95, 99)}
+    run = adj.total_um[np.isfinite(adj.total_um)]
+    if run.size >= 2 and np.std(run, ddof=1) > 0:
+        cpk = float((adj.limit_um - run.mean()) / (3 * np.std(run, ddof=1)))
+    else:
+        cpk = float("nan")
+    row = {"strategy": adj.strategy.name, "n": n, "ok": k,
+           "out_of_spec": counts["out of spec"], "cannot_assemble": counts["cannot assemble"],
+           "dead_point": counts["dead point"], "yield": k / n, "yield_ci_low": float(ci.low),
+           "yield_ci_high": float(ci.high), **q, "Cpk": cpk}
+    ok = adj.status == "ok"
+    if adj.strategy.compensators:
+        any_limit = np.zeros(n, bool)
+        for comp in adj.strategy.compensators:
+            any_limit |= adj.at_limit[comp.name]
+        row["at_limit_share"] = float(any_limit.mean())
+        row["at_limit"] = ", ".join(f"{c.name} {adj.at_limit[c.name].mean():.1%}"
+                                    for c in adj.strategy.compensators)
+        row["achieved_yield"] = float(np.mean(adj.achieved_um <= adj.limit_um))
+    else:
+        row["at_limit_share"] = 0.0
+        row["at_limit"] = ""
+        row["achieved_yield"] = k / n
+    row["distinct_settings"] = ", ".join(
+        f"{c.name} {np.unique(np.round(adj.settings[c.name][ok], 9)).size}"
+        for c in adj.strategy.compensators if c.discrete)
+    return row
+
+
+@dataclass(frozen=True)
+class StrategiesResult:
+    """The strategies table, the per-machine adjustments and the deviations they share."""
+
+    deviations: pd.DataFrame
+    adjustments: tuple[Adjustment, ...]
+    params: tuple[str, ...]
+    tolerances: str
+    seed: int
+    limit_um: float
+
+    @property
+    def n(self) -> int:
+        return len(self.deviations)
+
+    def to_dataframe(self) -> pd.DataFrame:
+        return pd.DataFrame([summarise(a) for a in self.adjustments])
+
+    def machines(self, strategy: str) -> pd.DataFrame:
+        """Deviations, criterion before and after, settings, at-limit flags and status."""
+        adj = self.get(strategy)
+        f = self.deviations.copy()
+        f.insert(0, "machine", np.arange(self.n))
+        return pd.concat([f, adj.to_dataframe()], axis=1)
+
+    def get(self, strategy: str) -> Adjustment:
+        for a in self.adjustments:
+            if a.strategy.name == strategy:
+                return a
+        names = [a.strategy.name for a in self.adjustments]
+        raise ParameterError("strategy", f"not in this table; rows are {', '.join(names)}",
+                             strategy)
+
+    def failure_contributors(self, strategy: str, bins: int = 10) -> pd.DataFrame:
+        """Which tolerances drive the machines still out of spec after adjustment.
+
+        Two views side by side: the correlation-ratio shares (montecarlo.contributors) of the
+        adjusted SumDelta over all machines that run and over the out-of-spec ones alone, and
+        the conditional shift of each deviation: the mean of (deviation - mid) / half-width
+        over the failing machines (about 0 for a tolerance that does not matter, towards +/-1
+        for one whose limit the failures sit at), next to the same over all machines.
+        """
+        adj = self.get(strategy)
+        frame = self.deviations.copy()
+        frame["total_after_um"] = adj.total_um
+        fail = adj.status == "out of spec"
+        out = pd.DataFrame({"param": list(self.params)})
+        all_c = contributors(frame, self.params, "total_after_um", bins).set_index("param")
+        out["share_all_pct"] = out.param.map(all_c["share_pct"])
+        if fail.sum() > bins + 1:
+            f_c = contributors(frame[fail], self.params, "total_after_um", bins).set_index("param")
+            out["share_failing_pct"] = out.param.map(f_c["share_pct"])
+        else:
+            out["share_failing_pct"] = np.nan
+        for p in self.params:
+            x = frame[p].to_numpy()
+            lo, hi = x.min(), x.max()
+            half = 0.5 * (hi - lo) if hi > lo else 1.0
+            z = (x - 0.5 * (hi + lo)) / half
+            out.loc[out.param == p, "mean_z_failing"] = float(z[fail].mean()) if fail.any() \
+                else np.nan
+            out.loc[out.param == p, "mean_abs_z_failing"] = float(np.abs(z[fail]).mean()) \
+                if fail.any() else np.nan
+            out.loc[out.param == p, "mean_abs_z_all"] = float(np.abs(z).mean())
+        out.insert(1, "n_failing", int(fail.sum()))
+        return out.sort_values("mean_abs_z_failing", ascending=False, na_position="last") \
+            .reset_index(drop=True)
+
+
+def strategies_table(nominal, tolerances: ToleranceSet, n: int, seed: int,
+                     strategies: list[Strategy] | None = None, limit_um: float = 10.0,
+                     ) -> StrategiesResult:
+    """Adjust the same n machines (one draw from `seed`) under each strategy."""
+    if int(n) != n or n < 2:
+        raise ParameterError("n", "must be a whole number >= 2", n)
+    if not (np.isfinite(limit_um) and limit_um > 0):
+        raise ParameterError("limit_um", "must be a positive number of um", limit_um)
+    tol = tolerances.active()
+    if not tol.items:
+        raise ParameterError("tolerances", "has no tolerance with a non-zero width",
+                             tolerances.name)
+    strategies = default_strategies() if strategies is None else strategies
+    names = [s.name for s in strategies]
+    if len(set(names)) != len(names):
+        raise ParameterError("strategies", "names a strategy twice", names)
+    dev = tol.sample(np.random.default_rng(seed), int(n))
+    c = columns_of(nominal, dev)
+    valid = list(c)
+    adjs = tuple(adjust(c, s.check_names(valid), limit_um) for s in strategies)
+    return StrategiesResult(pd.DataFrame(dev), adjs, tuple(tol.params), tolerances.name,
+                            int(seed), float(limit_um))
+
+
+def adjusted_montecarlo_model(nominal, dev, strategy: Strategy, limit_um: float):
+    """Model for montecarlo.sample_machines: the per-machine table of one strategy."""
+    adj = adjust(columns_of(nominal, dev), strategy, limit_um)
+    f = adj.to_dataframe()
+    return {k: f[k].to_numpy() for k in f.columns}
+
+
+__all__ = ["STATUSES", "STRATEGY_ROWS", "StrategiesResult", "adjusted_montecarlo_model",
+           "default_strategies", "strategies_table", "summarise"]
