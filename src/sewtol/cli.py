@@ -182,7 +182,10 @@ def cmd_needle_montecarlo(args):
 
     _check_n(args.n)
     _check_study(args)
+    strategy = _strategy(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
+    if strategy is not None:
+        return _adjusted_montecarlo(args, params, tolerances, strategy)
     started = now()
     store = _store(args, "montecarlo", params, tolerances)
     res = montecarlo(params, tolerances, args.n, args.seed, n_jobs=args.n_jobs,
@@ -190,6 +193,78 @@ def cmd_needle_montecarlo(args):
     _write_outputs(args, "montecarlo", params, tolerances, started, res.to_dict(),
                    {"machines": res.machines, "summary": res.summary_frame()})
     emit(args.format, obj=res.to_dict(), frame=res.summary_frame())
+
+
+# --- adjustment strategies (issue 13): --adjust/--range/--step/--resolution, `needle strategies`
+
+
+def _strategy(args):
+    """The strategy of --adjust/--range/--step/--resolution (None without --adjust)."""
+    from .mechanisms.needle_208 import Needle208
+    from .mechanisms.params import field_names
+    from .studies.compensators import parse_cli
+
+    return parse_cli(getattr(args, "adjust", None), args.range, args.step, args.resolution,
+                     valid=field_names(Needle208))
+
+
+def _adjusted_montecarlo(args, params, tolerances, strategy):
+    """needle montecarlo --adjust: the per-machine table of one strategy and its summary."""
+    from .provenance import now
+    from .studies.montecarlo import sample_machines
+    from .studies.strategies import adjusted_montecarlo_model, summarise_frame
+
+    started = now()
+    store = _store(args, "montecarlo_adjusted", params, tolerances)
+    machines = sample_machines(adjusted_montecarlo_model, params, tolerances, args.n, args.seed,
+                               args.n_jobs, args.progress, store=store, strategy=strategy,
+                               limit_um=10.0)
+    summary = summarise_frame(machines, strategy, 10.0)
+    record = {**summary.iloc[0].to_dict(), "seed": args.seed, "tolerances": tolerances.name,
+              "compensators": {c.name: {"low": c.low, "high": c.high, "step": c.step,
+                                        "resolution": c.resolution, "mode": c.mode}
+                               for c in strategy.compensators}}
+    _write_outputs(args, "montecarlo", params, tolerances, started, record,
+                   {"machines": machines, "summary": summary})
+    emit(args.format, obj=record, frame=summary)
+
+
+def cmd_needle_strategies(args):
+    from .provenance import now
+    from .studies.compensators import Strategy
+    from .studies.strategies import default_strategies, strategies_table
+
+    _check_n(args.n)
+    _check_study(args)
+    strategy = _strategy(args)
+    params, tolerances = _study_nominal(args), _tolerances(args)
+    rows = default_strategies()
+    if strategy is not None:
+        if strategy.name in {r.name for r in rows}:
+            strategy = Strategy(strategy.name + " (given)", strategy.compensators)
+        rows.append(strategy)
+    started = now()
+    res = strategies_table(params, tolerances, args.n, args.seed, rows)
+    table = res.to_dataframe()
+    frames = {"strategies": table}
+    for r in rows:
+        safe = "".join(ch if ch.isalnum() else "_" for ch in r.name)
+        frames[f"machines_{safe}"] = res.machines(r.name)
+    _write_outputs(args, "strategies", params, tolerances, started,
+                   table.to_dict(orient="records"), frames)
+    emit(args.format, obj=table.to_dict(orient="records"), frame=table)
+
+
+def _adjust_options(p):
+    p.add_argument("--adjust", default=None, metavar="NAMES",
+                   help="compensators the assembler sets per machine, e.g. beta,guide_shift_um "
+                        "(built in: beta, guide_shift_um, guide_angle, CD; none: no adjustment)")
+    p.add_argument("--range", action="append", metavar="NAME=LOW,HIGH",
+                   help="a compensator's range (offset from as built; beta absolute, deg)")
+    p.add_argument("--step", action="append", metavar="NAME=VALUE",
+                   help="discrete settings low + k*VALUE (a shim set, a graduated clamp)")
+    p.add_argument("--resolution", action="append", metavar="NAME=VALUE",
+                   help="how finely the assembler sets it (report the worst within +/-VALUE/2)")
 
 
 def cmd_needle_sobol(args):
@@ -293,6 +368,15 @@ def build_parser() -> argparse.ArgumentParser:
     study(p)
     p.add_argument("--n", type=int, default=2000, help="machines (default 2000)")
     p.set_defaults(func=cmd_needle_montecarlo)
+
+    _adjust_options(p)
+
+    p = nsub.add_parser("strategies", help="yield by adjustment strategy on the same machines")
+    common(p)
+    study(p)
+    p.add_argument("--n", type=int, default=500, help="machines (default 500)")
+    _adjust_options(p)
+    p.set_defaults(func=cmd_needle_strategies)
 
     p = nsub.add_parser("sobol", help="Sobol indices of SumDelta (SALib)")
     common(p)

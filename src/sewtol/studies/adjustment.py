@@ -376,7 +376,6 @@ def adjust(c: dict, strategy: Strategy, limit_um: float = 10.0,
     strategy.check_names(list(c))
     before_feas = nm.feasibility(c)
     before = nm.deviation_figures(c, before_feas).total_um
-    n = before.size
     if not strategy.compensators:
         figs = nm.deviation_figures(c, before_feas)
         return Adjustment(strategy, float(limit_um), before, figs.total_um, figs.plus_um,

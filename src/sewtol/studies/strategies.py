@@ -47,41 +47,58 @@ def columns_of(nominal, deviations: dict) -> dict:
     return {k: np.broadcast_to(v, (m, 1)).copy() for k, v in c.items()}
 
 
-def summarise(adj: Adjustment) -> dict:
-    """One row of the strategies table (see the module docstring)."""
-    n = adj.n
-    counts = adj.counts()
-    assert sum(counts.values()) == n
+def summary_row(strategy: Strategy, limit_um: float, total, status, at_limit: dict,
+                achieved, settings: dict) -> dict:
+    """One row of the strategies table (see the module docstring) from per-machine arrays."""
+    total, status, achieved = np.asarray(total, float), np.asarray(status), np.asarray(achieved)
+    n = total.size
+    counts = {s: int(np.sum(status == s)) for s in STATUSES}
+    if sum(counts.values()) != n:
+        raise ParameterError("status", f"must be one of {', '.join(STATUSES)} for every machine",
+                             sorted(set(status) - set(STATUSES)))
     k = counts["ok"]
     ci = stats.binomtest(k, n).proportion_ci(confidence_level=0.95, method="exact")
-    x = np.where(np.isfinite(adj.total_um), adj.total_um, np.inf)
+    x = np.where(np.isfinite(total), total, np.inf)
     q = {f"p{p}_um": float(np.quantile(x, p / 100, method="higher")) for p in (50, 95, 99)}
-    run = adj.total_um[np.isfinite(adj.total_um)]
+    run = total[np.isfinite(total)]
     if run.size >= 2 and np.std(run, ddof=1) > 0:
-        cpk = float((adj.limit_um - run.mean()) / (3 * np.std(run, ddof=1)))
+        cpk = float((limit_um - run.mean()) / (3 * np.std(run, ddof=1)))
     else:
         cpk = float("nan")
-    row = {"strategy": adj.strategy.name, "n": n, "ok": k,
+    row = {"strategy": strategy.name, "n": n, "ok": k,
            "out_of_spec": counts["out of spec"], "cannot_assemble": counts["cannot assemble"],
            "dead_point": counts["dead point"], "yield": k / n, "yield_ci_low": float(ci.low),
            "yield_ci_high": float(ci.high), **q, "Cpk": cpk}
-    ok = adj.status == "ok"
-    if adj.strategy.compensators:
-        any_limit = np.zeros(n, bool)
-        for comp in adj.strategy.compensators:
-            any_limit |= adj.at_limit[comp.name]
-        row["at_limit_share"] = float(any_limit.mean())
-        row["at_limit"] = ", ".join(f"{c.name} {adj.at_limit[c.name].mean():.1%}"
-                                    for c in adj.strategy.compensators)
-        row["achieved_yield"] = float(np.mean(adj.achieved_um <= adj.limit_um))
-    else:
-        row["at_limit_share"] = 0.0
-        row["at_limit"] = ""
-        row["achieved_yield"] = k / n
+    ok = status == "ok"
+    any_limit = np.zeros(n, bool)
+    for comp in strategy.compensators:
+        any_limit |= np.asarray(at_limit[comp.name], bool)
+    row["at_limit_share"] = float(any_limit.mean())
+    row["at_limit"] = ", ".join(f"{c.name} {np.mean(at_limit[c.name]):.1%}"
+                                for c in strategy.compensators)
+    row["achieved_yield"] = float(np.mean(achieved <= limit_um))
     row["distinct_settings"] = ", ".join(
-        f"{c.name} {np.unique(np.round(adj.settings[c.name][ok], 9)).size}"
-        for c in adj.strategy.compensators if c.discrete)
+        f"{c.name} {np.unique(np.round(np.asarray(settings[c.name])[ok], 9)).size}"
+        for c in strategy.compensators if c.discrete)
     return row
+
+
+def summarise(adj: Adjustment) -> dict:
+    return summary_row(adj.strategy, adj.limit_um, adj.total_um, adj.status, adj.at_limit,
+                       adj.achieved_um, adj.settings)
+
+
+def summarise_frame(machines: pd.DataFrame, strategy: Strategy, limit_um: float) -> pd.DataFrame:
+    """The summary row of a per-machine table written by Adjustment.to_dataframe()."""
+    cols = {c.name: [k for k in machines.columns if k.startswith(f"{c.name}_setting")][0]
+            for c in strategy.compensators}
+    row = summary_row(strategy, limit_um, machines["total_after_um"].to_numpy(),
+                      machines["status"].to_numpy(),
+                      {c.name: machines[f"{c.name}_at_limit"].to_numpy(bool)
+                       for c in strategy.compensators},
+                      machines["achieved_um"].to_numpy(),
+                      {k: machines[v].to_numpy() for k, v in cols.items()})
+    return pd.DataFrame([row])
 
 
 @dataclass(frozen=True)
@@ -94,6 +111,7 @@ class StrategiesResult:
     tolerances: str
     seed: int
     limit_um: float
+    limits: dict  # param -> (lower, upper) deviation limits of the tolerance set
 
     @property
     def n(self) -> int:
@@ -123,8 +141,9 @@ class StrategiesResult:
         Two views side by side: the correlation-ratio shares (montecarlo.contributors) of the
         adjusted SumDelta over all machines that run and over the out-of-spec ones alone, and
         the conditional shift of each deviation: the mean of (deviation - mid) / half-width
-        over the failing machines (about 0 for a tolerance that does not matter, towards +/-1
-        for one whose limit the failures sit at), next to the same over all machines.
+        over the failing machines, with mid and half-width those of the tolerance (about 0 for a
+        tolerance that does not matter, towards +/-1 for one whose limit the failures sit at),
+        and the mean |z| over the failing machines next to that over all machines.
         """
         adj = self.get(strategy)
         frame = self.deviations.copy()
@@ -140,8 +159,8 @@ class StrategiesResult:
             out["share_failing_pct"] = np.nan
         for p in self.params:
             x = frame[p].to_numpy()
-            lo, hi = x.min(), x.max()
-            half = 0.5 * (hi - lo) if hi > lo else 1.0
+            lo, hi = self.limits[p]
+            half = 0.5 * (hi - lo)
             z = (x - 0.5 * (hi + lo)) / half
             out.loc[out.param == p, "mean_z_failing"] = float(z[fail].mean()) if fail.any() \
                 else np.nan
@@ -174,7 +193,8 @@ def strategies_table(nominal, tolerances: ToleranceSet, n: int, seed: int,
     valid = list(c)
     adjs = tuple(adjust(c, s.check_names(valid), limit_um) for s in strategies)
     return StrategiesResult(pd.DataFrame(dev), adjs, tuple(tol.params), tolerances.name,
-                            int(seed), float(limit_um))
+                            int(seed), float(limit_um),
+                            {t.param: (t.lower, t.upper) for t in tol.items})
 
 
 def adjusted_montecarlo_model(nominal, dev, strategy: Strategy, limit_um: float):
@@ -185,4 +205,5 @@ def adjusted_montecarlo_model(nominal, dev, strategy: Strategy, limit_um: float)
 
 
 __all__ = ["STATUSES", "STRATEGY_ROWS", "StrategiesResult", "adjusted_montecarlo_model",
-           "default_strategies", "strategies_table", "summarise"]
+           "default_strategies", "strategies_table", "summarise", "summarise_frame",
+           "summary_row"]
