@@ -299,3 +299,50 @@ def test_parse_cli_and_toml(tmp_path):
     f.write_text('[compensators.AB]\nlow = -0.1\n')
     with pytest.raises(ParameterError, match="needs low and high"):
         C.load_toml(f)
+
+
+def _run(*argv):
+    import io
+    from contextlib import redirect_stderr, redirect_stdout
+
+    from sewtol.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with redirect_stdout(out), redirect_stderr(err):
+        code = main(list(argv))
+    return code, out.getvalue(), err.getvalue()
+
+
+def test_cli_adjust_flags_refuse_bad_input_in_one_line(tmp_path):
+    cases = [
+        (["--adjust", "beta", "--range", "beta=30,20"], "--range beta"),
+        (["--step", "beta=1"], "needs --adjust"),
+        (["--adjust", "beta,XX"], "unknown parameter"),
+        (["--adjust", "beta", "--resolution", "beta=-1"], "--resolution beta"),
+        (["--adjust", "AB"], "--range AB=LOW,HIGH"),
+    ]
+    for extra, text in cases:
+        code, out, err = _run("needle", "montecarlo", "--n", "4", "--out", str(tmp_path / "x"),
+                              *extra)
+        assert code == 2 and out == "" and text in err and err.count("\n") == 1, (extra, err)
+        assert not (tmp_path / "x").exists()
+
+
+def test_cli_montecarlo_adjust_writes_the_per_machine_table(tmp_path):
+    import json
+
+    import pandas as pd
+
+    code, out, err = _run("needle", "montecarlo", "--n", "6", "--adjust", "beta,guide_shift_um",
+                          "--step", "guide_shift_um=10", "--format", "json", "--out",
+                          str(tmp_path / "mc"))
+    assert code == 0, err
+    rec = json.loads(out)
+    assert rec["ok"] + rec["out_of_spec"] + rec["cannot_assemble"] + rec["dead_point"] == 6
+    m = pd.read_csv(tmp_path / "mc" / "machines.csv")
+    assert len(m) == 6 and set(m.status) <= {"ok", "out of spec", "cannot assemble", "dead point"}
+    for col in ("total_before_um", "total_after_um", "beta_setting_deg", "beta_at_limit",
+                "guide_shift_um_setting", "guide_shift_um_plateau_low", "LM"):
+        assert col in m.columns
+    assert np.allclose(np.mod(m.guide_shift_um_setting + 100, 10), 0, atol=1e-9)
+    assert (m.total_after_um <= m.total_before_um + 1e-9).all()
