@@ -102,10 +102,10 @@ def refine(c, shift, use_angle, use_cd):
 
 def beta_zoom(c, cd):
     """min over beta of SumDelta at CD offset cd (guide fixed): a grid, then zooms."""
-    b = np.arange(10.0, 35.0 + 1e-9, 0.25)
+    b = np.arange(10.0, 35.0 + 1e-9, 0.5)
     best, (b0, _, _) = brute(c, b, False, (0.0,), np.array([cd]))
-    span = 0.5
-    for _ in range(7):
+    span = 1.0
+    for _ in range(8):
         b = np.unique(np.clip(np.linspace(b0 - span, b0 + span, 21), 10, 35))
         tot, (b1, _, _) = brute(c, b, False, (0.0,), np.array([cd]))
         if tot < best:
@@ -117,9 +117,9 @@ def beta_zoom(c, cd):
 def refine_cd(c):
     """Nested brute force for beta + CD: the valley in (beta, CD) is too narrow for a joint
     grid, so each CD on a grid (zoomed three times) gets its own beta zoom."""
-    d = np.linspace(-0.3, 0.3, 25)
+    d = np.linspace(-0.3, 0.3, 13)
     vals = np.array([beta_zoom(c, x) for x in d])
-    for span in (0.025, 0.0025, 0.00025):
+    for span in (0.05, 0.005, 0.0005):
         d0 = d[np.argmin(vals)]
         d = np.unique(np.clip(np.linspace(d0 - span, d0 + span, 11), -0.3, 0.3))
         vals = np.array([beta_zoom(c, x) for x in d])
@@ -129,9 +129,10 @@ def refine_cd(c):
 @pytest.mark.parametrize("names", [("beta",), ("beta", "guide_shift_um"),
                                    ("beta", "guide_shift_um", "guide_angle"), ("beta", "CD")])
 def test_joint_optimum_equals_brute_force(nominal, names):
+    # two machines; for beta + CD (whose brute force is nested and slow) the harder one
     c = machines(nominal, 2, seed=len(names))
     adj = adjust(c, C.strategy_of(names))
-    for i in range(2):
+    for i in ([1] if "CD" in names else [0, 1]):
         if "CD" in names:
             want = refine_cd(one(c, i))
         else:
@@ -210,12 +211,12 @@ def test_discrete_never_beats_continuous(nominal):
 
 
 def test_adding_a_compensator_never_lowers_the_yield(nominal):
-    res = strategies_table(nominal, NEEDLE_208_SETS["base"], 12, seed=3)
+    res = strategies_table(nominal, NEEDLE_208_SETS["base"], 6, seed=3)
     table = res.to_dataframe().set_index("strategy")
     assert list(table.index) == ["none", "beta", "beta+shift", "beta+shift+angle", "beta+CD",
                                  "all"]
     # counts add up to n in every row
-    assert (table[["ok", "out_of_spec", "cannot_assemble", "dead_point"]].sum(axis=1) == 12).all()
+    assert (table[["ok", "out_of_spec", "cannot_assemble", "dead_point"]].sum(axis=1) == 6).all()
     chains = [("none", "beta", "beta+shift", "beta+shift+angle", "all"),
               ("none", "beta", "beta+CD", "all")]
     for chain in chains:
