@@ -347,3 +347,24 @@ def test_cli_montecarlo_adjust_writes_the_per_machine_table(tmp_path):
         assert col in m.columns
     assert np.allclose(np.mod(m.guide_shift_um_setting + 100, 10), 0, atol=1e-9)
     assert (m.total_after_um <= m.total_before_um + 1e-9).all()
+
+
+def test_allocation_takes_a_strategy(nominal):
+    from sewtol.studies.strategies import allocate_for_strategy
+
+    ref = NEEDLE_208_SETS["recommended"]
+    shift = C.strategy_of(("beta", "guide_shift_um"))
+    a = allocate_for_strategy(nominal, ref, shift, target=0.9, n=20, seed=4, steps=5)
+    t = a.to_dataframe().set_index("param")
+    # asymmetric reference shapes are kept (LF +0.25/-0.8)
+    assert t.loc["LF", "lower_mm"] / t.loc["LF", "upper_mm"] == pytest.approx(-0.8 / 0.25)
+    # the yield claimed is the yield of the allocated set on the same random numbers
+    u = np.random.default_rng(4).random((20, len(t)))
+    dev = {p: t.loc[p, "lower_mm"] + (t.loc[p, "upper_mm"] - t.loc[p, "lower_mm"]) * u[:, i]
+           for i, p in enumerate(t.index)}
+    got = np.mean(adjust(columns_of(nominal, dev), shift).status == "ok")
+    assert got == a.yield_adjusted >= 0.9
+    # a guide shift takes back the sideways move of AB and BE: their adjusted slopes are a
+    # fraction of what beta alone leaves (~1000 um/mm), BC's (which shift cannot take) is not
+    assert t.loc["AB", "slope_um_per_mm"] < 150 and t.loc["BE", "slope_um_per_mm"] < 150
+    assert t.loc["BC", "slope_um_per_mm"] > 150
