@@ -5,7 +5,7 @@ strategies_SET_failures.md/.csv (which tolerances drive the machines still out o
 strategies_yield.png and strategies_SET_STRATEGY_hist.png (one histogram per compensator with
 its limits drawn), and strategies_run.json.
 
-    python studies/needle_208_strategies.py [--out reports] [--seed 2026] [--n 200]
+    python studies/needle_208_strategies.py [--out reports] [--seed 2026] [--n 500]
 """
 
 from __future__ import annotations
@@ -73,7 +73,7 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="reports")
     ap.add_argument("--seed", type=int, default=2026)
-    ap.add_argument("--n", type=int, default=200)
+    ap.add_argument("--n", type=int, default=500)
     args = ap.parse_args(argv)
     started = now()
     out = Path(args.out) / "needle_208"
