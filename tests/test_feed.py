@@ -286,7 +286,7 @@ def test_feed_sobol_each_output_over_its_own_parameters():
     p = Feed131()
     ts = feed.default_tolerances()
     mc = feed.montecarlo(p, ts, 200, seed=3)
-    res, chosen = feed.sobol(p, ts, 8, seed=5, machines=mc, chunk_size=20,
+    res, chosen = feed.sobol(p, ts, 16, seed=5, machines=mc, chunk_size=20,
                              which=("lower_step_mm", "differential_ratio"))
     # the ratio's own contributors, not the lower step's
     for output, names in chosen.items():
@@ -302,7 +302,7 @@ def test_feed_sobol_each_output_over_its_own_parameters():
         problem = problem_of(sub)
         ref, conv, _ = sobol_indices(
             lambda X, o=output, pn=problem["names"]: feed.outputs(
-                p, {k: X[:, i] for i, k in enumerate(pn)})[o], problem, 8, 5, case=output)
+                p, {k: X[:, i] for i, k in enumerate(pn)})[o], problem, 16, 5, case=output)
         got = res.indices[res.indices.case == output].reset_index(drop=True)
         assert np.allclose(got[["S1", "ST"]].to_numpy(), ref[["S1", "ST"]].to_numpy(),
                            atol=1e-12, equal_nan=True)

@@ -303,9 +303,12 @@ def cmd_needle_montecarlo(args):
 
     _check_n(args.n)
     _check_study(args)
+    strategy = _strategy(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
     limit, rng = sb.DEFAULT_LIMIT_UM, sb.DEFAULT_RANGE_DEG
     _as_flags(check_sampling, params, tolerances, args.n, args.seed, CHUNK)
+    if strategy is not None:
+        return _adjusted_montecarlo(args, params, tolerances, strategy, limit)
     started = now()
     inputs = _inputs(args, "montecarlo", params, tolerances, limit_um=limit,
                      beta_search_range_deg=list(rng), chunk_size=CHUNK,
@@ -324,6 +327,99 @@ def cmd_needle_montecarlo(args):
         if store is not None:
             store.close()
     emit(args.format, obj=res.to_dict(), frame=res.summary_frame())
+
+
+# --- adjustment strategies (issue 13): --adjust/--range/--step/--resolution, `needle strategies`
+
+
+def _strategy(args):
+    """The strategy of --adjust/--range/--step/--resolution (None without --adjust)."""
+    from .mechanisms.needle_208 import Needle208
+    from .mechanisms.params import field_names
+    from .studies.compensators import parse_cli
+
+    return parse_cli(getattr(args, "adjust", None), args.range, args.step, args.resolution,
+                     valid=field_names(Needle208))
+
+
+def _strategy_record(strategy) -> dict:
+    return {c.name: {"low": c.low, "high": c.high, "step": c.step, "resolution": c.resolution,
+                     "mode": c.mode} for c in strategy.compensators}
+
+
+def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
+    """needle montecarlo --adjust: the per-machine table of one strategy and its summary."""
+    from .provenance import now
+    from .studies.montecarlo import CHUNK, sample_machines
+    from .studies.strategies import adjusted_montecarlo_model, summarise_frame
+
+    started = now()
+    inputs = _inputs(args, "montecarlo_adjusted", params, tolerances, limit_um=limit,
+                     chunk_size=CHUNK, strategy=strategy.name,
+                     compensators=_strategy_record(strategy))
+    store = _store(args, inputs)
+    try:
+        runs = _history(store, started)
+        with _cluster(args) as client:
+            machines = sample_machines(adjusted_montecarlo_model, params, tolerances, args.n,
+                                       args.seed, args.n_jobs, args.progress, store=store,
+                                       chunk_size=CHUNK, scheduler=client, strategy=strategy,
+                                       limit_um=limit)
+        summary = summarise_frame(machines, strategy, limit)
+        record = {**summary.iloc[0].to_dict(), "seed": args.seed, "tolerances": tolerances.name,
+                  "compensators": _strategy_record(strategy)}
+        _write_outputs(args, "montecarlo", inputs, started, record,
+                       {"machines": machines, "summary": summary}, runs)
+    finally:
+        if store is not None:
+            store.close()
+    emit(args.format, obj=record, frame=summary)
+
+
+def cmd_needle_strategies(args):
+    from .provenance import now
+    from .studies.compensators import Strategy
+    from .studies.strategies import default_strategies, strategies_table
+
+    _check_n(args.n)
+    _check_study(args)
+    if args.resume:
+        raise ParameterError("--resume", "is not offered by needle strategies (it keeps no "
+                             "checkpoints; rerun with the same seed)", True)
+    if _scheduler(args) is not None:
+        raise ParameterError("--scheduler", "is not offered by needle strategies (it runs on "
+                             "this machine)", _scheduler(args)[1])
+    strategy = _strategy(args)
+    params, tolerances = _study_nominal(args), _tolerances(args)
+    rows = default_strategies()
+    if strategy is not None:
+        if strategy.name in {r.name for r in rows}:
+            strategy = Strategy(strategy.name + " (given)", strategy.compensators)
+        rows.append(strategy)
+    started = now()
+    res = strategies_table(params, tolerances, args.n, args.seed, rows)
+    table = res.to_dataframe()
+    frames = {"strategies": table}
+    for r in rows:
+        safe = "".join(ch if ch.isalnum() else "_" for ch in r.name)
+        frames[f"machines_{safe}"] = res.machines(r.name)
+    inputs = _inputs(args, "strategies", params, tolerances, limit_um=10.0,
+                     strategies={r.name: _strategy_record(r) for r in rows})
+    _write_outputs(args, "strategies", inputs, started, table.to_dict(orient="records"), frames,
+                   [])
+    emit(args.format, obj=table.to_dict(orient="records"), frame=table)
+
+
+def _adjust_options(p):
+    p.add_argument("--adjust", default=None, metavar="NAMES",
+                   help="compensators the assembler sets per machine, e.g. beta,guide_shift_um "
+                        "(built in: beta, guide_shift_um, guide_angle, CD; none: no adjustment)")
+    p.add_argument("--range", action="append", metavar="NAME=LOW,HIGH",
+                   help="a compensator's range (offset from as built; beta absolute, deg)")
+    p.add_argument("--step", action="append", metavar="NAME=VALUE",
+                   help="discrete settings low + k*VALUE (a shim set, a graduated clamp)")
+    p.add_argument("--resolution", action="append", metavar="NAME=VALUE",
+                   help="how finely the assembler sets it (report the worst within +/-VALUE/2)")
 
 
 def cmd_needle_sobol(args):
@@ -531,6 +627,15 @@ def build_parser() -> argparse.ArgumentParser:
     study(p)
     p.add_argument("--n", type=int, default=2000, help="machines (default 2000)")
     p.set_defaults(func=cmd_needle_montecarlo)
+
+    _adjust_options(p)
+
+    p = nsub.add_parser("strategies", help="yield by adjustment strategy on the same machines")
+    common(p)
+    study(p)
+    p.add_argument("--n", type=int, default=500, help="machines (default 500)")
+    _adjust_options(p)
+    p.set_defaults(func=cmd_needle_strategies)
 
     p = nsub.add_parser("sobol", help="Sobol indices of SumDelta (SALib)")
     needle_common(p)

@@ -53,8 +53,10 @@ def _encode(obj, arrays: list) -> object:
             raise TypeError("chunk results may only hold dicts with str keys")
         return {"dict": [[k, _encode(v, arrays)] for k, v in obj.items()]}
     a = np.asarray(obj)
-    if a.dtype.kind not in "biuf":
-        raise TypeError(f"chunk results may only hold numeric arrays, not {a.dtype}")
+    if a.dtype == object and all(isinstance(x, str) for x in a.flat):
+        a = a.astype(str)  # labels (a machine's status): fixed-width text, no pickle needed
+    if a.dtype.kind not in "biufU":
+        raise TypeError(f"chunk results may only hold numeric or text arrays, not {a.dtype}")
     arrays.append(np.ascontiguousarray(a))
     return {"array": len(arrays) - 1, "scalar": bool(np.ndim(obj) == 0 and not isinstance(
         obj, np.ndarray))}

@@ -1,0 +1,291 @@
+"""Compensators and adjustment strategies: what the assembler may set on each machine.
+
+A compensator is a parameter the assembler sets on every machine to minimise the criterion
+(SumDelta for the needle): a range, optionally discrete steps (a shim set, a graduated clamp)
+and a setting resolution (how finely a person can set it). A strategy is a named set of them.
+
+A compensator is either `absolute` (the setting replaces the parameter: beta, the clamp angle)
+or `offset` (the setting is added to the machine's as-built value: a guide moved by +/-100 um, a
+guide turned by +/-0.1 deg about its point, a sliding head giving CD +/-0.3 mm of travel).
+
+TOML form (any parameter of the mechanism may be declared):
+
+    [compensators.beta]
+    low = 10.0
+    high = 35.0
+    step = 0.5          # optional: a graduated clamp, settings low + k * step
+    resolution = 0.2    # optional: the assembler hits the setting only within +/- 0.1
+    mode = "absolute"   # or "offset" (default for every name but beta)
+
+CLI form: --adjust beta,guide_shift_um --range NAME=LOW,HIGH --step NAME=VALUE
+--resolution NAME=VALUE (each validated; errors name the flag, the rule and the value).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ParameterError
+
+MODES = ("absolute", "offset")
+
+
+@dataclass(frozen=True)
+class Compensator:
+    """One setting: range [low, high] (absolute value, or offset from the as-built value),
+    optional discrete step (allowed settings low + k step) and resolution (0: exact)."""
+
+    name: str
+    low: float
+    high: float
+    step: float | None = None
+    resolution: float = 0.0
+    mode: str = "offset"
+    unit: str = ""
+
+    def __post_init__(self):
+        if not (isinstance(self.name, str) and self.name):
+            raise ParameterError("compensator.name", "must be a non-empty string", self.name)
+        for f in ("low", "high"):
+            v = getattr(self, f)
+            if not (isinstance(v, (int, float)) and math.isfinite(v)):
+                raise ParameterError(f"{self.name}.{f}", "must be a finite number", v)
+        if not self.low < self.high:
+            raise ParameterError(f"{self.name}.range", "must have low < high",
+                                 (self.low, self.high))
+        if self.step is not None:
+            if not (math.isfinite(self.step) and self.step > 0):
+                raise ParameterError(f"{self.name}.step", "must be a positive number", self.step)
+            if self.step > self.high - self.low:
+                raise ParameterError(f"{self.name}.step", "must not exceed the range width "
+                                     f"{self.high - self.low:g}", self.step)
+        if not (math.isfinite(self.resolution) and self.resolution >= 0):
+            raise ParameterError(f"{self.name}.resolution", "must be a number >= 0",
+                                 self.resolution)
+        if self.mode not in MODES:
+            raise ParameterError(f"{self.name}.mode", f"must be one of {', '.join(MODES)}",
+                                 self.mode)
+
+    @property
+    def discrete(self) -> bool:
+        return self.step is not None
+
+    def settings(self) -> np.ndarray:
+        """The allowed settings of a discrete compensator (low + k step, inside the range)."""
+        if self.step is None:
+            raise ParameterError(f"{self.name}.step", "is not set: the compensator is continuous",
+                                 None)
+        k = int(math.floor((self.high - self.low) / self.step + 1e-9))
+        return self.low + self.step * np.arange(k + 1)
+
+    def value(self, as_built, setting):
+        """The parameter value the machine runs with at this setting."""
+        return setting if self.mode == "absolute" else as_built + setting
+
+    def with_changes(self, **changes) -> Compensator:
+        return replace(self, **changes)
+
+
+# Built in for the needle drive (issue 13): the clamp angle, a lateral move and a turn of the
+# guide, and CD made adjustable by a sliding head.
+NEEDLE_COMPENSATORS = {
+    "beta": Compensator("beta", 10.0, 35.0, mode="absolute", unit="deg"),
+    "guide_shift_um": Compensator("guide_shift_um", -100.0, 100.0, unit="um"),
+    "guide_angle": Compensator("guide_angle", -0.1, 0.1, unit="deg"),
+    "CD": Compensator("CD", -0.3, 0.3, unit="mm"),
+}
+
+
+@dataclass(frozen=True)
+class Strategy:
+    """A named set of compensators (empty: no adjustment at assembly)."""
+
+    name: str
+    compensators: tuple[Compensator, ...] = ()
+
+    def __post_init__(self):
+        names = [c.name for c in self.compensators]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ParameterError(f"strategy {self.name}", "names a compensator twice", dup)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(c.name for c in self.compensators)
+
+    def get(self, name: str) -> Compensator:
+        for c in self.compensators:
+            if c.name == name:
+                return c
+        raise ParameterError(name, f"is not a compensator of strategy {self.name}; it has "
+                             f"{', '.join(self.names) or 'none'}", name)
+
+    def check_names(self, valid) -> Strategy:
+        for c in self.compensators:
+            if c.name not in valid:
+                raise ParameterError(c.name, "unknown parameter for a compensator; valid names "
+                                     f"are {', '.join(valid)}", c.name)
+        return self
+
+
+def strategy_of(names, table: dict[str, Compensator] | None = None, name: str | None = None,
+                ) -> Strategy:
+    """A strategy from compensator names, taken from `table` (default: the needle's)."""
+    table = NEEDLE_COMPENSATORS if table is None else table
+    comps = []
+    for n in names:
+        if n not in table:
+            raise ParameterError(n, "has no built-in compensator range; declare it with "
+                                 f"--range {n}=LOW,HIGH or in a TOML file (built in: "
+                                 f"{', '.join(table)})", n)
+        comps.append(table[n])
+    return Strategy(name or ("+".join(names) if names else "none"), tuple(comps))
+
+
+# --- parsing -------------------------------------------------------------------------------
+
+
+def _number(flag: str, name: str, text) -> float:
+    try:
+        v = float(text)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{flag} {name}", "must be a number", text) from None
+    if not math.isfinite(v):
+        raise ParameterError(f"{flag} {name}", "must be a finite number", text)
+    return v
+
+
+def _pairs(flag: str, items) -> dict[str, str]:
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            raise ParameterError(flag, "must be NAME=VALUE", item)
+        name, _, text = item.partition("=")
+        name = name.strip()
+        if not name:
+            raise ParameterError(flag, "must be NAME=VALUE with a name", item)
+        if name in out:
+            raise ParameterError(flag, "gives the same name twice", name)
+        out[name] = text.strip()
+    return out
+
+
+def parse_cli(adjust: str | None, ranges=(), steps=(), resolutions=(), valid=None,
+              table: dict[str, Compensator] | None = None) -> Strategy | None:
+    """The strategy of `--adjust a,b --range a=LO,HI --step a=S --resolution a=R`.
+
+    None without --adjust (the study's default adjustment). --range/--step/--resolution may only
+    name compensators listed in --adjust; a name without a built-in range needs --range.
+    """
+    table = dict(NEEDLE_COMPENSATORS if table is None else table)
+    rng, stp, res = (_pairs("--range", ranges), _pairs("--step", steps),
+                     _pairs("--resolution", resolutions))
+    if adjust is None:
+        for flag, d in (("--range", rng), ("--step", stp), ("--resolution", res)):
+            if d:
+                raise ParameterError(flag, "needs --adjust naming the compensators", next(iter(d)))
+        return None
+    names = [s.strip() for s in adjust.split(",")]
+    if adjust.strip().lower() == "none":
+        names = []
+    elif any(not s for s in names):
+        raise ParameterError("--adjust", "must be comma-separated names (or none)", adjust)
+    if len(set(names)) != len(names):
+        raise ParameterError("--adjust", "names a compensator twice", adjust)
+    if valid is not None:
+        for n in names:
+            if n not in valid:
+                raise ParameterError("--adjust", f"unknown parameter {n!r}; valid names are "
+                                     f"{', '.join(valid)}", adjust)
+    for flag, d in (("--range", rng), ("--step", stp), ("--resolution", res)):
+        for n in d:
+            if n not in names:
+                raise ParameterError(flag, f"names {n!r}, which --adjust does not list", n)
+    comps = []
+    for n in names:
+        if n in rng:
+            lo_text, sep, hi_text = rng[n].partition(",")
+            if not sep:
+                raise ParameterError(f"--range {n}", "must be LOW,HIGH", rng[n])
+            lo, hi = _number("--range", n, lo_text), _number("--range", n, hi_text)
+            if not lo < hi:
+                raise ParameterError(f"--range {n}", "must have LOW < HIGH", rng[n])
+            base = table.get(n, Compensator(n, lo, hi))
+            comp = Compensator(n, lo, hi, base.step, base.resolution, base.mode, base.unit)
+        elif n in table:
+            comp = table[n]
+        else:
+            raise ParameterError(n, "has no built-in compensator range; give --range "
+                                 f"{n}=LOW,HIGH (built in: {', '.join(table)})", n)
+        if n in stp:
+            s = _number("--step", n, stp[n])
+            if not s > 0:
+                raise ParameterError(f"--step {n}", "must be > 0", stp[n])
+            if s > comp.high - comp.low:
+                raise ParameterError(f"--step {n}", "must not exceed the range width "
+                                     f"{comp.high - comp.low:g}", stp[n])
+            comp = comp.with_changes(step=s)
+        if n in res:
+            r = _number("--resolution", n, res[n])
+            if not r >= 0:
+                raise ParameterError(f"--resolution {n}", "must be >= 0", res[n])
+            comp = comp.with_changes(resolution=r)
+        comps.append(comp)
+    return Strategy("+".join(names) if names else "none", tuple(comps))
+
+
+def _from_table(where: str, name: str, body) -> Compensator:
+    if not isinstance(body, dict):
+        raise ParameterError(where, "must be a table with low and high", body)
+    allowed = {"low", "high", "step", "resolution", "mode", "unit"}
+    extra = set(body) - allowed
+    if extra:
+        raise ParameterError(where, f"unknown keys {sorted(extra)}; allowed: {sorted(allowed)}",
+                             body)
+    base = NEEDLE_COMPENSATORS.get(name)
+    if ("low" not in body or "high" not in body) and base is None:
+        raise ParameterError(where, "needs low and high (no built-in range for this name)", body)
+
+    def num(key, default):
+        if key not in body:
+            return default
+        v = body[key]
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ParameterError(f"{where}.{key}", "must be a number", v)
+        return float(v)
+
+    mode = body.get("mode", base.mode if base else "offset")
+    if not isinstance(mode, str):
+        raise ParameterError(f"{where}.mode", f"must be one of {', '.join(MODES)}", mode)
+    return Compensator(name, num("low", base.low if base else None),
+                       num("high", base.high if base else None),
+                       num("step", base.step if base else None),
+                       num("resolution", base.resolution if base else 0.0), mode,
+                       str(body.get("unit", base.unit if base else "")))
+
+
+def load_toml(path: str | Path, valid=None) -> dict[str, Compensator]:
+    """[compensators.NAME] tables of a TOML file; syntax errors give line and column."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise ParameterError(str(path), "is not valid TOML", str(exc)) from None
+    except OSError as exc:
+        raise ParameterError(str(path), "cannot be read", exc.strerror) from None
+    body = data.get("compensators")
+    if not isinstance(body, dict) or not body:
+        raise ParameterError(str(path), "must hold at least one [compensators.NAME] table",
+                             list(data))
+    out = {}
+    for name, spec in body.items():
+        if valid is not None and name not in valid:
+            raise ParameterError(f"compensators.{name}", "unknown parameter; valid names are "
+                                 f"{', '.join(valid)}", name)
+        out[name] = _from_table(f"compensators.{name}", name, spec)
+    return out
