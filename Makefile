@@ -32,6 +32,8 @@ report: $(STAMP)
 	$(BIN)/python studies/needle_208_frames.py --out $(REPORTS) --n-mc 10000 --n-sobol 1024 \
 		--n-jobs 2 --progress
 	$(BIN)/python studies/needle_208_ppm.py --out $(REPORTS) --n-jobs 2 --progress
+	$(BIN)/python studies/needle_208_strategies.py --out $(REPORTS) --n 2000
+	$(BIN)/python studies/needle_208_index.py --out $(REPORTS)
 	$(BIN)/python studies/feed_131_report.py --out $(REPORTS) --n-jobs 2 --progress
 
 lint: $(STAMP)

@@ -1,5 +1,6 @@
 """Tolerance studies of the 208 needle drive: scans, worst case, Monte-Carlo, Sobol, allocation,
-guide comparison. Writes reports/needle_208/ tables (CSV + Markdown), plots and index.md.
+guide comparison. Writes reports/needle_208/ tables (CSV + Markdown) and plots (index.md is
+written last, by needle_208_index.py).
 
     python studies/needle_208_tolerances.py [--out reports] [--seed 2026] [--n-mc 10000]
         [--n-sobol 4096] [--n-jobs 1] [--progress]
@@ -15,7 +16,7 @@ import matplotlib.pyplot as plt
 from sewtol.io import to_json, write_text_atomic
 from sewtol.mechanisms.needle_208 import Needle208
 from sewtol.mechanisms.params import as_dict
-from sewtol.needle import deviation_table, nominal_figures
+from sewtol.needle import deviation_table
 from sewtol.provenance import now, run_record
 from sewtol.reports import plots
 from sewtol.reports.tables import write_table
@@ -52,7 +53,6 @@ def main(argv=None) -> None:
     p = Needle208.nominal()
     guide = (f"fixed through ({p.guide_x:.3f}, {p.guide_y:.3f}) mm at {p.guide_angle:.4f} deg "
              "from the vertical")
-    nom = nominal_figures(p)
     summary = {}
 
     nominal_curve = deviation_table(p)
@@ -89,7 +89,7 @@ def main(argv=None) -> None:
         mc = montecarlo(p, ts, args.n_mc, args.seed, n_jobs=args.n_jobs, progress=args.progress)
         mset = {**base, "machines": mc.n, "seed": args.seed, "failed (cannot assemble)": mc.failed,
                 "limit": "SumDelta <= 10 um", "beta range searched": "10 ... 35 deg",
-                "fixed beta": f"{p.beta:.4f} deg (nominal beta*)"}
+                "fixed beta": f"{mc.nominal_beta_deg:.4f} deg (the nominal machine's beta*)"}
         write_table(mc.summary_frame(), out, f"montecarlo_{name}",
                     f"Monte-Carlo, {name} tolerances", mset)
         write_table(mc.pareto(), out, f"montecarlo_{name}_pareto",
@@ -145,42 +145,6 @@ def main(argv=None) -> None:
                  "units": "shift um, angles deg, SumDelta um, yields fractions"})
     write_text_atomic(out / "montecarlo_summary.json", to_json(summary))
 
-    index = [
-        "# 208 needle drive: reports",
-        "",
-        f"Nominal machine (reconstructed, see calibration.md): beta* = {nom.beta_opt_deg:.3f} deg, "
-        f"SumDelta = {nom.total_um:.3f} um, window {nom.window_deg[0]:.3f} ... "
-        f"{nom.window_deg[1]:.3f} deg, stroke {nom.stroke_mm:.3f} mm. Guide {guide}.",
-        f"Seed {args.seed}; Monte-Carlo {args.n_mc} machines; Sobol N = {args.n_sobol}.",
-        "",
-        "| yield (SumDelta <= 10 um) | base | recommended |",
-        "|---|---|---|",
-        f"| beta fixed | {summary['base']['yield_fixed_beta']:.2%} | "
-        f"{summary['recommended']['yield_fixed_beta']:.2%} |",
-        f"| beta adjusted per machine | {summary['base']['yield_adjusted_beta']:.2%} | "
-        f"{summary['recommended']['yield_adjusted_beta']:.2%} |",
-        "",
-        "## Tables and figures",
-        "- [calibration.md](calibration.md): frame reconstruction, targets and residuals",
-        "- [nominal.md](nominal.md), [deviation.md](deviation.md), deviation.png, "
-        "[sum_delta_vs_beta.md](sum_delta_vs_beta.md), sum_delta_vs_beta.png",
-    ]
-    for name in NEEDLE_208_SETS:
-        index += [
-            f"- {name}: [scan](scan_{name}.md) (guide shifted: [+50 um](scan_{name}_shift+50um.md),"
-            f" [-50 um](scan_{name}_shift-50um.md)), scan_{name}_deviation.png, "
-            f"[worst case](worst_case_{name}.md), [Monte-Carlo](montecarlo_{name}.md) "
-            f"([contributors](montecarlo_{name}_pareto.md)), montecarlo_{name}.png, "
-            f"[Sobol](sobol_{name}.md) ([convergence](sobol_{name}_convergence.md)), "
-            f"sobol_{name}.png",
-        ]
-    index += [
-        "- [largest_tolerances.md](largest_tolerances.md): per-parameter tolerance search",
-        "- [allocation.md](allocation.md): widest tolerances for 99.73 % yield after adjustment",
-        "- [guides.md](guides.md): guide settings compared",
-        "- montecarlo_summary.json: the Monte-Carlo summaries as the CLI prints them",
-    ]
-    write_text_atomic(out / "index.md", "\n".join(index) + "\n")
     record = run_record(started, {"mechanism": "208 needle drive", "params": as_dict(p),
                      "tolerance_sets": {k: v.as_dict() for k, v in NEEDLE_208_SETS.items()},
                      "seed": args.seed, "n_mc": args.n_mc, "n_sobol": args.n_sobol,
