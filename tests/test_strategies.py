@@ -349,6 +349,26 @@ def test_cli_montecarlo_adjust_writes_the_per_machine_table(tmp_path):
     assert (m.total_after_um <= m.total_before_um + 1e-9).all()
 
 
+def test_cli_strategies_takes_a_frame_and_prints_strict_json(tmp_path):
+    import json
+
+    def refuse(token):
+        raise ValueError(f"not JSON: {token}")
+
+    rows = {}
+    for frame in ("sewtol-0.1", "window"):
+        code, out, err = _run("needle", "strategies", "--n", "6", "--frame", frame,
+                              "--format", "json")
+        assert code == 0, err
+        rows[frame] = json.loads(out, parse_constant=refuse)
+        for r in rows[frame]:
+            assert r["ok"] + r["out_of_spec"] + r["cannot_assemble"] + r["dead_point"] == 6
+    # the frame reaches the model: the same machines give other SumDelta quantiles
+    assert [r["p50_um"] for r in rows["sewtol-0.1"]] != [r["p50_um"] for r in rows["window"]]
+    code, out, err = _run("needle", "strategies", "--n", "6", "--n-jobs", "2")
+    assert code == 2 and out == "" and "--n-jobs" in err and err.count("\n") == 1
+
+
 def test_allocation_takes_a_strategy(nominal):
     from sewtol.studies.strategies import allocate_for_strategy
 

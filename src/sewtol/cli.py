@@ -389,6 +389,9 @@ def cmd_needle_strategies(args):
     if _scheduler(args) is not None:
         raise ParameterError("--scheduler", "is not offered by needle strategies (it runs on "
                              "this machine)", _scheduler(args)[1])
+    if args.n_jobs != 1:
+        raise ParameterError("--n-jobs", "is not offered by needle strategies (it runs in one "
+                             "process)", args.n_jobs)
     strategy = _strategy(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
     rows = default_strategies()
@@ -631,7 +634,7 @@ def build_parser() -> argparse.ArgumentParser:
     _adjust_options(p)
 
     p = nsub.add_parser("strategies", help="yield by adjustment strategy on the same machines")
-    common(p)
+    needle_common(p)
     study(p)
     p.add_argument("--n", type=int, default=500, help="machines (default 500)")
     _adjust_options(p)
