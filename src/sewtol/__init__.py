@@ -1,3 +1,75 @@
-"""sewtol: tolerance and design-sensitivity analysis of sewing-machine mechanisms."""
+"""sewtol: tolerance and design-sensitivity analysis of sewing-machine mechanisms.
+
+The public namespace, loaded lazily (importing sewtol is cheap; numba compiles on first use):
+
+    from sewtol import Needle208, tolerance_set, montecarlo
+    res = montecarlo(Needle208.nominal(), tolerance_set("recommended"), n=10_000, seed=2026)
+
+Mechanisms: Needle208 (frames: load_frame, list_frames), Feed131. Tolerances: Tolerance,
+ToleranceSet, tolerance_set, NEEDLE_208_SETS. Single machines: nominal_figures, deviation_table.
+Studies: scan, largest_tolerances, worst_case_table, montecarlo, needle_sobol, allocate,
+compare_guides, strategies_table, optimise (the exact joint optimum), adjust, Compensator,
+Strategy, estimate and needle_limit_state (rare events). Errors: ParameterError, AssemblyError.
+"""
+
+from __future__ import annotations
+
+import importlib
 
 __version__ = "0.1.0"
+
+# public name -> (module, attribute)
+_PUBLIC = {
+    "Needle208": ("sewtol.mechanisms.needle_208", "Needle208"),
+    "Feed131": ("sewtol.mechanisms.feed_131", "Feed131"),
+    "load_frame": ("sewtol.frames", "load_frame"),
+    "list_frames": ("sewtol.frames", "list_frames"),
+    "Tolerance": ("sewtol.tolerances", "Tolerance"),
+    "ToleranceSet": ("sewtol.tolerances", "ToleranceSet"),
+    "NEEDLE_208_SETS": ("sewtol.tolerances", "NEEDLE_208_SETS"),
+    "nominal_figures": ("sewtol.needle", "nominal_figures"),
+    "deviation_table": ("sewtol.needle", "deviation_table"),
+    "scan": ("sewtol.studies.scan", "scan"),
+    "largest_tolerances": ("sewtol.studies.scan", "largest_tolerances"),
+    "worst_case_table": ("sewtol.studies.worst_case", "worst_case_table"),
+    "montecarlo": ("sewtol.studies.montecarlo", "montecarlo"),
+    "needle_sobol": ("sewtol.studies.sobol", "needle_sobol"),
+    "allocate": ("sewtol.studies.allocation", "allocate"),
+    "compare_guides": ("sewtol.studies.guides", "compare_guides"),
+    "strategies_table": ("sewtol.studies.strategies", "strategies_table"),
+    "optimise": ("sewtol.studies.adjust", "optimise"),
+    "adjust": ("sewtol.studies.adjustment", "adjust"),
+    "Compensator": ("sewtol.studies.compensators", "Compensator"),
+    "Strategy": ("sewtol.studies.compensators", "Strategy"),
+    "estimate": ("sewtol.studies.rare_event", "estimate"),
+    "needle_limit_state": ("sewtol.studies.rare_event", "needle_limit_state"),
+    "ParameterError": ("sewtol.errors", "ParameterError"),
+    "AssemblyError": ("sewtol.errors", "AssemblyError"),
+}
+
+__all__ = ["__version__", "tolerance_set", *_PUBLIC]
+
+
+def tolerance_set(name_or_path):
+    """A needle tolerance set from a name ("base", "recommended"), "FILE.toml[:SET]", or a
+    ToleranceSet (returned as it is): the string shortcut the CLI's --tolerances takes."""
+    from .mechanisms.needle_208 import Needle208
+    from .mechanisms.params import field_names
+    from .tolerances import NEEDLE_208_SETS, ToleranceSet, resolve
+
+    if isinstance(name_or_path, ToleranceSet):
+        return name_or_path
+    return resolve(str(name_or_path), NEEDLE_208_SETS, field_names(Needle208))
+
+
+def __getattr__(name: str):
+    if name in _PUBLIC:
+        module, attr = _PUBLIC[name]
+        value = getattr(importlib.import_module(module), attr)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'sewtol' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(__all__)

@@ -1,0 +1,28 @@
+"""The public namespace: every advertised name resolves, and a study runs from it alone."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import sewtol
+
+
+def test_every_public_name_resolves():
+    for name in sewtol.__all__:
+        assert getattr(sewtol, name) is not None, name
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        sewtol.nope  # noqa: B018
+
+
+def test_a_study_from_the_public_namespace_equals_the_module_path():
+    from sewtol.studies.montecarlo import montecarlo
+    from sewtol.tolerances import NEEDLE_208_SETS
+
+    ts = sewtol.tolerance_set("recommended")
+    assert ts is NEEDLE_208_SETS["recommended"] and sewtol.tolerance_set(ts) is ts
+    a = sewtol.montecarlo(sewtol.Needle208.nominal(), ts, 40, seed=7)
+    b = montecarlo(sewtol.Needle208.nominal(), NEEDLE_208_SETS["recommended"], 40, seed=7)
+    assert np.array_equal(a.machines["total_adjusted_um"], b.machines["total_adjusted_um"])
+    with pytest.raises(sewtol.ParameterError, match="--tolerances"):
+        sewtol.tolerance_set("nope")
