@@ -37,7 +37,7 @@ report: $(STAMP)
 	$(BIN)/python studies/feed_131_report.py --out $(REPORTS) --n-jobs 2 --progress
 
 lint: $(STAMP)
-	$(BIN)/ruff check src tests studies $(wildcard benchmarks)
+	$(BIN)/ruff check src tests studies examples $(wildcard benchmarks)
 
 test: lint
 	$(BIN)/python -m pytest -q

@@ -17,7 +17,8 @@ def rng() -> np.random.Generator:
 # Test modules that check no floating-point figure (process control, files, messages). Every
 # other module is numerically sensitive: CI runs it a second time under a narrowed CPU dispatch
 # (`make test-narrowed`), so a new test module is covered unless it is named here.
-NOT_NUMERICS = {"test_cli", "test_reliability", "test_tolerance_files", "test_cluster"}
+NOT_NUMERICS = {"test_cli", "test_reliability", "test_tolerance_files", "test_cluster",
+                "test_examples"}
 
 
 def pytest_collection_modifyitems(config, items):
