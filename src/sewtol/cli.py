@@ -291,7 +291,9 @@ def _write_outputs(args, kind, inputs, started, result_obj, frames, runs):
 def cmd_needle_scan(args):
     from .studies.scan import scan
 
-    rows = scan(_study_nominal(args), _tolerances(args), guide_shift_um=args.guide_shift_um)
+    strategy = _strategy(args)
+    params, tolerances = _study_nominal(args), _tolerances(args)
+    rows = scan(params, tolerances, guide_shift_um=args.guide_shift_um, strategy=strategy)
     frame = rows.to_dataframe()
     emit(args.format, obj=rows.to_records(), frame=frame)
 
@@ -623,6 +625,7 @@ def build_parser() -> argparse.ArgumentParser:
     study(p, seed=False)
     p.add_argument("--guide-shift-um", type=float, default=0.0,
                    help="move the fixed guide along its normal (um)")
+    _adjust_options(p)
     p.set_defaults(func=cmd_needle_scan)
 
     p = nsub.add_parser("montecarlo", help="yield with beta fixed and adjusted per machine")
