@@ -438,15 +438,19 @@ def cmd_needle_sobol(args):
     except ParameterError as exc:
         raise ParameterError("--n", exc.rule, args.n) from None
     _check_study(args)
+    strategy = _strategy(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
     _as_flags(check_sobol, params, tolerances, args.n, args.seed)
     rng = sb.DEFAULT_RANGE_DEG
     started = now()
+    extra = {} if strategy is None else {"compensators": _strategy_record(strategy)}
     inputs = _inputs(args, "sobol", params, tolerances, beta_search_range_deg=list(rng),
                      chunk_size=CHUNK, resamples=SOBOL_RESAMPLES,
                      confidence_level=SOBOL_CONF_LEVEL,
                      strategy="beta fixed at the nominal's beta* (fixed_beta=optimum) and beta "
-                     "re-optimised per sample")
+                     "re-optimised per sample" if strategy is None else "beta fixed at the "
+                     f"nominal's beta* (fixed_beta=optimum) and {strategy.name} adjusted per "
+                     "sample (exact joint optimum)", **extra)
     store = _store(args, inputs)
     try:
         runs = _history(store, started)
@@ -454,7 +458,7 @@ def cmd_needle_sobol(args):
             res = needle_sobol(params, tolerances, args.n, args.seed, range_deg=rng,
                                n_jobs=args.n_jobs, progress=args.progress, store=store,
                                resamples=SOBOL_RESAMPLES, conf_level=SOBOL_CONF_LEVEL,
-                               chunk_size=CHUNK, scheduler=client)
+                               chunk_size=CHUNK, scheduler=client, strategy=strategy)
         _write_outputs(args, "sobol", inputs, started, res.to_records(),
                        {"indices": res.to_dataframe(), "convergence": res.convergence}, runs)
     finally:
@@ -647,6 +651,7 @@ def build_parser() -> argparse.ArgumentParser:
     needle_common(p)
     study(p)
     p.add_argument("--n", type=int, default=256, help="base samples, a power of two")
+    _adjust_options(p)
     p.set_defaults(func=cmd_needle_sobol)
 
     add_needle_ppm(nsub, needle_common, study)
