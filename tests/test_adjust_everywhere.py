@@ -137,3 +137,90 @@ def test_sobol_adjust_names_its_case_and_refuses():
     assert cases == {"fixed_beta", "adjusted_beta+guide_shift_um"}
     code, out, err = run("needle", "sobol", "--n", "16", "--step", "beta=1")
     assert code == 2 and out == "" and "--step" in err and len(err.strip().splitlines()) == 1
+
+
+def test_guides_cli_adjust_beta_equals_montecarlo_yields():
+    code, out, err = run("needle", "guides", "--n", "300", "--format", "json")
+    assert code == 0, err
+    plain = strict(out)
+    code, out, err = run("needle", "guides", "--n", "300", "--adjust", "beta", "--format", "json")
+    assert code == 0, err
+    beta = strict(out)
+    assert beta["strategy"] == "beta" and beta["compensators"]["beta"]["low"] == 10.0
+    assert [r["guide"] for r in beta["rows"]] == [r["guide"] for r in plain["rows"]]
+    for p, b in zip(plain["rows"], beta["rows"], strict=True):
+        # the same machines as montecarlo: fixed beta identical; adjusted differ by at most a
+        # machine within the optimisers' 2e-4 um of the limit
+        assert b["yield_fixed_beta"] == p["yield_fixed_beta"]
+        assert abs(b["yield_adjusted"] - p["yield_adjusted_beta"]) <= 1 / 300
+        assert b["ok"] + b["out_of_spec"] + b["cannot_assemble"] + b["dead_point"] == b["n"] == 300
+        assert b["beta_opt_deg"] == p["beta_opt_deg"]
+
+
+def test_guides_with_guide_shift_beats_beta_alone():
+    from sewtol.studies.guides import compare_guides
+
+    nom, tol = Needle208.nominal(), NEEDLE_208_SETS["base"]
+    beta = compare_guides(nom, tol, 200, 1, strategy=strategy_of(("beta",)))
+    both = compare_guides(nom, tol, 200, 1, strategy=strategy_of(("beta", "guide_shift_um")))
+    # common random numbers: adding a compensator never lowers the yield in any row
+    assert (both["yield_adjusted"] >= beta["yield_adjusted"]).all()
+    # the shift centres each machine's band: far more machines in spec, lower p95 everywhere
+    assert both.loc[0, "yield_adjusted"] > 5 * beta.loc[0, "yield_adjusted"]
+    assert (both["p95_after_um"] < beta["p95_after_um"]).all()
+
+
+def test_allocation_cli_beta_and_shift_widens_ab_be():
+    code, out, err = run("needle", "allocation", "--n", "300", "--format", "json")
+    assert code == 0, err
+    beta = strict(out)
+    code, out, err = run("needle", "allocation", "--n", "300", "--adjust", "beta,guide_shift_um",
+                         "--format", "json")
+    assert code == 0, err
+    both = strict(out)
+    assert beta["strategy"] == "beta" and both["strategy"] == "beta+guide_shift_um"
+    for d in (beta, both):
+        assert d["yield_adjusted"] >= d["target"] == 0.9973
+        assert {r["param"] for r in d["rows"]} == {"LF", "LM", "AM", "AB", "BC", "BE"}
+    b = {r["param"]: r for r in beta["rows"]}
+    s = {r["param"]: r for r in both["rows"]}
+    # slopes of SumDelta at the base limits: ~1000 um/mm for AB and BE with beta alone,
+    # 74 and 34 um/mm when the guide shift takes the sideways move back
+    assert b["AB"]["slope_um_per_mm"] > 900 and b["BE"]["slope_um_per_mm"] > 900
+    assert abs(s["AB"]["slope_um_per_mm"] - 73.6) < 0.5
+    assert abs(s["BE"]["slope_um_per_mm"] - 33.8) < 0.5
+    assert s["AB"]["upper_mm"] > 4 * b["AB"]["upper_mm"]
+    assert s["BE"]["upper_mm"] > 4 * b["BE"]["upper_mm"]
+
+
+def test_allocation_yield_is_what_it_reports():
+    """Recompute the strategy allocation's yield on its common random numbers with adjust()."""
+    from sewtol.studies.strategies import allocate_for_strategy
+
+    nom, tol = Needle208.nominal(), NEEDLE_208_SETS["base"]
+    st = strategy_of(("beta", "guide_shift_um"))
+    res = allocate_for_strategy(nom, tol, st, target=0.95, n=200, seed=4)
+    t = res.to_dataframe()
+    u = np.random.default_rng(4).random((200, len(t)))
+    dev = {r.param: r.lower_mm + (r.upper_mm - r.lower_mm) * u[:, i]
+           for i, r in enumerate(t.itertuples())}
+    ok = np.mean(adjust(columns_of(nom, dev), st).status == "ok")
+    assert ok == res.yield_adjusted >= 0.95
+    # 50 % wider everywhere: the yield falls below the target (the scale is the largest found
+    # to the resolution of 10 geometric bisection steps)
+    wide = {k: 1.5 * v for k, v in dev.items()}
+    assert np.mean(adjust(columns_of(nom, wide), st).status == "ok") < 0.95
+
+
+@pytest.mark.parametrize("argv, flag", [
+    (["guides", "--n", "1"], "--n"),
+    (["guides", "--seed", "-1"], "--seed"),
+    (["guides", "--adjust", "beta,,CD"], "--adjust"),
+    (["allocation", "--target", "1.5"], "--target"),
+    (["allocation", "--adjust", "beta", "--resolution", "CD=0.01"], "--resolution"),
+    (["allocation", "--tolerances", "nope"], "nope"),
+])
+def test_guides_allocation_refusals(argv, flag):
+    code, out, err = run("needle", *argv)
+    assert code == 2 and out == "" and len(err.strip().splitlines()) == 1
+    assert flag in err
