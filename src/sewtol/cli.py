@@ -291,7 +291,9 @@ def _write_outputs(args, kind, inputs, started, result_obj, frames, runs):
 def cmd_needle_scan(args):
     from .studies.scan import scan
 
-    rows = scan(_study_nominal(args), _tolerances(args), guide_shift_um=args.guide_shift_um)
+    strategy = _strategy(args)
+    params, tolerances = _study_nominal(args), _tolerances(args)
+    rows = scan(params, tolerances, guide_shift_um=args.guide_shift_um, strategy=strategy)
     frame = rows.to_dataframe()
     emit(args.format, obj=rows.to_records(), frame=frame)
 
@@ -436,15 +438,19 @@ def cmd_needle_sobol(args):
     except ParameterError as exc:
         raise ParameterError("--n", exc.rule, args.n) from None
     _check_study(args)
+    strategy = _strategy(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
     _as_flags(check_sobol, params, tolerances, args.n, args.seed)
     rng = sb.DEFAULT_RANGE_DEG
     started = now()
+    extra = {} if strategy is None else {"compensators": _strategy_record(strategy)}
     inputs = _inputs(args, "sobol", params, tolerances, beta_search_range_deg=list(rng),
                      chunk_size=CHUNK, resamples=SOBOL_RESAMPLES,
                      confidence_level=SOBOL_CONF_LEVEL,
                      strategy="beta fixed at the nominal's beta* (fixed_beta=optimum) and beta "
-                     "re-optimised per sample")
+                     "re-optimised per sample" if strategy is None else "beta fixed at the "
+                     f"nominal's beta* (fixed_beta=optimum) and {strategy.name} adjusted per "
+                     "sample (exact joint optimum)", **extra)
     store = _store(args, inputs)
     try:
         runs = _history(store, started)
@@ -452,13 +458,91 @@ def cmd_needle_sobol(args):
             res = needle_sobol(params, tolerances, args.n, args.seed, range_deg=rng,
                                n_jobs=args.n_jobs, progress=args.progress, store=store,
                                resamples=SOBOL_RESAMPLES, conf_level=SOBOL_CONF_LEVEL,
-                               chunk_size=CHUNK, scheduler=client)
+                               chunk_size=CHUNK, scheduler=client, strategy=strategy)
         _write_outputs(args, "sobol", inputs, started, res.to_records(),
                        {"indices": res.to_dataframe(), "convergence": res.convergence}, runs)
     finally:
         if store is not None:
             store.close()
     emit(args.format, obj=res.to_records(), frame=res.to_dataframe())
+
+
+# --- needle guides and needle allocation (issue 13 items 6 and 7) ------------------------------
+
+
+def _small_study(args):
+    """Flags of guides/allocation, checked before anything is computed."""
+    _check_n(args.n)
+    if args.seed < 0:
+        raise ParameterError("--seed", "must be a whole number >= 0", args.seed)
+    strategy = _strategy(args)
+    params, tolerances = _study_nominal(args), _tolerances(args)
+    if not tolerances.active().items:
+        raise ParameterError("--tolerances", "has no tolerance with a non-zero width",
+                             tolerances.name)
+    tolerances.check_against(params)
+    return strategy, params, tolerances
+
+
+def cmd_needle_guides(args):
+    from .studies.guides import compare_guides
+
+    strategy, params, tolerances = _small_study(args)
+    table = compare_guides(params, tolerances, args.n, args.seed, strategy=strategy)
+    obj = {"tolerances": tolerances.name, "n": args.n, "seed": args.seed,
+           "strategy": "fixed beta and beta adjusted" if strategy is None else strategy.name,
+           **({} if strategy is None else {"compensators": _strategy_record(strategy)}),
+           "rows": table.to_dict(orient="records")}
+    emit(args.format, obj=obj, frame=table)
+
+
+def cmd_needle_allocation(args):
+    from .studies.allocation import allocate
+    from .studies.strategies import allocate_for_strategy
+
+    if not (np.isfinite(args.target) and 0 < args.target < 1):
+        raise ParameterError("--target", "must be a yield strictly between 0 and 1",
+                             args.target)
+    strategy, params, tolerances = _small_study(args)
+    if strategy is None:
+        res = allocate(params, tolerances, args.target, args.n, args.seed)
+        name = "beta"
+        table = res.to_dataframe()
+        table["lower_mm"], table["upper_mm"] = -table["tolerance_mm"], table["tolerance_mm"]
+    else:
+        res = allocate_for_strategy(params, tolerances, strategy, args.target, args.n,
+                                    args.seed)
+        name = strategy.name
+        table = res.to_dataframe()
+    obj = {"tolerances": tolerances.name, "strategy": name, "target": res.target,
+           "yield_adjusted": res.yield_adjusted, "n": res.n, "seed": res.seed,
+           "scale": res.scale,
+           "cost_model": "reciprocal: sum c_i / width_i; shape (c_i / s_i^2)^(1/3), common "
+                         "scale by bisection on the Monte-Carlo yield (common random numbers)",
+           **({} if strategy is None else {"compensators": _strategy_record(strategy)}),
+           "rows": table.to_dict(orient="records")}
+    emit(args.format, obj=obj, frame=table)
+
+
+def add_needle_guides_allocation(nsub, needle_common, study) -> None:
+    p = nsub.add_parser("guides", help="guide settings compared: beta*, window, yields")
+    needle_common(p)
+    study(p, seed=False)
+    p.add_argument("--n", type=int, default=2000, help="machines per guide setting")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    _adjust_options(p)
+    p.set_defaults(func=cmd_needle_guides)
+
+    p = nsub.add_parser("allocation", help="widest tolerances for a yield after adjustment")
+    needle_common(p)
+    study(p, seed=False)
+    p.add_argument("--n", type=int, default=2000,
+                   help="machines per trial (common random numbers; default 2000)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--target", type=float, default=0.9973,
+                   help="yield after adjustment to keep (default 0.9973)")
+    _adjust_options(p)
+    p.set_defaults(func=cmd_needle_allocation)
 
 
 # --- needle ppm (rare-event probability of failure after adjustment; issue 15) ---------------
@@ -623,6 +707,7 @@ def build_parser() -> argparse.ArgumentParser:
     study(p, seed=False)
     p.add_argument("--guide-shift-um", type=float, default=0.0,
                    help="move the fixed guide along its normal (um)")
+    _adjust_options(p)
     p.set_defaults(func=cmd_needle_scan)
 
     p = nsub.add_parser("montecarlo", help="yield with beta fixed and adjusted per machine")
@@ -644,9 +729,11 @@ def build_parser() -> argparse.ArgumentParser:
     needle_common(p)
     study(p)
     p.add_argument("--n", type=int, default=256, help="base samples, a power of two")
+    _adjust_options(p)
     p.set_defaults(func=cmd_needle_sobol)
 
     add_needle_ppm(nsub, needle_common, study)
+    add_needle_guides_allocation(nsub, needle_common, study)
 
     p = nsub.add_parser("frames", help="the named frames of the 208 with their residuals")
     p.add_argument("--format", choices=FORMATS, default="table")

@@ -1,4 +1,12 @@
-"""Guide settings compared in one table: beta*, SumDelta, window and the Monte-Carlo yields."""
+"""Guide settings compared in one table: beta*, SumDelta, window and the Monte-Carlo yields.
+
+With `strategy=` every variant's machines (the same n machines for every variant, and the
+same ones `montecarlo` draws from the seed: common random numbers) are adjusted by the strategy's exact joint
+optimum (studies.adjustment.adjust), its compensators acting on top of the variant's guide; the
+row then gives the yield after the strategy with its counts (ok + out_of_spec +
+cannot_assemble + dead_point = n) and the yield with beta fixed at the variant's beta* on the
+same machines.
+"""
 
 from __future__ import annotations
 
@@ -21,8 +29,12 @@ DEFAULT_VARIANTS = (
 
 def compare_guides(nominal, tolerances: ToleranceSet, n: int, seed: int,
                    variants=DEFAULT_VARIANTS, range_deg=sb.DEFAULT_RANGE_DEG,
-                   n_jobs: int = 1, progress=False, scheduler=None) -> pd.DataFrame:
+                   n_jobs: int = 1, progress=False, scheduler=None, strategy=None,
+                   limit_um: float = sb.DEFAULT_LIMIT_UM) -> pd.DataFrame:
     """One row per guide setting (shift um along the guide normal, turn deg about its point)."""
+    if strategy is not None:
+        return _compare_adjusted(nominal, tolerances, n, seed, variants, range_deg, strategy,
+                                 limit_um)
     rows = []
     for label, shift_um, dangle in variants:
         p = nominal.override(guide_shift_um=nominal.guide_shift_um + shift_um,
@@ -39,5 +51,49 @@ def compare_guides(nominal, tolerances: ToleranceSet, n: int, seed: int,
             if np.all(np.isfinite(fig.window_deg)) else np.nan,
             "yield_fixed_beta": mc.yield_of("fixed"), "yield_adjusted_beta": mc.yield_of("adjusted"),
             "failed": mc.failed,
+        })
+    return pd.DataFrame(rows)
+
+
+def _compare_adjusted(nominal, tolerances, n, seed, variants, range_deg, strategy, limit_um):
+    from ..errors import ParameterError
+    from .adjustment import adjust
+    from .compensators import Strategy
+    from .strategies import columns_of
+
+    if isinstance(n, bool) or int(n) != n or n < 2:
+        raise ParameterError("n", "must be a whole number >= 2", n)
+    tol = tolerances.active()
+    if not tol.items:
+        raise ParameterError("tolerances", "has no tolerance with a non-zero width",
+                             tolerances.name)
+    from .montecarlo import CHUNK
+    from .parallel import child_generators, chunk_bounds
+
+    bounds = chunk_bounds(int(n), CHUNK)  # montecarlo's machines: chunk i from child i
+    parts = [tol.sample(r, b - a)
+             for r, (a, b) in zip(child_generators(seed, len(bounds)), bounds, strict=True)]
+    dev = {k: np.concatenate([d[k] for d in parts]) for k in tol.params}
+    rows = []
+    for label, shift_um, dangle in variants:
+        p = nominal.override(guide_shift_um=nominal.guide_shift_um + shift_um,
+                             guide_angle=nominal.guide_angle + dangle)
+        fig = nominal_figures(p, range_deg)
+        c = columns_of(p.override(beta=fig.beta_opt_deg), dev)
+        fixed = adjust(c, Strategy("none"), limit_um)
+        adj = adjust(c, strategy, limit_um, plateaus=False)
+        k = adj.counts()
+        rows.append({
+            "guide": label, "shift_um": shift_um, "angle_from_vertical_deg": p.guide_angle,
+            "beta_opt_deg": fig.beta_opt_deg, "total_um": fig.total_um,
+            "window_low_deg": fig.window_deg[0], "window_high_deg": fig.window_deg[1],
+            "window_width_deg": fig.window_deg[1] - fig.window_deg[0]
+            if np.all(np.isfinite(fig.window_deg)) else np.nan,
+            "yield_fixed_beta": float(np.mean(fixed.status == "ok")),
+            "strategy": strategy.name, "yield_adjusted": k["ok"] / adj.n,
+            "n": adj.n, "ok": k["ok"], "out_of_spec": k["out of spec"],
+            "cannot_assemble": k["cannot assemble"], "dead_point": k["dead point"],
+            "p95_after_um": float(np.percentile(np.where(np.isfinite(adj.total_um),
+                                                         adj.total_um, np.inf), 95)),
         })
     return pd.DataFrame(rows)

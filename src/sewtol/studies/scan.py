@@ -2,6 +2,10 @@
 
 Each parameter is set to its upper and then its lower limit with every other parameter nominal,
 the guide fixed (optionally shifted), and beta re-optimised. All 2k variants are one batch.
+With `strategy=` (a studies.compensators.Strategy) each row is instead adjusted by the
+strategy's exact joint optimum (studies.adjustment.adjust): its figures, and each compensator's
+setting in a `NAME_setting` column (beta_deg: the beta setting, or the nominal's when the
+strategy does not set beta). `strategy=None` is the beta-only scan, unchanged.
 The recommended-tolerance search finds, per parameter and side, the largest deviation that
 keeps SumDelta at beta* <= the limit.
 """
@@ -27,6 +31,7 @@ class ScanResult:
     tolerances: str
     guide_shift_um: float
     limit_um: float
+    strategy: str = "beta"  # the adjustment of every row (scan(strategy=...))
 
     def to_dataframe(self) -> pd.DataFrame:
         return self.rows.copy()
@@ -34,14 +39,19 @@ class ScanResult:
     def to_records(self) -> list[dict]:
         cols = ["param", "side", "delta_mm", "value_mm", "beta_deg", "plus_um", "minus_um",
                 "total_um"]
+        cols += [c for c in self.rows.columns if c not in cols]
         return self.rows[cols].to_dict(orient="records")
 
 
 def scan(nominal, tolerances: ToleranceSet, guide_shift_um: float = 0.0,
-         limit_um: float = sb.DEFAULT_LIMIT_UM, range_deg=sb.DEFAULT_RANGE_DEG) -> ScanResult:
+         limit_um: float = sb.DEFAULT_LIMIT_UM, range_deg=sb.DEFAULT_RANGE_DEG,
+         strategy=None) -> ScanResult:
     base = nominal.override(guide_shift_um=guide_shift_um)
     params, sides, deltas, dev = tolerances.limit_variants()
     batch = P.with_deviations(base, dev)
+    if strategy is not None:
+        return _scan_adjusted(base, tolerances, params, sides, deltas, dev, batch, strategy,
+                              guide_shift_um, limit_um)
     opt = sb.optimise_beta(batch, range_deg, limit_um, window=False)
     values = [float(np.asarray(getattr(batch, p))[i]) for i, p in enumerate(params)]
     rows = pd.DataFrame({
@@ -53,6 +63,32 @@ def scan(nominal, tolerances: ToleranceSet, guide_shift_um: float = 0.0,
     nominal_row = {"beta_deg": float(nom.beta_deg[0]), "plus_um": float(nom.plus_um[0]),
                    "minus_um": float(nom.minus_um[0]), "total_um": float(nom.total_um[0])}
     return ScanResult(rows, nominal_row, tolerances.name, float(guide_shift_um), float(limit_um))
+
+
+def _scan_adjusted(base, tolerances, params, sides, deltas, dev, batch, strategy,
+                   guide_shift_um, limit_um) -> ScanResult:
+    """The scan's rows adjusted by `strategy` (studies.adjustment.adjust, exact joint optimum)."""
+    from .adjustment import adjust
+    from .strategies import columns_of
+
+    values = [float(np.asarray(getattr(batch, p))[i]) for i, p in enumerate(params)]
+    zero = {p: np.zeros(1) for p in tolerances.params}
+    out = []
+    for c in (columns_of(base, dev), columns_of(base, zero)):
+        a = adjust(c, strategy, limit_um)
+        beta = a.settings["beta"] if "beta" in strategy.names else np.full(a.n, base.beta)
+        f = {"beta_deg": beta, "plus_um": a.plus_um, "minus_um": a.minus_um,
+             "total_um": a.total_um}
+        for comp in strategy.compensators:
+            if comp.name != "beta":
+                f[f"{comp.name}_setting"] = a.settings[comp.name]
+        f["status"] = a.status
+        out.append(f)
+    rows = pd.DataFrame({"param": params, "side": sides, "delta_mm": deltas,
+                         "value_mm": values, **out[0]})
+    nominal_row = {k: (float(v[0]) if k != "status" else str(v[0])) for k, v in out[1].items()}
+    return ScanResult(rows, nominal_row, tolerances.name, float(guide_shift_um), float(limit_um),
+                      strategy.name)
 
 
 def largest_tolerances(nominal, params: list[str], limit_um: float = sb.DEFAULT_LIMIT_UM,

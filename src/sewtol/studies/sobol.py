@@ -124,10 +124,16 @@ def _indices_from(problem, y, n, seed, case, resamples, conf_level=0.95):
     return both, conv, failed
 
 
-def _needle_chunk(nominal, names, X, range_deg):
+def _needle_chunk(nominal, names, X, range_deg, strategy=None, limit_um=sb.DEFAULT_LIMIT_UM):
     dev = {k: X[:, i] for i, k in enumerate(names)}
-    out = evaluate(nominal, dev, adjust=True, range_deg=range_deg)
-    return out.total_fixed_um, out.total_adjusted_um
+    if strategy is None:
+        out = evaluate(nominal, dev, adjust=True, range_deg=range_deg)
+        return out.total_fixed_um, out.total_adjusted_um
+    from .adjustment import adjust
+    from .strategies import columns_of
+
+    fixed = evaluate(nominal, dev, adjust=False, range_deg=range_deg).total_fixed_um
+    return fixed, adjust(columns_of(nominal, dev), strategy, limit_um, plateaus=False).total_um
 
 
 def needle_sobol(nominal, tolerances: ToleranceSet, n: int, seed: int,
@@ -135,8 +141,13 @@ def needle_sobol(nominal, tolerances: ToleranceSet, n: int, seed: int,
                  backend: str | None = None, resamples: int = 200,
                  chunk_size: int = CHUNK, store=None, conf_level: float = 0.95,
                  fixed_beta: str = "optimum", limit_um: float = sb.DEFAULT_LIMIT_UM,
-                 scheduler=None) -> SobolResult:
+                 scheduler=None, strategy=None) -> SobolResult:
     """Sobol indices of SumDelta, beta fixed and beta adjusted, at n and n/2 base samples.
+
+    strategy (a studies.compensators.Strategy): the adjusted case is SumDelta after the
+    strategy's exact joint optimum (studies.adjustment.adjust), its case named
+    "adjusted_" + strategy.name ("adjusted_beta" for beta alone, as without it); the fixed case
+    is unchanged. None: beta re-optimised in range_deg.
 
     beta fixed means what it means in `montecarlo` (fixed_beta: "optimum", the nominal's beta*
     as `sewtol needle nominal` prints it, or "as_given"). progress: True (bar on stderr) or
@@ -158,16 +169,18 @@ def needle_sobol(nominal, tolerances: ToleranceSet, n: int, seed: int,
             return f"does not hold two outputs of {m} samples"
         return None
 
-    parts = run_chunks(_needle_chunk, [(nominal, problem["names"], X[a:b], range_deg)
+    tail = () if strategy is None else (strategy, limit_um)
+    parts = run_chunks(_needle_chunk, [(nominal, problem["names"], X[a:b], range_deg, *tail)
                                        for a, b in bounds],
                        n_jobs=n_jobs, progress=progress, desc="Sobol", backend=backend,
                        store=store, validate=validate, scheduler=scheduler)
     y_fixed = np.concatenate([p[0] for p in parts])
     y_adj = np.concatenate([p[1] for p in parts])
     frames, convs = [], []
-    for case, y in (("fixed_beta", y_fixed), ("adjusted_beta", y_adj)):
+    adjusted = "adjusted_beta" if strategy is None else "adjusted_" + strategy.name
+    for case, y in (("fixed_beta", y_fixed), (adjusted, y_adj)):
         f, c, _ = _indices_from(problem, y, n, seed, case, resamples, conf_level)
         frames.append(f)
         convs.append(c)
     return SobolResult(pd.concat(frames, ignore_index=True), pd.concat(convs, ignore_index=True),
-                       int(n), int(seed), {"fixed_beta": 0, "adjusted_beta": 0}, tolerances.name)
+                       int(n), int(seed), {"fixed_beta": 0, adjusted: 0}, tolerances.name)
