@@ -65,6 +65,15 @@ def sample(problem: dict, n: int, seed: int) -> np.ndarray:
     return sobol_sample.sample(problem, int(n), calc_second_order=False, scramble=True, seed=seed)
 
 
+def _salib_seed(seed: int) -> int:
+    """SALib seeds its bootstrap only `if seed:`, so seed 0 would draw from numpy's global state
+    and the confidence intervals would change from run to run. Seed 0 is a seed: it maps to a
+    fixed non-zero one (every other seed is passed as it is, so their tables are unchanged)."""
+    if seed:
+        return int(seed)
+    return int(np.random.SeedSequence(0).generate_state(1)[0]) or 1
+
+
 def analyze(problem: dict, y: np.ndarray, seed: int, resamples: int = 200,
             conf_level: float = 0.95) -> pd.DataFrame:
     if isinstance(resamples, bool) or int(resamples) != resamples or resamples < 2:
@@ -72,7 +81,7 @@ def analyze(problem: dict, y: np.ndarray, seed: int, resamples: int = 200,
     if not (0 < conf_level < 1):
         raise ParameterError("conf_level", "must be in (0, 1)", conf_level)
     res = sobol_analyze.analyze(problem, y, calc_second_order=False, num_resamples=resamples,
-                                conf_level=conf_level, seed=seed)
+                                conf_level=conf_level, seed=_salib_seed(seed))
     return pd.DataFrame({"param": problem["names"], "S1": res["S1"], "S1_conf": res["S1_conf"],
                          "ST": res["ST"], "ST_conf": res["ST_conf"]})
 
