@@ -224,3 +224,42 @@ def test_guides_allocation_refusals(argv, flag):
     code, out, err = run("needle", *argv)
     assert code == 2 and out == "" and len(err.strip().splitlines()) == 1
     assert flag in err
+
+
+def test_worst_case_with_a_strategy():
+    """More compensators never raise any machine's SumDelta, so over the same corners the worst
+    one cannot rise either; the strategy 'beta' agrees with the beta-only path at the corners."""
+    from sewtol.mechanisms.needle_208 import Needle208
+    from sewtol.studies.compensators import strategy_of
+    from sewtol.studies.worst_case import worst_case_table
+    from sewtol.tolerances import NEEDLE_208_SETS
+
+    p, ts = Needle208.nominal(), NEEDLE_208_SETS["base"]
+    plain = worst_case_table(p, ts).set_index("case")
+    beta = worst_case_table(p, ts, strategy=strategy_of(("beta",))).set_index("case")
+    shift = worst_case_table(p, ts, strategy=strategy_of(("beta", "guide_shift_um")))
+    shift = shift.set_index("case")
+    c_plain = plain.loc["adjusted_beta", "worst_corner_total_um"]
+    assert abs(beta.loc["adjusted_beta", "worst_corner_total_um"] - c_plain) < 0.01
+    c_shift = shift.loc["adjusted_beta+guide_shift_um", "worst_corner_total_um"]
+    assert c_shift <= c_plain + 1e-3 and c_shift < 0.5 * c_plain  # AB, BE shift the path
+    for t in (plain, beta, shift):
+        assert (t["total_um"] >= t["worst_corner_total_um"] - 1e-12).all()
+    assert shift.loc["fixed_beta", "total_um"] == plain.loc["fixed_beta", "total_um"]
+
+
+def test_cli_worst_case_prints_strict_json_and_refuses_in_one_line(capsys):
+    import json
+
+    from sewtol.cli import main
+
+    def refuse(token):
+        raise ValueError(f"not JSON: {token}")
+
+    assert main(["needle", "worst-case", "--tolerances", "base", "--adjust",
+                 "beta,guide_shift_um", "--format", "json"]) == 0
+    d = json.loads(capsys.readouterr().out, parse_constant=refuse)
+    assert [r["case"] for r in d["rows"]] == ["fixed_beta", "adjusted_beta+guide_shift_um"]
+    assert main(["needle", "worst-case", "--adjust", "beta,XX"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "XX" in err

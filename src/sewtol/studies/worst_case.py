@@ -4,7 +4,10 @@ Corners are not enough for a nonlinear path (a lateral shift and a shape change 
 inside the box), so every corner (up to 2^10) and the centre are evaluated as one batch, and the
 best starts are polished by L-BFGS-B inside the box. Two cases: beta fixed at the nominal
 machine's beta*, and beta re-optimised on each trial machine (the max over the box of the min
-over beta).
+over beta); with a strategy (studies.compensators) the adjusted case is the max over the box of
+the joint optimum over the strategy's compensators (studies.adjustment.adjust). The search is a
+heuristic over the box (corners, centre, L-BFGS-B from the best three): the reported worst case
+is never below any point it evaluated, but it is not proven global.
 """
 
 from __future__ import annotations
@@ -39,18 +42,27 @@ class WorstCase:
         return row
 
 
-def _objective(nominal, names, adjust, range_deg):
+def _objective(nominal, names, adjust, range_deg, strategy=None):
     def totals(X):
         X = np.atleast_2d(X)
-        out = evaluate(nominal, {k: X[:, i] for i, k in enumerate(names)}, adjust=adjust,
-                       range_deg=range_deg)
+        dev = {k: X[:, i] for i, k in enumerate(names)}
+        if adjust and strategy is not None:
+            from .adjustment import adjust as adjust_machines
+            from .strategies import columns_of
+
+            out = adjust_machines(columns_of(nominal, dev), strategy, plateaus=False)
+            return np.where(np.isnan(out.total_um), np.inf, out.total_um), out
+        out = evaluate(nominal, dev, adjust=adjust, range_deg=range_deg)
         t = out.total_adjusted_um if adjust else out.total_fixed_um
         return np.where(np.isnan(t), np.inf, t), out
     return totals
 
 
 def worst_case(nominal, tolerances: ToleranceSet, adjust: bool, range_deg=sb.DEFAULT_RANGE_DEG,
-               starts: int = 3) -> WorstCase:
+               starts: int = 3, strategy=None) -> WorstCase:
+    """The worst SumDelta over the tolerance box: beta fixed (adjust=False), beta re-optimised
+    per trial machine (adjust=True), or, with adjust=True and a strategy, the joint optimum over
+    the strategy's compensators per trial machine."""
     tol = tolerances.active()
     names = tol.params
     if len(names) > 10:
@@ -59,7 +71,7 @@ def worst_case(nominal, tolerances: ToleranceSet, adjust: bool, range_deg=sb.DEF
     lo = np.array([t.lower for t in tol.items])
     hi = np.array([t.upper for t in tol.items])
     corners = np.array(list(itertools.product(*zip(lo, hi, strict=True))))
-    totals = _objective(nominal, names, adjust, range_deg)
+    totals = _objective(nominal, names, adjust, range_deg, strategy)
     cands = np.vstack([corners, 0.5 * (lo + hi)])
     val, _ = totals(cands)
     corner_best = float(np.max(val[:-1]))
@@ -76,11 +88,19 @@ def worst_case(nominal, tolerances: ToleranceSet, adjust: bool, range_deg=sb.DEF
             best_v, best_x = float(-res.fun), lo + res.x * scale
     _, out = totals(best_x)
     at_corner = bool(np.all(np.isclose(best_x, lo) | np.isclose(best_x, hi)))
-    beta = float(out.beta_opt_deg[0]) if adjust else float(nominal.beta)
-    return WorstCase("adjusted_beta" if adjust else "fixed_beta", best_v, corner_best,
+    if adjust and strategy is not None:
+        beta = float(out.settings["beta"][0]) if "beta" in out.settings else float(nominal.beta)
+        case = f"adjusted_{strategy.name}"
+    else:
+        beta = float(out.beta_opt_deg[0]) if adjust else float(nominal.beta)
+        case = "adjusted_beta" if adjust else "fixed_beta"
+    return WorstCase(case, best_v, corner_best,
                      dict(zip(names, map(float, best_x), strict=True)), beta, not at_corner)
 
 
-def worst_case_table(nominal, tolerances: ToleranceSet, range_deg=sb.DEFAULT_RANGE_DEG) -> pd.DataFrame:
-    return pd.DataFrame([worst_case(nominal, tolerances, a, range_deg).to_row()
+def worst_case_table(nominal, tolerances: ToleranceSet, range_deg=sb.DEFAULT_RANGE_DEG,
+                     strategy=None) -> pd.DataFrame:
+    """Rows fixed_beta and the adjusted case (beta alone, or the strategy's)."""
+    return pd.DataFrame([worst_case(nominal, tolerances, a, range_deg,
+                                    strategy=strategy if a else None).to_row()
                          for a in (False, True)])
