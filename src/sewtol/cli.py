@@ -178,6 +178,21 @@ def _check_study(args):
     _scheduler(args)
 
 
+def _not_offered(args, command: str, **why) -> None:
+    """Refuse, in one line, a shared study flag (resume, scheduler, n_jobs) that `command` takes
+    from the common parser but does not use; `why` maps each checked flag to the reason."""
+    for key, reason in why.items():
+        if key == "resume":
+            flag, used, value = "--resume", bool(args.resume), True
+        elif key == "scheduler":
+            where = _scheduler(args)
+            flag, used, value = "--scheduler", where is not None, where and where[1]
+        else:
+            flag, used, value = "--n-jobs", args.n_jobs != 1, args.n_jobs
+        if used:
+            raise ParameterError(flag, f"is not offered by {command} ({reason})", value)
+
+
 def _scheduler(args) -> tuple[str, str] | None:
     """(flag, address) of the Dask scheduler from --scheduler or SEWTOL_SCHEDULER, or None for
     this machine. Checked with the other flags, before anything is computed."""
@@ -385,15 +400,9 @@ def cmd_needle_strategies(args):
 
     _check_n(args.n)
     _check_study(args)
-    if args.resume:
-        raise ParameterError("--resume", "is not offered by needle strategies (it keeps no "
-                             "checkpoints; rerun with the same seed)", True)
-    if _scheduler(args) is not None:
-        raise ParameterError("--scheduler", "is not offered by needle strategies (it runs on "
-                             "this machine)", _scheduler(args)[1])
-    if args.n_jobs != 1:
-        raise ParameterError("--n-jobs", "is not offered by needle strategies (it runs in one "
-                             "process)", args.n_jobs)
+    _not_offered(args, "needle strategies",
+                 resume="it keeps no checkpoints; rerun with the same seed",
+                 scheduler="it runs on this machine", n_jobs="it runs in one process")
     strategy = _strategy(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
     rows = default_strategies()
@@ -583,12 +592,8 @@ def cmd_needle_ppm(args):
 
     _check_study(args)
     _check_beta_range(args)
-    if args.resume:
-        raise ParameterError("--resume", "is not offered by needle ppm (it keeps no checkpoints; "
-                             "rerun with the same seed)", True)
-    if _scheduler(args) is not None:
-        raise ParameterError("--scheduler", "is not offered by needle ppm (its levels run on "
-                             "this machine; use --n-jobs)", _scheduler(args)[1])
+    _not_offered(args, "needle ppm", resume="it keeps no checkpoints; rerun with the same seed",
+                 scheduler="its levels run on this machine; use --n-jobs")
     if not (np.isfinite(args.target) and 0 < args.target < 1):
         raise ParameterError("--target", "must be a probability in (0, 1)", args.target)
     if args.budget < 100:
