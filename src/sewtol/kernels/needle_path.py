@@ -1,4 +1,5 @@
-"""The needle point E sampled densely on each machine's rocker interval (fused numba kernel).
+"""The band of the needle path on a trial guide: E sampled on each machine's rocker interval and
+projected, in one fused numba kernel.
 
 Same geometry as mechanisms.needle_208.chain_from_rocker (positions only, no derivatives):
 B = A + AB e(theta + beta_sense beta), dyad B-C-D on side branch_C, E = B + BE e(ang(B->C) + CBE).
@@ -21,38 +22,6 @@ def pack(c: dict) -> np.ndarray:
     n = next(iter(c.values())).shape[0]
     return np.ascontiguousarray(np.column_stack(
         [np.broadcast_to(np.asarray(c[f], float).reshape(-1, 1), (n, 1))[:, 0] for f in FIELDS]))
-
-
-@nb.njit(cache=True, parallel=True)
-def path_kernel(P, lo, hi, m):
-    """E (n, m, 2) at m equally spaced rocker angles of [lo, hi] per machine (NaN: no closure)."""
-    n = P.shape[0]
-    out = np.empty((n, m, 2))
-    for i in nb.prange(n):
-        AB, BC, BE, CD, CBE = P[i, 0], P[i, 1], P[i, 2], P[i, 3], P[i, 4]
-        ax, ay, dx, dy, br, bs, beta = P[i, 5], P[i, 6], P[i, 7], P[i, 8], P[i, 9], P[i, 10], P[i, 11]
-        off = bs * beta * math.pi / 180.0
-        rc = CBE * math.pi / 180.0
-        rod_c, rod_s = BE / BC * math.cos(rc), BE / BC * math.sin(rc)
-        k2 = BC * BC - CD * CD
-        for k in range(m):
-            th = lo[i] + (hi[i] - lo[i]) * k / (m - 1)
-            bx = ax + AB * math.cos(th + off)
-            by = ay + AB * math.sin(th + off)
-            ux, uy = dx - bx, dy - by
-            d2 = ux * ux + uy * uy
-            inv = 1.0 / d2
-            a = 0.5 * (k2 + d2) * inv
-            h2 = BC * BC * inv - a * a
-            if not (h2 >= 0.0):
-                out[i, k, 0] = out[i, k, 1] = np.nan
-                continue
-            h = math.sqrt(h2)
-            wx = a * ux - br * h * uy  # C - B
-            wy = a * uy + br * h * ux
-            out[i, k, 0] = bx + rod_c * wx - rod_s * wy
-            out[i, k, 1] = by + rod_s * wx + rod_c * wy
-    return out
 
 
 @nb.njit(cache=True)
