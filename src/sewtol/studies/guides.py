@@ -16,7 +16,7 @@ import pandas as pd
 from ..needle import nominal_figures
 from ..tolerances import ToleranceSet
 from . import beta as sb
-from .montecarlo import montecarlo
+from .montecarlo import check_sampling, draw_deviations, montecarlo
 
 DEFAULT_VARIANTS = (
     ("nominal", 0.0, 0.0),
@@ -36,59 +36,46 @@ def compare_guides(nominal, tolerances: ToleranceSet, n: int, seed: int,
         return _compare_adjusted(nominal, tolerances, n, seed, variants, range_deg, strategy,
                                  limit_um)
     rows = []
-    for label, shift_um, dangle in variants:
-        p = nominal.override(guide_shift_um=nominal.guide_shift_um + shift_um,
-                             guide_angle=nominal.guide_angle + dangle)
-        fig = nominal_figures(p, range_deg)
+    for variant in variants:
+        p, fig, row = _variant(nominal, variant, range_deg)
         mc = montecarlo(p.override(beta=fig.beta_opt_deg), tolerances, n, seed,
                         range_deg=range_deg, n_jobs=n_jobs, progress=progress,
                         scheduler=scheduler)
-        rows.append({
-            "guide": label, "shift_um": shift_um, "angle_from_vertical_deg": p.guide_angle,
-            "beta_opt_deg": fig.beta_opt_deg, "total_um": fig.total_um,
-            "window_low_deg": fig.window_deg[0], "window_high_deg": fig.window_deg[1],
-            "window_width_deg": fig.window_deg[1] - fig.window_deg[0]
-            if np.all(np.isfinite(fig.window_deg)) else np.nan,
-            "yield_fixed_beta": mc.yield_of("fixed"), "yield_adjusted_beta": mc.yield_of("adjusted"),
-            "failed": mc.failed,
-        })
+        rows.append({**row, "yield_fixed_beta": mc.yield_of("fixed"),
+                     "yield_adjusted_beta": mc.yield_of("adjusted"), "failed": mc.failed})
     return pd.DataFrame(rows)
 
 
+def _variant(nominal, variant, range_deg):
+    """The machine with this guide setting, its nominal figures, and the row's guide columns."""
+    label, shift_um, dangle = variant
+    p = nominal.override(guide_shift_um=nominal.guide_shift_um + shift_um,
+                         guide_angle=nominal.guide_angle + dangle)
+    fig = nominal_figures(p, range_deg)
+    row = {"guide": label, "shift_um": shift_um, "angle_from_vertical_deg": p.guide_angle,
+           "beta_opt_deg": fig.beta_opt_deg, "total_um": fig.total_um,
+           "window_low_deg": fig.window_deg[0], "window_high_deg": fig.window_deg[1],
+           "window_width_deg": fig.window_deg[1] - fig.window_deg[0]
+           if np.all(np.isfinite(fig.window_deg)) else np.nan}
+    return p, fig, row
+
+
 def _compare_adjusted(nominal, tolerances, n, seed, variants, range_deg, strategy, limit_um):
-    from ..errors import ParameterError
     from .adjustment import adjust
     from .compensators import Strategy
     from .strategies import columns_of
 
-    if isinstance(n, bool) or int(n) != n or n < 2:
-        raise ParameterError("n", "must be a whole number >= 2", n)
-    tol = tolerances.active()
-    if not tol.items:
-        raise ParameterError("tolerances", "has no tolerance with a non-zero width",
-                             tolerances.name)
-    from .montecarlo import CHUNK
-    from .parallel import child_generators, chunk_bounds
-
-    bounds = chunk_bounds(int(n), CHUNK)  # montecarlo's machines: chunk i from child i
-    parts = [tol.sample(r, b - a)
-             for r, (a, b) in zip(child_generators(seed, len(bounds)), bounds, strict=True)]
-    dev = {k: np.concatenate([d[k] for d in parts]) for k in tol.params}
+    check_sampling(nominal, tolerances, n, seed)  # as montecarlo checks the same machines
+    dev = draw_deviations(tolerances, n, seed)  # montecarlo's machines for this seed
     rows = []
-    for label, shift_um, dangle in variants:
-        p = nominal.override(guide_shift_um=nominal.guide_shift_um + shift_um,
-                             guide_angle=nominal.guide_angle + dangle)
-        fig = nominal_figures(p, range_deg)
+    for variant in variants:
+        p, fig, row = _variant(nominal, variant, range_deg)
         c = columns_of(p.override(beta=fig.beta_opt_deg), dev)
         fixed = adjust(c, Strategy("none"), limit_um)
         adj = adjust(c, strategy, limit_um, plateaus=False)
         k = adj.counts()
         rows.append({
-            "guide": label, "shift_um": shift_um, "angle_from_vertical_deg": p.guide_angle,
-            "beta_opt_deg": fig.beta_opt_deg, "total_um": fig.total_um,
-            "window_low_deg": fig.window_deg[0], "window_high_deg": fig.window_deg[1],
-            "window_width_deg": fig.window_deg[1] - fig.window_deg[0]
-            if np.all(np.isfinite(fig.window_deg)) else np.nan,
+            **row,
             "yield_fixed_beta": float(np.mean(fixed.status == "ok")),
             "strategy": strategy.name, "yield_adjusted": k["ok"] / adj.n,
             "n": adj.n, "ok": k["ok"], "out_of_spec": k["out of spec"],

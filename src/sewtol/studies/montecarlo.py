@@ -113,6 +113,17 @@ def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
     return machines
 
 
+def draw_deviations(tolerances: ToleranceSet, n: int, seed: int,
+                    chunk_size: int = CHUNK) -> dict[str, np.ndarray]:
+    """The deviations of machines 0 .. n-1 exactly as `sample_machines` draws them (chunk i of
+    chunk_size from child i of the seed), for studies that adjust the same machines otherwise."""
+    tol = tolerances.active()
+    bounds = chunk_bounds(int(n), chunk_size)
+    parts = [tol.sample(r, b - a)
+             for r, (a, b) in zip(child_generators(seed, len(bounds)), bounds, strict=True)]
+    return {k: np.concatenate([d[k] for d in parts]) for k in tol.params}
+
+
 def check_sampling(nominal, tolerances: ToleranceSet, n, seed, chunk_size: int = CHUNK,
                    columns: int | None = None) -> None:
     """Every input of a Monte-Carlo that can be checked before it runs (nothing is written)."""
