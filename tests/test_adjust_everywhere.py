@@ -1,35 +1,17 @@
 """--adjust on needle scan, sobol, guides and allocation (issue 13 item 7, the rest of item 6)."""
 
-import io
-import json
-from contextlib import redirect_stderr, redirect_stdout
 
 import numpy as np
 import pandas as pd
 import pytest
 
-from sewtol.cli import main
+from cli_helpers import run
+from cli_helpers import strict_loads as strict
 from sewtol.mechanisms.needle_208 import Needle208
 from sewtol.studies.adjustment import adjust
 from sewtol.studies.compensators import strategy_of
 from sewtol.studies.strategies import columns_of
 from sewtol.tolerances import NEEDLE_208_SETS
-
-
-def _refuse(name):
-    raise ValueError(f"not JSON: {name}")
-
-
-def run(*argv):
-    out, err = io.StringIO(), io.StringIO()
-    with redirect_stdout(out), redirect_stderr(err):
-        code = main(list(argv))
-    return code, out.getvalue(), err.getvalue()
-
-
-def strict(text):
-    return json.loads(text, parse_constant=_refuse)
-
 
 NUM = ["delta_mm", "value_mm", "beta_deg", "plus_um", "minus_um", "total_um"]
 
@@ -248,18 +230,11 @@ def test_worst_case_with_a_strategy():
     assert shift.loc["fixed_beta", "total_um"] == plain.loc["fixed_beta", "total_um"]
 
 
-def test_cli_worst_case_prints_strict_json_and_refuses_in_one_line(capsys):
-    import json
-
-    from sewtol.cli import main
-
-    def refuse(token):
-        raise ValueError(f"not JSON: {token}")
-
-    assert main(["needle", "worst-case", "--tolerances", "base", "--adjust",
-                 "beta,guide_shift_um", "--format", "json"]) == 0
-    d = json.loads(capsys.readouterr().out, parse_constant=refuse)
+def test_cli_worst_case_prints_strict_json_and_refuses_in_one_line():
+    code, out, _ = run("needle", "worst-case", "--tolerances", "base", "--adjust",
+                       "beta,guide_shift_um", "--format", "json")
+    assert code == 0
+    d = strict(out)
     assert [r["case"] for r in d["rows"]] == ["fixed_beta", "adjusted_beta+guide_shift_um"]
-    assert main(["needle", "worst-case", "--adjust", "beta,XX"]) == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "XX" in err
+    code, out, err = run("needle", "worst-case", "--adjust", "beta,XX")
+    assert code == 2 and out == "" and err.count("\n") == 1 and "XX" in err

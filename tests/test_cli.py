@@ -1,30 +1,12 @@
 """The CLI contract of issue 2: keys, columns, one-line errors with non-zero exit."""
 
 import io
-import json
-from contextlib import redirect_stderr, redirect_stdout
 
 import numpy as np
 import pandas as pd
 
-from sewtol.cli import main
+from cli_helpers import run, strict_loads
 from sewtol.needle import deviation_table
-
-
-def _refuse(name):
-    raise ValueError(f"not JSON: {name}")
-
-
-def strict_loads(text):
-    """json.loads that refuses NaN, Infinity and -Infinity (Python's default accepts them)."""
-    return json.loads(text, parse_constant=_refuse)
-
-
-def run(*argv):
-    out, err = io.StringIO(), io.StringIO()
-    with redirect_stdout(out), redirect_stderr(err):
-        code = main(list(argv))
-    return code, out.getvalue(), err.getvalue()
 
 
 def test_nominal_json_keys_and_values():

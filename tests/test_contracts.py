@@ -2,50 +2,21 @@
 fail cleanly, read-only parameter arrays, install-time provenance, --version."""
 
 import errno
-import io
 import json
 import os
 import subprocess
 import sys
-from contextlib import redirect_stderr, redirect_stdout
 
 import numpy as np
 import pytest
 
 import sewtol
-from sewtol.cli import main
+from cli_helpers import run, stretched_CD, strict_loads
 from sewtol.errors import AssemblyError, ParameterError
 from sewtol.mechanisms import needle_208 as nd
 from sewtol.mechanisms.needle_208 import Needle208
 from sewtol.studies.montecarlo import montecarlo
 from sewtol.tolerances import NEEDLE_208_SETS, Tolerance, ToleranceSet
-
-
-def run(*argv):
-    out, err = io.StringIO(), io.StringIO()
-    with redirect_stdout(out), redirect_stderr(err):
-        try:
-            code = main(list(argv))
-        except SystemExit as exc:
-            code = exc.code
-    return code, out.getvalue(), err.getvalue()
-
-
-def _refuse(name):
-    raise ValueError(f"not JSON: {name}")
-
-
-def strict_loads(text):
-    """json.loads that refuses NaN, Infinity and -Infinity (Python's default accepts them)."""
-    return json.loads(text, parse_constant=_refuse)
-
-
-def stretched_CD(p: Needle208) -> float:
-    c = nd.P.column(p, None)
-    lo, hi, _, _ = nd.rocker_interval(c)
-    t = np.linspace(float(lo), float(hi), 200_001)
-    B = complex(p.Ax, p.Ay) + p.AB * np.exp(1j * (t + p.beta_sense * np.radians(p.beta)))
-    return float(np.max(np.abs(complex(p.Dx, p.Dy) - B)) - p.BC)
 
 
 @pytest.fixture(scope="module")

@@ -4,16 +4,13 @@ Assertion bands come from each estimator's own c.o.v. (4 sigma in log space, the
 its interval uses) or its stated 95 % interval, never from bits of one run.
 """
 
-import io
-import json
 import math
-from contextlib import redirect_stderr, redirect_stdout
 
 import numpy as np
 import pytest
 from scipy import special, stats
 
-from sewtol.cli import main
+from cli_helpers import run, strict_loads
 from sewtol.errors import ParameterError
 from sewtol.studies import rare_event as R
 from sewtol.tolerances import Tolerance, ToleranceSet
@@ -223,13 +220,6 @@ def test_needle_modes_are_named_and_counted(nominal):
     assert mc.mode_counts["cannot assemble"] > 0
 
 
-def run(*argv):
-    out, err = io.StringIO(), io.StringIO()
-    with redirect_stdout(out), redirect_stderr(err):
-        code = main(list(argv))
-    return code, out.getvalue(), err.getvalue()
-
-
 def test_cli_needle_ppm_json_and_refusals(tmp_path):
     toml = tmp_path / "alloc.toml"
     toml.write_text("[sets.allocated]\n" + "".join(f"{k} = {v}\n" for k, v in ALLOCATED.items()))
@@ -237,12 +227,8 @@ def test_cli_needle_ppm_json_and_refusals(tmp_path):
                        "--method", "montecarlo", "--budget", "2000", "--seed", "3",
                        "--format", "json", "--out", str(tmp_path / "o"))
     assert code == 0
-
-    def refuse(token):
-        raise ValueError(f"not JSON: {token}")
-
-    d = json.loads(out, parse_constant=refuse)  # strict: no NaN or Infinity
-    json.loads((tmp_path / "o" / "ppm.json").read_text(), parse_constant=refuse)
+    d = strict_loads(out)  # strict: no NaN or Infinity
+    strict_loads((tmp_path / "o" / "ppm.json").read_text())
     for key in ("probability", "ppm", "cov", "ci95", "upper_95", "model_calls", "method",
                 "failures", "mode_shares", "statement"):
         assert key in d

@@ -1,21 +1,18 @@
 """Reliability: dead points, refusals that write nothing, determinism, interrupt and resume."""
 
-import io
-import json
 import os
 import signal
 import subprocess
 import sys
 import time
-from contextlib import redirect_stderr, redirect_stdout
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from cli_helpers import run, stretched_CD, strict_loads
 from sewtol import feed
-from sewtol.cli import main
 from sewtol.errors import AssemblyError
 from sewtol.mechanisms import needle_208 as nd
 from sewtol.mechanisms.feed_131 import Feed131
@@ -23,34 +20,6 @@ from sewtol.mechanisms.needle_208 import Needle208
 from sewtol.mechanisms.params import field_names
 from sewtol.studies.montecarlo import montecarlo
 from sewtol.tolerances import Tolerance, ToleranceSet
-
-
-def _refuse(name):
-    raise ValueError(f"not JSON: {name}")
-
-
-def strict_loads(text):
-    """json.loads that refuses NaN, Infinity and -Infinity (Python's default accepts them)."""
-    return json.loads(text, parse_constant=_refuse)
-
-
-def run(*argv):
-    out, err = io.StringIO(), io.StringIO()
-    with redirect_stdout(out), redirect_stderr(err):
-        try:
-            code = main(list(argv))
-        except SystemExit as exc:  # argparse usage errors
-            code = exc.code
-    return code, out.getvalue(), err.getvalue()
-
-
-def stretched_CD(p: Needle208) -> float:
-    """The CD at which B-C-D is exactly stretched at the far end of its swing (beta fixed)."""
-    c = nd.P.column(p, None)
-    lo, hi, _, _ = nd.rocker_interval(c)
-    t = np.linspace(float(lo), float(hi), 200_001)
-    B = complex(p.Ax, p.Ay) + p.AB * np.exp(1j * (t + p.beta_sense * np.radians(p.beta)))
-    return float(np.max(np.abs(complex(p.Dx, p.Dy) - B)) - p.BC)
 
 
 def test_needle_dead_point_is_refused_with_dyad_and_angle(nominal):

@@ -4,6 +4,7 @@ search that shares no code with it, strategies on common random numbers, statuse
 import numpy as np
 import pytest
 
+from cli_helpers import run as _run
 from sewtol.errors import ParameterError
 from sewtol.kernels import needle_positions as KP
 from sewtol.kernels.needle_path import band_kernel, pack
@@ -302,18 +303,6 @@ def test_parse_cli_and_toml(tmp_path):
         C.load_toml(f)
 
 
-def _run(*argv):
-    import io
-    from contextlib import redirect_stderr, redirect_stdout
-
-    from sewtol.cli import main
-
-    out, err = io.StringIO(), io.StringIO()
-    with redirect_stdout(out), redirect_stderr(err):
-        code = main(list(argv))
-    return code, out.getvalue(), err.getvalue()
-
-
 def test_cli_adjust_flags_refuse_bad_input_in_one_line(tmp_path):
     cases = [
         (["--adjust", "beta", "--range", "beta=30,20"], "--range beta"),
@@ -350,17 +339,14 @@ def test_cli_montecarlo_adjust_writes_the_per_machine_table(tmp_path):
 
 
 def test_cli_strategies_takes_a_frame_and_prints_strict_json(tmp_path):
-    import json
-
-    def refuse(token):
-        raise ValueError(f"not JSON: {token}")
+    from cli_helpers import strict_loads
 
     rows = {}
     for frame in ("sewtol-0.1", "window"):
         code, out, err = _run("needle", "strategies", "--n", "6", "--frame", frame,
                               "--format", "json")
         assert code == 0, err
-        rows[frame] = json.loads(out, parse_constant=refuse)
+        rows[frame] = strict_loads(out)
         for r in rows[frame]:
             assert r["ok"] + r["out_of_spec"] + r["cannot_assemble"] + r["dead_point"] == 6
     # the frame reaches the model: the same machines give other SumDelta quantiles

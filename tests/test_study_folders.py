@@ -1,7 +1,6 @@
 """Study folders cannot be poisoned (issue 10, items 1-5): chunks are data bound to their study,
 every bad chunk is recomputed, the folder is locked, workers die with their parent."""
 
-import io
 import json
 import os
 import pickle
@@ -11,29 +10,18 @@ import subprocess
 import sys
 import time
 import zipfile
-from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from sewtol.cli import main
+from cli_helpers import run
 from sewtol.errors import ParameterError
 from sewtol.io import write_text_atomic
 from sewtol.mechanisms.needle_208 import Needle208
 from sewtol.studies.checkpoint import LOCK_NAME, ChunkStore
 from sewtol.studies.montecarlo import montecarlo
 from sewtol.tolerances import NEEDLE_208_SETS
-
-
-def run(*argv):
-    out, err = io.StringIO(), io.StringIO()
-    with redirect_stdout(out), redirect_stderr(err):
-        try:
-            code = main(list(argv))
-        except SystemExit as exc:
-            code = exc.code
-    return code, out.getvalue(), err.getvalue()
 
 
 class Poison:
