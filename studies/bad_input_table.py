@@ -32,6 +32,7 @@ FILES = {
     "huge.toml": b"[sets.x]\nAx = 1e300\n",
     "branch.toml": b"[sets.x]\nbranch_M = 0.5\n",
     "zero.toml": b"[sets.x]\nLF = 0.0\n",
+    "negative.toml": b"[sets.x]\nAB = -0.005\n",
     "a_file": b"not a folder\n",
 }
 
@@ -77,6 +78,11 @@ CASES = [
     "needle montecarlo --tolerances {d}/huge.toml",
     "needle montecarlo --tolerances {d}/branch.toml",
     "needle montecarlo --tolerances {d}/zero.toml",
+    "needle montecarlo --tolerances {d}/negative.toml",
+    "needle scan --tolerances {d}/branch.toml",
+    "needle nominal --plot {d}/figure.txt",
+    "needle nominal --set guide_shift_um=20 --guide-shift-um 10",
+    "needle montecarlo --adjust guide_shift_um --beta-range 20 30",
     "needle montecarlo --tolerances {d}/fifo.toml",
     "needle montecarlo --tolerances /dev/zero",
     "feed metrics --set EN=50",

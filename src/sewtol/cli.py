@@ -75,7 +75,17 @@ def emit(fmt: str, *, obj=None, frame=None) -> None:
 def _needle_params(args):
     from .mechanisms.needle_208 import Needle208
 
-    return Needle208.nominal(args.frame).override(**parse_sets(args.set, Needle208))
+    sets = parse_sets(args.set, Needle208)
+    shift = getattr(args, "guide_shift_um", None)
+    if shift is not None:
+        if not np.isfinite(shift):
+            raise ParameterError("--guide-shift-um", "must be a finite number of um", shift)
+        if "guide_shift_um" in sets and sets["guide_shift_um"] != shift:
+            raise ParameterError("--guide-shift-um", "gives the guide shift that --set "
+                                 f"guide_shift_um={sets['guide_shift_um']:g} also gives; give "
+                                 "one of them", shift)
+        sets["guide_shift_um"] = float(shift)
+    return Needle208.nominal(args.frame).override(**sets)
 
 
 def cmd_needle_frames(args):
@@ -91,8 +101,122 @@ def cmd_needle_nominal(args):
     from .needle import nominal_figures
 
     _check_beta_range(args)
-    fig = nominal_figures(_needle_params(args), tuple(args.beta_range), args.limit_um)
+    params = _needle_params(args)
+    fig = nominal_figures(params, tuple(args.beta_range), args.limit_um)
     emit(args.format, obj=fig.to_dict(), frame=fig.to_dataframe())
+    _print_notes(args, fig.notes())
+
+    def draw(ax):
+        from .metrics import needle as nm
+        from .studies import beta as sb
+
+        betas = np.linspace(*args.beta_range, 201)
+        totals = sb.totals_on_grid(nm.columns(params)[0], betas)[0]
+        _plots().sum_delta_vs_beta(betas, totals, fig.beta_opt_deg, fig.window_deg,
+                                   fig.limit_um, ax=ax)
+
+    _save_plot(args, draw)
+
+
+def _print_notes(args, notes) -> None:
+    """Table output says in words what JSON carries as flags (an optimum on a range bound)."""
+    if args.format == "table" and notes:
+        sys.stdout.write("".join(f"\nnote: {line}" for line in notes) + "\n")
+
+
+# --- one vocabulary of flags (issue 14 item 7): the same flag means the same thing everywhere
+
+
+def _beta_options(p, what="searched for beta* (deg)"):
+    """--beta-range LOW HIGH and --limit-um (defaults 10 35 and 10, resolved when checked)."""
+    p.add_argument("--beta-range", nargs=2, type=float, default=None, metavar=("LOW", "HIGH"),
+                   help=f"regulating range {what}; default 10 35")
+    p.add_argument("--limit-um", type=float, default=None,
+                   help="SumDelta limit (um) of the yield and the window; default 10")
+
+
+def _plot_option(p, what):
+    p.add_argument("--plot", default=None, metavar="FILE",
+                   help=f"also draw {what} into FILE (.png, .svg or .pdf)")
+
+
+def _progress_option(p):
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="progress bar on stderr (default: on when stderr is a terminal)")
+
+
+def _check_plot(args) -> None:
+    """--plot FILE: a known suffix in a writable folder, checked before anything runs."""
+    plot = getattr(args, "plot", None)
+    if plot is None:
+        return
+    from .reports.plots import PLOT_FORMATS
+
+    path = Path(plot)
+    if path.suffix.lower() not in PLOT_FORMATS:
+        raise ParameterError("--plot", f"must end in {', '.join(PLOT_FORMATS)}", plot)
+    if path.is_dir():
+        raise ParameterError("--plot", "must be a file, not a folder", plot)
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise ParameterError("--plot", f"cannot be written: {folder} is not a folder", plot)
+
+
+def _plots():
+    from .reports import plots
+
+    return plots
+
+
+def _save_plot(args, draw) -> None:
+    """draw(ax) the study's figure and save it to --plot (no-op without it)."""
+    if getattr(args, "plot", None) is None:
+        return
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    draw(ax)
+    try:
+        _plots().save_as(fig, Path(args.plot))
+    except OSError as exc:
+        raise ParameterError("--plot", f"cannot be written ({exc.strerror})", args.plot) from None
+
+
+def _context(args, params, tolerances, strategy) -> dict:
+    """What decides a study's numbers, carried by its JSON (its CSVs: run.json beside them)."""
+    from .frames import DEFAULT_FRAME
+
+    beta = list(getattr(args, "beta_range", None) or [])
+    for c in getattr(strategy, "compensators", ()):
+        if c.name == "beta":  # the strategy's own range of beta
+            beta = [c.low, c.high]
+    return {"tolerances": tolerances.name, "seed": getattr(args, "seed", None),
+            "n": getattr(args, "n", None), "frame": getattr(args, "frame", None) or DEFAULT_FRAME,
+            "guide_shift_um": float(params.guide_shift_um),
+            "guide_angle_deg": float(params.guide_angle),
+            "strategy": "beta" if strategy is None else strategy.name,
+            "beta_search_range_deg": beta, "limit_um": getattr(args, "limit_um", None)}
+
+
+def _deviation_columns(machines, params, units=None):
+    """machines.csv names each drawn deviation as such, with its unit: dev_AB_mm, dev_beta_deg,
+    dev_guide_shift_um (a parameter whose name ends in its unit keeps it once)."""
+    units = units or {}
+    names = {}
+    for p in params:
+        unit = units.get(p) or _unit_of(p)
+        base = p[: -len(unit) - 1] if p.endswith("_" + unit) else p
+        names[p] = f"dev_{base}_{unit}"
+    return machines.rename(columns=names)
+
+
+def _unit_of(param: str) -> str:
+    for unit in ("um", "mm", "deg"):
+        if param.endswith("_" + unit):
+            return unit
+    # angles of the two mechanisms (deg): beta, CBE, the regulator b, every *angle* and *phase*
+    return "deg" if param in ("beta", "CBE", "b") or "angle" in param or "phase" in param \
+        else "mm"
 
 
 def cmd_needle_deviation(args):
@@ -104,6 +228,8 @@ def cmd_needle_deviation(args):
         p = p.override(beta=args.beta)
     frame = deviation_table(p, args.step_deg)
     emit(args.format, frame=frame)
+    _save_plot(args, lambda ax: _plots().deviation_vs_crank(
+        {f"beta = {float(p.beta):.4f} deg": frame}, ax=ax))
 
 
 def _study_nominal(args):
@@ -230,6 +356,13 @@ def _cluster(args):
 
 
 def _check_beta_range(args):
+    """--beta-range and --limit-um (defaults 10 35 and 10 um where a command takes them)."""
+    from .studies import beta as sb
+
+    if getattr(args, "beta_range", None) is None:
+        args.beta_range = list(sb.DEFAULT_RANGE_DEG)
+    if getattr(args, "limit_um", None) is None:
+        args.limit_um = sb.DEFAULT_LIMIT_UM
     lo, hi = args.beta_range
     if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
         raise ParameterError("--beta-range", "must be LOW HIGH with LOW < HIGH (deg)",
@@ -307,22 +440,29 @@ def cmd_needle_scan(args):
     from .studies.scan import scan
 
     strategy = _strategy(args)
+    _check_beta_range(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
-    rows = scan(params, tolerances, guide_shift_um=args.guide_shift_um, strategy=strategy)
+    rows = scan(params, tolerances, limit_um=args.limit_um, range_deg=tuple(args.beta_range),
+                strategy=strategy)
     frame = rows.to_dataframe()
     emit(args.format, obj=rows.to_records(), frame=frame)
+    if "beta_at_bound" in frame:
+        n = int(frame["beta_at_bound"].sum())
+        _print_notes(args, [f"{n} of {len(frame)} rows have beta* on a bound of the searched "
+                            f"range {list(args.beta_range)} deg (column beta_at_bound): their "
+                            "optimum may lie outside it"] if n else [])
 
 
 def cmd_needle_montecarlo(args):
     from .provenance import now
-    from .studies import beta as sb
     from .studies.montecarlo import CHUNK, check_sampling, montecarlo
 
     _check_n(args.n)
     _check_study(args)
     strategy = _strategy(args)
+    _check_beta_range(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
-    limit, rng = sb.DEFAULT_LIMIT_UM, sb.DEFAULT_RANGE_DEG
+    limit, rng = args.limit_um, tuple(args.beta_range)
     _as_flags(check_sampling, params, tolerances, args.n, args.seed, CHUNK)
     if strategy is not None:
         return _adjusted_montecarlo(args, params, tolerances, strategy, limit)
@@ -338,24 +478,51 @@ def cmd_needle_montecarlo(args):
             res = montecarlo(params, tolerances, args.n, args.seed, limit_um=limit,
                              range_deg=rng, n_jobs=args.n_jobs, progress=args.progress,
                              store=store, chunk_size=CHUNK, scheduler=client)
-        _write_outputs(args, "montecarlo", inputs, started, res.to_dict(),
-                       {"machines": res.machines, "summary": res.summary_frame()}, runs)
+        record = {**res.to_dict(), "context": _context(args, params, tolerances, None)}
+        _write_outputs(args, "montecarlo", inputs, started, record,
+                       {"machines": _deviation_columns(res.machines, res.params),
+                        "summary": res.summary_frame()}, runs)
     finally:
         if store is not None:
             store.close()
-    emit(args.format, obj=res.to_dict(), frame=res.summary_frame())
+    emit(args.format, obj=record, frame=res.summary_frame())
+    k, pinned = res.beta_at_bound(), res.beta_at_bound(pinned=True)
+    _print_notes(args, [f"yield intervals: {record['yield_ci']['method']}, 95 %"]
+                 + ([f"{k} of {res.n} machines have an adjusted beta* whose optimum reaches a "
+                     f"bound of the searched range {list(rng)} deg; {pinned} of them are pinned "
+                     "there (SumDelta still falling: the optimum lies outside the range), the "
+                     "others sit on a flat plateau"] if k else []))
+    _save_plot(args, lambda ax: _plots().montecarlo_histograms(
+        res.machines["total_fixed_um"], res.machines["total_adjusted_um"], res.limit_um,
+        (res.yield_of("fixed"), res.yield_of("adjusted")), ax=ax))
 
 
 # --- adjustment strategies (issue 13): --adjust/--range/--step/--resolution, `needle strategies`
 
 
 def _strategy(args):
-    """The strategy of --adjust/--range/--step/--resolution (None without --adjust)."""
+    """The strategy of --adjust/--range/--step/--resolution (None without --adjust).
+
+    --beta-range means the range searched for beta everywhere: with --adjust naming beta it is
+    beta's --range (giving both is refused); with --adjust not naming beta nothing searches beta,
+    so it is refused."""
     from .mechanisms.needle_208 import Needle208
     from .mechanisms.params import field_names
     from .studies.compensators import parse_cli
 
-    return parse_cli(getattr(args, "adjust", None), args.range, args.step, args.resolution,
+    adjust, ranges = getattr(args, "adjust", None), list(args.range or [])
+    given = getattr(args, "beta_range", None)
+    if adjust is not None and given is not None:
+        names = [s.strip() for s in adjust.split(",")]
+        if "beta" not in names:
+            raise ParameterError("--beta-range", f"is the range searched for beta, which "
+                                 f"--adjust {adjust} does not adjust", given)
+        if any(r.partition("=")[0].strip() == "beta" for r in ranges):
+            raise ParameterError("--beta-range", "gives beta's range, which --range beta=... "
+                                 "also gives; give one of them", given)
+        lo, hi = given
+        ranges.append(f"beta={lo!r},{hi!r}")
+    return parse_cli(adjust, ranges, args.step, args.resolution,
                      valid=field_names(Needle208))
 
 
@@ -384,9 +551,11 @@ def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
                                        limit_um=limit)
         summary = summarise_frame(machines, strategy, limit)
         record = {**summary.iloc[0].to_dict(), "seed": args.seed, "tolerances": tolerances.name,
-                  "compensators": _strategy_record(strategy)}
+                  "compensators": _strategy_record(strategy),
+                  "context": _context(args, params, tolerances, strategy)}
         _write_outputs(args, "montecarlo", inputs, started, record,
-                       {"machines": machines, "summary": summary}, runs)
+                       {"machines": _deviation_columns(machines, tolerances.active().params),
+                        "summary": summary}, runs)
     finally:
         if store is not None:
             store.close()
@@ -438,7 +607,6 @@ def _adjust_options(p):
 
 def cmd_needle_sobol(args):
     from .provenance import now
-    from .studies import beta as sb
     from .studies.sobol import CHUNK, check_sobol, needle_sobol
     from .studies.sobol import _check_n as check_power_of_two
 
@@ -448,12 +616,14 @@ def cmd_needle_sobol(args):
         raise ParameterError("--n", exc.rule, args.n) from None
     _check_study(args)
     strategy = _strategy(args)
+    _check_beta_range(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
-    _as_flags(check_sobol, params, tolerances, args.n, args.seed)
-    rng = sb.DEFAULT_RANGE_DEG
+    _as_flags(check_sobol, params, tolerances, args.n, args.seed, args.second_order)
+    rng = tuple(args.beta_range)
     started = now()
     extra = {} if strategy is None else {"compensators": _strategy_record(strategy)}
     inputs = _inputs(args, "sobol", params, tolerances, beta_search_range_deg=list(rng),
+                     limit_um=args.limit_um, second_order=args.second_order,
                      chunk_size=CHUNK, resamples=SOBOL_RESAMPLES,
                      confidence_level=SOBOL_CONF_LEVEL,
                      strategy="beta fixed at the nominal's beta* (fixed_beta=optimum) and beta "
@@ -467,13 +637,35 @@ def cmd_needle_sobol(args):
             res = needle_sobol(params, tolerances, args.n, args.seed, range_deg=rng,
                                n_jobs=args.n_jobs, progress=args.progress, store=store,
                                resamples=SOBOL_RESAMPLES, conf_level=SOBOL_CONF_LEVEL,
-                               chunk_size=CHUNK, scheduler=client, strategy=strategy)
-        _write_outputs(args, "sobol", inputs, started, res.to_records(),
-                       {"indices": res.to_dataframe(), "convergence": res.convergence}, runs)
+                               chunk_size=CHUNK, scheduler=client, strategy=strategy,
+                               limit_um=args.limit_um, second_order=args.second_order)
+        frames = {"indices": res.to_dataframe(), "convergence": res.convergence}
+        if args.second_order:
+            frames["second_order"] = res.second_order_frame()
+        _write_outputs(args, "sobol", inputs, started, _sobol_json(res, args.second_order),
+                       frames, runs)
     finally:
         if store is not None:
             store.close()
-    emit(args.format, obj=res.to_records(), frame=res.to_dataframe())
+    emit(args.format, obj=_sobol_json(res, args.second_order), frame=res.to_dataframe())
+    if args.second_order and args.format == "table":
+        sys.stdout.write("\nsecond-order indices S2 (pairs; conf: half-width of the "
+                         f"{SOBOL_CONF_LEVEL:.0%} bootstrap interval)\n")
+        emit("table", frame=res.second_order_frame())
+    _save_plot(args, lambda ax: _plots().sobol_bars(
+        res.to_dataframe().query("case == 'adjusted_beta'") if strategy is None
+        else res.to_dataframe()[res.to_dataframe()["case"] != "fixed_beta"], ax=ax,
+        title="Sobol indices of SumDelta, adjusted"))
+
+
+def _sobol_json(res, second_order: bool):
+    """The records of S1/ST (unchanged); with --second-order an object that adds the S2 pairs."""
+    if not second_order:
+        return res.to_records()
+    return {"indices": res.to_records(),
+            "second_order": res.second_order_frame().to_dict(orient="records"),
+            "n": res.n, "seed": res.seed, "tolerances": res.tolerances,
+            "model_runs_per_case": res.model_runs}
 
 
 # --- needle guides and needle allocation (issue 13 items 6 and 7) ------------------------------
@@ -636,9 +828,7 @@ def add_needle_ppm(nsub, common, study) -> None:
     study(p)
     p.add_argument("--adjust", choices=("none", "beta"), default="beta",
                    help="assembly adjustment: none (beta fixed at nominal beta*) or beta")
-    p.add_argument("--limit-um", type=float, default=10.0, help="SumDelta limit (um)")
-    p.add_argument("--beta-range", nargs=2, type=float, default=[10.0, 35.0],
-                   metavar=("LOW", "HIGH"), help="regulating range searched for beta (deg)")
+    _beta_options(p)
     p.add_argument("--method", choices=("auto", "montecarlo", "subset", "nais"), default="auto",
                    help="auto: Monte-Carlo if budget * target >= 10, else subset simulation")
     p.add_argument("--target", type=float, default=1e-6,
@@ -706,18 +896,21 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--frame", default=None, metavar="NAME",
                        help=f"named frame of the 208 (default {DEFAULT_FRAME}); "
                             "list them with `sewtol needle frames`")
+        p.add_argument("--guide-shift-um", type=float, default=None, metavar="UM",
+                       help="move the fixed guide along its normal (um); the same as --set "
+                            "guide_shift_um=UM")
 
     p = nsub.add_parser("nominal", help="beta*, deviation figures, window, guide, stroke")
     needle_common(p, formats=("table", "json"))
-    p.add_argument("--beta-range", nargs=2, type=float, default=[10.0, 35.0],
-                   metavar=("LOW", "HIGH"), help="regulating range searched for beta* (deg)")
-    p.add_argument("--limit-um", type=float, default=10.0, help="SumDelta limit of the window")
+    _beta_options(p)
+    _plot_option(p, "SumDelta against beta with beta* and the window")
     p.set_defaults(func=cmd_needle_nominal)
 
     p = nsub.add_parser("deviation", help="E and d(phi) over one crank turn")
     needle_common(p)
     p.add_argument("--beta", type=float, default=None, help="beta (deg); default: the nominal")
     p.add_argument("--step-deg", type=float, default=1.0, help="crank-angle step (deg)")
+    _plot_option(p, "d(phi) over the crank turn")
     p.set_defaults(func=cmd_needle_deviation)
 
     def study(p, seed=True):
@@ -730,7 +923,7 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                            help="run on a Dask cluster, e.g. tcp://host:8786 (default: "
                            "$SEWTOL_SCHEDULER, else this machine); same numbers as a local run")
-            p.add_argument("--progress", action="store_true", help="progress bar on stderr")
+            _progress_option(p)
             p.add_argument("--out", default=None, metavar="DIR",
                            help="write results, machines, run.json and checkpoints here")
             p.add_argument("--resume", action="store_true",
@@ -740,8 +933,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = nsub.add_parser("scan", help="each tolerance at its limits, beta re-optimised")
     needle_common(p)
     study(p, seed=False)
-    p.add_argument("--guide-shift-um", type=float, default=0.0,
-                   help="move the fixed guide along its normal (um)")
+    _beta_options(p)
     _adjust_options(p)
     p.set_defaults(func=cmd_needle_scan)
 
@@ -749,6 +941,8 @@ def build_parser() -> argparse.ArgumentParser:
     needle_common(p)
     study(p)
     p.add_argument("--n", type=int, default=2000, help="machines (default 2000)")
+    _beta_options(p)
+    _plot_option(p, "the histograms of SumDelta, beta fixed and adjusted")
     p.set_defaults(func=cmd_needle_montecarlo)
 
     _adjust_options(p)
@@ -764,6 +958,11 @@ def build_parser() -> argparse.ArgumentParser:
     needle_common(p)
     study(p)
     p.add_argument("--n", type=int, default=256, help="base samples, a power of two")
+    p.add_argument("--second-order", action="store_true",
+                   help="also the second-order indices S2 of every pair (N (2D + 2) runs "
+                        "instead of N (D + 2))")
+    _beta_options(p)
+    _plot_option(p, "S1 and ST of the adjusted case with their intervals")
     _adjust_options(p)
     p.set_defaults(func=cmd_needle_sobol)
 
@@ -791,6 +990,13 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+def resolve_progress(args, stream=None):
+    """--progress/--no-progress as given; neither: on when stderr is a terminal."""
+    if getattr(args, "progress", False) is None:
+        args.progress = bool((stream or sys.stderr).isatty())
+    return args
+
+
 def _on_sigterm(signum, frame):
     raise Terminated()
 
@@ -802,8 +1008,10 @@ def main(argv=None) -> int:
         previous = signal.signal(signal.SIGTERM, _on_sigterm)
     except ValueError:
         pass
+    resolve_progress(args)
     try:
         _check_out(args)
+        _check_plot(args)
         args.func(args)
     except (ParameterError, AssemblyError, CliError) as exc:
         print(f"sewtol: error: {exc}", file=sys.stderr)

@@ -28,6 +28,27 @@ class NominalFigures:
     A_mm: tuple[float, float]
     D_mm: tuple[float, float]
     limit_um: float
+    # the searched regulating range; whether beta*'s plateau reaches one of its ends (then the
+    # true optimum may lie outside: widen --beta-range) and whether the window ends there
+    beta_search_range_deg: tuple[float, float] = (float("nan"), float("nan"))
+    beta_at_bound: bool = False
+    window_clipped: tuple[bool, bool] = (False, False)
+
+    def notes(self) -> list[str]:
+        """Plain sentences for every figure that a bound of the searched range decides."""
+        lo, hi = self.beta_search_range_deg
+        out = []
+        if self.beta_at_bound:
+            end = lo if abs(self.beta_opt_deg - lo) <= abs(self.beta_opt_deg - hi) else hi
+            out.append(f"beta* = {self.beta_opt_deg:.4f} deg: the optimum reaches the bound "
+                       f"{end:g} deg of the searched range [{lo:g}, {hi:g}] (SumDelta is lowest "
+                       "there or flat up to it) and may lie outside it (widen --beta-range)")
+        for side, clipped, end in (("low", self.window_clipped[0], lo),
+                                   ("high", self.window_clipped[1], hi)):
+            if clipped:
+                out.append(f"the window's {side} end is clipped at the range bound {end:g} deg "
+                           f"(SumDelta <= {self.limit_um:g} um continues beyond it)")
+        return out
 
     def to_dict(self) -> dict:
         return {
@@ -42,16 +63,25 @@ class NominalFigures:
             "A_mm": list(self.A_mm),
             "D_mm": list(self.D_mm),
             "limit_um": self.limit_um,
+            "beta_search_range_deg": list(self.beta_search_range_deg),
+            "beta_at_bound": self.beta_at_bound,
+            "window_clipped": {"low": self.window_clipped[0], "high": self.window_clipped[1]},
+            "notes": self.notes(),
         }
 
     def to_dataframe(self) -> pd.DataFrame:
         rows = [
             ("beta* (deg)", self.beta_opt_deg),
+            ("beta* on a bound of the searched range (1 = yes)", float(self.beta_at_bound)),
             ("SumDelta at beta* (um)", self.total_um),
             ("Delta+ (um)", self.plus_um),
             ("Delta- (um)", self.minus_um),
             (f"window SumDelta <= {self.limit_um:g} um, low (deg)", self.window_deg[0]),
             (f"window SumDelta <= {self.limit_um:g} um, high (deg)", self.window_deg[1]),
+            ("window low end clipped at the range bound (1 = yes)",
+             float(self.window_clipped[0])),
+            ("window high end clipped at the range bound (1 = yes)",
+             float(self.window_clipped[1])),
             ("guide x (mm)", self.guide["x_mm"]),
             ("guide y (mm)", self.guide["y_mm"]),
             ("guide angle from vertical (deg)", self.guide["angle_from_vertical_deg"]),
@@ -80,6 +110,9 @@ def nominal_figures(params: Needle208, range_deg=sb.DEFAULT_RANGE_DEG,
     _, n, G = nm.nd.guide_frame(at)
     gx, gy = float(G.real.ravel()[0]), float(G.imag.ravel()[0])
     fx, fy = zone.foot_of(gx, gy)
+    lo, hi = map(float, range_deg)
+    w_lo, w_hi = float(opt.window_low_deg[0]), float(opt.window_high_deg[0])
+    clipped = bool(opt.window_clipped[0])
     return NominalFigures(
         beta_opt_deg=float(opt.beta_deg[0]),
         total_um=float(opt.total_um[0]),
@@ -94,6 +127,9 @@ def nominal_figures(params: Needle208, range_deg=sb.DEFAULT_RANGE_DEG,
         A_mm=(float(params.Ax), float(params.Ay)),
         D_mm=(float(params.Dx), float(params.Dy)),
         limit_um=float(limit_um),
+        beta_search_range_deg=(lo, hi),
+        beta_at_bound=bool(opt.at_bound[0]),
+        window_clipped=(clipped and w_lo == lo, clipped and w_hi == hi),
     )
 
 

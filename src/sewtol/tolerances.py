@@ -36,6 +36,12 @@ NORMAL_REACH_SIGMA = 8.3
 MAX_TOML_BYTES = 1 << 20
 
 
+def is_branch(param: str) -> bool:
+    """Branch choices (branch_M, branch_C, beta_sense, upper_sense) are signs +1/-1 that pick an
+    assembly, not dimensions: a tolerance on one is refused when the set is loaded."""
+    return param.startswith("branch_") or param.endswith("_sense")
+
+
 @dataclass(frozen=True)
 class Tolerance:
     param: str
@@ -143,6 +149,10 @@ class ToleranceSet:
             if t.param not in valid:
                 raise ParameterError(t.param, f"unknown parameter in tolerance set '{self.name}'; "
                                      f"valid names are {', '.join(valid)}", t.param)
+            if is_branch(t.param) and t.upper > t.lower:
+                raise ParameterError(f"{self.name}.{t.param}", "is a branch choice (+1 or -1), "
+                                     "not a dimension, and cannot be toleranced; choose the "
+                                     "branch with --set", (t.lower, t.upper))
         return self
 
     def sample(self, rng: np.random.Generator, n: int) -> dict[str, np.ndarray]:
@@ -204,6 +214,10 @@ NEEDLE_208_SETS = {
 }
 
 
+SYMMETRIC_RULE = ("must not be negative: a symmetric tolerance +/-X needs X >= 0 (give lower "
+                  "and upper for a one-sided one)")
+
+
 def _number(where: str, v) -> float:
     # TOML has real numbers: true, "0.1" or [1, 2] are mistakes, not tolerances
     if isinstance(v, bool) or not isinstance(v, (int, float)):
@@ -219,7 +233,7 @@ def _parse_item(set_name: str, param: str, spec) -> Tolerance:
                                  "plus_minus", spec)
         pm = _number(where, spec)
         if pm < 0:
-            raise ParameterError(where, "must not be negative (it is a +/- limit)", pm)
+            raise ParameterError(where, SYMMETRIC_RULE, pm)
         return _sym(param, pm)
     allowed = {"lower", "upper", "plus_minus", "dist"}
     extra = set(spec) - allowed
@@ -235,7 +249,7 @@ def _parse_item(set_name: str, param: str, spec) -> Tolerance:
                                  spec)
         pm = _number(f"{where}.plus_minus", spec["plus_minus"])
         if pm < 0:
-            raise ParameterError(f"{where}.plus_minus", "must not be negative", pm)
+            raise ParameterError(f"{where}.plus_minus", SYMMETRIC_RULE, pm)
         return Tolerance(param, -pm, pm, dist)
     if "lower" not in spec or "upper" not in spec:
         raise ParameterError(where, "needs both lower and upper (or plus_minus)", spec)

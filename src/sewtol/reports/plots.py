@@ -8,6 +8,7 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
+matplotlib.rcParams["svg.hashsalt"] = "sewtol"  # fixed SVG ids: reruns are byte-identical
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
@@ -176,3 +177,19 @@ def regulator_curve(sweep, b_nominal: float, ax=None):
     ax.grid(True, lw=0.3)
     ax.legend(fontsize=7)
     return ax
+
+
+PLOT_FORMATS = {".png": "png", ".svg": "svg", ".pdf": "pdf"}
+# the metadata key that would stamp the time into each format (dropped: reruns are identical)
+_NO_DATE = {"png": {"Software": None}, "svg": {"Date": None}, "pdf": {"CreationDate": None}}
+
+
+def save_as(fig, path: Path) -> Path:
+    """`save` for any of PLOT_FORMATS, chosen by the file's suffix (the CLI's --plot FILE)."""
+    path = Path(path)
+    fmt = PLOT_FORMATS[path.suffix.lower()]
+    buf = io.BytesIO()
+    fig.savefig(buf, format=fmt, dpi=130, bbox_inches="tight", metadata=_NO_DATE[fmt])
+    plt.close(fig)
+    write_bytes_atomic(path, buf.getvalue())
+    return path

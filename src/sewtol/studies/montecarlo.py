@@ -171,7 +171,9 @@ def contributors(machines: pd.DataFrame, params, output: str, bins: int = 20) ->
 def _needle_model(nominal, dev, range_deg):
     out = evaluate(nominal, dev, adjust=True, range_deg=range_deg)
     return {"total_fixed_um": out.total_fixed_um, "beta_opt_deg": out.beta_opt_deg,
-            "total_adjusted_um": out.total_adjusted_um}
+            "total_adjusted_um": out.total_adjusted_um,
+            "beta_low_deg": out.beta_low_deg, "beta_high_deg": out.beta_high_deg,
+            "beta_at_bound": np.asarray(out.beta_at_bound, float)}
 
 
 @dataclass(frozen=True)
@@ -257,28 +259,42 @@ class MonteCarloResult:
         case = self.case_of(case)
         return contributors(self.machines, self.params, f"total_{case}_um", bins)
 
+    def beta_at_bound(self, pinned: bool = False) -> int:
+        """Machines whose adjusted beta*'s plateau (SumDelta within 1e-3 um of its minimum)
+        reaches a bound of the searched range; pinned=True: only those whose plateau is narrower
+        than PINNED_PLATEAU_DEG, where SumDelta still falls at the bound and the optimum likely
+        lies outside the range (a wide plateau is flat: beta hardly matters there)."""
+        col = self.machines.get("beta_at_bound")
+        if col is None:
+            return 0
+        at = col.to_numpy(float) == 1.0
+        if pinned:
+            width = (self.machines["beta_high_deg"] - self.machines["beta_low_deg"]).to_numpy()
+            at &= width < PINNED_PLATEAU_DEG
+        return int(at.sum())
+
     def to_dict(self) -> dict:
-        lo, hi = self.yield_ci("adjusted")
+        cases = {"fixed_beta": "fixed", "adjusted_beta": "adjusted"}
         return {
             "n": self.n,
             "failed": self.failed,
-            "counts": {"fixed_beta": self.counts("fixed"),
-                       "adjusted_beta": self.counts("adjusted")},
+            "counts": {k: self.counts(c) for k, c in cases.items()},
             "yield_fixed_beta": self.yield_of("fixed"),
             "yield_adjusted_beta": self.yield_of("adjusted"),
-            "yield_ci": [lo, hi],  # adjusted beta (kept for compatibility)
-            "yield_ci_95": {"fixed_beta": list(self.yield_ci("fixed")),
-                            "adjusted_beta": [lo, hi]},
-            "capability": {"fixed_beta": self.capability("fixed"),
-                           "adjusted_beta": self.capability("adjusted")},
-            "beta_range_deg": list(self.beta_range()),
-            "total_um_quantiles": {"fixed_beta": self.quantiles("fixed"),
-                                   "adjusted_beta": self.quantiles("adjusted")},
+            "yield_ci": {"method": YIELD_CI_METHOD, "level": 0.95,
+                         **{k: list(self.yield_ci(c)) for k, c in cases.items()}},
+            "capability": {"definition": CAPABILITY_DEFINITION,
+                           **{k: self.capability(c) for k, c in cases.items()}},
+            "beta_picks_deg": list(self.beta_range()),
+            "beta_at_bound": self.beta_at_bound(),
+            "beta_pinned_at_bound": self.beta_at_bound(pinned=True),
+            "total_um_quantiles": {k: self.quantiles(c) for k, c in cases.items()},
             "seed": self.seed,
             "tolerances": self.tolerances,
             "limit_um": self.limit_um,
             "nominal_beta_deg": self.nominal_beta_deg,
             "fixed_beta": self.fixed_beta,
+            "fixed_beta_means": FIXED_BETA_MEANS[self.fixed_beta],
             "beta_search_range_deg": list(self.range_deg),
         }
 
@@ -294,11 +310,25 @@ class MonteCarloResult:
                          "cannot_close": k["cannot_close"], "dead_point": k["dead_point"],
                          "yield": self.yield_of(case), "yield_ci_low": lo, "yield_ci_high": hi,
                          "p50_um": q["p50"], "p95_um": q["p95"], "p99_um": q["p99"],
-                         "Cpu": cap["Cpu"], "Cpu_percentile": cap["Cpu_percentile"]})
+                         "Cpu": cap["Cpu"], "Cpu_percentile": cap["Cpu_percentile"],
+                         "beta_at_bound": self.beta_at_bound() if case == "adjusted" else 0,
+                         "beta_pinned_at_bound": self.beta_at_bound(True)
+                         if case == "adjusted" else 0})
         return pd.DataFrame(rows)
 
 
 FIXED_BETA = ("optimum", "as_given")
+FIXED_BETA_MEANS = {
+    "optimum": "every machine keeps the nominal machine's beta* in the searched range (as "
+               "`sewtol needle nominal` prints it for the same parameters)",
+    "as_given": "every machine keeps the nominal's own beta parameter"}
+# an adjusted optimum whose plateau reaches a bound and is narrower than this is pinned there
+PINNED_PLATEAU_DEG = 0.1
+YIELD_CI_METHOD = "Clopper-Pearson exact binomial interval of ok / n"
+CAPABILITY_DEFINITION = {
+    "Cpu": "one-sided (limit_um - mean) / (3 sd) of SumDelta over the machines that run "
+           "(failed machines are in counts, not in Cpu)",
+    "Cpu_percentile": "(limit_um - p50) / (p99.865 - p50) over the machines that run"}
 
 
 def fixed_beta_of(nominal, fixed_beta: str, range_deg, limit_um) -> float:

@@ -43,9 +43,12 @@ class ScanResult:
         return self.rows[cols].to_dict(orient="records")
 
 
-def scan(nominal, tolerances: ToleranceSet, guide_shift_um: float = 0.0,
+def scan(nominal, tolerances: ToleranceSet, guide_shift_um: float | None = None,
          limit_um: float = sb.DEFAULT_LIMIT_UM, range_deg=sb.DEFAULT_RANGE_DEG,
          strategy=None) -> ScanResult:
+    """guide_shift_um: the guide's shift for every row; None keeps the nominal's own."""
+    if guide_shift_um is None:
+        guide_shift_um = float(nominal.guide_shift_um)
     base = nominal.override(guide_shift_um=guide_shift_um)
     params, sides, deltas, dev = tolerances.limit_variants()
     batch = P.with_deviations(base, dev)
@@ -58,10 +61,13 @@ def scan(nominal, tolerances: ToleranceSet, guide_shift_um: float = 0.0,
         "param": params, "side": sides, "delta_mm": deltas, "value_mm": values,
         "beta_deg": opt.beta_deg, "plus_um": opt.plus_um, "minus_um": opt.minus_um,
         "total_um": opt.total_um,
+        # beta* on an end of the searched range: the row's optimum may lie outside it
+        "beta_at_bound": np.asarray(opt.at_bound, bool),
     })
     nom = sb.optimise_beta(base, range_deg, limit_um, window=False)
     nominal_row = {"beta_deg": float(nom.beta_deg[0]), "plus_um": float(nom.plus_um[0]),
-                   "minus_um": float(nom.minus_um[0]), "total_um": float(nom.total_um[0])}
+                   "minus_um": float(nom.minus_um[0]), "total_um": float(nom.total_um[0]),
+                   "beta_at_bound": bool(nom.at_bound[0])}
     return ScanResult(rows, nominal_row, tolerances.name, float(guide_shift_um), float(limit_um))
 
 

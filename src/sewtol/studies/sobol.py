@@ -4,6 +4,11 @@
 to SumDelta of the needle drive with beta fixed and with beta re-optimised per sample. The Sobol'
 sample of 2N base points starts with the sample of N base points, so one model run gives the
 indices at N and 2N, and their difference shows whether they have converged.
+
+second_order=True (SALib's calc_second_order) runs the design of N (2D + 2) rows instead of
+N (D + 2) and adds the second-order indices S2_ij of every pair with their bootstrap intervals:
+the share of Var(Y) that only the pair i, j together explains (ST_i - S1_i is the sum of every
+interaction that involves i, so a large ST - S1 with S2 shows which partner it is).
 """
 
 from __future__ import annotations
@@ -45,7 +50,12 @@ def _check_n(n):
                              "the convergence check uses N/2)", n)
 
 
-def check_sobol(nominal, tolerances: ToleranceSet, n, seed) -> None:
+def rows_per_sample(d: int, second_order: bool = False) -> int:
+    """Model runs per base sample: D + 2 (first and total order) or 2D + 2 (with S2)."""
+    return 2 * d + 2 if second_order else d + 2
+
+
+def check_sobol(nominal, tolerances: ToleranceSet, n, seed, second_order: bool = False) -> None:
     """Every input of a Sobol study that can be checked before it runs (nothing is written)."""
     from .montecarlo import check_memory, check_seed
 
@@ -56,13 +66,14 @@ def check_sobol(nominal, tolerances: ToleranceSet, n, seed) -> None:
         raise ParameterError("tolerances", "has no tolerance with a non-zero width",
                              tolerances.name)
     tolerances.check_against(nominal)
-    # the sample matrix (N (D + 2) rows of D columns) and two outputs per row
-    check_memory(int(n) * (d + 2), d + 2, value=n)
+    # the sample matrix (N (D + 2) or N (2D + 2) rows of D columns) and two outputs per row
+    check_memory(int(n) * rows_per_sample(d, second_order), d + 2, value=n)
 
 
-def sample(problem: dict, n: int, seed: int) -> np.ndarray:
+def sample(problem: dict, n: int, seed: int, second_order: bool = False) -> np.ndarray:
     _check_n(n)
-    return sobol_sample.sample(problem, int(n), calc_second_order=False, scramble=True, seed=seed)
+    return sobol_sample.sample(problem, int(n), calc_second_order=bool(second_order),
+                               scramble=True, seed=seed)
 
 
 def _salib_seed(seed: int) -> int:
@@ -74,16 +85,30 @@ def _salib_seed(seed: int) -> int:
     return int(np.random.SeedSequence(0).generate_state(1)[0]) or 1
 
 
-def analyze(problem: dict, y: np.ndarray, seed: int, resamples: int = 200,
-            conf_level: float = 0.95) -> pd.DataFrame:
+def _analyze(problem: dict, y: np.ndarray, seed: int, resamples: int, conf_level: float,
+             second_order: bool):
     if isinstance(resamples, bool) or int(resamples) != resamples or resamples < 2:
         raise ParameterError("resamples", "must be a whole number >= 2", resamples)
     if not (0 < conf_level < 1):
         raise ParameterError("conf_level", "must be in (0, 1)", conf_level)
-    res = sobol_analyze.analyze(problem, y, calc_second_order=False, num_resamples=resamples,
-                                conf_level=conf_level, seed=_salib_seed(seed))
-    return pd.DataFrame({"param": problem["names"], "S1": res["S1"], "S1_conf": res["S1_conf"],
-                         "ST": res["ST"], "ST_conf": res["ST_conf"]})
+    res = sobol_analyze.analyze(problem, y, calc_second_order=bool(second_order),
+                                num_resamples=resamples, conf_level=conf_level,
+                                seed=_salib_seed(seed))
+    first = pd.DataFrame({"param": problem["names"], "S1": res["S1"], "S1_conf": res["S1_conf"],
+                          "ST": res["ST"], "ST_conf": res["ST_conf"]})
+    if not second_order:
+        return first, None
+    names = problem["names"]
+    pairs = pd.DataFrame([{"param_i": names[i], "param_j": names[j], "S2": res["S2"][i, j],
+                           "S2_conf": res["S2_conf"][i, j]}
+                          for i in range(len(names)) for j in range(i + 1, len(names))],
+                         columns=["param_i", "param_j", "S2", "S2_conf"])
+    return first, pairs
+
+
+def analyze(problem: dict, y: np.ndarray, seed: int, resamples: int = 200,
+            conf_level: float = 0.95) -> pd.DataFrame:
+    return _analyze(problem, y, seed, resamples, conf_level, False)[0]
 
 
 @dataclass(frozen=True)
@@ -94,6 +119,16 @@ class SobolResult:
     seed: int
     failed: dict
     tolerances: str
+    # second_order=True: S2 of every pair (param_i, param_j, S2, S2_conf, case) at n
+    second_order: pd.DataFrame | None = None
+    model_runs: int = 0  # model evaluations per case (N (D + 2) or N (2D + 2))
+
+    def second_order_frame(self) -> pd.DataFrame:
+        """S2 per pair and case, largest first within each case; refused without the design."""
+        if self.second_order is None:
+            raise ParameterError("second_order", "was not computed; run with "
+                                 "second_order=True (sewtol needle sobol --second-order)", False)
+        return self.second_order.reset_index(drop=True)
 
     def to_dataframe(self) -> pd.DataFrame:
         return self.indices[self.indices["n"] == self.n].drop(columns="n").reset_index(drop=True)
@@ -111,26 +146,48 @@ def sobol_indices(model, problem: dict, n: int, seed: int, case: str = "y",
     return _indices_from(problem, y, n, seed, case, resamples)
 
 
+def sobol_pairs(model, problem: dict, n: int, seed: int, case: str = "y",
+                resamples: int = 200, conf_level: float = 0.95
+                ) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
+    """First, total and second-order indices of model (N (2D + 2) runs): (indices at n and n/2,
+    convergence, S2 pairs at n)."""
+    X = sample(problem, n, seed, second_order=True)
+    y = np.asarray(model(X), float)
+    both, conv, _, pairs = _indices_and_pairs(problem, y, n, seed, case, resamples, conf_level,
+                                              True)
+    return both, conv, pairs
+
+
 def _indices_from(problem, y, n, seed, case, resamples, conf_level=0.95):
-    d = problem["num_vars"]
+    return _indices_and_pairs(problem, y, n, seed, case, resamples, conf_level, False)[:3]
+
+
+def _indices_and_pairs(problem, y, n, seed, case, resamples, conf_level=0.95,
+                       second_order=False):
+    d = rows_per_sample(problem["num_vars"], second_order) - 2
     failed = int(np.isnan(y).sum())
     if failed:
         raise ParameterError("sobol", f"{failed} of {y.size} samples cannot assemble ({case}); "
                              "Sobol indices need a model defined on the whole tolerance box",
                              failed)
-    frames = []
-    for m in (n // 2, n):
-        f = analyze(problem, y[: m * (d + 2)], seed, resamples, conf_level)
+    frames, pairs = [], []
+    for m in (n // 2, n):  # the first m (d + 2) rows are the design of m base samples
+        f, p = _analyze(problem, y[: m * (d + 2)], seed, resamples, conf_level, second_order)
         f["case"] = case
         f["n"] = m
         frames.append(f)
+        pairs.append(p)
     both = pd.concat(frames, ignore_index=True)
     half, full = frames
-    conv = pd.DataFrame([{"case": case, "n_half": n // 2, "n": n,
-                          "max_abs_dS1": float(np.max(np.abs(full["S1"] - half["S1"]))),
-                          "max_abs_dST": float(np.max(np.abs(full["ST"] - half["ST"]))),
-                          "max_ST_conf": float(np.max(full["ST_conf"]))}])
-    return both, conv, failed
+    conv = {"case": case, "n_half": n // 2, "n": n,
+            "max_abs_dS1": float(np.max(np.abs(full["S1"] - half["S1"]))),
+            "max_abs_dST": float(np.max(np.abs(full["ST"] - half["ST"]))),
+            "max_ST_conf": float(np.max(full["ST_conf"]))}
+    if second_order:
+        d2 = pairs[1]["S2"].to_numpy() - pairs[0]["S2"].to_numpy()
+        conv["max_abs_dS2"] = float(np.max(np.abs(d2), initial=0.0))
+        pairs[1].insert(4, "case", case)
+    return both, pd.DataFrame([conv]), failed, pairs[1]
 
 
 def _needle_chunk(nominal, names, X, range_deg, strategy=None, limit_um=sb.DEFAULT_LIMIT_UM):
@@ -150,7 +207,7 @@ def needle_sobol(nominal, tolerances: ToleranceSet, n: int, seed: int,
                  backend: str | None = None, resamples: int = 200,
                  chunk_size: int = CHUNK, store=None, conf_level: float = 0.95,
                  fixed_beta: str = "optimum", limit_um: float = sb.DEFAULT_LIMIT_UM,
-                 scheduler=None, strategy=None) -> SobolResult:
+                 scheduler=None, strategy=None, second_order: bool = False) -> SobolResult:
     """Sobol indices of SumDelta, beta fixed and beta adjusted, at n and n/2 base samples.
 
     strategy (a studies.compensators.Strategy): the adjusted case is SumDelta after the
@@ -161,14 +218,18 @@ def needle_sobol(nominal, tolerances: ToleranceSet, n: int, seed: int,
     beta fixed means what it means in `montecarlo` (fixed_beta: "optimum", the nominal's beta*
     as `sewtol needle nominal` prints it, or "as_given"). progress: True (bar on stderr) or
     progress(done, total) in chunks; scheduler: run the model on a Dask cluster (address or
-    distributed.Client; parallel.run_chunks)."""
+    distributed.Client; parallel.run_chunks).
+
+    second_order=True: the design of n (2D + 2) runs per case and the S2 of every pair
+    (`SobolResult.second_order_frame()`); the S1/ST of that design differ from the first-order
+    design's by their sampling error only."""
     from .montecarlo import fixed_beta_of
 
-    check_sobol(nominal, tolerances, n, seed)
+    check_sobol(nominal, tolerances, n, seed, second_order)
     sb.check_range(range_deg, limit_um)
     nominal = nominal.override(beta=fixed_beta_of(nominal, fixed_beta, range_deg, limit_um))
     problem = problem_of(tolerances)
-    X = sample(problem, n, seed)
+    X = sample(problem, n, seed, second_order)
     bounds = chunk_bounds(len(X), chunk_size)
 
     def validate(i, part):
@@ -185,11 +246,15 @@ def needle_sobol(nominal, tolerances: ToleranceSet, n: int, seed: int,
                        store=store, validate=validate, scheduler=scheduler)
     y_fixed = np.concatenate([p[0] for p in parts])
     y_adj = np.concatenate([p[1] for p in parts])
-    frames, convs = [], []
+    frames, convs, pairs = [], [], []
     adjusted = "adjusted_beta" if strategy is None else "adjusted_" + strategy.name
     for case, y in (("fixed_beta", y_fixed), (adjusted, y_adj)):
-        f, c, _ = _indices_from(problem, y, n, seed, case, resamples, conf_level)
+        f, c, _, p = _indices_and_pairs(problem, y, n, seed, case, resamples, conf_level,
+                                        second_order)
         frames.append(f)
         convs.append(c)
+        pairs.append(p)
     return SobolResult(pd.concat(frames, ignore_index=True), pd.concat(convs, ignore_index=True),
-                       int(n), int(seed), {"fixed_beta": 0, adjusted: 0}, tolerances.name)
+                       int(n), int(seed), {"fixed_beta": 0, adjusted: 0}, tolerances.name,
+                       pd.concat(pairs, ignore_index=True) if second_order else None,
+                       len(X))

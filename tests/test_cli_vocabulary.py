@@ -1,0 +1,229 @@
+"""Issue 14 items 1, 3-7: one flag vocabulary, at-bound optima flagged, labelled contracts,
+second-order Sobol indices (Ishigami), tolerances refused at load."""
+
+import argparse
+import io
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import stats
+
+from cli_helpers import run, strict_loads
+from sewtol.cli import resolve_progress
+from sewtol.errors import ParameterError
+from sewtol.studies.montecarlo import montecarlo
+from sewtol.studies.sobol import sample, sobol_pairs
+from sewtol.tolerances import NEEDLE_208_SETS, Tolerance, ToleranceSet, load_toml
+
+
+def nominal_json(*extra):
+    code, out, err = run("needle", "nominal", "--format", "json", *extra)
+    assert code == 0, err
+    return strict_loads(out)
+
+
+def test_nominal_flags_an_optimum_on_a_bound_in_json_table_and_text():
+    free = nominal_json()
+    assert free["beta_at_bound"] is False and free["notes"] == []
+    assert free["window_clipped"] == {"low": False, "high": False}
+    assert 10.0 < free["window_deg"][0] < free["beta_opt_deg"] < free["window_deg"][1] < 35.0
+    assert free["beta_search_range_deg"] == [10.0, 35.0]
+    # CD + 0.3 mm: SumDelta falls all the way to the end of the regulating range
+    cd = nominal_json("--set", "CD=30.3")
+    assert cd["beta_at_bound"] is True and abs(cd["beta_opt_deg"] - 35.0) < 1e-3
+    assert "the optimum reaches the bound 35 deg" in cd["notes"][0]
+    code, text, _ = run("needle", "nominal", "--set", "CD=30.3")
+    assert code == 0 and "note: beta* = 34.9999 deg: the optimum reaches the bound 35 deg" in text
+    assert "| beta* on a bound of the searched range (1 = yes)     |   1.0000 |" in text
+    # a window narrower than the optimum's: beta* at 23 (free: 22.58), both window ends clipped
+    narrow = nominal_json("--beta-range", "23", "24")
+    assert narrow["beta_at_bound"] is True and abs(narrow["beta_opt_deg"] - 23.0) < 1e-3
+    assert narrow["window_deg"] == [23.0, 24.0]
+    assert narrow["window_clipped"] == {"low": True, "high": True}
+    assert len(narrow["notes"]) == 3
+    # a range that holds beta* but cuts the window: only the window's low end is flagged
+    cut = nominal_json("--beta-range", "22", "30")
+    assert cut["beta_at_bound"] is False
+    # (beta* is the centre of a flat plateau about 0.002 deg wide)
+    assert abs(cut["beta_opt_deg"] - free["beta_opt_deg"]) < 1e-3
+    assert cut["window_clipped"] == {"low": True, "high": False}
+    assert cut["window_deg"][1] == pytest.approx(free["window_deg"][1], abs=1e-6)
+
+
+def test_scan_flags_rows_at_the_bound_and_keeps_the_guide_shift():
+    code, out, _ = run("needle", "scan", "--format", "json", "--beta-range", "22", "23")
+    rows = {(r["param"], r["side"]): r for r in strict_loads(out)}
+    # LM +/-0.5 mm moves beta* out of [22, 23] (to 20.68 / 24.42 in [10, 35]): on the bound
+    assert rows[("LM", "upper")]["beta_at_bound"] and rows[("LM", "lower")]["beta_at_bound"]
+    assert abs(rows[("LM", "upper")]["beta_deg"] - 22.0) < 1e-3
+    assert abs(rows[("LM", "lower")]["beta_deg"] - 23.0) < 1e-3
+    # LF and AM keep beta* inside; AB/BC/BE: SumDelta flat up to a bound, flagged as well
+    for key in (("LF", "upper"), ("LF", "lower"), ("AM", "upper"), ("AM", "lower")):
+        assert not rows[key]["beta_at_bound"] and 22.001 < rows[key]["beta_deg"] < 22.999
+    assert sum(r["beta_at_bound"] for r in rows.values()) == 8
+    code, text, _ = run("needle", "scan", "--beta-range", "22", "23")
+    assert "note: 8 of 12 rows have beta* on a bound" in text
+    # --set guide_shift_um reaches the scan (it used to be reset to 0 by the scan's default)
+    _, shifted, _ = run("needle", "scan", "--format", "json", "--set", "guide_shift_um=20")
+    _, flag, _ = run("needle", "scan", "--format", "json", "--guide-shift-um", "20")
+    _, plain, _ = run("needle", "scan", "--format", "json")
+    assert shifted == flag and shifted != plain
+    assert nominal_json("--guide-shift-um", "20") == nominal_json("--set", "guide_shift_um=20")
+
+
+@pytest.fixture(scope="module")
+def mc_out(tmp_path_factory):
+    out = tmp_path_factory.mktemp("mc") / "o"
+    code, text, err = run("needle", "montecarlo", "--n", "300", "--seed", "4", "--format",
+                          "json", "--out", str(out), "--beta-range", "15", "30",
+                          "--limit-um", "20")
+    assert code == 0, err
+    return strict_loads(text), out
+
+
+def test_montecarlo_json_labels_every_interval_and_capability(mc_out):
+    d, out = mc_out
+    m = pd.read_csv(out / "machines.csv")  # plain CSV: its context is run.json beside it
+    assert [c for c in m.columns if c.startswith("dev_")] == [
+        "dev_LF_mm", "dev_LM_mm", "dev_AM_mm", "dev_AB_mm", "dev_BC_mm", "dev_BE_mm"]
+    assert d["yield_ci"]["method"].startswith("Clopper-Pearson") and d["yield_ci"]["level"] == 0.95
+    for case in ("fixed_beta", "adjusted_beta"):
+        col = m[f"total_{case.split('_')[0]}_um"]
+        k = int((col <= 20.0).sum())
+        assert d[f"yield_{case}"] == k / 300
+        ci = stats.binomtest(k, 300).proportion_ci(0.95, method="exact")
+        assert d["yield_ci"][case] == pytest.approx([ci.low, ci.high], abs=1e-12)
+        x = col.dropna().to_numpy()
+        cpu = (20.0 - x.mean()) / (3 * x.std(ddof=1))
+        assert d["capability"][case]["Cpu"] == pytest.approx(cpu, rel=1e-8)  # CSV digits
+    assert "one-sided" in d["capability"]["definition"]["Cpu"]
+    # the picks, not the searched range; and how many picks sit on its ends
+    b = m["beta_opt_deg"]
+    assert d["beta_picks_deg"] == pytest.approx([b.min(), b.max()], abs=1e-6)  # CSV digits
+    assert d["beta_search_range_deg"] == [15.0, 30.0] and d["limit_um"] == 20.0
+    assert d["beta_at_bound"] == int(m["beta_at_bound"].sum()) > 0
+    # flagged: the optimum's plateau touches a bound; pinned: and it is narrower than 0.1 deg
+    low, high = m["beta_low_deg"], m["beta_high_deg"]
+    touches = ((low - 15.0).abs() < 1e-6) | ((high - 30.0).abs() < 1e-6)
+    assert (touches == (m["beta_at_bound"] == 1)).all()
+    pinned = touches & (high - low < 0.1)
+    assert d["beta_pinned_at_bound"] == int(pinned.sum()) > 0
+    assert (np.minimum(b[pinned] - 15.0, 30.0 - b[pinned]) < 0.05).all()
+    assert "nominal machine's beta*" in d["fixed_beta_means"]
+    ctx = d["context"]
+    assert ctx["tolerances"] == "base" and ctx["seed"] == 4 and ctx["n"] == 300
+    assert ctx["strategy"] == "beta" and ctx["guide_shift_um"] == 0.0 and ctx["frame"]
+    run_json = strict_loads((out / "run.json").read_text())["inputs"]
+    assert run_json["seed"] == 4 and run_json["tolerances"]["name"] == "base"
+    assert strict_loads((out / "montecarlo.json").read_text())["context"] == ctx
+
+
+def test_flags_reach_the_library_with_the_same_numbers(mc_out, nominal):
+    d, _ = mc_out
+    res = montecarlo(nominal, NEEDLE_208_SETS["base"], 300, seed=4, limit_um=20.0,
+                     range_deg=(15.0, 30.0))
+    assert res.to_dict()["yield_adjusted_beta"] == d["yield_adjusted_beta"]
+    for name in ("fixed", "fixed_beta", "adjusted", "adjusted_beta"):
+        assert res.yield_of(name) == d[f"yield_{res.case_of(name)}_beta"]
+    with pytest.raises(ParameterError, match="case: must be fixed, adjusted"):
+        res.yield_of("fixed beta")
+
+
+def test_tolerances_on_branches_and_negative_symmetric_ones_are_refused_at_load(tmp_path,
+                                                                              nominal):
+    f = tmp_path / "t.toml"
+    f.write_text("[sets.b]\nbeta_sense = 0.5\n")
+    names = list(nominal.as_dict()) if hasattr(nominal, "as_dict") else None
+    from sewtol.mechanisms.params import field_names
+
+    names = field_names(type(nominal))
+    with pytest.raises(ParameterError, match=r"b\.beta_sense: is a branch choice"):
+        load_toml(f, names)
+    with pytest.raises(ParameterError, match="branch_M: is a branch choice"):
+        ToleranceSet("x", (Tolerance("branch_M", -2.0, 0.0),)).check_against(nominal)
+    f.write_text("[sets.a]\nAB = -0.005\n")
+    with pytest.raises(ParameterError, match=r"a symmetric tolerance \+/-X needs X >= 0"):
+        load_toml(f, names)
+    for cmd in ("scan", "montecarlo", "sobol", "worst-case", "guides"):
+        code, out, err = run("needle", cmd, "--tolerances", str(f))
+        assert code == 2 and out == "" and err.count("\n") == 1
+        assert "a.AB: must not be negative: a symmetric tolerance" in err
+
+
+def ishigami(X, a=7.0, b=0.1):
+    return np.sin(X[:, 0]) + a * np.sin(X[:, 1]) ** 2 + b * X[:, 2] ** 4 * np.sin(X[:, 0])
+
+
+def test_second_order_indices_of_ishigami():
+    """Analytic (a=7, b=0.1): S1 = 0.3139, 0.4424, 0; S13 = 0.2437, S12 = S23 = 0; the
+    variance decomposes exactly into S1 + S2 + S3 + S13 = 1."""
+    problem = {"num_vars": 3, "names": ["x1", "x2", "x3"], "bounds": [[-np.pi, np.pi]] * 3}
+    both, conv, pairs = sobol_pairs(ishigami, problem, 4096, seed=3)
+    s1 = both[both["n"] == 4096].set_index("param")
+    assert s1.loc["x1", "S1"] == pytest.approx(0.3139, abs=0.01)
+    assert s1.loc["x2", "S1"] == pytest.approx(0.4424, abs=0.01)
+    assert abs(s1.loc["x3", "S1"]) < 0.01
+    s2 = pairs.set_index(["param_i", "param_j"])
+    assert s2.loc[("x1", "x3"), "S2"] == pytest.approx(0.2437, abs=0.01)
+    assert abs(s2.loc[("x1", "x3"), "S2"] - 0.2437) < s2.loc[("x1", "x3"), "S2_conf"]
+    assert abs(s2.loc[("x1", "x2"), "S2"]) < 0.01 and abs(s2.loc[("x2", "x3"), "S2"]) < 0.01
+    assert s1["S1"].sum() + s2["S2"].sum() == pytest.approx(1.0, abs=0.02)
+    # ST_3 - S1_3 is all interaction, and it is the x1-x3 pair's
+    assert s1.loc["x3", "ST"] - s1.loc["x3", "S1"] == pytest.approx(
+        s2.loc[("x1", "x3"), "S2"], abs=0.01)
+    assert conv.loc[0, "max_abs_dS2"] < 0.02
+    # the design of n base samples is the head of the design of 2n (the convergence check)
+    assert np.array_equal(sample(problem, 64, 5, True), sample(problem, 128, 5, True)[:64 * 8])
+
+
+def test_needle_sobol_second_order_from_the_cli(tmp_path):
+    out = tmp_path / "s"
+    code, text, err = run("needle", "sobol", "--n", "16", "--second-order", "--format", "json",
+                          "--out", str(out))
+    assert code == 0, err
+    d = strict_loads(text)
+    assert d["model_runs_per_case"] == 16 * (2 * 6 + 2)  # base set: 6 toleranced lengths
+    for case in ("fixed_beta", "adjusted_beta"):
+        pairs = [p for p in d["second_order"] if p["case"] == case]
+        assert len(pairs) == 15 and all(np.isfinite(p["S2_conf"]) for p in pairs)
+    s2 = pd.read_csv(out / "second_order.csv")
+    assert len(s2) == 30 and list(s2.columns) == ["param_i", "param_j", "S2", "S2_conf", "case"]
+    # without the flag: the records of S1/ST, as before
+    code, text, _ = run("needle", "sobol", "--n", "16", "--format", "json")
+    assert isinstance(strict_loads(text), list)
+
+
+@pytest.mark.parametrize("suffix,magic", [(".png", b"\x89PNG"), (".svg", b"<?xml"),
+                                          (".pdf", b"%PDF")])
+def test_plot_writes_the_figure_in_each_format_reproducibly(tmp_path, suffix, magic):
+    a, b = tmp_path / f"a{suffix}", tmp_path / f"b{suffix}"
+    assert run("needle", "nominal", "--plot", str(a))[0] == 0
+    assert run("needle", "nominal", "--plot", str(b))[0] == 0
+    assert a.read_bytes().startswith(magic) and a.read_bytes() == b.read_bytes()
+
+
+def test_progress_is_on_by_default_only_on_a_terminal():
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+
+    for given, stream, expected in ((None, Tty(), True), (None, io.StringIO(), False),
+                                    (False, Tty(), False), (True, io.StringIO(), True)):
+        assert resolve_progress(argparse.Namespace(progress=given), stream).progress is expected
+    code, _, err = run("needle", "montecarlo", "--n", "200", "--no-progress")
+    assert code == 0 and err == ""
+
+
+def test_beta_range_with_adjust_is_beta_s_range(nominal):
+    code, a, err = run("needle", "montecarlo", "--n", "200", "--adjust", "beta",
+                       "--beta-range", "15", "30", "--format", "json")
+    assert code == 0, err
+    code, b, _ = run("needle", "montecarlo", "--n", "200", "--adjust", "beta",
+                     "--range", "beta=15,30", "--format", "json")
+    da, db = json.loads(a), json.loads(b)
+    assert da == db and da["compensators"]["beta"]["low"] == 15.0
+    code, _, err = run("needle", "montecarlo", "--n", "200", "--adjust", "beta",
+                       "--range", "beta=15,30", "--beta-range", "15", "30")
+    assert code == 2 and "--beta-range: gives beta's range, which --range beta=" in err
