@@ -332,7 +332,7 @@ def test_cli_montecarlo_adjust_writes_the_per_machine_table(tmp_path):
     m = pd.read_csv(tmp_path / "mc" / "machines.csv")
     assert len(m) == 6 and set(m.status) <= {"ok", "out of spec", "cannot assemble", "dead point"}
     for col in ("total_before_um", "total_after_um", "beta_setting_deg", "beta_at_limit",
-                "guide_shift_um_setting", "guide_shift_um_plateau_low", "LM"):
+                "guide_shift_um_setting", "guide_shift_um_plateau_low", "dev_LM_mm"):
         assert col in m.columns
     assert np.allclose(np.mod(m.guide_shift_um_setting + 100, 10), 0, atol=1e-9)
     assert (m.total_after_um <= m.total_before_um + 1e-9).all()
