@@ -227,3 +227,36 @@ def test_beta_range_with_adjust_is_beta_s_range(nominal):
     code, _, err = run("needle", "montecarlo", "--n", "200", "--adjust", "beta",
                        "--range", "beta=15,30", "--beta-range", "15", "30")
     assert code == 2 and "--beta-range: gives beta's range, which --range beta=" in err
+
+
+def test_contributors_show_the_explained_share_and_the_interaction_remainder():
+    """eta^2 as shares of the whole variance: an additive response is explained in full; a pure
+    product of zero-mean tolerances has no first-order effect (100 % interaction), which the
+    normalised ranking (share_pct) would have shown as 50 % + 50 %."""
+    from sewtol.studies.montecarlo import REMAINDER, contributors, with_remainder
+
+    rng = np.random.default_rng(8)
+    x = pd.DataFrame({"a": rng.uniform(-1, 1, 20000), "b": rng.uniform(-1, 1, 20000)})
+    x["additive"] = x["a"] + 2 * x["b"]  # Var shares 1/5 and 4/5
+    x["product"] = x["a"] * x["b"]
+    add = with_remainder(contributors(x, ["a", "b"], "additive")).set_index("param")
+    assert add.loc["b", "variance_pct"] == pytest.approx(80.0, abs=1.0)
+    assert add.loc["a", "variance_pct"] == pytest.approx(20.0, abs=1.0)
+    assert abs(add.loc[REMAINDER, "variance_pct"]) < 1.0
+    prod = with_remainder(contributors(x, ["a", "b"], "product")).set_index("param")
+    assert prod.loc[REMAINDER, "variance_pct"] == pytest.approx(100.0, abs=1.0)
+    assert prod.loc[["a", "b"], "variance_pct"].max() < 1.0
+    # the explained and remainder rows add up to 100 % of the variance
+    assert prod.iloc[-2:]["variance_pct"].sum() == pytest.approx(100.0, abs=1e-9)
+
+
+def test_pareto_of_the_needle_is_mostly_interaction(nominal):
+    """Base set, beta adjusted: AB and BE act together (SumDelta ~ |AB - k BE|-like V), so the
+    first-order shares leave a large remainder, as the Sobol S1 / ST gap says."""
+    from sewtol.studies.montecarlo import EXPLAINED, REMAINDER
+
+    res = montecarlo(nominal, NEEDLE_208_SETS["base"], 1000, seed=2)
+    p = res.pareto().set_index("param")
+    assert p.loc[EXPLAINED, "variance_pct"] + p.loc[REMAINDER, "variance_pct"] == pytest.approx(
+        100.0)
+    assert p.loc[REMAINDER, "variance_pct"] > 30.0

@@ -14,7 +14,7 @@ from .mechanisms import params as P
 from .mechanisms.feed_131 import Feed131
 from .metrics.feed import pair_figures
 from .optimize import bisect_root
-from .studies.montecarlo import contributors, sample_machines
+from .studies.montecarlo import contributors, sample_machines, with_remainder
 from .tolerances import Tolerance, ToleranceSet
 
 OUTPUTS = ("lower_step_mm", "upper_step_mm", "differential_ratio", "mismatch_mm")
@@ -188,7 +188,7 @@ def montecarlo_summary(machines: pd.DataFrame) -> pd.DataFrame:
 def contributor_table(machines: pd.DataFrame, tolerances: ToleranceSet, top: int = 10):
     frames = []
     for k in ("lower_step_mm", "differential_ratio", "mismatch_mm"):
-        f = contributors(machines, tolerances.active().params, k).head(top)
+        f = with_remainder(contributors(machines, tolerances.active().params, k), top)
         f.insert(0, "output", k)
         frames.append(f)
     return pd.concat(frames, ignore_index=True)

@@ -146,7 +146,13 @@ def contributors(machines: pd.DataFrame, params, output: str, bins: int = 20) ->
     eta^2_i = Var(E[Y | X_i]) / Var(Y), with E[Y | X_i] from `bins` quantile bins of X_i: a
     given-data estimate of the first-order effect that, unlike a linear regression, sees a
     V-shaped response (SumDelta to a lateral shift). Bias-corrected (epsilon^2), since bins of
-    pure noise give eta^2 of about (bins-1)/n. Shares are normalised to 100 %.
+    pure noise give eta^2 of about (bins-1)/n.
+
+    variance_pct = 100 eta^2 is each tolerance's share of the whole variance of `output`; their
+    sum is the part single tolerances explain, the rest is interactions (and estimation noise):
+    `with_remainder` adds both as rows. share_pct (cumulative_pct) rescales eta^2 to the
+    explained part only (100 % in all, whatever the interactions): a ranking, not a variance
+    share.
     """
     m = machines.dropna(subset=[output])
     y = m[output].to_numpy()
@@ -165,7 +171,27 @@ def contributors(machines: pd.DataFrame, params, output: str, bins: int = 20) ->
     total = frame["eta2"].sum()
     frame["share_pct"] = 100 * frame["eta2"] / total if total > 0 else 0.0
     frame["cumulative_pct"] = frame["share_pct"].cumsum()
-    return frame
+    frame["variance_pct"] = 100 * frame["eta2"]
+    frame["cumulative_variance_pct"] = frame["variance_pct"].cumsum()
+    return frame[["param", "eta2", "variance_pct", "cumulative_variance_pct", "share_pct",
+                  "cumulative_pct"]]
+
+
+EXPLAINED, REMAINDER = "(sum: explained by single tolerances)", \
+    "(remainder: interactions and estimation noise)"
+
+
+def with_remainder(frame: pd.DataFrame, top: int | None = None) -> pd.DataFrame:
+    """A `contributors` table (its first `top` rows) with two more rows: the sum of every
+    tolerance's first-order share of the variance and the remainder 100 - sum (what no single
+    tolerance explains)."""
+    explained = float(frame["variance_pct"].sum())
+    frame = frame if top is None else frame.head(top)
+    rows = pd.DataFrame([{"param": EXPLAINED, "eta2": explained / 100,
+                          "variance_pct": explained},
+                         {"param": REMAINDER, "eta2": 1 - explained / 100,
+                          "variance_pct": 100.0 - explained}])
+    return pd.concat([frame, rows], ignore_index=True)
 
 
 def _needle_model(nominal, dev, range_deg):
@@ -255,9 +281,10 @@ class MonteCarloResult:
                 if p99865 > p50 else float("inf")}
 
     def pareto(self, case: str = "adjusted", bins: int = 20) -> pd.DataFrame:
-        """Contributors to SumDelta's scatter (see `contributors`)."""
+        """Contributors to SumDelta's scatter (see `contributors`), with the explained sum and
+        the interaction remainder as the last two rows (`with_remainder`)."""
         case = self.case_of(case)
-        return contributors(self.machines, self.params, f"total_{case}_um", bins)
+        return with_remainder(contributors(self.machines, self.params, f"total_{case}_um", bins))
 
     def beta_at_bound(self, pinned: bool = False) -> int:
         """Machines whose adjusted beta*'s plateau (SumDelta within 1e-3 um of its minimum)
