@@ -260,3 +260,60 @@ def test_pareto_of_the_needle_is_mostly_interaction(nominal):
     assert p.loc[EXPLAINED, "variance_pct"] + p.loc[REMAINDER, "variance_pct"] == pytest.approx(
         100.0)
     assert p.loc[REMAINDER, "variance_pct"] > 30.0
+
+
+def test_feed_scan_from_the_cli_is_the_library_scan():
+    from sewtol import feed
+    from sewtol.mechanisms.feed_131 import Feed131
+
+    code, out, err = run("feed", "scan", "--format", "json", "--set", "b=25")
+    assert code == 0, err
+    d = strict_loads(out)
+    p = Feed131().override(b=25.0)
+    ref = feed.scan(p, feed.default_tolerances(p))
+    got = pd.DataFrame(d["rows"])
+    assert list(got["param"]) == list(ref["param"])
+    assert np.allclose(got["change_lower_step_mm"], ref["change_lower_step_mm"], atol=1e-12)
+    assert d["context"]["tolerances"] == "feed_assumed" and d["context"]["b_deg"] == 25.0
+
+
+def test_feed_montecarlo_and_sobol_from_the_cli(tmp_path):
+    from sewtol import feed
+    from sewtol.mechanisms.feed_131 import Feed131
+    from sewtol.studies.montecarlo import EXPLAINED, REMAINDER
+
+    out = tmp_path / "mc"
+    args = ("feed", "montecarlo", "--n", "200", "--seed", "3", "--format", "json")
+    code, text, err = run(*args, "--out", str(out))
+    assert code == 0, err
+    d = strict_loads(text)
+    assert run(*args)[1] == text  # same seed, same numbers, with or without --out
+    m = pd.read_csv(out / "machines.csv")
+    assert "dev_O1F_mm" in m.columns and "dev_O2x_mm" in m.columns and "O1F" not in m.columns
+    summary = {r["output"]: r for r in d["summary"]}
+    assert summary["lower_step_mm"]["mean"] == pytest.approx(m["lower_step_mm"].mean(), rel=1e-9)
+    assert summary["lower_step_mm"]["n"] == 200 and d["context"]["seed"] == 3
+    c = pd.DataFrame(d["contributors"])
+    for _, rows in c.groupby("output"):
+        rows = rows.set_index("param")
+        assert rows.loc[EXPLAINED, "variance_pct"] + rows.loc[REMAINDER, "variance_pct"] == \
+            pytest.approx(100.0)
+    assert strict_loads((out / "run.json").read_text())["inputs"]["study"] == "feed_montecarlo"
+
+    code, text, err = run("feed", "sobol", "--n", "16", "--seed", "3", "--n-screen", "200",
+                          "--format", "json")
+    assert code == 0, err
+    s = strict_loads(text)
+    p = Feed131()
+    ts = feed.default_tolerances(p)
+    screen = pd.read_csv(out / "machines.csv")  # the same 200 machines (seed 3)
+    screen = screen.rename(columns={f"dev_{k}_mm": k for k in ts.params})
+    assert s["context"]["screening_machines"] == 200
+    for output, names in s["parameters"].items():  # each output over the tolerances it needs
+        assert names == feed.important_parameters(screen, ts, output)
+        rows = [r for r in s["indices"] if r["output"] == output]
+        assert sorted(r["param"] for r in rows) == sorted(names)
+    code, _, err = run("feed", "sobol", "--n", "8")
+    assert code == 2 and "--n: must be a power of two >= 16" in err
+    code, _, err = run("feed", "montecarlo", "--n", "1")
+    assert code == 2 and "--n: must be >= 2" in err
