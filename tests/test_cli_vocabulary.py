@@ -317,3 +317,29 @@ def test_feed_montecarlo_and_sobol_from_the_cli(tmp_path):
     assert code == 2 and "--n: must be a power of two >= 16" in err
     code, _, err = run("feed", "montecarlo", "--n", "1")
     assert code == 2 and "--n: must be >= 2" in err
+
+
+def test_fixed_beta_is_the_nominal_beta_star_in_every_needle_study():
+    """Item 1: with the guide shifted 20 um, every study's fixed case sits at the beta* that
+    `needle nominal` prints for that machine, not at the stored beta."""
+    star = nominal_json("--set", "guide_shift_um=20")["beta_opt_deg"]
+    shift = ("--set", "guide_shift_um=20", "--format", "json")
+    _, out, _ = run("needle", "worst-case", *shift)
+    wc = strict_loads(out)
+    assert wc["fixed_beta_deg"] == star
+    assert next(r for r in wc["rows"] if r["case"] == "fixed_beta")["beta_deg"] == star
+    _, out, _ = run("needle", "montecarlo", "--n", "50", *shift)
+    assert strict_loads(out)["nominal_beta_deg"] == star
+    _, out, _ = run("needle", "montecarlo", "--n", "50", "--adjust", "guide_shift_um", *shift)
+    assert strict_loads(out)["fixed_beta_deg"] == star
+    _, out, _ = run("needle", "guides", "--n", "20", *shift)
+    row = strict_loads(out)["rows"][0]
+    assert row["guide"] == "nominal" and row["beta_opt_deg"] == star
+
+
+def test_adjusted_scan_flags_the_same_rows():
+    _, a, _ = run("needle", "scan", "--format", "json", "--beta-range", "22", "23")
+    _, b, err = run("needle", "scan", "--format", "json", "--adjust", "beta", "--beta-range",
+                    "22", "23")
+    plain, adj = strict_loads(a), strict_loads(b)
+    assert [r["beta_at_bound"] for r in adj] == [r["beta_at_bound"] for r in plain], err

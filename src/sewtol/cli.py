@@ -182,6 +182,22 @@ def _save_plot(args, draw) -> None:
         raise ParameterError("--plot", f"cannot be written ({exc.strerror})", args.plot) from None
 
 
+def _at_beta_star(args, params):
+    """The nominal with beta at its beta* in --beta-range (default 10 35): what "beta fixed"
+    means in every needle study (montecarlo, sobol, guides, strategies, worst-case)."""
+    from .studies.montecarlo import fixed_beta_of
+
+    rng = getattr(args, "beta_range", None) or (10.0, 35.0)
+    limit = getattr(args, "limit_um", None) or 10.0
+    return params.override(beta=fixed_beta_of(params, "optimum", tuple(rng), limit))
+
+
+def _fixed_record(params) -> dict:
+    from .studies.montecarlo import FIXED_BETA_MEANS
+
+    return {"fixed_beta_deg": float(params.beta), "fixed_beta_means": FIXED_BETA_MEANS["optimum"]}
+
+
 def _context(args, params, tolerances, strategy) -> dict:
     """What decides a study's numbers, carried by its JSON (its CSVs: run.json beside them)."""
     from .frames import DEFAULT_FRAME
@@ -537,6 +553,7 @@ def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
     from .studies.montecarlo import CHUNK, sample_machines
     from .studies.strategies import adjusted_montecarlo_model, summarise_frame
 
+    params = _at_beta_star(args, params)
     started = now()
     inputs = _inputs(args, "montecarlo_adjusted", params, tolerances, limit_um=limit,
                      chunk_size=CHUNK, strategy=strategy.name,
@@ -551,7 +568,7 @@ def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
                                        limit_um=limit)
         summary = summarise_frame(machines, strategy, limit)
         record = {**summary.iloc[0].to_dict(), "seed": args.seed, "tolerances": tolerances.name,
-                  "compensators": _strategy_record(strategy),
+                  "compensators": _strategy_record(strategy), **_fixed_record(params),
                   "context": _context(args, params, tolerances, strategy)}
         _write_outputs(args, "montecarlo", inputs, started, record,
                        {"machines": _deviation_columns(machines, tolerances.active().params),
@@ -573,7 +590,7 @@ def cmd_needle_strategies(args):
                  resume="it keeps no checkpoints; rerun with the same seed",
                  scheduler="it runs on this machine", n_jobs="it runs in one process")
     strategy = _strategy(args)
-    params, tolerances = _study_nominal(args), _tolerances(args)
+    params, tolerances = _at_beta_star(args, _study_nominal(args)), _tolerances(args)
     rows = default_strategies()
     if strategy is not None:
         if strategy.name in {r.name for r in rows}:
@@ -689,8 +706,13 @@ def cmd_needle_guides(args):
     from .studies.guides import compare_guides
 
     strategy, params, tolerances = _small_study(args)
-    table = compare_guides(params, tolerances, args.n, args.seed, strategy=strategy)
+    _check_beta_range(args)
+    table = compare_guides(params, tolerances, args.n, args.seed, strategy=strategy,
+                           range_deg=tuple(args.beta_range), limit_um=args.limit_um)
     obj = {"tolerances": tolerances.name, "n": args.n, "seed": args.seed,
+           "fixed_beta_means": "each guide setting's own beta* (as `sewtol needle nominal` "
+                               "prints it for that guide)",
+           "context": _context(args, params, tolerances, strategy),
            "strategy": "fixed beta and beta adjusted" if strategy is None else strategy.name,
            **({} if strategy is None else {"compensators": _strategy_record(strategy)}),
            "rows": table.to_dict(orient="records")}
@@ -738,8 +760,11 @@ def cmd_needle_worst_case(args):
         raise ParameterError("--tolerances", "worst case enumerates corners; at most 10 "
                              "tolerances", len(active.items))
     tolerances.check_against(params)
-    table = worst_case_table(params, tolerances, strategy=strategy)
-    obj = {"tolerances": tolerances.name,
+    _check_beta_range(args)
+    params = _at_beta_star(args, params)
+    table = worst_case_table(params, tolerances, tuple(args.beta_range), strategy=strategy)
+    obj = {"tolerances": tolerances.name, **_fixed_record(params),
+           "context": _context(args, params, tolerances, strategy),
            "strategy": "beta" if strategy is None else strategy.name,
            **({} if strategy is None else {"compensators": _strategy_record(strategy)}),
            "method": "every corner and the centre, the best 3 polished by L-BFGS-B in the box "
@@ -753,6 +778,8 @@ def add_needle_guides_allocation(nsub, needle_common, study) -> None:
                         "adjusted")
     needle_common(p)
     study(p, seed=False)
+    p.add_argument("--beta-range", nargs=2, type=float, default=None, metavar=("LOW", "HIGH"),
+                   help="regulating range searched for beta (deg); default 10 35")
     _adjust_options(p)
     p.set_defaults(func=cmd_needle_worst_case)
 
@@ -761,6 +788,7 @@ def add_needle_guides_allocation(nsub, needle_common, study) -> None:
     study(p, seed=False)
     p.add_argument("--n", type=int, default=2000, help="machines per guide setting")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    _beta_options(p)
     _adjust_options(p)
     p.set_defaults(func=cmd_needle_guides)
 

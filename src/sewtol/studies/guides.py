@@ -37,26 +37,27 @@ def compare_guides(nominal, tolerances: ToleranceSet, n: int, seed: int,
                                  limit_um)
     rows = []
     for variant in variants:
-        p, fig, row = _variant(nominal, variant, range_deg)
+        p, fig, row = _variant(nominal, variant, range_deg, limit_um)
         mc = montecarlo(p.override(beta=fig.beta_opt_deg), tolerances, n, seed,
-                        range_deg=range_deg, n_jobs=n_jobs, progress=progress,
-                        scheduler=scheduler)
+                        limit_um=limit_um, range_deg=range_deg, n_jobs=n_jobs,
+                        progress=progress, scheduler=scheduler)
         rows.append({**row, "yield_fixed_beta": mc.yield_of("fixed"),
                      "yield_adjusted_beta": mc.yield_of("adjusted"), "failed": mc.failed})
     return pd.DataFrame(rows)
 
 
-def _variant(nominal, variant, range_deg):
+def _variant(nominal, variant, range_deg, limit_um=sb.DEFAULT_LIMIT_UM):
     """The machine with this guide setting, its nominal figures, and the row's guide columns."""
     label, shift_um, dangle = variant
     p = nominal.override(guide_shift_um=nominal.guide_shift_um + shift_um,
                          guide_angle=nominal.guide_angle + dangle)
-    fig = nominal_figures(p, range_deg)
+    fig = nominal_figures(p, range_deg, limit_um)
     row = {"guide": label, "shift_um": shift_um, "angle_from_vertical_deg": p.guide_angle,
            "beta_opt_deg": fig.beta_opt_deg, "total_um": fig.total_um,
            "window_low_deg": fig.window_deg[0], "window_high_deg": fig.window_deg[1],
            "window_width_deg": fig.window_deg[1] - fig.window_deg[0]
-           if np.all(np.isfinite(fig.window_deg)) else np.nan}
+           if np.all(np.isfinite(fig.window_deg)) else np.nan,
+           "beta_at_bound": fig.beta_at_bound}
     return p, fig, row
 
 
@@ -69,7 +70,7 @@ def _compare_adjusted(nominal, tolerances, n, seed, variants, range_deg, strateg
     dev = draw_deviations(tolerances, n, seed)  # montecarlo's machines for this seed
     rows = []
     for variant in variants:
-        p, fig, row = _variant(nominal, variant, range_deg)
+        p, fig, row = _variant(nominal, variant, range_deg, limit_um)
         c = columns_of(p.override(beta=fig.beta_opt_deg), dev)
         fixed = adjust(c, Strategy("none"), limit_um)
         adj = adjust(c, strategy, limit_um, plateaus=False)

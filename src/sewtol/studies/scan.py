@@ -84,7 +84,12 @@ def _scan_adjusted(base, tolerances, params, sides, deltas, dev, batch, strategy
         a = adjust(c, strategy, limit_um)
         beta = a.settings["beta"] if "beta" in strategy.names else np.full(a.n, base.beta)
         f = {"beta_deg": beta, "plus_um": a.plus_um, "minus_um": a.minus_um,
-             "total_um": a.total_um}
+             "total_um": a.total_um, "beta_at_bound": np.zeros(a.n, bool)}
+        for comp in strategy.compensators:
+            if comp.name == "beta":  # its plateau reaches an end of beta's range
+                eps = 1e-6 * (comp.high - comp.low)
+                f["beta_at_bound"] = ((a.plateau_low["beta"] <= comp.low + eps)
+                                      | (a.plateau_high["beta"] >= comp.high - eps))
         for comp in strategy.compensators:
             if comp.name != "beta":
                 f[f"{comp.name}_setting"] = a.settings[comp.name]
@@ -92,7 +97,8 @@ def _scan_adjusted(base, tolerances, params, sides, deltas, dev, batch, strategy
         out.append(f)
     rows = pd.DataFrame({"param": params, "side": sides, "delta_mm": deltas,
                          "value_mm": values, **out[0]})
-    nominal_row = {k: (float(v[0]) if k != "status" else str(v[0])) for k, v in out[1].items()}
+    nominal_row = {k: (float(v[0]) if k not in ("status", "beta_at_bound") else
+                       (str(v[0]) if k == "status" else bool(v[0]))) for k, v in out[1].items()}
     return ScanResult(rows, nominal_row, tolerances.name, float(guide_shift_um), float(limit_um),
                       strategy.name)
 
