@@ -363,3 +363,30 @@ def test_second_order_shows_the_ab_be_interaction_of_the_needle(nominal):
         assert abs(gap - pairs.loc[top, "S2"]) < pairs.loc[top, "S2_conf"] + ab["ST_conf"]
     with pytest.raises(ParameterError, match="second_order: was not computed"):
         needle_sobol(nominal, NEEDLE_208_SETS["base"], 16, seed=1).second_order_frame()
+
+
+@pytest.mark.parametrize("argv", [
+    ("needle", "allocation", "--n", "50", "--guide-shift-um", "5"),
+    ("needle", "ppm", "--budget", "200", "--guide-shift-um", "5"),
+    ("needle", "sobol", "--n", "16", "--second-order", "--guide-shift-um", "5"),
+    ("needle", "worst-case", "--guide-shift-um", "5"),
+    ("needle", "guides", "--n", "20", "--guide-shift-um", "5"),
+])
+def test_dict_shaped_json_outputs_carry_their_context(argv):
+    code, out, err = run(*argv, "--format", "json", "--frame", "window")
+    assert code == 0, err
+    ctx = strict_loads(out)["context"]
+    assert ctx["frame"] == "window" and ctx["guide_shift_um"] == 5.0
+    assert ctx["tolerances"] == "base" and ctx["strategy"] == "beta"
+
+
+def test_feed_plots_and_strategy_machine_tables(tmp_path):
+    for argv, name in ((("feed", "trajectory", "--step-deg", "5"), "t.png"),
+                       (("feed", "regulator", "--b-range", "0", "60", "10"), "r.pdf")):
+        assert run(*argv, "--plot", str(tmp_path / name))[0] == 0
+        assert (tmp_path / name).stat().st_size > 1000
+    out = tmp_path / "st"
+    assert run("needle", "strategies", "--n", "10", "--out", str(out))[0] == 0
+    m = pd.read_csv(out / "machines_none.csv")
+    assert list(m.columns[1:7]) == ["dev_LF_mm", "dev_LM_mm", "dev_AM_mm", "dev_AB_mm",
+                                    "dev_BC_mm", "dev_BE_mm"]

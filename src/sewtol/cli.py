@@ -182,12 +182,16 @@ def _save_plot(args, draw) -> None:
         raise ParameterError("--plot", f"cannot be written ({exc.strerror})", args.plot) from None
 
 
-def _at_beta_star(args, params):
-    """The nominal with beta at its beta* in --beta-range (default 10 35): what "beta fixed"
-    means in every needle study (montecarlo, sobol, guides, strategies, worst-case)."""
+def _at_beta_star(args, params, strategy=None):
+    """The nominal with beta at its beta* in --beta-range (default 10 35; with a strategy that
+    adjusts beta, beta's range): what "beta fixed" means in every needle study (montecarlo,
+    sobol, guides, strategies, worst-case)."""
     from .studies.montecarlo import fixed_beta_of
 
     rng = getattr(args, "beta_range", None) or (10.0, 35.0)
+    for c in getattr(strategy, "compensators", ()):
+        if c.name == "beta":
+            rng = (c.low, c.high)
     limit = getattr(args, "limit_um", None) or 10.0
     return params.override(beta=fixed_beta_of(params, "optimum", tuple(rng), limit))
 
@@ -553,7 +557,7 @@ def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
     from .studies.montecarlo import CHUNK, sample_machines
     from .studies.strategies import adjusted_montecarlo_model, summarise_frame
 
-    params = _at_beta_star(args, params)
+    params = _at_beta_star(args, params, strategy)
     started = now()
     inputs = _inputs(args, "montecarlo_adjusted", params, tolerances, limit_um=limit,
                      chunk_size=CHUNK, strategy=strategy.name,
@@ -602,7 +606,7 @@ def cmd_needle_strategies(args):
     frames = {"strategies": table}
     for r in rows:
         safe = "".join(ch if ch.isalnum() else "_" for ch in r.name)
-        frames[f"machines_{safe}"] = res.machines(r.name)
+        frames[f"machines_{safe}"] = _deviation_columns(res.machines(r.name), res.params)
     inputs = _inputs(args, "strategies", params, tolerances, limit_um=10.0,
                      strategies={r.name: _strategy_record(r) for r in rows})
     _write_outputs(args, "strategies", inputs, started, table.to_dict(orient="records"), frames,
@@ -638,6 +642,7 @@ def cmd_needle_sobol(args):
     _as_flags(check_sobol, params, tolerances, args.n, args.seed, args.second_order)
     rng = tuple(args.beta_range)
     started = now()
+    context = _context(args, params, tolerances, strategy)
     extra = {} if strategy is None else {"compensators": _strategy_record(strategy)}
     inputs = _inputs(args, "sobol", params, tolerances, beta_search_range_deg=list(rng),
                      limit_um=args.limit_um, second_order=args.second_order,
@@ -659,12 +664,12 @@ def cmd_needle_sobol(args):
         frames = {"indices": res.to_dataframe(), "convergence": res.convergence}
         if args.second_order:
             frames["second_order"] = res.second_order_frame()
-        _write_outputs(args, "sobol", inputs, started, _sobol_json(res, args.second_order),
+        _write_outputs(args, "sobol", inputs, started, _sobol_json(res, args.second_order, context),
                        frames, runs)
     finally:
         if store is not None:
             store.close()
-    emit(args.format, obj=_sobol_json(res, args.second_order), frame=res.to_dataframe())
+    emit(args.format, obj=_sobol_json(res, args.second_order, context), frame=res.to_dataframe())
     if args.second_order and args.format == "table":
         sys.stdout.write("\nsecond-order indices S2 (pairs; conf: half-width of the "
                          f"{SOBOL_CONF_LEVEL:.0%} bootstrap interval)\n")
@@ -675,14 +680,15 @@ def cmd_needle_sobol(args):
         title="Sobol indices of SumDelta, adjusted"))
 
 
-def _sobol_json(res, second_order: bool):
-    """The records of S1/ST (unchanged); with --second-order an object that adds the S2 pairs."""
+def _sobol_json(res, second_order: bool, context: dict):
+    """The records of S1/ST (unchanged); with --second-order an object that adds the S2 pairs
+    and the context."""
     if not second_order:
         return res.to_records()
     return {"indices": res.to_records(),
             "second_order": res.second_order_frame().to_dict(orient="records"),
             "n": res.n, "seed": res.seed, "tolerances": res.tolerances,
-            "model_runs_per_case": res.model_runs}
+            "model_runs_per_case": res.model_runs, "context": context}
 
 
 # --- needle guides and needle allocation (issue 13 items 6 and 7) ------------------------------
@@ -743,6 +749,7 @@ def cmd_needle_allocation(args):
            "cost_model": "reciprocal: sum c_i / width_i; shape (c_i / s_i^2)^(1/3), common "
                          "scale by bisection on the Monte-Carlo yield (common random numbers)",
            **({} if strategy is None else {"compensators": _strategy_record(strategy)}),
+           "context": _context(args, params, tolerances, strategy),
            "rows": table.to_dict(orient="records")}
     emit(args.format, obj=obj, frame=table)
 
@@ -761,7 +768,7 @@ def cmd_needle_worst_case(args):
                              "tolerances", len(active.items))
     tolerances.check_against(params)
     _check_beta_range(args)
-    params = _at_beta_star(args, params)
+    params = _at_beta_star(args, params, strategy)
     table = worst_case_table(params, tolerances, tuple(args.beta_range), strategy=strategy)
     obj = {"tolerances": tolerances.name, **_fixed_record(params),
            "context": _context(args, params, tolerances, strategy),
@@ -826,7 +833,8 @@ def cmd_needle_ppm(args):
     res = R.estimate(ls, np.random.default_rng(args.seed), args.method, args.target,
                      args.budget, n_jobs=args.n_jobs, progress=args.progress)
     obj = {**res.to_dict(), "tolerances": tolerances.name, "adjust": args.adjust,
-           "seed": args.seed, "target": args.target, "budget": args.budget}
+           "seed": args.seed, "target": args.target, "budget": args.budget,
+           "context": _context(args, params, tolerances, None)}
     if args.out:
         from .io import write_text_atomic
         from .provenance import run_record
@@ -875,7 +883,11 @@ def cmd_feed_trajectory(args):
     from .feed import trajectory
 
     _check_step(args.step_deg)
-    emit(args.format, frame=trajectory(_feed_params(args), args.step_deg))
+    params = _feed_params(args)
+    traj = trajectory(params, args.step_deg)
+    emit(args.format, frame=traj)
+    _save_plot(args, lambda ax: _plots().tooth_paths(traj, params.plate_mm, params.material_mm,
+                                                     ax=ax))
 
 
 def cmd_feed_metrics(args):
@@ -898,7 +910,10 @@ def cmd_feed_regulator(args):
     if (hi - lo) / step + 1 > MAX_SWEEP_POINTS:
         raise ParameterError("--b-range", f"gives more than {MAX_SWEEP_POINTS} settings; use a "
                              "larger STEP", args.b_range)
-    emit(args.format, frame=regulator_sweep(_feed_params(args), np.arange(lo, hi + 1e-9, step)))
+    params = _feed_params(args)
+    sweep = regulator_sweep(params, np.arange(lo, hi + 1e-9, step))
+    emit(args.format, frame=sweep)
+    _save_plot(args, lambda ax: _plots().regulator_curve(sweep, params.b, ax=ax))
 
 
 # --- feed scan | montecarlo | sobol (issue 14 item 6): the needle's study flags, same meaning
@@ -1158,6 +1173,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = fsub.add_parser("trajectory", help="both middle teeth over one turn")
     common(p, example="b=25")
     p.add_argument("--step-deg", type=float, default=1.0, help="main-shaft angle step (deg)")
+    _plot_option(p, "both middle-tooth paths")
     p.set_defaults(func=cmd_feed_trajectory)
     p = fsub.add_parser("metrics", help="feed step, rise, phases, travel; differential ratio")
     common(p, example="b=25")
@@ -1166,6 +1182,7 @@ def build_parser() -> argparse.ArgumentParser:
     common(p, example="b=25")
     p.add_argument("--b-range", nargs=3, type=float, default=[0.0, 60.0, 2.0],
                    metavar=("LOW", "HIGH", "STEP"), help="b values swept (deg)")
+    _plot_option(p, "the feed steps against b")
     p.set_defaults(func=cmd_feed_regulator)
     add_feed_studies(fsub, common)
     return ap
