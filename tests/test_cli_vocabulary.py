@@ -390,3 +390,19 @@ def test_feed_plots_and_strategy_machine_tables(tmp_path):
     m = pd.read_csv(out / "machines_none.csv")
     assert list(m.columns[1:7]) == ["dev_LF_mm", "dev_LM_mm", "dev_AM_mm", "dev_AB_mm",
                                     "dev_BC_mm", "dev_BE_mm"]
+
+
+def test_list_shaped_outputs_keep_their_context_in_run_json(tmp_path):
+    out = tmp_path / "scan"
+    code, text, err = run("needle", "scan", "--format", "json", "--guide-shift-um", "5",
+                          "--out", str(out))
+    assert code == 0, err
+    assert strict_loads((out / "scan.json").read_text()) == strict_loads(text)
+    ctx = strict_loads((out / "run.json").read_text())["inputs"]["context"]
+    assert ctx["guide_shift_um"] == 5.0 and ctx["tolerances"] == "base"
+    back = pd.read_csv(out / "scan.csv")  # plain CSV: no comment lines to skip
+    assert list(back["param"]) == [r["param"] for r in strict_loads(text)]
+    s = tmp_path / "sobol"
+    assert run("needle", "sobol", "--n", "16", "--seed", "7", "--out", str(s))[0] == 0
+    ctx = strict_loads((s / "run.json").read_text())["inputs"]["context"]
+    assert ctx["seed"] == 7 and ctx["n"] == 16 and ctx["frame"] == "sewtol-0.1"

@@ -465,6 +465,15 @@ def cmd_needle_scan(args):
     rows = scan(params, tolerances, limit_um=args.limit_um, range_deg=tuple(args.beta_range),
                 strategy=strategy)
     frame = rows.to_dataframe()
+    if args.out:
+        from .provenance import now
+
+        started = now()
+        inputs = _inputs(args, "scan", params, tolerances, limit_um=args.limit_um,
+                         beta_search_range_deg=list(args.beta_range),
+                         context=_context(args, params, tolerances, strategy))
+        _write_outputs(args, "scan", inputs, started, rows.to_records(), {"scan": frame},
+                       [{"started_utc": started, "resumed": False}])
     emit(args.format, obj=rows.to_records(), frame=frame)
     if "beta_at_bound" in frame:
         n = int(frame["beta_at_bound"].sum())
@@ -645,7 +654,7 @@ def cmd_needle_sobol(args):
     context = _context(args, params, tolerances, strategy)
     extra = {} if strategy is None else {"compensators": _strategy_record(strategy)}
     inputs = _inputs(args, "sobol", params, tolerances, beta_search_range_deg=list(rng),
-                     limit_um=args.limit_um, second_order=args.second_order,
+                     limit_um=args.limit_um, second_order=args.second_order, context=context,
                      chunk_size=CHUNK, resamples=SOBOL_RESAMPLES,
                      confidence_level=SOBOL_CONF_LEVEL,
                      strategy="beta fixed at the nominal's beta* (fixed_beta=optimum) and beta "
@@ -1129,8 +1138,10 @@ def build_parser() -> argparse.ArgumentParser:
     needle_common(p)
     study(p, seed=False)
     _beta_options(p)
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="write scan.csv, scan.json and run.json (the context) here")
     _adjust_options(p)
-    p.set_defaults(func=cmd_needle_scan)
+    p.set_defaults(func=cmd_needle_scan, seed=None, n_jobs=1)
 
     p = nsub.add_parser("montecarlo", help="yield with beta fixed and adjusted per machine")
     needle_common(p)
