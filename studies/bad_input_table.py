@@ -83,6 +83,8 @@ CASES = [
     "needle nominal --plot {d}/figure.txt",
     "needle nominal --set guide_shift_um=20 --guide-shift-um 10",
     "needle montecarlo --adjust guide_shift_um --beta-range 20 30",
+    "needle montecarlo --adjust beta --plot {d}/mc.png",
+    "feed sobol --n 100",
     "needle montecarlo --tolerances {d}/fifo.toml",
     "needle montecarlo --tolerances /dev/zero",
     "feed metrics --set EN=50",

@@ -494,6 +494,9 @@ def cmd_needle_montecarlo(args):
     limit, rng = args.limit_um, tuple(args.beta_range)
     _as_flags(check_sampling, params, tolerances, args.n, args.seed, CHUNK)
     if strategy is not None:
+        if args.plot is not None:
+            raise ParameterError("--plot", "is not offered with --adjust (the histograms show "
+                                 "beta fixed against beta adjusted)", args.plot)
         return _adjusted_montecarlo(args, params, tolerances, strategy, limit)
     started = now()
     inputs = _inputs(args, "montecarlo", params, tolerances, limit_um=limit,
