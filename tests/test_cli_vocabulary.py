@@ -406,3 +406,39 @@ def test_list_shaped_outputs_keep_their_context_in_run_json(tmp_path):
     assert run("needle", "sobol", "--n", "16", "--seed", "7", "--out", str(s))[0] == 0
     ctx = strict_loads((s / "run.json").read_text())["inputs"]["context"]
     assert ctx["seed"] == 7 and ctx["n"] == 16 and ctx["frame"] == "sewtol-0.1"
+
+
+def test_a_flag_has_one_type_default_and_arity_in_every_command():
+    """Item 7: the shared flags are the same argparse definition wherever they appear."""
+    from sewtol.cli import build_parser
+
+    shared = ("--beta-range", "--limit-um", "--guide-shift-um", "--frame", "--seed", "--n-jobs",
+              "--out", "--plot", "--progress", "--set", "--resume", "--scheduler")
+    seen: dict[str, dict] = {}
+    commands = 0
+    for group in build_parser()._subparsers._group_actions[0].choices.values():
+        for name, cmd in group._subparsers._group_actions[0].choices.items():
+            commands += 1
+            for action in cmd._actions:
+                flag = next((f for f in action.option_strings if f in shared), None)
+                if flag is None:
+                    continue
+                spec = {"type": action.type, "nargs": action.nargs, "default": action.default,
+                        "kind": type(action).__name__}
+                assert seen.setdefault(flag, spec) == spec, (name, flag, spec, seen[flag])
+    assert commands >= 17 and set(seen) == set(shared)
+    assert seen["--progress"]["kind"] == "BooleanOptionalAction"
+    assert seen["--beta-range"]["nargs"] == 2 and seen["--beta-range"]["default"] is None
+
+
+def test_montecarlo_and_compare_guides_agree_on_the_same_machine(nominal):
+    """Trap 1 in the API: the guide comparison's nominal row is montecarlo's fixed case."""
+    from sewtol.studies.guides import compare_guides
+
+    shifted = nominal.override(guide_shift_um=20.0)
+    table = compare_guides(shifted, NEEDLE_208_SETS["base"], 150, 3,
+                           variants=(("nominal", 0.0, 0.0),))
+    res = montecarlo(shifted, NEEDLE_208_SETS["base"], 150, seed=3)
+    assert table.loc[0, "beta_opt_deg"] == res.nominal_beta_deg
+    assert table.loc[0, "yield_fixed_beta"] == res.yield_of("fixed_beta")
+    assert table.loc[0, "yield_adjusted_beta"] == res.yield_of("adjusted_beta")
