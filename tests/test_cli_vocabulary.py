@@ -381,10 +381,9 @@ def test_dict_shaped_json_outputs_carry_their_context(argv):
 
 
 def test_feed_plots_and_strategy_machine_tables(tmp_path):
-    for argv, name in ((("feed", "trajectory", "--step-deg", "5"), "t.png"),
-                       (("feed", "regulator", "--b-range", "0", "60", "10"), "r.pdf")):
-        assert run(*argv, "--plot", str(tmp_path / name))[0] == 0
-        assert (tmp_path / name).stat().st_size > 1000
+    assert run("feed", "regulator", "--b-range", "0", "60", "10", "--plot",
+               str(tmp_path / "r.pdf"))[0] == 0
+    assert (tmp_path / "r.pdf").read_bytes().startswith(b"%PDF")
     out = tmp_path / "st"
     assert run("needle", "strategies", "--n", "10", "--out", str(out))[0] == 0
     m = pd.read_csv(out / "machines_none.csv")
