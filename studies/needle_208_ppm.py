@@ -203,7 +203,7 @@ def main(argv=None) -> int:
                                   "seed": args.seed, "budget": args.budget,
                                   "n_brute": args.n_brute, "n_alloc": args.n_alloc,
                                   "n_jobs": args.n_jobs, "target": TARGET,
-                                  "limit_um": LIMIT_UM, "beta_range_deg": [10.0, 35.0]})
+                                  "limit_um": LIMIT_UM, "beta_search_range_deg": [10.0, 35.0]})
     write_text_atomic(out / "ppm_run.json", json.dumps(record, indent=2) + "\n")
     print(f"wrote {out}/ppm*")
     return 0

@@ -149,7 +149,7 @@ def main(argv=None) -> None:
                      "tolerance_sets": {k: v.as_dict() for k, v in NEEDLE_208_SETS.items()},
                      "seed": args.seed, "n_mc": args.n_mc, "n_sobol": args.n_sobol,
                      "n_alloc": args.n_alloc, "n_guides": args.n_guides, "n_jobs": args.n_jobs,
-                     "beta_range_deg": [10.0, 35.0], "limit_um": 10.0})
+                     "beta_search_range_deg": [10.0, 35.0], "limit_um": 10.0})
     write_text_atomic(out / "run.json", to_json(record))
     print(f"wrote {out}")
 
