@@ -441,3 +441,25 @@ def test_montecarlo_and_compare_guides_agree_on_the_same_machine(nominal):
     assert table.loc[0, "beta_opt_deg"] == res.nominal_beta_deg
     assert table.loc[0, "yield_fixed_beta"] == res.yield_of("fixed_beta")
     assert table.loc[0, "yield_adjusted_beta"] == res.yield_of("adjusted_beta")
+
+
+def test_a_fixed_beta_on_the_bound_is_flagged_in_every_study():
+    """--beta-range 23.5 24 excludes the nominal's free beta* (22.58): the fixed case sits on
+    23.5 and every study says so; default range: no flag."""
+    narrow = ("--beta-range", "23.5", "24", "--format", "json")
+    _, out, _ = run("needle", "worst-case", *narrow)
+    wc = strict_loads(out)
+    assert wc["fixed_beta_at_bound"] is True and abs(wc["fixed_beta_deg"] - 23.5) < 1e-3
+    adjusted = next(r for r in wc["rows"] if r["case"] == "adjusted_beta")
+    assert adjusted["beta_at_bound"] is True and 23.5 <= adjusted["beta_deg"] <= 24.0
+    _, out, _ = run("needle", "montecarlo", "--n", "50", *narrow)
+    mc = strict_loads(out)
+    assert mc["fixed_beta_at_bound"] is True and abs(mc["nominal_beta_deg"] - 23.5) < 1e-3
+    _, out, _ = run("needle", "montecarlo", "--n", "50", "--adjust", "beta", *narrow)
+    assert strict_loads(out)["fixed_beta_at_bound"] is True
+    _, text, _ = run("needle", "worst-case", "--beta-range", "23.5", "24")
+    assert "note: the fixed case's beta = 23.5002 deg, the nominal's beta*, reaches a bound" in text
+    _, out, _ = run("needle", "worst-case", "--format", "json")
+    wc = strict_loads(out)
+    assert wc["fixed_beta_at_bound"] is False
+    assert not any(r["beta_at_bound"] for r in wc["rows"])

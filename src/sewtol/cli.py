@@ -182,24 +182,37 @@ def _save_plot(args, draw) -> None:
         raise ParameterError("--plot", f"cannot be written ({exc.strerror})", args.plot) from None
 
 
-def _at_beta_star(args, params, strategy=None):
-    """The nominal with beta at its beta* in --beta-range (default 10 35; with a strategy that
-    adjusts beta, beta's range): what "beta fixed" means in every needle study (montecarlo,
-    sobol, guides, strategies, worst-case)."""
-    from .studies.montecarlo import fixed_beta_of
+def _beta_star_figures(args, params, strategy=None):
+    """The nominal figures at beta* in --beta-range (default 10 35; with a strategy that adjusts
+    beta, beta's range), at --limit-um."""
+    from .needle import nominal_figures
 
     rng = getattr(args, "beta_range", None) or (10.0, 35.0)
     for c in getattr(strategy, "compensators", ()):
         if c.name == "beta":
             rng = (c.low, c.high)
-    limit = getattr(args, "limit_um", None) or 10.0
-    return params.override(beta=fixed_beta_of(params, "optimum", tuple(rng), limit))
+    return nominal_figures(params, tuple(rng), getattr(args, "limit_um", None) or 10.0)
 
 
-def _fixed_record(params) -> dict:
+def _at_beta_star(args, params, strategy=None):
+    """The nominal with beta at its beta* (`_beta_star_figures`): what "beta fixed" means in
+    every needle study (montecarlo, sobol, guides, strategies, worst-case)."""
+    return params.override(beta=_beta_star_figures(args, params, strategy).beta_opt_deg)
+
+
+def _fixed_record(args, params, strategy=None) -> dict:
+    """The fixed case's beta, what it means, and whether that beta* lies on a range bound."""
     from .studies.montecarlo import FIXED_BETA_MEANS
 
-    return {"fixed_beta_deg": float(params.beta), "fixed_beta_means": FIXED_BETA_MEANS["optimum"]}
+    return {"fixed_beta_deg": float(params.beta), "fixed_beta_means": FIXED_BETA_MEANS["optimum"],
+            "fixed_beta_at_bound": _beta_star_figures(args, params, strategy).beta_at_bound}
+
+
+def _fixed_notes(record) -> list[str]:
+    if not record.get("fixed_beta_at_bound"):
+        return []
+    return [f"the fixed case's beta = {record['fixed_beta_deg']:.4f} deg, the nominal's beta*, "
+            "reaches a bound of the searched range: the nominal's optimum may lie outside it"]
 
 
 def _context(args, params, tolerances, strategy) -> dict:
@@ -510,7 +523,8 @@ def cmd_needle_montecarlo(args):
             res = montecarlo(params, tolerances, args.n, args.seed, limit_um=limit,
                              range_deg=rng, n_jobs=args.n_jobs, progress=args.progress,
                              store=store, chunk_size=CHUNK, scheduler=client)
-        record = {**res.to_dict(), "context": _context(args, params, tolerances, None)}
+        record = {**res.to_dict(), "context": _context(args, params, tolerances, None),
+                  "fixed_beta_at_bound": _beta_star_figures(args, params).beta_at_bound}
         _write_outputs(args, "montecarlo", inputs, started, record,
                        {"machines": _deviation_columns(res.machines, res.params),
                         "summary": res.summary_frame()}, runs)
@@ -520,6 +534,7 @@ def cmd_needle_montecarlo(args):
     emit(args.format, obj=record, frame=res.summary_frame())
     k, pinned = res.beta_at_bound(), res.beta_at_bound(pinned=True)
     _print_notes(args, [f"yield intervals: {record['yield_ci']['method']}, 95 %"]
+                 + _fixed_notes({**record, "fixed_beta_deg": res.nominal_beta_deg})
                  + ([f"{k} of {res.n} machines have an adjusted beta* whose optimum reaches a "
                      f"bound of the searched range {list(rng)} deg; {pinned} of them are pinned "
                      "there (SumDelta still falling: the optimum lies outside the range), the "
@@ -584,7 +599,8 @@ def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
                                        limit_um=limit)
         summary = summarise_frame(machines, strategy, limit)
         record = {**summary.iloc[0].to_dict(), "seed": args.seed, "tolerances": tolerances.name,
-                  "compensators": _strategy_record(strategy), **_fixed_record(params),
+                  "compensators": _strategy_record(strategy),
+                  **_fixed_record(args, params, strategy),
                   "context": _context(args, params, tolerances, strategy)}
         _write_outputs(args, "montecarlo", inputs, started, record,
                        {"machines": _deviation_columns(machines, tolerances.active().params),
@@ -593,6 +609,7 @@ def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
         if store is not None:
             store.close()
     emit(args.format, obj=record, frame=summary)
+    _print_notes(args, _fixed_notes(record))
 
 
 def cmd_needle_strategies(args):
@@ -782,7 +799,7 @@ def cmd_needle_worst_case(args):
     _check_beta_range(args)
     params = _at_beta_star(args, params, strategy)
     table = worst_case_table(params, tolerances, tuple(args.beta_range), strategy=strategy)
-    obj = {"tolerances": tolerances.name, **_fixed_record(params),
+    obj = {"tolerances": tolerances.name, **_fixed_record(args, params, strategy),
            "context": _context(args, params, tolerances, strategy),
            "strategy": "beta" if strategy is None else strategy.name,
            **({} if strategy is None else {"compensators": _strategy_record(strategy)}),
@@ -790,6 +807,9 @@ def cmd_needle_worst_case(args):
                      "(never below any evaluated point; not proven global)",
            "rows": table.to_dict(orient="records")}
     emit(args.format, obj=obj, frame=table)
+    _print_notes(args, _fixed_notes(obj) + [
+        f"the worst machine's beta* in {r['case']} reaches a bound of the searched range: its "
+        "optimum may lie outside it" for r in obj["rows"] if r.get("beta_at_bound")])
 
 
 def add_needle_guides_allocation(nsub, needle_common, study) -> None:

@@ -33,11 +33,13 @@ class WorstCase:
     point: dict  # deviation per parameter (mm)
     beta_deg: float
     interior: bool  # True when the worst point is not a corner
+    # the worst machine's adjusted beta*: its plateau reaches an end of the searched range
+    beta_at_bound: bool = False
 
     def to_row(self) -> dict:
         row = {"case": self.case, "total_um": self.total_um,
                "worst_corner_total_um": self.corner_total_um, "beta_deg": self.beta_deg,
-               "interior": self.interior}
+               "beta_at_bound": self.beta_at_bound, "interior": self.interior}
         row.update({f"{k}_mm": v for k, v in self.point.items()})
         return row
 
@@ -88,14 +90,22 @@ def worst_case(nominal, tolerances: ToleranceSet, adjust: bool, range_deg=sb.DEF
             best_v, best_x = float(-res.fun), lo + res.x * scale
     _, out = totals(best_x)
     at_corner = bool(np.all(np.isclose(best_x, lo) | np.isclose(best_x, hi)))
+    at_bound = False
     if adjust and strategy is not None:
         beta = float(out.settings["beta"][0]) if "beta" in out.settings else float(nominal.beta)
         case = f"adjusted_{strategy.name}"
+        for comp in strategy.compensators:
+            if comp.name == "beta":
+                eps = 1e-6 * (comp.high - comp.low)
+                at_bound = bool(out.plateau_low["beta"][0] <= comp.low + eps
+                                or out.plateau_high["beta"][0] >= comp.high - eps)
     else:
         beta = float(out.beta_opt_deg[0]) if adjust else float(nominal.beta)
         case = "adjusted_beta" if adjust else "fixed_beta"
+        at_bound = bool(adjust and out.beta_at_bound[0])
     return WorstCase(case, best_v, corner_best,
-                     dict(zip(names, map(float, best_x), strict=True)), beta, not at_corner)
+                     dict(zip(names, map(float, best_x), strict=True)), beta, not at_corner,
+                     at_bound)
 
 
 def worst_case_table(nominal, tolerances: ToleranceSet, range_deg=sb.DEFAULT_RANGE_DEG,
