@@ -487,3 +487,58 @@ def alternatives() -> list[Reconstruction]:
     out = [reconstruct(pivot_side=s, arm_tilt_deg=t) for s in (1, -1) for t in (0.0, -15.0, 15.0)]
     out.append(published_point_from_pivot())
     return out
+
+
+# ---------------------------------------------------------------------------------------------
+# tolerance studies of the travel (symmetric +/- limits in each parameter's unit)
+
+
+def _check_tolerances(params: M6Needle, tolerances: dict) -> None:
+    valid = P.field_names(type(params))
+    for name, t in tolerances.items():
+        if name not in valid:
+            raise ParameterError(name, f"unknown parameter; valid names are {', '.join(valid)}",
+                                 name)
+        if not np.isfinite(t) or t <= 0:
+            raise ParameterError(name, "a tolerance must be a positive number (+/- limit)", t)
+
+
+def scan_travel(params: M6Needle, tolerances: dict) -> pd.DataFrame:
+    """Each parameter at +tol and -tol (others nominal): travel and its change (mm), one batch.
+
+    Sorted by the larger |change|; `slope_per_unit` is the central difference over the limits.
+    """
+    _check_tolerances(params, tolerances)
+    names = list(tolerances)
+    k = len(names)
+    batch = {f: np.full(2 * k, float(getattr(params, f))) for f in P.field_names(type(params))}
+    for i, name in enumerate(names):
+        batch[name][2 * i] += tolerances[name]
+        batch[name][2 * i + 1] -= tolerances[name]
+    fig = evaluate(M6Needle(**batch), samples=72)
+    nominal = float(travel_mm(params))
+    up, lo = fig.travel_mm[0::2], fig.travel_mm[1::2]
+    frame = pd.DataFrame({
+        "parameter": names, "tolerance": [tolerances[n] for n in names],
+        "travel_upper_mm": up, "travel_lower_mm": lo,
+        "change_upper_mm": up - nominal, "change_lower_mm": lo - nominal,
+        "slope_per_unit": (up - lo) / (2 * np.array([tolerances[n] for n in names])),
+        "status_upper": fig.status[0::2], "status_lower": fig.status[1::2]})
+    order = np.argsort(-np.maximum(np.abs(frame["change_upper_mm"]),
+                                   np.abs(frame["change_lower_mm"])).to_numpy(), kind="stable")
+    return frame.iloc[order].reset_index(drop=True)
+
+
+def montecarlo_travel(params: M6Needle, tolerances: dict, n: int, seed: int) -> pd.DataFrame:
+    """n machines, every toleranced parameter uniform within its limits (one Generator from
+    `seed`, parameters drawn in the order given): travel per machine and its status."""
+    _check_tolerances(params, tolerances)
+    if int(n) != n or n < 1:
+        raise ParameterError("n", "must be a positive integer", n)
+    rng = np.random.default_rng(seed)
+    dev = {name: rng.uniform(-t, t, int(n)) for name, t in tolerances.items()}
+    batch = P.with_deviations(params, dev)
+    fig = evaluate(batch, samples=72)
+    return pd.DataFrame({**{f"{k}_dev": v for k, v in dev.items()},
+                         "travel_mm": fig.travel_mm, "status": fig.status,
+                         "failed_group": fig.failed_group})
