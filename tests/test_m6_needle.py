@@ -60,13 +60,17 @@ def test_travel_closed_form_and_against_a_dense_turn(nominal):
 def test_alternatives_fit_equally_well():
     alts = m6.alternatives()
     fitting = [a for a in alts if a.name != "point_from_pivot"]
-    assert len(fitting) == 6
+    assert len(fitting) == 7
     for a in fitting:
         assert abs(float(m6.travel_mm(a.params)) - 24.2) < 1e-9, a.name
         lo, hi = m6.needle_extremes(a.params)
         assert abs(0.5 * (lo + hi) - (50.1 + 13.3j)) < 1e-9, a.name
     other = alts[-1]
     assert abs(other.params.arm_mm - math.hypot(50.1, 13.3)) < 1e-12
+    fitted = alts[-2]
+    assert fitted.name == "pivot_above_tilt_fitted_R50"
+    assert m6.reactions(fitted.params, 720).peaks()["R50_N"] == pytest.approx(7.0, abs=1e-6)
+    assert fitted.arm_tilt_deg == pytest.approx(-12.045, abs=1e-3)
 
 
 def test_chain_keeps_links_and_constraints():

@@ -18,6 +18,7 @@ two-force member of the pair 4-5. Reactions R12 ... R50 use that numbering.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -174,13 +175,16 @@ def travel_mm(params: M6Needle):
 
 @dataclass(frozen=True)
 class M6Motion:
-    """Needle-bar pin over one turn: position along the guide (mm), speed (m/s), acceleration
-    (m/s^2) at the machine's rpm (uniform crank speed), and the groups' status."""
+    """Needle-bar pin over one turn: position along the guide (mm, + in the guide's direction),
+    speed and acceleration magnitudes (m/s, m/s^2) and their signed components along the guide,
+    at the machine's rpm (uniform crank speed), and the groups' status."""
 
     phi_deg: np.ndarray
     s_mm: np.ndarray
     speed_m_s: np.ndarray
     accel_m_s2: np.ndarray
+    v_along_m_s: np.ndarray
+    a_along_m_s2: np.ndarray
     status: np.ndarray
     failed_group: np.ndarray
 
@@ -189,7 +193,9 @@ class M6Motion:
             raise ParameterError("params", "to_dataframe needs a single machine, not a batch",
                                  self.s_mm.shape)
         return pd.DataFrame({"phi_deg": self.phi_deg, "needle_s_mm": self.s_mm,
-                             "speed_m_s": self.speed_m_s, "accel_m_s2": self.accel_m_s2})
+                             "speed_m_s": self.speed_m_s, "accel_m_s2": self.accel_m_s2,
+                             "v_along_m_s": self.v_along_m_s,
+                             "a_along_m_s2": self.a_along_m_s2})
 
 
 def _status(c: dict, out: dict, shape):
@@ -225,7 +231,9 @@ def motion(params: M6Needle, samples: int = 720) -> M6Motion:
     accel = np.abs(J.ddp) * w * w * 1e-3  # uniform crank speed: a = J'' w^2
     shape = () if n is None else (n,)
     status, failed = _status(c, out, shape)
-    return M6Motion(np.degrees(q), s, speed, accel, status, failed)
+    v_along = (J.dp * u.conjugate()).real * w * 1e-3
+    a_along = (J.ddp * u.conjugate()).real * w * w * 1e-3
+    return M6Motion(np.degrees(q), s, speed, accel, v_along, a_along, status, failed)
 
 
 @dataclass(frozen=True)
@@ -481,10 +489,26 @@ def published_point_from_pivot(base: M6Needle | None = None) -> Reconstruction:
                           1, tilt, float(tr) - PUBLISHED["travel_mm"], float("nan"))
 
 
+def fit_tilt_to_guide_reaction(target_N: float = PUBLISHED["R50_N"], pivot_side: int = 1,
+                               samples: int = 720) -> Reconstruction:
+    """The arm tilt (-15 ... 0 deg) at which the peak guide reaction R50 equals the published
+    7 N, travel and point still met exactly: the tilt sets how far the rod leans over the turn."""
+    def excess(t):
+        return reactions(reconstruct(pivot_side=pivot_side, arm_tilt_deg=t).params,
+                         samples).peaks()["R50_N"] - target_N
+
+    tilt = optimize.brentq(excess, -15.0, 0.0, xtol=1e-10)
+    rec = reconstruct(pivot_side=pivot_side, arm_tilt_deg=tilt)
+    side = "above" if pivot_side > 0 else "below"
+    return dataclasses.replace(rec, name=f"pivot_{side}_tilt_fitted_R50")
+
+
 def alternatives() -> list[Reconstruction]:
     """Layouts that meet travel 24.2 mm and the point (50.1, 13.3) equally well (pivot above or
-    below the main shaft, arm tilted -15, 0, +15 deg), then the other reading of the point."""
+    below the main shaft, arm tilted -15, 0, +15 deg, and the tilt that gives the published peak
+    guide reaction), then the other reading of the point."""
     out = [reconstruct(pivot_side=s, arm_tilt_deg=t) for s in (1, -1) for t in (0.0, -15.0, 15.0)]
+    out.append(fit_tilt_to_guide_reaction())
     out.append(published_point_from_pivot())
     return out
 
