@@ -311,3 +311,27 @@ def test_example_file_reproduces_the_module():
     assert 0 < 24.2 - np.ptp(y) < 2e-4
     tol = spec["tolerances"]["illustrative"]
     assert set(tol) <= set(pars) and all(v > 0 for v in tol.values())
+
+
+def test_report_matches_the_committed_tables(tmp_path):
+    import importlib.util
+
+    import pandas as pd
+
+    from test_report_reproducible import compare_printed
+
+    root = Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location("m6_report", root / "studies" /
+                                                  "m6_needle_report.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    mod.main(["--out", str(tmp_path)])
+    new, old = tmp_path / "m6_needle", root / "reports" / "m6_needle"
+    names = sorted(p.name for p in old.glob("*.csv"))
+    assert names == sorted(p.name for p in new.glob("*.csv"))
+    for name in names:
+        assert compare_printed((new / name).read_text(), (old / name).read_text()) == [], name
+    res = pd.read_csv(new / "residuals.csv", comment="#").set_index("figure")
+    assert res.loc["travel_mm", "model"] == pytest.approx(24.2, abs=1e-9)
+    assert res.loc["speed_max_m_s", "residual"] == pytest.approx(2.0109, abs=2e-4)
+    assert res.loc["R45_N", "residual"] == pytest.approx(-0.696, abs=1e-3)
