@@ -160,8 +160,10 @@ def _needle_at_lever(c: dict, f):
 
 
 def needle_extremes(params: M6Needle):
-    """Needle-bar pin J at the lever's two extremes (complex mm), exact: J moves monotonically
-    with the lever angle over the swing (the rod never turns across the guide's normal)."""
+    """Needle-bar pin J at the lever's two extremes (complex mm). These are J's extremes as long
+    as J moves monotonically with the lever angle over the swing, i.e. the pin B never moves
+    perpendicular to the rod inside it: true for every layout here (the tests hold the travel
+    to a dense turn for each)."""
     c = P.column(params, None)
     lo, hi = lever_extremes(c)
     return _needle_at_lever(c, lo), _needle_at_lever(c, hi)
