@@ -84,12 +84,12 @@ def _batch(values: dict) -> tuple[dict[str, np.ndarray], int]:
                                  f"array of shape {v.shape}")
         _RULES[rule](name, v)
         arrays[name] = v
-    sizes = {v.size for v in arrays.values() if v.ndim == 1}
-    if len(sizes) > 1:
-        name = next(n for n, v in arrays.items() if v.ndim == 1 and v.size != max(sizes))
-        raise ParameterError(name, "must have as many values as the other arrays",
-                             f"{arrays[name].size} against {max(sizes)}")
-    m = sizes.pop() if sizes else 1
+    batch = [n for n, v in arrays.items() if v.ndim == 1]
+    m = arrays[batch[0]].size if batch else 1
+    for name in batch:
+        if arrays[name].size != m:
+            raise ParameterError(name, f"must have as many values as {batch[0]} ({m})",
+                                 f"{arrays[name].size} values")
     return {n: np.broadcast_to(v, (m,)) for n, v in arrays.items()}, m
 
 
