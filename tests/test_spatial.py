@@ -212,6 +212,10 @@ def test_perpendicular_axes_worked_example():
     other = engine.rocker_extremes(p["a"], p["b"], p["c"], p["e"], p["f"], p["g"],
                                    p["alpha_rad"], -1.0)
     assert np.degrees(other.swing) == pytest.approx(40.662422517, abs=1e-8)
+    # |F_psi| = R |sin(psi - delta)| is the same on both roots: so is the transmission angle
+    q = np.linspace(0, 2 * np.pi, 361)
+    plus, minus = rocker(q, p, 1.0)[1], rocker(q, p, -1.0)[1]
+    assert np.max(np.abs(plus.transmission_deg - minus.transmission_deg)) < 1e-9
 
 
 def test_non_assembling_machine_gives_nan_and_the_miss():
@@ -270,7 +274,10 @@ def test_batch_module_matches_the_engine_and_the_file():
     assert list(dead.status) == ["dead_point", "ok"]
     assert list(dead.failed_group) == ["psi", ""]
     assert np.isnan(dead.outputs["transmission_min_deg"][0])
-    assert dead.outputs["transmission_min_deg"][1] == pytest.approx(14.584397, abs=1e-6)
+    # planar crank-rocker: the smallest transmission is at phi = 180 deg (a sample), where
+    # |BQ| = e + a and the folded law-of-cosines angle between coupler and rocker is 14.58 deg
+    stretched = np.degrees(np.arccos((40.5**2 + 25.0**2 - 65.0**2) / (2 * 40.5 * 25.0)))
+    assert dead.outputs["transmission_min_deg"][1] == pytest.approx(180.0 - stretched, abs=1e-9)
     # the file declares the same parameters, nominals, tolerances and outputs as the module
     with open(ROOT / "examples" / "spatial_crank_rocker.toml", "rb") as fh:
         doc = tomllib.load(fh)
