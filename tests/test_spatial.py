@@ -184,6 +184,28 @@ def test_extremes_satisfy_the_printed_condition_and_match_a_dense_sweep(params, 
     assert abs(wrap(q[np.argmin(turned)] - ext.phi_at_min)) <= step
 
 
+@pytest.mark.parametrize("params", [PERP, SKEW], ids=["alpha90", "alpha37"])
+def test_sensitivities_match_finite_differences_at_any_angle_and_at_the_extremes(params):
+    q = np.linspace(0, 2 * np.pi, 37)
+    ext = engine.rocker_extremes(**params, branch=1.0)
+    at_q = engine.rocker_sensitivities(q, **params, branch=1.0)
+    at_max = engine.rocker_sensitivities(ext.phi_at_max, **params, branch=1.0)
+    at_min = engine.rocker_sensitivities(ext.phi_at_min, **params, branch=1.0)
+    assert set(at_q) == set(engine.spatial.PARAMETERS)
+    h = 1e-5
+    for name in engine.spatial.PARAMETERS:
+        up, lo = dict(params), dict(params)
+        up[name] += h
+        lo[name] -= h
+        fd = wrap(rocker(q, up, 1.0)[0].a - rocker(q, lo, 1.0)[0].a) / (2 * h)
+        assert np.max(np.abs(at_q[name] - fd)) < 1e-8, name
+        # the envelope theorem: the extremes move as psi does at their own crank angle
+        e_up = engine.rocker_extremes(**up, branch=1.0)
+        e_lo = engine.rocker_extremes(**lo, branch=1.0)
+        assert at_max[name] == pytest.approx((e_up.psi_max - e_lo.psi_max) / (2 * h), abs=1e-8)
+        assert at_min[name] == pytest.approx((e_up.psi_min - e_lo.psi_min) / (2 * h), abs=1e-8)
+
+
 def test_perpendicular_axes_worked_example():
     # alpha = 90 deg (the 51 and 208 rows' case): A = -2 c f is constant, and the extreme
     # condition reads tan(phi) = -g / (c cos(psi) + e)
@@ -208,6 +230,12 @@ def test_perpendicular_axes_worked_example():
                              method="bounded", options={"xatol": 1e-10})
     assert -top.fun == pytest.approx(ext.psi_max, abs=1e-12)
     assert bottom.fun == pytest.approx(ext.psi_min, abs=1e-12)
+    # the swing's sensitivities (deg per mm, deg per deg) quoted in the docs
+    grow = {k: np.degrees(engine.rocker_sensitivities(ext.phi_at_max, **p, branch=1.0)[k]
+                          - engine.rocker_sensitivities(ext.phi_at_min, **p, branch=1.0)[k])
+            for k in ("a", "b", "c", "e", "g")}
+    assert grow == pytest.approx({"a": 5.4555, "b": 0.3295, "c": -2.1936, "e": -0.4287,
+                                  "g": 0.2040}, abs=1e-4)
     # the other assembly of the same links swings less (40.66 deg)
     other = engine.rocker_extremes(p["a"], p["b"], p["c"], p["e"], p["f"], p["g"],
                                    p["alpha_rad"], -1.0)

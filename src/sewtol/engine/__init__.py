@@ -14,6 +14,7 @@ from .spatial import (
     RockerExtremes,
     position_function,
     rocker_extremes,
+    rocker_sensitivities,
     spatial_joints,
     spatial_rocker,
     spatial_rocker_third,
@@ -22,6 +23,6 @@ from .spatial import (
 __all__ = [
     "Angle", "Closure", "Motion", "crank", "direction", "driving_angle", "fixed", "on_body",
     "polar", "rpr", "rrp", "rrr",
-    "RockerExtremes", "position_function", "rocker_extremes", "spatial_joints", "spatial_rocker",
-    "spatial_rocker_third",
+    "RockerExtremes", "position_function", "rocker_extremes", "rocker_sensitivities",
+    "spatial_joints", "spatial_rocker", "spatial_rocker_third",
 ]

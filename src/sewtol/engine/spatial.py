@@ -175,6 +175,39 @@ def spatial_joints(phi_rad, psi_rad, a, c, e, f, g, alpha_rad) -> tuple[np.ndarr
     return np.stack(np.broadcast_arrays(bx, by, bz), -1), np.stack(np.broadcast_arrays(cx, cy, cz), -1)
 
 
+PARAMETERS = ("a", "b", "c", "e", "f", "g", "alpha_rad")
+
+
+@np.errstate(invalid="ignore", divide="ignore", over="ignore")
+def rocker_sensitivities(phi_rad, a, b, c, e, f, g, alpha_rad, branch) -> dict[str, np.ndarray]:
+    """d psi / d p at a fixed crank angle for every dimension p (rad per mm; rad per rad for alpha).
+
+    From F(phi, psi; p) = 0: d psi / d p = -F_p / F_psi. At an extreme position (psi' = 0) the
+    crank angle of the extreme moves with p but psi does not change to first order through it
+    (the envelope theorem), so evaluated at `rocker_extremes`' crank angles these are the
+    derivatives of psi_max and psi_min, and their difference that of the swing.
+    """
+    phi = np.asarray(phi_rad, float)
+    psi = _solve(phi, a, b, c, e, f, g, alpha_rad, branch)[0]
+    a, b, c, e, f, g, alpha = (np.asarray(v, float) for v in (a, b, c, e, f, g, alpha_rad))
+    k = _coefficients(phi, a, b, c, e, f, g, alpha)
+    f_psi = _partials(k, psi)[0, 1]
+    sa, ca = np.sin(alpha), np.cos(alpha)
+    s, co = np.sin(phi), np.cos(phi)
+    sp, cp = np.sin(psi), np.cos(psi)
+    # (dA/dp, dB/dp, dC/dp) of F = A sin psi + B cos psi + C
+    parts = {
+        "a": (-2.0 * c * ca * s, -2.0 * c * co, 2.0 * (g * sa * s - e * co) + 2.0 * a),
+        "b": (0.0, 0.0, -2.0 * b),
+        "c": (k.A[0] / c, k.B[0] / c, 2.0 * c),
+        "e": (0.0, 2.0 * c, -2.0 * a * co + 2.0 * e),
+        "f": (-2.0 * c * sa, 0.0, 2.0 * f - 2.0 * g * ca),
+        "g": (0.0, 0.0, 2.0 * a * sa * s + 2.0 * g - 2.0 * f * ca),
+        "alpha_rad": (-2.0 * c * (f * ca - a * sa * s), 0.0, 2.0 * a * g * ca * s + 2.0 * f * g * sa),
+    }
+    return {name: -(da * sp + db * cp + dc) / f_psi for name, (da, db, dc) in parts.items()}
+
+
 @dataclass(frozen=True)
 class RockerExtremes:
     """Extreme rocker positions on one branch (radians; NaN where there are not exactly two)."""
