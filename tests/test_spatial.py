@@ -330,3 +330,28 @@ def test_batch_module_refuses_bad_input_by_name():
     with pytest.raises(ParameterError,
                        match=r"^e: must have as many values as a \(2\) \(got '3 values'\)"):
         scr.evaluate({"a": [10.0, 11.0], "e": [55.0, 55.0, 55.0]})
+
+
+def test_monte_carlo_of_the_swing_quoted_in_the_docs():
+    # 20000 machines uniform within the file's illustrative tolerances, default_rng(2026):
+    # the exact extremes give the docs' figures; the sampled batch path stays within the
+    # sampling bound of them machine by machine (720 samples: swing short by < 2e-3 deg)
+    nom, tol = scr.nominal(), scr.TOLERANCES["illustrative"]
+
+    def draw(n):
+        rng = np.random.default_rng(2026)
+        return {k: nom[k] + rng.uniform(-t, t, n) for k, t in tol.items()}
+
+    vals = draw(20000)
+    ext = engine.rocker_extremes(vals["a"], vals["b"], vals["c"], vals["e"], vals["f"],
+                                 vals["g"], np.radians(vals["alpha"]), 1.0)
+    swing = np.degrees(ext.swing)
+    assert not np.any(np.isnan(swing))
+    assert swing.mean() == pytest.approx(50.72993, abs=1e-5)
+    assert swing.std() == pytest.approx(0.07526, abs=1e-5)
+    assert (swing.min(), swing.max()) == pytest.approx((50.52197, 50.94165), abs=1e-5)
+    few = {k: v[:500] for k, v in draw(20000).items()}
+    ev = scr.evaluate(few)
+    assert np.all(ev.status == "ok")
+    short = swing[:500] - ev.outputs["rocker_swing_deg"]
+    assert np.all((short >= 0.0) & (short < 2e-3))

@@ -98,21 +98,31 @@ def position_function(phi, psi, a, b, c, e, f, g, alpha_rad):
     return k.A[0] * np.sin(psi) + k.B[0] * np.cos(psi) + k.C[0]
 
 
-def _partials(k: _Coefficients, psi):
-    """F's partial derivatives up to order three, keyed by (order in phi, order in psi)."""
+def _partials(k: _Coefficients, psi, order: int = 3):
+    """F's partial derivatives up to `order`, keyed by (order in phi, order in psi)."""
     s, co = np.sin(psi), np.cos(psi)
     out = {}
-    for i in range(4):
+    for i in range(order + 1):
         out[i, 0] = k.A[i] * s + k.B[i] * co + k.C[i]
-        out[i, 1] = k.A[i] * co - k.B[i] * s
-        out[i, 2] = -k.A[i] * s - k.B[i] * co
-        out[i, 3] = -out[i, 1]
+        if i + 1 <= order:
+            out[i, 1] = k.A[i] * co - k.B[i] * s
+        if i + 2 <= order:
+            out[i, 2] = -k.A[i] * s - k.B[i] * co
+        if i + 3 <= order:
+            out[i, 3] = -out[i, 1]
     return out
 
 
+def _wrap(x):
+    """An angle in (-2 pi, 2 pi] wrapped to (-pi, pi]."""
+    x = np.where(x > np.pi, x - 2.0 * np.pi, x)
+    return np.where(x <= -np.pi, x + 2.0 * np.pi, x)
+
+
 @np.errstate(invalid="ignore", divide="ignore", over="ignore")
-def _solve(phi, a, b, c, e, f, g, alpha, branch):
-    """psi (wrapped to (-pi, pi]), psi', psi'', psi''' in phi, miss_mm, transmission_deg."""
+def _solve(phi, a, b, c, e, f, g, alpha, branch, order: int = 3):
+    """psi (wrapped to (-pi, pi]), psi', psi'', psi''' in phi (None above `order`), miss_mm,
+    transmission_deg."""
     a, b, c, e, f, g, alpha = (np.asarray(v, float) for v in (a, b, c, e, f, g, alpha))
     k = _coefficients(phi, a, b, c, e, f, g, alpha)
     r = np.hypot(k.A[0], k.B[0])
@@ -128,12 +138,14 @@ def _solve(phi, a, b, c, e, f, g, alpha, branch):
     miss = np.where(apart, miss, np.inf)
     cos_gamma = np.clip(-k.C[0] / np.where(apart, r, np.nan), -1.0, 1.0)
     gamma = np.arccos(np.where(miss > 0.0, np.nan, cos_gamma))
-    psi = np.angle(np.exp(1j * (delta + np.asarray(branch, float) * gamma)))
-    p = _partials(k, psi)
-    d1 = -p[1, 0] / p[0, 1]
-    d2 = -(p[2, 0] + 2.0 * p[1, 1] * d1 + p[0, 2] * d1**2) / p[0, 1]
-    d3 = -(p[3, 0] + 3.0 * p[2, 1] * d1 + 3.0 * p[1, 2] * d1**2 + p[0, 3] * d1**3
-           + 3.0 * (p[1, 1] + p[0, 2] * d1) * d2) / p[0, 1]
+    psi = _wrap(delta + np.asarray(branch, float) * gamma)
+    p = _partials(k, psi, max(order, 1))
+    d1 = -p[1, 0] / p[0, 1] if order >= 1 else None
+    d2 = -(p[2, 0] + 2.0 * p[1, 1] * d1 + p[0, 2] * d1**2) / p[0, 1] if order >= 2 else None
+    d3 = None
+    if order >= 3:
+        d3 = -(p[3, 0] + 3.0 * p[2, 1] * d1 + 3.0 * p[1, 2] * d1**2 + p[0, 3] * d1**3
+               + 3.0 * (p[1, 1] + p[0, 2] * d1) * d2) / p[0, 1]
     sin_mu = np.abs(p[0, 1]) / (2.0 * b * c)
     transmission = np.degrees(np.arcsin(np.minimum(sin_mu, 1.0)))
     return psi, d1, d2, d3, miss, transmission
@@ -148,7 +160,7 @@ def spatial_rocker(phi: Angle, a, b, c, e, f, g, alpha_rad, branch) -> tuple[Ang
     close, psi is NaN and the Closure says by how much the coupler misses (mm).
     """
     psi, d1, d2, _, miss, transmission = _solve(np.asarray(phi.a, float), a, b, c, e, f, g,
-                                                alpha_rad, branch)
+                                                alpha_rad, branch, order=2)
     dq = d1 * phi.da
     ddq = d2 * phi.da**2 + d1 * phi.dda
     shape = np.broadcast(psi, dq, ddq).shape
@@ -188,7 +200,7 @@ def rocker_sensitivities(phi_rad, a, b, c, e, f, g, alpha_rad, branch) -> dict[s
     derivatives of psi_max and psi_min, and their difference that of the swing.
     """
     phi = np.asarray(phi_rad, float)
-    psi = _solve(phi, a, b, c, e, f, g, alpha_rad, branch)[0]
+    psi = _solve(phi, a, b, c, e, f, g, alpha_rad, branch, order=1)[0]
     a, b, c, e, f, g, alpha = (np.asarray(v, float) for v in (a, b, c, e, f, g, alpha_rad))
     k = _coefficients(phi, a, b, c, e, f, g, alpha)
     f_psi = _partials(k, psi)[0, 1]

@@ -40,6 +40,7 @@ EXTRA_OUTPUTS = ("rocker_rate_max",)
 TOLERANCES = {"illustrative": {"a": 0.02, "b": 0.05, "c": 0.03, "e": 0.05, "f": 0.05,
                                "g": 0.05, "alpha": 0.1}}
 SAMPLES = 720
+CHUNK = 256
 RPM = 4000.0
 GROUP = "psi"
 # as for the planar dyads: a transmission angle below this during the cycle is a dead point,
@@ -106,8 +107,17 @@ def evaluate(values: dict, samples: int = SAMPLES, rpm: float = RPM) -> Evaluati
     if not np.isfinite(rpm) or rpm <= 0:
         raise ParameterError("rpm", "must be a positive number", rpm)
     p, m = _batch(values)
-    col = {n: v[:, None] for n, v in p.items()}
     q = 2.0 * np.pi * np.arange(int(samples)) / samples
+    parts = [_chunk(p, slice(lo, lo + CHUNK), q, rpm) for lo in range(0, m, CHUNK)]
+    status = np.concatenate([s for s, _ in parts])
+    out = {k: np.concatenate([o[k] for _, o in parts]) for k in OUTPUTS + EXTRA_OUTPUTS}
+    return Evaluation(out, status, np.where(status == "ok", "", GROUP))
+
+
+def _chunk(p: dict, rows: slice, q: np.ndarray, rpm: float):
+    """Status and outputs of the machines `rows` (a few hundred at a time keeps the
+    (machines, samples) arrays in cache)."""
+    col = {n: v[rows, None] for n, v in p.items()}
     psi, closure = engine.spatial_rocker(
         engine.driving_angle(q), col["a"], col["b"], col["c"], col["e"], col["f"], col["g"],
         np.radians(col["alpha"]), col["branch_psi"])
@@ -117,7 +127,6 @@ def evaluate(values: dict, samples: int = SAMPLES, rpm: float = RPM) -> Evaluati
     dead = ~cannot & (worst < DEAD_POINT_DEG)
     ok = ~cannot & ~dead
     status = np.where(cannot, "cannot_close", np.where(dead, "dead_point", "ok"))
-    failed = np.where(ok, "", GROUP)
 
     turned = np.unwrap(np.where(ok[:, None], psi.a, 0.0), axis=1)
     rate = np.abs(np.where(ok[:, None], psi.da, 0.0))
@@ -129,9 +138,8 @@ def evaluate(values: dict, samples: int = SAMPLES, rpm: float = RPM) -> Evaluati
         "rocker_min_deg": np.degrees(turned.min(axis=1)),
         "crank_at_rocker_max_deg": np.degrees(q[i_max]),
         "crank_at_rocker_min_deg": np.degrees(q[i_min]),
-        "rocker_tip_speed_max_m_s": p["c"] * 1e-3 * omega * rate.max(axis=1),
+        "rocker_tip_speed_max_m_s": p["c"][rows] * 1e-3 * omega * rate.max(axis=1),
         "transmission_min_deg": worst,
         "rocker_rate_max": rate.max(axis=1),
     }
-    out = {k: np.where(ok, v, np.nan) for k, v in out.items()}
-    return Evaluation(out, status, failed)
+    return status, {k: np.where(ok, v, np.nan) for k, v in out.items()}
