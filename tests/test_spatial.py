@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.optimize import minimize_scalar
 from scipy.spatial.transform import Rotation
 
@@ -66,6 +68,35 @@ def test_printed_position_function_is_the_coupler_length(rng):
             truth, abs=1e-9)
         jb, jc = engine.spatial_joints(phi, psi, a, c, e, f, g, alpha)
         assert np.max(np.abs(jb - bp[0])) < 1e-12 and np.max(np.abs(jc - cp[0])) < 1e-12
+
+
+@given(a=st.floats(1, 30), b=st.floats(5, 120), c=st.floats(1, 60), e=st.floats(0.5, 80),
+       f=st.floats(-40, 40), g=st.floats(-40, 40), alpha=st.floats(-180, 180),
+       branch=st.sampled_from([1.0, -1.0]))
+@settings(max_examples=150, deadline=None)
+def test_any_machine_closes_with_its_coupler_length_or_reports_the_miss(a, b, c, e, f, g, alpha,
+                                                                       branch):
+    q = np.linspace(0, 2 * np.pi, 64)
+    psi, closure = engine.spatial_rocker(engine.driving_angle(q), a, b, c, e, f, g,
+                                         np.radians(alpha), branch)
+    closes = closure.miss_mm == 0
+    assert np.array_equal(np.isnan(psi.a), ~closes)
+    bp, cp = engine.spatial_joints(q, psi.a, a, c, e, f, g, np.radians(alpha))
+    dist = np.linalg.norm(bp - cp, axis=-1)
+    assert np.all(np.abs(dist[closes] - b) < 1e-9)
+    # where it misses, b lies outside [nearest, farthest] distance of B to the rocker circle by
+    # exactly the miss (the circle sampled finely; sampling can only shrink the interval)
+    grid = np.linspace(-np.pi, np.pi, 4001)
+    for i in np.flatnonzero(~closes)[:4]:
+        bi, ci = engine.spatial_joints(q[i], grid, a, c, e, f, g, np.radians(alpha))
+        if np.isinf(closure.miss_mm[i]):
+            # B on the rocker's axis: no psi is defined (as for the dyad's coincident centres)
+            assert np.max(np.hypot(bi[..., 0] - e, bi[..., 1])) < 1e-9
+            continue
+        d = np.linalg.norm(bi - ci, axis=-1)
+        gap = max(d.min() - b, b - d.max())
+        assert 0 < closure.miss_mm[i] <= gap + 1e-9
+        assert gap - closure.miss_mm[i] < 1e-5 * (a + c + e + abs(f) + abs(g))
 
 
 @pytest.mark.parametrize("branch", [1.0, -1.0])
