@@ -237,6 +237,30 @@ def test_sensitivities_match_finite_differences_at_any_angle_and_at_the_extremes
         assert at_min[name] == pytest.approx((e_up.psi_min - e_lo.psi_min) / (2 * h), abs=1e-8)
 
 
+def test_extremes_of_random_crank_rockers_match_their_sampled_turn(rng):
+    # 1000 random spatial machines; those that close all round without a dead point and whose
+    # rocker swings (does not turn fully) must have both extremes, within the sampling bound
+    # (1/2) max|psi''| (pi/n)^2 of the sampled turn's max and min
+    m, n = 1000, 2048
+    a, c = rng.uniform(1, 30, m), rng.uniform(1, 60, m)
+    b, e = rng.uniform(5, 120, m), rng.uniform(0.5, 80, m)
+    f, g = rng.uniform(-40, 40, (2, m))
+    alpha, branch = np.radians(rng.uniform(-180, 180, m)), rng.choice([1.0, -1.0], m)
+    q = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    col = [v[:, None] for v in (a, b, c, e, f, g, alpha, branch)]
+    psi, closure = engine.spatial_rocker(engine.driving_angle(q), *col)
+    turned = np.unwrap(psi.a, axis=1)
+    swings = (np.all(closure.ok, axis=1) & (np.min(closure.transmission_deg, axis=1) > 1.0)
+              & (np.abs(turned[:, -1] - turned[:, 0]) < 1.0))
+    assert swings.sum() > 150
+    ext = engine.rocker_extremes(a, b, c, e, f, g, alpha, branch)
+    assert not np.any(np.isnan(ext.swing[swings]))
+    bound = 0.5 * np.max(np.abs(psi.dda), axis=1) * (np.pi / n) ** 2 * 1.01 + 1e-12
+    top = np.abs(wrap(turned.max(axis=1) - ext.psi_max))
+    bottom = np.abs(wrap(turned.min(axis=1) - ext.psi_min))
+    assert np.all(top[swings] <= bound[swings]) and np.all(bottom[swings] <= bound[swings])
+
+
 def test_perpendicular_axes_worked_example():
     # alpha = 90 deg (the 51 and 208 rows' case): A = -2 c f is constant, and the extreme
     # condition reads tan(phi) = -g / (c cos(psi) + e)
