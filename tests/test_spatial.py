@@ -262,7 +262,7 @@ def test_extremes_of_random_crank_rockers_match_their_sampled_turn(rng):
 
 
 def test_perpendicular_axes_worked_example():
-    # alpha = 90 deg (the 51 and 208 rows' case): A = -2 c f is constant, and the extreme
+    # alpha = 90 deg (the source's case for the 51 and 208 rows): A = -2 c f is constant; the extreme
     # condition reads tan(phi) = -g / (c cos(psi) + e)
     p = PERP
     ext = engine.rocker_extremes(p["a"], p["b"], p["c"], p["e"], p["f"], p["g"], p["alpha_rad"],
