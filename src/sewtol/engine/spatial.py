@@ -21,7 +21,8 @@ Position function. |B - C|^2 = b^2 with |B|^2 = a^2 + f^2 and
     A = -2c (f sin(alpha) + a cos(alpha) sin phi),   B = 2c (e - a cos phi),
     C = 2a (g sin(alpha) sin phi - e cos phi) + a^2 - b^2 + c^2 + e^2 + f^2 + g^2 - 2 f g cos(alpha),
 
-which is term for term the function printed by the source: the printed F agrees with this
+(A, B, C: coefficients, not the joints), which is term for term the function printed by the
+source: the printed F agrees with this
 derivation for the axis orientation above (with the crank axis tilted towards -Y instead,
 every sin(alpha) term changes sign). With R = sqrt(A^2 + B^2) and delta = atan2(A, B),
 F = R cos(psi - delta) + C, so psi = delta + branch * arccos(-C / R).
