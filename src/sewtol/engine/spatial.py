@@ -22,10 +22,10 @@ Position function. |B - C|^2 = b^2 with |B|^2 = a^2 + f^2 and
     C = 2a (g sin(alpha) sin phi - e cos phi) + a^2 - b^2 + c^2 + e^2 + f^2 + g^2 - 2 f g cos(alpha),
 
 (A, B, C: coefficients, not the joints), which is term for term the function printed by the
-source: the printed F agrees with this
-derivation for the axis orientation above (with the crank axis tilted towards -Y instead,
-every sin(alpha) term changes sign). With R = sqrt(A^2 + B^2) and delta = atan2(A, B),
-F = R cos(psi - delta) + C, so psi = delta + branch * arccos(-C / R).
+source: the printed F agrees with this derivation for the axis orientation above (with the
+crank axis tilted towards -Y instead, every sin(alpha) term changes sign). With
+R = sqrt(A^2 + B^2) and delta = atan2(A, B), F = R cos(psi - delta) + C, so
+psi = delta + branch * arccos(-C / R).
 
 branch = +1 takes sin(psi - delta) > 0, i.e. F_psi = -R sin(psi - delta) < 0. In the planar
 limit delta is the direction of B -> Q, so branch +1 puts C on the left of B -> Q: the same root
