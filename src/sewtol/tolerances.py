@@ -3,7 +3,7 @@
 A tolerance gives the lower and upper deviation from nominal (mm, or the parameter's own unit),
 and how machines scatter inside: `uniform` over the limits, `normal` with the limits at
 +/-3 sigma around their midpoint, or `truncnorm`, a normal (sigma = width/6) cut at the limits.
-Built-in sets restate the source study (../shared/design/needle_208.md): `base` and
+Built-in sets restate the source study (docs/needle_208.md, "Tolerances"): `base` and
 `recommended`. CD has no base tolerance in the source; `base` leaves CD exact.
 
 TOML form (a file of one or more sets):

@@ -1,6 +1,6 @@
 """Feed chains of the 131-42+3 class: lower and upper feed dogs ("vertical differential").
 
-Built group by group in the order of ../shared/design/feed_131-42-3.md (steps 1-23), with the
+Built group by group in the source's order (docs/feed_131.md, steps 1-23), with the
 analysis program's data. Frame origin O1 (main shaft), x right, y up, lengths mm, angles deg
 counter-clockwise from +x, phi = main-shaft angle. "RRR dyad X-J-Y, J left of X->Y" is
 engine.rrr(X, XJ, Y, YJ, +1).

@@ -1,6 +1,6 @@
 """The 208-class overlock needle drive: two four-bars in series, zero mobility.
 
-Topology (see docs/needle_208.md and ../shared/design/needle_208.md):
+Topology (the source's data and these conventions: docs/needle_208.md):
 
     crank F-L (LF)  ->  RRR dyad L-M-A (LM, AM; M on side branch_M of L->A)
     rocker angle theta = ang(A->M); second arm B = A + AB e(theta + beta_sense*beta)

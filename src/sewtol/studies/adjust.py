@@ -1,4 +1,4 @@
-"""The exact joint optimum of the needle's compensators per machine (issue 11 item 1, 13 item 2).
+"""The exact joint optimum of the needle's compensators per machine.
 
 Compensators and their boxes (low, high): `beta` (deg), `guide_shift_um` (um, the setting of
 the guide's lateral shift; it replaces the machine's own value) and `guide_angle` (deg, the

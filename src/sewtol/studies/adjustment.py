@@ -1,7 +1,7 @@
 """Adjustment at assembly: the joint optimum of the needle's SumDelta over a strategy's
 compensators, per machine, batched.
 
-Structure used (issue 13 item 2), innermost first:
+Structure used, innermost first:
 - guide_shift_um: with the band of n.(E - G) over the cycle [m, M] (um), a guide shift t gives
   SumDelta(t) = max(0, M - t) + max(0, t - m), so over t in [T0, T1] the minimum is
   max(M - m, M - T1, T0 - m) in closed form, a plateau [max(m, T0), min(M, T1)] when the band
@@ -24,7 +24,7 @@ Resolution model: the assembler aims at the chosen setting but lands anywhere wi
 compensator at -r/2, 0, +r/2, the others at their settings); exact wherever SumDelta is convex
 in the settings over that small box (it is piecewise linear and convex in the shift).
 
-The exact beta (and beta + shift) optimum is written elsewhere (issue 11); `_joint_optimum` is
+The exact beta (and beta + shift) optimum is in studies/adjust.py; `_joint_optimum` is
 the one function to switch to it.
 """
 

@@ -1,4 +1,4 @@
-"""Yield by adjustment strategy (issue 13): the same machines adjusted under each strategy.
+"""Yield by adjustment strategy: the same machines adjusted under each strategy.
 
 Every strategy sees the SAME machines (common random numbers: one draw of deviations from the
 seed), so differences between rows are the strategies', not sampling noise. Per row: counts
@@ -232,7 +232,7 @@ def allocate_for_strategy(nominal, reference: ToleranceSet, strategy: Strategy,
                           target: float = 0.9973, n: int = 500, seed: int = 0,
                           costs: dict | None = None, max_mm: float = 1.0, steps: int = 10,
                           limit_um: float = 10.0) -> StrategyAllocation:
-    """Issue 13 item 6: the allocation of studies.allocation with the yield taken after the
+    """The allocation of studies.allocation with the yield taken after the
     strategy's joint adjustment.
 
     Cost model: reciprocal in the width, cost = sum c_i / (upper_i - lower_i). Each reference
