@@ -38,6 +38,23 @@ MAX_TOML_BYTES = 1 << 20
 
 @dataclass(frozen=True)
 class Tolerance:
+    """The limits and distribution of one parameter's deviation from nominal.
+
+    Validated at construction: finite limits, ``lower <= upper``, a known distribution.
+
+    Parameters
+    ----------
+    param : str
+        The parameter's name, as the mechanism names it (``"CD"``, ``"Ax"``, ...).
+    lower, upper : float
+        The lower and upper deviation from nominal, in the parameter's unit (mm for lengths and
+        coordinates, deg for angles, um for ``guide_shift_um``); e.g. ``-0.8, 0.25``.
+    dist : str
+        How machines scatter inside: ``"uniform"`` over the limits, ``"normal"`` with the
+        limits at +/-3 sigma around their midpoint, or ``"truncnorm"``, that normal cut at the
+        limits.
+    """
+
     param: str
     lower: float
     upper: float
@@ -97,6 +114,23 @@ class Tolerance:
 
 @dataclass(frozen=True)
 class ToleranceSet:
+    """A named set of tolerances, one per parameter: what a study draws machines from.
+
+    Built in (`NEEDLE_208_SETS`, or ``sewtol.tolerance_set("recommended")``), read from a TOML
+    file, or built here. Vary it by copying: ``scaled({"CD": 0.5})`` halves CD's limits.
+
+    Parameters
+    ----------
+    name : str
+        The set's name (it labels tables and study folders).
+    items : tuple of Tolerance
+        The tolerances; a parameter may appear once. Parameters not named stay nominal.
+    description : str
+        What the set is, in words.
+    nominal_names : tuple of str
+        The mechanism's parameter names, if known (not compared).
+    """
+
     name: str
     items: tuple[Tolerance, ...]
     description: str = ""
@@ -202,6 +236,12 @@ NEEDLE_208_SETS = {
         _sym("BC", 0.05), _sym("BE", 0.05), _sym("CD", 0.01)),
         "source study, recommended tolerances"),
 }
+"""The source study's tolerance sets of the 208 needle drive, by name (lengths in mm).
+
+``base``: LF +/-0.05, LM +/-0.5, AM +/-0.1, AB, BC, BE +/-0.05, CD exact (the source gives it no
+base tolerance). ``recommended``: LF +0.25/-0.8, LM +/-0.5, AM +/-0.5, AB, BC, BE +/-0.05,
+CD +/-0.01. All uniform.
+"""
 
 
 def _number(where: str, v) -> float:

@@ -422,9 +422,34 @@ def _status(feas: nm.Feasibility, total, limit_um) -> np.ndarray:
                     np.where(feas.dead_point, "dead point", "cannot assemble")).astype(object)
 
 
-def adjust(c: dict, strategy: Strategy, limit_um: float = 10.0,
+def adjust(c: dict[str, np.ndarray], strategy: Strategy, limit_um: float = 10.0,
            plateaus: bool = True) -> Adjustment:
-    """The assembler's adjustment of each machine (parameter columns c, shape (n, 1))."""
+    """The assembler's adjustment of each machine (parameter columns c, shape (n, 1)).
+
+    Every machine gets the strategy's joint optimum: the settings of its compensators, within
+    their ranges and steps, that minimise SumDelta with the guide fixed.
+
+    Parameters
+    ----------
+    c : dict of numpy.ndarray
+        The machines as parameter columns of shape (n, 1), by `Needle208` field name: e.g.
+        ``c, n = sewtol.metrics.needle.columns(machine)`` (mm, deg, um).
+    strategy : Strategy
+        The compensators the assembler may set; an empty strategy leaves every machine as
+        built.
+    limit_um : float
+        The SumDelta limit (um) that makes a machine ok or out of spec.
+    plateaus : bool
+        Also find each setting's plateau (the range within 1e-3 um of the optimum).
+
+    Returns
+    -------
+    Adjustment
+        Per machine: SumDelta before (as built) and after (um), Delta+/Delta- after, each
+        setting with its plateau and at-limit flag, what the assembler achieves within the
+        setting resolution, and the status (``"ok"``, ``"out of spec"``,
+        ``"cannot assemble"``, ``"dead point"``).
+    """
     if not (np.isfinite(limit_um) and limit_um > 0):
         raise ParameterError("limit_um", "must be a positive number of um", limit_um)
     strategy.check_names(list(c))

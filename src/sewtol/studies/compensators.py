@@ -37,8 +37,28 @@ MODES = ("absolute", "offset")
 
 @dataclass(frozen=True)
 class Compensator:
-    """One setting: range [low, high] (absolute value, or offset from the as-built value),
-    optional discrete step (allowed settings low + k step) and resolution (0: exact)."""
+    """One setting the assembler makes on each machine, and its range.
+
+    Built-in ones for the needle: ``beta`` (10 ... 35 deg, absolute), ``guide_shift_um``
+    (+/-100 um), ``guide_angle`` (+/-0.1 deg about N1) and ``CD`` (+/-0.3 mm, a sliding head).
+
+    Parameters
+    ----------
+    name : str
+        The parameter it sets (a `Needle208` field name).
+    low, high : float
+        The range, in the parameter's unit: absolute values (``mode="absolute"``) or offsets
+        from the as-built value (``mode="offset"``).
+    step : float or None
+        None for a continuous setting; otherwise the allowed settings are ``low + k * step``.
+    resolution : float
+        How finely the assembler can set it (0: exactly); studies report the worst case within
+        it.
+    mode : str
+        ``"offset"`` (added to the as-built value) or ``"absolute"`` (replaces it).
+    unit : str
+        The unit, for tables (``"deg"``, ``"um"``, ``"mm"``).
+    """
 
     name: str
     low: float
@@ -103,7 +123,16 @@ NEEDLE_COMPENSATORS = {
 
 @dataclass(frozen=True)
 class Strategy:
-    """A named set of compensators (empty: no adjustment at assembly)."""
+    """A named set of compensators the assembler may use together.
+
+    Parameters
+    ----------
+    name : str
+        The strategy's name (it labels cases such as ``adjusted_<name>``).
+    compensators : tuple of Compensator
+        The settings made on each machine; empty means no adjustment at assembly. A
+        compensator may appear once.
+    """
 
     name: str
     compensators: tuple[Compensator, ...] = ()

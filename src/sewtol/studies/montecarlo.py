@@ -9,7 +9,9 @@ every summary satisfies ok + out_of_spec + failed = n (studies/needle_status.py)
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -21,6 +23,12 @@ from . import beta as sb
 from . import needle_status as ns
 from .needle_eval import evaluate
 from .parallel import child_generators, chunk_bounds, run_chunks
+
+if TYPE_CHECKING:
+    from distributed import Client
+
+    from ..mechanisms.needle_208 import Needle208
+    from .checkpoint import ChunkStore
 
 CHUNK = 500
 # bytes per machine and column of a study table (float64) plus pandas' working copies
@@ -176,6 +184,16 @@ def _needle_model(nominal, dev, range_deg):
 
 @dataclass(frozen=True)
 class MonteCarloResult:
+    """The machines of a needle Monte-Carlo and what they give (see `montecarlo`).
+
+    Two cases: ``fixed`` (every machine at the fixed beta) and ``adjusted`` (beta re-optimised
+    per machine). ``summary_frame()`` has per case the counts (``ok + out_of_spec + failed =
+    n``), the yield with its Clopper-Pearson interval, SumDelta quantiles and capability;
+    ``yield_of(case)``, ``yield_ci(case)``, ``counts(case)``, ``quantiles(case)`` and
+    ``capability(case)`` give them one by one; ``machines`` has every machine's deviations
+    (mm), outputs (um, deg) and status.
+    """
+
     machines: pd.DataFrame  # deviations (mm) and outputs per machine
     params: tuple[str, ...]
     tolerances: str
@@ -317,10 +335,12 @@ def fixed_beta_of(nominal, fixed_beta: str, range_deg, limit_um) -> float:
     return float(nominal_figures(nominal, tuple(range_deg), limit_um).beta_opt_deg)
 
 
-def montecarlo(nominal, tolerances: ToleranceSet, n: int, seed: int, limit_um: float = 10.0,
-               range_deg=sb.DEFAULT_RANGE_DEG, n_jobs: int = 1, progress=False,
+def montecarlo(nominal: Needle208, tolerances: ToleranceSet, n: int, seed: int,
+               limit_um: float = 10.0, range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
+               n_jobs: int = 1, progress: bool | Callable[[int, int], None] = False,
                backend: str | None = None, chunk_size: int = CHUNK,
-               store=None, fixed_beta: str = "optimum", scheduler=None) -> MonteCarloResult:
+               store: ChunkStore | None = None, fixed_beta: str = "optimum",
+               scheduler: str | Client | None = None) -> MonteCarloResult:
     """N machines in chunks of chunk_size, chunk i drawing from child i of the seed.
 
     The fixed case keeps every machine at the nominal machine's beta* (fixed_beta="optimum",
@@ -329,6 +349,60 @@ def montecarlo(nominal, tolerances: ToleranceSet, n: int, seed: int, limit_um: f
     chunks are saved as they arrive and an interrupted study resumes without recomputing them.
     progress: True (bar on stderr) or a callable progress(done, total) in chunks; scheduler: run
     on a Dask cluster (address or distributed.Client), same machines as a local run.
+
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters); machines deviate from it.
+    tolerances : ToleranceSet
+        What each machine's parameters draw from (deviations in mm, deg or um).
+    n : int
+        The number of machines (>= 1).
+    seed : int
+        The seed (>= 0; 0 is a seed). Chunk i draws from child i of
+        ``numpy.random.default_rng(seed)`` (``spawn``).
+    limit_um : float
+        The SumDelta limit (um) a machine must keep to count as ok; default 10.
+    range_deg : tuple of float
+        The regulating range for beta, (low, high) in deg; default (10, 35).
+    n_jobs : int
+        Worker processes on this machine (joblib); the tables do not depend on it.
+    progress : bool or callable
+        True: a bar on stderr; a callable ``progress(done, total)`` is called as chunks finish.
+    backend : str or None
+        A joblib backend (e.g. ``"dask"`` inside a ``distributed.Client()``); None: joblib's
+        default.
+    chunk_size : int
+        Machines per chunk; part of the study's identity (another chunk size draws other
+        machines).
+    store : ChunkStore or None
+        A study folder (``studies.checkpoint.ChunkStore``) that saves finished chunks and
+        resumes an interrupted study.
+    fixed_beta : str
+        ``"optimum"``: the fixed case is the nominal machine's beta*; ``"as_given"``: the
+        nominal's own ``beta`` parameter.
+    scheduler : str, distributed.Client or None
+        A Dask scheduler address or client: the chunks run on that cluster.
+
+    Returns
+    -------
+    MonteCarloResult
+        Every machine with its deviations, SumDelta (um) in both cases, beta* (deg) and status;
+        yields, counts, quantiles and capability per case.
+
+    Raises
+    ------
+    ParameterError
+        For a bad n, seed, limit, range or tolerance set (before anything runs).
+
+    Examples
+    --------
+    >>> import sewtol
+    >>> res = sewtol.montecarlo(sewtol.Needle208.nominal(), sewtol.tolerance_set("base"),
+    ...                         n=200, seed=2026)
+    >>> c = res.counts("adjusted")
+    >>> c["ok"] + c["out_of_spec"] + c["failed"] == 200
+    True
     """
     if not (np.isfinite(limit_um) and limit_um > 0):
         raise ParameterError("limit_um", "must be a positive number of um", limit_um)
