@@ -192,3 +192,18 @@ def test_docstring_examples_hold(name):
     for t in tests:
         runner.run(t)
     assert runner.failures == 0
+
+
+def test_home_page_example_prints_what_it_shows(capsys):
+    """docs/index.md's first study runs as written and prints the table the page shows."""
+    page = (ROOT / "docs" / "index.md").read_text()
+    code = re.search(r"## A first study in Python.*?```python\n(.*?)```", page, re.S).group(1)
+    shown = re.search(r"```text\n(.*?)```", page, re.S).group(1)
+    exec(compile(code, "docs/index.md", "exec"), {})
+    printed = capsys.readouterr().out
+    norm = [" ".join(line.split()) for line in printed.splitlines()]
+    for line in shown.strip().splitlines():
+        assert " ".join(line.split()) in norm, line
+    # and the numbers in the comment next to nominal_figures
+    fig = sewtol.nominal_figures(sewtol.Needle208.nominal())
+    assert f"beta* {fig.beta_opt_deg:.2f} deg, SumDelta {fig.total_um:.2f} um" in code
