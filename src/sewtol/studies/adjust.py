@@ -477,7 +477,7 @@ def _window_feasible(c, u, w):
     return ok
 
 
-# --- discrete compensators (issue 13 item 2): settings on a grid of steps ----------------------
+# --- discrete compensators: settings on a grid of steps -------------------------------------------
 
 @dataclass(frozen=True)
 class DiscreteResult:

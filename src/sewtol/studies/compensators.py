@@ -111,7 +111,7 @@ class Compensator:
         return replace(self, **changes)
 
 
-# Built in for the needle drive (issue 13): the clamp angle, a lateral move and a turn of the
+# Built in for the needle drive: the clamp angle, a lateral move and a turn of the
 # guide, and CD made adjustable by a sliding head.
 NEEDLE_COMPENSATORS = {
     "beta": Compensator("beta", 10.0, 35.0, mode="absolute", unit="deg"),

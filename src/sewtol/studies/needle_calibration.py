@@ -555,7 +555,8 @@ def frame_record(name: str, summary: str, m: Needle208, family: Family, targets:
         "name": name, "version": FRAME_VERSION, "summary": summary,
         "params": P.as_dict(m),
         "provenance": {
-            "source": "../shared/design/needle_208.md (2021 diploma study; Polukhin)",
+            "source": "2021 diploma study of 208-class overlock needle mechanisms; V. P. Polukhin "
+                      "(restated in docs/needle_208.md)",
             "method": method, "kind": kind,
             "family": family.as_dict(), "family_label": family.label,
             "frame_x": prov["frame_x"],
