@@ -30,6 +30,7 @@ class NominalFigures:
     limit_um: float
 
     def to_dict(self) -> dict:
+        """The figures as plain data (the JSON of ``sewtol needle nominal``)."""
         return {
             "beta_opt_deg": self.beta_opt_deg,
             "total_um": self.total_um,
@@ -45,6 +46,7 @@ class NominalFigures:
         }
 
     def to_dataframe(self) -> pd.DataFrame:
+        """The figures as quantity/value rows (the table of ``sewtol needle nominal``)."""
         rows = [
             ("beta* (deg)", self.beta_opt_deg),
             ("SumDelta at beta* (um)", self.total_um),

@@ -80,10 +80,12 @@ class Tolerance:
 
     @property
     def mid(self) -> float:
+        """The middle of the limits (mm, or the parameter's unit)."""
         return 0.5 * (self.lower + self.upper)
 
     @property
     def sigma(self) -> float:
+        """A sixth of the width: the normal's sigma with the limits at +/-3 sigma."""
         return (self.upper - self.lower) / 6.0
 
     def reach(self) -> tuple[float, float]:
@@ -165,6 +167,7 @@ class ToleranceSet:
 
     @property
     def params(self) -> list[str]:
+        """The toleranced parameters, in the set's order."""
         return [t.param for t in self.items]
 
     def active(self) -> ToleranceSet:
@@ -173,6 +176,7 @@ class ToleranceSet:
                             self.description)
 
     def check_names(self, valid: list[str]) -> ToleranceSet:
+        """This set, if every parameter is in `valid`; otherwise ParameterError listing the valid names."""
         for t in self.items:
             if t.param not in valid:
                 raise ParameterError(t.param, f"unknown parameter in tolerance set '{self.name}'; "
@@ -219,6 +223,7 @@ class ToleranceSet:
                                 if changed else ""))
 
     def as_dict(self) -> dict:
+        """The set as plain data: per parameter its lower and upper limit and distribution."""
         return {t.param: {"lower": t.lower, "upper": t.upper, "dist": t.dist} for t in self.items}
 
 

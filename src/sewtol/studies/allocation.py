@@ -44,9 +44,11 @@ class Allocation:
     scale: float
 
     def to_dataframe(self) -> pd.DataFrame:
+        """The allocation table (a copy)."""
         return self.table.copy()
 
     def as_tolerance_set(self, name: str = "allocated") -> ToleranceSet:
+        """The allocated limits as a symmetric, uniform ToleranceSet."""
         return ToleranceSet(name, tuple(Tolerance(p, -t, t) for p, t in
                                         zip(self.table["param"], self.table["tolerance_mm"],
                                             strict=True)), "allocated by sewtol")

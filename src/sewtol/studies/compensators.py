@@ -93,6 +93,7 @@ class Compensator:
 
     @property
     def discrete(self) -> bool:
+        """True when the compensator has steps (allowed settings low + k step)."""
         return self.step is not None
 
     def settings(self) -> np.ndarray:
@@ -108,6 +109,7 @@ class Compensator:
         return setting if self.mode == "absolute" else as_built + setting
 
     def with_changes(self, **changes) -> Compensator:
+        """A copy with some fields changed (validated again)."""
         return replace(self, **changes)
 
 
@@ -145,9 +147,11 @@ class Strategy:
 
     @property
     def names(self) -> tuple[str, ...]:
+        """The compensators' names, in order."""
         return tuple(c.name for c in self.compensators)
 
     def get(self, name: str) -> Compensator:
+        """The compensator of that name; ParameterError naming the ones there are otherwise."""
         for c in self.compensators:
             if c.name == name:
                 return c

@@ -205,6 +205,7 @@ class MonteCarloResult:
 
     @property
     def n(self) -> int:
+        """The number of machines drawn."""
         return len(self.machines)
 
     @property
@@ -222,6 +223,7 @@ class MonteCarloResult:
         return c
 
     def status(self, case: str) -> np.ndarray:
+        """Per machine: ok, out_of_spec, cannot_close, dead_point or unexplained."""
         case = self.case_of(case)
         col = f"status_{case}"
         if col in self.machines:
@@ -235,10 +237,12 @@ class MonteCarloResult:
         return ns.counts(self.status(case))
 
     def passed(self, case: str) -> np.ndarray:
+        """Per machine: True where SumDelta <= limit_um (a failed machine never passes)."""
         case = self.case_of(case)
         return (self.machines[f"total_{case}_um"] <= self.limit_um).to_numpy()
 
     def yield_of(self, case: str) -> float:
+        """The share of machines that pass in a case (``"fixed"`` or ``"adjusted"``)."""
         return float(self.passed(case).mean())
 
     def yield_ci(self, case: str = "adjusted", level: float = 0.95) -> tuple[float, float]:
@@ -249,12 +253,14 @@ class MonteCarloResult:
         return float(ci.low), float(ci.high)
 
     def quantiles(self, case: str) -> dict:
+        """p50, p95 and p99 of SumDelta (um); failed machines rank as infinitely bad."""
         case = self.case_of(case)
         # failed machines rank as infinitely bad, so they are not hidden by the quantiles
         x = self.machines[f"total_{case}_um"].fillna(np.inf).to_numpy()
         return {f"p{q}": float(np.quantile(x, q / 100, method="higher")) for q in (50, 95, 99)}
 
     def beta_range(self) -> tuple[float, float]:
+        """The smallest and largest per-machine beta* (deg) among machines that assemble."""
         b = self.machines["beta_opt_deg"].dropna()
         return (float(b.min()), float(b.max())) if len(b) else (float("nan"), float("nan"))
 
@@ -276,6 +282,7 @@ class MonteCarloResult:
         return contributors(self.machines, self.params, f"total_{case}_um", bins)
 
     def to_dict(self) -> dict:
+        """The JSON of ``sewtol needle montecarlo``: counts, yields, intervals, quantiles, capability."""
         lo, hi = self.yield_ci("adjusted")
         return {
             "n": self.n,
@@ -301,6 +308,7 @@ class MonteCarloResult:
         }
 
     def summary_frame(self) -> pd.DataFrame:
+        """One row per case: counts (ok + out_of_spec + failed = n), yield and interval, quantiles, Cpu."""
         rows = []
         for case in ("fixed", "adjusted"):
             q = self.quantiles(case)

@@ -190,10 +190,12 @@ class RareEventResult:
 
     @property
     def resolved(self) -> bool:
+        """True when failures were found (otherwise only an upper bound is known)."""
         return self.failures > 0
 
     @property
     def statement(self) -> str:
+        """The result in one line: ppm with c.o.v. and interval, or "< X at 95 %"."""
         if not self.resolved:
             return (f"< {_fmt_ppm(self.upper_95)} at 95 % (no failure in {self.model_calls} "
                     f"model calls, {self.method})")
@@ -202,6 +204,7 @@ class RareEventResult:
                 f"found, {self.model_calls} model calls, {self.method})")
 
     def to_dict(self) -> dict:
+        """The result as plain data (what ``sewtol needle ppm --format json`` extends)."""
         return {"method": self.method, "probability": self.probability,
                 "ppm": self.probability * 1e6, "cov": self.cov,
                 "ci95": [self.ci_low, self.ci_high], "upper_95": self.upper_95,
@@ -211,6 +214,7 @@ class RareEventResult:
                 "limit": self.limit, "output": self.output, "notes": self.notes}
 
     def to_dataframe(self) -> pd.DataFrame:
+        """The result as one row."""
         row = {"method": self.method, "probability": self.probability,
                "ppm": self.probability * 1e6 if self.resolved else np.nan, "cov": self.cov,
                "ci_low_ppm": self.ci_low * 1e6, "ci_high_ppm": self.ci_high * 1e6,

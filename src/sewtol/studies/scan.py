@@ -45,9 +45,11 @@ class ScanResult:
     strategy: str = "beta"  # the adjustment of every row (scan(strategy=...))
 
     def to_dataframe(self) -> pd.DataFrame:
+        """The rows (a copy)."""
         return self.rows.copy()
 
     def to_records(self) -> list[dict]:
+        """The rows as dicts, the fixed columns first (the JSON rows of ``sewtol needle scan``)."""
         cols = ["param", "side", "delta_mm", "value_mm", "beta_deg", "plus_um", "minus_um",
                 "total_um"]
         cols += [c for c in self.rows.columns if c not in cols]

@@ -113,9 +113,11 @@ class SobolResult:
     tolerances: str
 
     def to_dataframe(self) -> pd.DataFrame:
+        """The indices at n: param, S1, S1_conf, ST, ST_conf, case."""
         return self.indices[self.indices["n"] == self.n].drop(columns="n").reset_index(drop=True)
 
     def to_records(self) -> list[dict]:
+        """The indices at n as dicts (the JSON rows of ``sewtol needle sobol``)."""
         return self.to_dataframe()[["param", "S1", "S1_conf", "ST", "ST_conf", "case"]].to_dict(
             orient="records")
 
