@@ -1,0 +1,96 @@
+"""Built-in fused kernels a file may name with `fast_path`, and the check that earns it.
+
+A file gets a built-in model's kernels (and its studies) only if its own groups reproduce the
+built-in chain: positions of the named joints equal to POSITION_TOL_MM at the file's sampled
+angles, for the nominal machine and PERTURBED machines around it (a fixed seed, so the check
+is the same every time). Otherwise the loader refuses the fast path in one line.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+POSITION_TOL_MM = 1e-9
+PERTURBED = 4
+CHECK_SEED = 20261122
+
+
+@dataclass(frozen=True)
+class FastPath:
+    name: str
+    points: tuple[str, ...]
+    check: Callable  # check(mech) -> "" when it reproduces the model, else why not
+
+
+def _needle_params(mech, values=None):
+    from ..mechanisms import params as P
+    from ..mechanisms.needle_208 import Needle208
+
+    vals = mech.nominal_values()
+    vals.update(values or {})
+    return Needle208(**{k: vals[k] for k in P.field_names(Needle208)})
+
+
+def needle_perturbations(mech) -> dict[str, np.ndarray]:
+    """Nominal plus PERTURBED machines: lengths +-0.05 mm, angles +-0.2 deg, frame +-0.05 mm."""
+    from ..mechanisms import params as P
+    from ..mechanisms.needle_208 import Needle208
+
+    rng = np.random.default_rng(CHECK_SEED)
+    nominal = mech.nominal_values()
+    out = {}
+    for k in P.field_names(Needle208):
+        if k.startswith(("branch_", "beta_sense")):
+            continue
+        step = 0.2 if k in ("beta", "CBE", "guide_angle") else 0.05
+        out[k] = nominal[k] + np.concatenate([[0.0], rng.uniform(-step, step, PERTURBED)])
+    return out
+
+
+def needle_positions_residual(mech, values: dict[str, np.ndarray]) -> tuple[float, str]:
+    """Largest |file - built-in| (mm) over L, M, B, C, E at the file's samples, and where."""
+    from ..mechanisms import needle_208 as nd
+    from ..mechanisms import params as P
+
+    q = mech.angles_rad()
+    state = mech.state(values, q)
+    m = state.shape[0]
+    built = nd.chain_from_crank(P.column(_needle_params(mech, values), m), q[None, :])
+    worst, where = 0.0, ""
+    for name in ("L", "M", "B", "C", "E"):
+        diff = np.abs(np.broadcast_to(built[name].p, state.shape) - state.points[name].p)
+        d = float(np.nanmax(diff)) if np.isfinite(diff).any() else np.inf
+        if not np.isfinite(diff).all() or not np.isfinite(d):
+            d = np.inf
+        if d > worst:
+            worst, where = d, name
+    return worst, where
+
+
+def check_needle_208(mech) -> str:
+    from ..mechanisms import params as P
+    from ..mechanisms.needle_208 import Needle208
+
+    missing = [k for k in P.field_names(Needle208) if k not in mech.parameter_names]
+    if missing:
+        return "parameters missing: " + ", ".join(missing)
+    points = [g.name for g in mech.groups]
+    lacking = [p for p in ("L", "M", "B", "C", "E") if p not in points]
+    if lacking:
+        return "points missing: " + ", ".join(lacking)
+    try:
+        _needle_params(mech)
+    except ValueError as exc:
+        return str(exc)
+    worst, where = needle_positions_residual(mech, needle_perturbations(mech))
+    if not worst <= POSITION_TOL_MM:
+        return f"{where} differs by {worst:.3g} mm > {POSITION_TOL_MM:g} mm"
+    return ""
+
+
+FAST_PATHS: dict[str, FastPath] = {
+    "needle_208": FastPath("needle_208", ("L", "M", "B", "C", "E"), check_needle_208),
+}
