@@ -1,0 +1,319 @@
+"""Mechanism files: loader refusals (with lines), the expression whitelist, equality with the
+built-in chains, the needle fast path, statuses, reproducibility and transfer functions."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cli_helpers import run
+from sewtol.errors import ParameterError
+from sewtol.mechanism import ExpressionError, load, loads, parse_expression
+from sewtol.mechanism.fast_paths import needle_perturbations, needle_positions_residual
+from sewtol.mechanisms import params as P
+from sewtol.mechanisms.feed_131 import Feed131, chains
+from sewtol.studies import generic as G
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+NEEDLE = EXAMPLES / "needle_208.toml"
+FEED = EXAMPLES / "feed_131.toml"
+KHUJAND = EXAMPLES / "khujand_feed.toml"
+
+FOUR_BAR = """format = "sewtol-mechanism/1"
+
+[mechanism]
+name = "four_bar"
+samples = 360
+rpm = 600
+
+[parameters]
+a = { nominal = 10.0, unit = "mm", rule = "positive", doc = "crank" }
+b = { nominal = 40.0, unit = "mm", rule = "positive" }
+c = { nominal = 30.0, unit = "mm", rule = "positive" }
+d = { nominal = 35.0, unit = "mm", rule = "positive" }
+s = { nominal = 1, unit = "1", rule = "branch" }
+
+[[groups]]
+type = "point"
+name = "A"
+x = 0.0
+y = 0.0
+
+[[groups]]
+type = "point"
+name = "D"
+x = "d"
+y = 0.0
+
+[[groups]]
+type = "crank"
+name = "B"
+center = "A"
+radius = "a"
+
+[[groups]]
+type = "rrr"
+name = "C"
+p1 = "B"
+r1 = "b"
+p2 = "D"
+r2 = "c"
+branch = "s"
+
+[[outputs]]
+name = "B_y_range_mm"
+unit = "mm"
+type = "coordinate"
+point = "B"
+axis = "y"
+measure = "range"
+
+[[outputs]]
+name = "B_speed_m_s"
+unit = "m/s"
+type = "speed"
+point = "B"
+
+[[outputs]]
+name = "transmission_deg"
+unit = "deg"
+type = "transmission"
+group = "C"
+
+[tolerances.wide]
+b = 3.0
+"""
+
+
+def refusal(text: str) -> str:
+    with pytest.raises(ParameterError) as info:
+        loads(text, "m.toml")
+    return str(info.value)
+
+
+def line_of(text: str, snippet: str, after: str = "") -> int:
+    start = text.index(after) if after else 0
+    return text[: text.index(snippet, start)].count("\n") + 1
+
+
+# --- loader refusals --------------------------------------------------------------------------
+
+def test_unknown_key_names_file_line_and_field():
+    text = FOUR_BAR.replace('r2 = "c"', 'r2 = "c"\nradius = 3')
+    msg = refusal(text)
+    assert msg.startswith(f"m.toml:{line_of(text, 'radius = 3')}: [[groups]] C.radius: unknown key")
+    assert "allowed: type, name, p1, r1, p2, r2, branch" in msg
+
+
+def test_reference_to_undefined_point_and_parameter():
+    text = FOUR_BAR.replace('p2 = "D"', 'p2 = "Q"')
+    msg = refusal(text)
+    assert msg.startswith(f"m.toml:{line_of(text, 'p2 = ')}: [[groups]] C.p2: must name a point")
+    text = FOUR_BAR.replace('r1 = "b"', 'r1 = "bb * 2"')
+    msg = refusal(text)
+    assert f"m.toml:{line_of(text, 'r1 = ')}: [[groups]] C.r1" in msg
+    assert "'bb', which is not a parameter" in msg
+
+
+def test_branch_rule_value_and_format():
+    assert "must be +1 (left) or -1 (right)" in refusal(FOUR_BAR.replace('branch = "s"',
+                                                                        "branch = 2"))
+    assert "rule = \"branch\"" in refusal(FOUR_BAR.replace('branch = "s"', 'branch = "a"'))
+    text = FOUR_BAR.replace("c = { nominal = 30.0", "c = { nominal = -30.0")
+    msg = refusal(text)
+    assert msg.startswith(f"m.toml:{line_of(text, 'c = { nominal')}: [parameters] c.nominal")
+    assert "must be a positive length" in msg
+    assert 'must be "sewtol-mechanism/1"' in refusal(FOUR_BAR.replace("/1", "/2", 1))
+    assert "is not valid TOML" in refusal(FOUR_BAR + "\nbroken = [\n")
+    assert "must be one of" in refusal(FOUR_BAR.replace('type = "speed"', 'type = "sped"'))
+    assert "is already defined" in refusal(FOUR_BAR.replace('name = "D"', 'name = "A"'))
+    msg = refusal(FOUR_BAR.replace('[tolerances.wide]\nb = 3.0', '[tolerances.wide]\ns = 1'))
+    assert msg.startswith(f"m.toml:{line_of(FOUR_BAR, 'b = 3.0')}:")
+    assert "never toleranced" in msg
+
+
+def test_cli_refuses_bad_file_in_one_line(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(FOUR_BAR.replace('radius = "a"', 'radius = "__import__(\'os\')"'))
+    code, out, err = run("run", str(bad), "nominal")
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1
+    assert f"bad.toml:{line_of(FOUR_BAR, 'radius = ')}: [[groups]] B.radius" in err
+
+
+# --- expressions --------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("text", [
+    "__import__('os')", "a.real", "(lambda: 1)()", "a[0]", "sqrt(x=a)", "open('f')",
+    "a if a else 1", "a < 1", "'s'", "[a]", "True",
+])
+def test_expression_whitelist_refuses(text):
+    with pytest.raises(ExpressionError):
+        parse_expression(text, {"a"})
+
+
+def test_expression_values():
+    e = parse_expression("2 * sin(radians(30)) + a ** 2 - -b / 4", {"a", "b"})
+    assert e.names == ("a", "b")
+    got = e({"a": np.array([1.0, 3.0]), "b": 8.0})
+    np.testing.assert_allclose(got, [1.0 + 1.0 + 2.0, 1.0 + 9.0 + 2.0], rtol=0, atol=1e-15)
+    assert parse_expression("degrees(atan2(1, 1)) + pi * 0")({}) == pytest.approx(45.0, abs=1e-13)
+
+
+# --- equality with the built-in chains ----------------------------------------------------------
+
+def test_needle_file_equals_builtin_chain_positions():
+    mech = load(NEEDLE)
+    values = needle_perturbations(mech)
+    assert len(next(iter(values.values()))) == 5  # nominal + 4 perturbed machines
+    worst, _ = needle_positions_residual(mech, values)
+    assert worst <= 1e-9
+
+
+def test_feed_file_equals_builtin_chain_positions():
+    mech = load(FEED)
+    rng = np.random.default_rng(3)
+    names = ["O1F", "FK", "O4K", "DB", "A1B", "b", "O3C", "CR", "SV", "XL", "O7H", "IJ", "RS"]
+    nominal = mech.nominal_values()
+    values = {k: nominal[k] + np.concatenate([[0.0], rng.uniform(-0.05, 0.05, 3)]) for k in names}
+    q = mech.angles_rad()
+    state = mech.state(values, q)
+    built = chains(P.column(Feed131().override(**values), 4), q[None, :])
+    for name in ("F", "K", "M", "B", "C", "E", "N", "Q1", "R", "S", "V", "W", "L", "H", "J", "Y",
+                 "Q2"):
+        diff = np.abs(np.broadcast_to(built[name].p, state.shape) - state.points[name].p)
+        assert np.max(diff) <= 1e-9, name
+    assert np.max(np.abs(built["holder_angle"].a - state.angles["f"].a)) <= 1e-12
+
+
+def test_needle_sumdelta_matches_exact_figure():
+    """The file samples 720 crank angles; the built-in finds the extremes exactly."""
+    from sewtol.mechanisms.needle_208 import Needle208
+    from sewtol.metrics import needle as nm
+
+    exact = float(nm.deviation_figures(nm.columns(Needle208.nominal())[0]).total_um[0])
+    generic = float(load(NEEDLE).evaluate(outputs=["SumDelta_um"]).outputs["SumDelta_um"][0])
+    assert exact == pytest.approx(4.587047, abs=1e-6)
+    assert abs(generic - exact) < 1e-3 and generic <= exact
+
+
+# --- the fast path ------------------------------------------------------------------------------
+
+def test_fast_path_refused_when_the_file_differs(tmp_path):
+    text = NEEDLE.read_text().replace('offset_deg = "CBE"', 'offset_deg = "CBE + 0.001"')
+    with pytest.raises(ParameterError) as info:
+        loads(text, "n.toml")
+    msg = str(info.value)
+    assert "[mechanism] fast_path" in msg and "does not reproduce the built-in needle_208" in msg
+    assert "E differs by" in msg
+    assert msg.startswith(f"n.toml:{line_of(text, 'fast_path = ')}:")
+    # without fast_path the same file loads and runs the generic study
+    plain = text.replace('fast_path = "needle_208"\n', "")
+    assert loads(plain, "n.toml").header.fast_path is None
+    f = tmp_path / "n.toml"
+    f.write_text(plain)
+    code, out, err = run("run", str(f), "montecarlo", "--n", "50", "--seed", "7", "--format",
+                         "csv")
+    assert code == 0, err
+    assert out.startswith("output,n,ok,") and "adjusted_beta" not in out
+
+
+@pytest.mark.parametrize("fmt", ["csv", "json"])
+def test_run_montecarlo_is_byte_identical_to_needle_montecarlo(fmt):
+    a = run("run", str(NEEDLE), "montecarlo", "--n", "2000", "--seed", "7", "--format", fmt)
+    b = run("needle", "montecarlo", "--n", "2000", "--seed", "7", "--format", fmt)
+    assert a[0] == 0 and b[0] == 0
+    assert a[1] == b[1]
+    assert "adjusted_beta" in a[1]
+
+
+# --- statuses, reproducibility ------------------------------------------------------------------
+
+def test_status_counts_add_up_and_name_the_group():
+    # b + c must reach a + d = 45 (B farthest from D at q = 180): b in [11, 17] around 14 fails
+    # below b = 15, sits near the stretched dead point just above it, and runs beyond
+    mech = loads(FOUR_BAR, "m.toml").override(b=14.0)
+    res = G.montecarlo(mech, mech.tolerance_sets["wide"], 400, 11, limit=20.0)
+    c = res.counts("B_y_range_mm")
+    assert c["ok"] + c["out_of_spec"] + c["cannot_close"] + c["dead_point"] == c["n"] == 400
+    b = res.machines["b"].to_numpy() + 14.0
+    status = res.machines["status"].to_numpy()
+    assert c["cannot_close"] == int(np.sum(b < 15.0)) > 100
+    assert c["dead_point"] > 0 and c["ok"] > 100
+    assert np.all(status[b > 15.5] == "ok") and np.all(status[b < 15.0] == "cannot_close")
+    assert set(res.machines.loc[status != "ok", "failed_group"]) == {"C"}
+    assert res.machines.loc[status != "ok", "B_y_range_mm"].isna().all()
+    assert res.failed_groups() == {"C": c["cannot_close"] + c["dead_point"]}
+
+
+def test_dead_point_is_counted():
+    mech = loads(FOUR_BAR, "m.toml")
+    # b + c = a + d + eps: the dyad is almost stretched at q = 0 (transmission ~ 0)
+    ev = mech.evaluate({"b": np.array([40.0, 15.0 + 1e-4, 15.0 - 1e-4])})
+    assert list(ev.status) == ["ok", "dead_point", "cannot_close"]
+    assert ev.counts() == {"ok": 1, "cannot_close": 1, "dead_point": 1, "n": 3}
+
+
+def test_same_seed_same_table_and_counts_in_cli():
+    mech = load(KHUJAND)
+    ts = mech.tolerance_sets["illustrative"]
+    a = G.montecarlo(mech, ts, 300, 5)
+    b = G.montecarlo(mech, ts, 300, 5)
+    c = G.montecarlo(mech, ts, 300, 6)
+    assert a.machines.equals(b.machines)
+    assert not a.machines["E_x_range_mm"].equals(c.machines["E_x_range_mm"])
+    code, out, err = run("run", str(KHUJAND), "montecarlo", "--n", "300", "--seed", "5",
+                         "--format", "csv")
+    assert code == 0, err
+    assert out == run("run", str(KHUJAND), "montecarlo", "--n", "300", "--seed", "5",
+                      "--format", "csv")[1]
+    assert out.splitlines()[1].startswith("E_x_range_mm,300,300,0,0,0,")
+
+
+def test_khujand_template_runs_nominal():
+    code, out, err = run("run", str(KHUJAND), "nominal", "--format", "json")
+    assert code == 0, err
+    import json
+
+    vals = json.loads(out)["outputs"]
+    assert vals["E_x_range_mm"] == pytest.approx(6.5011, abs=1e-4)
+    assert vals["transmission_BCD_deg"] > 60 and vals["transmission_NMH_deg"] > 50
+
+
+# --- analytic outputs and transfer functions ----------------------------------------------------
+
+def test_crank_pin_outputs_are_analytic():
+    mech = loads(FOUR_BAR, "m.toml")
+    ev = mech.evaluate({"a": np.array([5.0, 10.0])}, ["B_y_range_mm", "B_speed_m_s"])
+    np.testing.assert_allclose(ev.outputs["B_y_range_mm"], [10.0, 20.0], atol=1e-12)
+    omega = 600 * 2 * np.pi / 60
+    np.testing.assert_allclose(ev.outputs["B_speed_m_s"], [5e-3 * omega, 10e-3 * omega],
+                               rtol=1e-12)
+
+
+@pytest.mark.parametrize("path", [FEED, KHUJAND])
+def test_transfer_functions_match_finite_differences(path):
+    mech = load(path)
+    q = np.radians(np.arange(3.0, 360.0, 37.0))
+    h = 1e-5
+    s0, sp, sm = (mech.state(None, q + dq) for dq in (0.0, h, -h))
+    for name, m0 in s0.points.items():
+        fd1 = (sp.points[name].p - sm.points[name].p) / (2 * h)
+        fd2 = (sp.points[name].p - 2 * m0.p + sm.points[name].p) / h**2
+        np.testing.assert_allclose(m0.dp, fd1, atol=1e-6 * (1 + np.abs(m0.dp).max()), err_msg=name)
+        np.testing.assert_allclose(m0.ddp, fd2, atol=2e-3 * (1 + np.abs(m0.ddp).max()),
+                                   err_msg=name)
+    for name, a0 in s0.angles.items():
+        fd1 = (sp.angles[name].a - sm.angles[name].a) / (2 * h)
+        np.testing.assert_allclose(a0.da, fd1, atol=1e-7, err_msg=name)
+
+
+def test_worst_case_bounds_the_monte_carlo_sample():
+    mech = load(KHUJAND)
+    ts = mech.tolerance_sets["illustrative"]
+    wc = G.worst_case(mech, ts, "E_x_range_mm").rows.set_index("extreme")["value"]
+    sample = G.montecarlo(mech, ts, 500, 2, outputs=["E_x_range_mm"]).machines["E_x_range_mm"]
+    assert wc["min"] <= sample.min() and sample.max() <= wc["max"]
+    assert wc["max"] - wc["min"] == pytest.approx(0.3038, abs=1e-3)
