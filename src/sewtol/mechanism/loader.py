@@ -282,7 +282,8 @@ def _groups(ctx, table, pnames) -> list[Group]:
             fpath = path + (k,)
             if kind in ("point", "angle"):
                 if not isinstance(v, str) or points.get(v) != kind:
-                    what = "defined earlier" if v not in points else f"a {kind}, not a {points[v]}"
+                    what = (f"no earlier group defines {v!r}" if v not in points
+                            else f"{v} is a {points[v]}, not a {kind}")
                     ctx.fail(fpath, f"{where}.{k}", f"must name a {kind} defined by an earlier "
                              f"group ({what})", v)
                 fields[k] = v
