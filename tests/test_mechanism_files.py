@@ -317,3 +317,52 @@ def test_worst_case_bounds_the_monte_carlo_sample():
     sample = G.montecarlo(mech, ts, 500, 2, outputs=["E_x_range_mm"]).machines["E_x_range_mm"]
     assert wc["min"] <= sample.min() and sample.max() <= wc["max"]
     assert wc["max"] - wc["min"] == pytest.approx(0.3038, abs=1e-3)
+
+
+# --- the generic studies against the built-in needle model --------------------------------------
+
+def test_transmission_outputs_match_the_exact_extremes():
+    from sewtol.mechanisms import needle_208 as nd
+
+    c = P.column(nd.Needle208.nominal(), None)
+    lo, hi, _, _ = nd.rocker_interval(c)
+    g1, _, g2, _ = nd.transmission_extremes(c, lo, hi)
+    ev = load(NEEDLE).evaluate(outputs=["transmission_LMA_deg", "transmission_BCD_deg"])
+    for name, exact in (("transmission_LMA_deg", g1), ("transmission_BCD_deg", g2)):
+        sampled = float(ev.outputs[name][0])
+        assert float(exact) <= sampled < float(exact) + 1e-2, name
+
+
+def test_generic_worst_case_equals_builtin_fixed_beta_worst_case(nominal):
+    from sewtol.studies.worst_case import worst_case
+    from sewtol.tolerances import NEEDLE_208_SETS
+
+    built = worst_case(nominal, NEEDLE_208_SETS["base"], adjust=False)
+    mech = load(NEEDLE)
+    assert mech.nominal_values()["beta"] == built.beta_deg  # the frame's beta is its beta*
+    rows = G.worst_case(mech, mech.tolerance_sets["base"], "SumDelta_um").rows
+    top = rows.set_index("extreme").loc["max"]
+    assert top["value"] == pytest.approx(built.total_um, abs=1e-3)  # 720 samples vs exact
+    assert {k: top[f"{k}_dev"] for k in built.point} == built.point
+
+
+def test_tolerances_breaking_a_rule_are_refused_before_running():
+    text = FOUR_BAR.replace("[tolerances.wide]\nb = 3.0", "[tolerances.wide]\na = 11.0")
+    mech = loads(text, "m.toml")
+    with pytest.raises(ParameterError, match=r"wide\.a\.lower: .*a = -1.*must be a positive"):
+        G.montecarlo(mech, mech.tolerance_sets["wide"], 10, 0)
+
+
+def test_missing_engine_module_is_refused_at_load():
+    from sewtol.mechanism import GROUPS
+
+    if GROUPS["spatial_rocker"].requires:
+        import importlib.util
+
+        if importlib.util.find_spec(GROUPS["spatial_rocker"].requires) is not None:
+            pytest.skip("engine.spatial is present in this build")
+    text = FOUR_BAR.replace('[[groups]]\ntype = "rrr"', '[[groups]]\ntype = "spatial_rocker"\n'
+                            'name = "psi"\na = 1\nb = 1\nc = 1\ne = 1\nf = 1\ng = 1\n'
+                            'alpha_deg = 90\n\n[[groups]]\ntype = "rrr"')
+    msg = refusal(text)
+    assert "needs sewtol.engine.spatial" in msg and "[[groups]] #4.type" in msg

@@ -36,6 +36,7 @@ class GroupType:
     builder: Callable
     one_of: tuple[tuple[str, ...], ...] = field(default=())
     doc: str = ""
+    requires: str = ""  # a module the builder imports; a file naming the type without it is refused
 
 
 GROUPS: dict[str, GroupType] = {}
@@ -43,7 +44,8 @@ GROUPS: dict[str, GroupType] = {}
 
 def register_group(type_name: str, builder: Callable, *, produces: str = "point",
                    fields: dict[str, tuple[str, object]] | None = None,
-                   one_of: tuple[tuple[str, ...], ...] = (), doc: str = "") -> GroupType:
+                   one_of: tuple[tuple[str, ...], ...] = (), doc: str = "",
+                   requires: str = "") -> GroupType:
     """Add a group type to the table (a file can then name it in `type`).
 
     builder(q: engine.Angle, **fields) -> (engine.Motion or engine.Angle, engine.Closure or
@@ -54,7 +56,7 @@ def register_group(type_name: str, builder: Callable, *, produces: str = "point"
     for name, (kind, _) in (fields or {}).items():
         if kind not in KINDS:
             raise ValueError(f"field {name}: kind must be one of {KINDS}, not {kind!r}")
-    gt = GroupType(type_name, produces, dict(fields or {}), builder, tuple(one_of), doc)
+    gt = GroupType(type_name, produces, dict(fields or {}), builder, tuple(one_of), doc, requires)
     GROUPS[type_name] = gt
     return gt
 
@@ -119,4 +121,5 @@ register_group("spatial_rocker", _spatial_rocker, produces="angle", fields={
     "a": ("expr", None), "b": ("expr", None), "c": ("expr", None), "e": ("expr", None),
     "f": ("expr", None), "g": ("expr", None), "alpha_deg": ("expr", None),
     "branch": ("branch", 1.0)},
-    doc="spatial crank-rocker (engine.spatial): the rocker angle psi of the driving angle")
+    doc="spatial crank-rocker (engine.spatial): the rocker angle psi of the driving angle",
+    requires="sewtol.engine.spatial")

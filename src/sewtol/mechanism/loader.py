@@ -7,6 +7,7 @@ Nothing in the file is executed: expressions go through mechanism.expressions.
 
 from __future__ import annotations
 
+import importlib
 import math
 import re
 import stat
@@ -254,6 +255,12 @@ def _groups(ctx, table, pnames) -> list[Group]:
             ctx.fail(path + ("type",), f"[[groups]] #{i + 1}.type",
                      f"must be one of {', '.join(GROUPS)}", gtype)
         gt = GROUPS[gtype]
+        if gt.requires:
+            try:
+                importlib.import_module(gt.requires)
+            except ImportError:
+                ctx.fail(path + ("type",), f"[[groups]] #{i + 1}.type", f"needs {gt.requires}, "
+                         "which this build of sewtol does not have", gtype)
         name = g.get("name")
         if not isinstance(name, str) or not NAME.match(name):
             ctx.fail(path + ("name",), f"[[groups]] #{i + 1}.name", "must be an identifier",
