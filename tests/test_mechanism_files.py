@@ -366,3 +366,41 @@ def test_missing_engine_module_is_refused_at_load():
                             'alpha_deg = 90\n\n[[groups]]\ntype = "rrr"')
     msg = refusal(text)
     assert "needs sewtol.engine.spatial" in msg and "[[groups]] #4.type" in msg
+
+
+def test_refusals_in_every_section_point_at_their_line():
+    cases = [
+        (FOUR_BAR.replace("rpm = 600", "rpm = 600\nspeed = 3"), "speed = 3",
+         "[mechanism] speed: unknown key"),
+        (FOUR_BAR.replace('axis = "y"', 'axis = "z"'), 'axis = "z"',
+         "[[outputs]] B_y_range_mm.axis: must be one of x, y"),
+        (FOUR_BAR.replace('group = "C"', 'group = "B"'), 'group = "B"',
+         "[[outputs]] transmission_deg.group: must name an rrr group (C)"),
+        (FOUR_BAR.replace("rpm = 600\n", ""), 'type = "speed"',
+         "[[outputs]] B_speed_m_s.type: needs rpm in [mechanism]"),
+        (FOUR_BAR + '\n[compensators.k]\nparameter = "kk"\nlow = 0\nhigh = 1\n',
+         'parameter = "kk"', "[compensators.k] parameter: must name a parameter"),
+        (FOUR_BAR.replace("b = 3.0", "b = [1.0, -1.0]"), "b = [1.0, -1.0]",
+         "[tolerances.wide] b: must not be above the upper limit"),
+    ]
+    for text, snippet, expected in cases:
+        msg = refusal(text)
+        assert msg.startswith(f"m.toml:{line_of(text, snippet)}: {expected}"), msg
+
+
+def test_run_flags_tolerance_files_and_out(tmp_path):
+    code, _, err = run("run", str(KHUJAND), "nominal", "--seed", "3")
+    assert code == 2 and "--seed: is not used by `run nominal`" in err
+    code, _, err = run("run", str(KHUJAND), "scan", "--output", "nope")
+    assert code == 2 and "--output: must name an output of the file" in err
+    code, _, err = run("run", str(KHUJAND), "scan", "--tolerances", "nope")
+    assert code == 2 and "must be a set of the file (illustrative)" in err
+    tol = tmp_path / "t.toml"
+    tol.write_text("[sets.ab]\nAB = 0.1\n")
+    code, out, err = run("run", str(KHUJAND), "scan", "--tolerances", str(tol), "--output",
+                         "E_x_range_mm", "--format", "csv", "--out", str(tmp_path / "o"))
+    assert code == 0, err
+    lines = out.splitlines()
+    assert len(lines) == 3 and lines[1].startswith("AB,upper,0.1,E_x_range_mm,")
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["run.json", "scan.csv",
+                                                                 "scan.json"]
