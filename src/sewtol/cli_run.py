@@ -13,9 +13,9 @@ STUDIES = ("nominal", "scan", "montecarlo", "sobol", "worst-case")
 RUN_FORMATS = ("text", "table", "json", "csv")
 DEFAULT_N = {"montecarlo": 2000, "sobol": 256}
 # which flags each study reads; any other given flag is refused in one line
-USES = {"nominal": (), "scan": ("output", "tolerances"),
-        "worst-case": ("output", "tolerances"),
-        "montecarlo": ("output", "tolerances", "n", "seed", "limit", "n_jobs"),
+USES = {"nominal": (), "scan": ("output", "tolerances", "adjust"),
+        "worst-case": ("output", "tolerances", "adjust"),
+        "montecarlo": ("output", "tolerances", "n", "seed", "limit", "n_jobs", "adjust"),
         "sobol": ("output", "tolerances", "n", "seed")}
 
 
@@ -34,6 +34,9 @@ def add_run(sub, parser_class=None) -> None:
     p.add_argument("--limit", type=float, default=None,
                    help="upper limit of --output (default the first output) for the yield")
     p.add_argument("--n-jobs", type=int, default=None, help="parallel workers (montecarlo)")
+    p.add_argument("--adjust", default=None, metavar="COMPENSATOR",
+                   help="add the adjusted case: --output (default the first) minimised over "
+                        "this [compensators.NAME] of the file on each machine")
     p.add_argument("--format", choices=RUN_FORMATS, default="text")
     p.add_argument("--out", default=None, metavar="DIR",
                    help="write the tables, the result and run.json here")
@@ -78,7 +81,8 @@ def resolve_tolerances(mech, spec):
 def _check_flags(args) -> None:
     used = USES[args.study]
     for key, flag in (("output", "--output"), ("tolerances", "--tolerances"), ("n", "--n"),
-                      ("seed", "--seed"), ("limit", "--limit"), ("n_jobs", "--n-jobs")):
+                      ("seed", "--seed"), ("limit", "--limit"), ("n_jobs", "--n-jobs"),
+                      ("adjust", "--adjust")):
         value = getattr(args, key)
         if value is not None and key not in used:
             raise ParameterError(flag, f"is not used by `run {args.study}`", value)
@@ -108,10 +112,11 @@ def cmd_run(args) -> None:
     tolerances = resolve_tolerances(mech, args.tolerances)
     outputs = None if args.output is None else [args.output]
     if args.study == "scan":
-        res = G.scan(mech, tolerances, outputs)
+        res = _as_flags(G.scan, mech, tolerances, outputs, args.adjust)
         return _finish(args, fmt, mech, tolerances, res.to_dict(), {"scan": res.rows}, res.rows)
     if args.study == "worst-case":
-        res = G.worst_case(mech, tolerances, args.output or mech.output_names[0])
+        res = _as_flags(G.worst_case, mech, tolerances, args.output or mech.output_names[0],
+                        100, args.adjust)
         return _finish(args, fmt, mech, tolerances, res.to_dict(), {"worst_case": res.rows},
                        res.rows)
     if args.study == "sobol":
@@ -124,10 +129,11 @@ def cmd_run(args) -> None:
                        {"indices": res.indices, "convergence": res.convergence},
                        res.to_dataframe())
     # montecarlo
-    if mech.header.fast_path == "needle_208" and args.output is None and args.limit is None:
+    if mech.header.fast_path == "needle_208" and args.output is None and args.limit is None \
+            and args.adjust is None:
         return _needle_montecarlo(args, mech, tolerances)
     res = _as_flags(G.montecarlo, mech, tolerances, args.n, args.seed, outputs, args.limit,
-                    args.output, args.n_jobs)
+                    args.output, args.n_jobs, False, G.CHUNK, args.adjust)
     return _finish(args, fmt, mech, tolerances, res.to_dict(),
                    {"machines": res.machines, "summary": res.summary_frame()},
                    res.summary_frame())
@@ -136,11 +142,12 @@ def cmd_run(args) -> None:
 def _as_flags(fn, *a):
     from .cli import FLAGS
 
+    flags = {**FLAGS, "adjust": "--adjust", "limit": "--limit"}
     try:
         return fn(*a)
     except ParameterError as exc:
-        if exc.field in FLAGS:
-            raise ParameterError(FLAGS[exc.field], exc.rule, exc.value) from None
+        if exc.field in flags:
+            raise ParameterError(flags[exc.field], exc.rule, exc.value) from None
         raise
 
 
@@ -151,7 +158,7 @@ def _finish(args, fmt, mech, tolerances, obj, frames, frame) -> None:
     if args.out:
         inputs = {"study": f"run {args.study}", "mechanism_file": str(args.file),
                   "mechanism": mech.name, "n": args.n, "seed": args.seed,
-                  "output": args.output, "limit": args.limit,
+                  "output": args.output, "limit": args.limit, "adjust": args.adjust,
                   "params": mech.nominal_values(),
                   "tolerances": None if tolerances is None else
                   {"name": tolerances.name, "items": tolerances.as_dict()},

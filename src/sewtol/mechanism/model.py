@@ -25,8 +25,9 @@ from .outputs import OUTPUT_TYPES, OUTPUTS
 from .spec import Compensator, Group, Header, Output, Parameter
 
 DEAD_POINT_DEG = 1.0
-# machines evaluated together: (BLOCK, samples) complex arrays stay a few MB per joint
-BLOCK = 128
+# machines evaluated together: a (block, samples) complex array of a joint stays near
+# BLOCK_CELLS * 16 bytes (1.5 MB at 720 samples), whatever `samples` is
+BLOCK, BLOCK_CELLS = 128, 92_160
 STATUSES = ("ok", "cannot_close", "dead_point")
 
 
@@ -204,8 +205,9 @@ class FileMechanism:
         chosen = [self.output(n) for n in names]
         cols, m = self.columns(values)
         parts = []
-        for a in range(0, m, BLOCK):
-            sub = {k: np.asarray(v)[a:a + BLOCK, 0] for k, v in cols.items()}
+        block = max(1, min(BLOCK, BLOCK_CELLS // self.samples))
+        for a in range(0, m, block):
+            sub = {k: np.asarray(v)[a:a + block, 0] for k, v in cols.items()}
             parts.append(self._evaluate_block(sub, chosen))
         out = {o.name: np.concatenate([p[0][o.name] for p in parts]) for o in chosen}
         return Evaluation(out, np.concatenate([p[1] for p in parts]),

@@ -52,6 +52,82 @@ def _check_tolerances(mech, tolerances: ToleranceSet) -> ToleranceSet:
     return tol
 
 
+# --- adjustment at assembly: an output minimised over one compensator ----------------------
+
+# settings of the first pass over the compensator's range, then golden-section steps inside the
+# brackets of its BASINS best local minima: 25 + 3 * 32 evaluations per machine, each bracket
+# (two grid steps) shrunk by 0.618^30 = 5e-7
+ADJUST_GRID, ADJUST_ITERATIONS, BASINS = 25, 30, 3
+_GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
+
+
+@dataclass(frozen=True)
+class Adjusted:
+    """Per machine: the smallest output over the compensator's range, the setting that gives it,
+    and the status there (at the nominal setting when no setting in the range runs)."""
+
+    value: np.ndarray
+    setting: np.ndarray
+    status: np.ndarray
+    failed_group: np.ndarray
+
+
+def optimise_compensator(mech, values: dict | None, output: str, compensator: str,
+           grid: int = ADJUST_GRID, iterations: int = ADJUST_ITERATIONS) -> Adjusted:
+    """Minimise `output` over compensator `compensator` (a [compensators.NAME] of the file) on
+    each machine of `values` (absolute parameter values; the rest nominal): a grid of `grid`
+    settings over [low, high], then golden-section search in the brackets of the BASINS best
+    local minima of the grid. Exact for an output unimodal in the compensator near those
+    minima; a basin narrower than two grid steps can be missed (not proven global)."""
+    mech.output(output)
+    if compensator not in mech.compensators:
+        raise ParameterError("adjust", "must name a compensator of the file ("
+                             + (", ".join(mech.compensators) or "it has none") + ")", compensator)
+    comp = mech.compensators[compensator]
+    cols, m = mech.columns(values)
+    base = {k: np.asarray(v, float)[:, 0] for k, v in cols.items()}
+
+    def f(x, reps=1):
+        # machine j repeated `reps` times, next to each other, against the settings x
+        y = mech.evaluate({**{k: np.repeat(v, reps) for k, v in base.items()},
+                           comp.parameter: x}, [output]).outputs[output]
+        return np.where(np.isnan(y), np.inf, y)
+
+    s = np.linspace(comp.low, comp.high, grid)
+    y = f(np.tile(s, m), grid).reshape(m, grid)
+    # refine the BASINS best local minima of the grid (an output such as SumDelta can have two
+    # nearly equal basins far apart); candidate c of machine j sits at j * BASINS + c
+    padded = np.pad(y, ((0, 0), (1, 1)), constant_values=np.inf)
+    local = (y <= padded[:, :-2]) & (y <= padded[:, 2:]) & np.isfinite(y)
+    k = np.argsort(np.where(local, y, np.inf), axis=1, kind="stable")[:, :BASINS].ravel()
+    a = s[np.maximum(k - 1, 0)]
+    b = s[np.minimum(k + 1, grid - 1)]
+    best_x, best_y = s[k], np.repeat(y, BASINS, axis=0)[np.arange(k.size), k]
+    c, d = b - _GOLDEN * (b - a), a + _GOLDEN * (b - a)
+    fc, fd = f(c, BASINS), f(d, BASINS)
+    for x, fx in ((c, fc), (d, fd)):
+        better = fx < best_y
+        best_x, best_y = np.where(better, x, best_x), np.where(better, fx, best_y)
+    for _ in range(iterations):
+        left = fc <= fd  # the minimum is in [a, d]
+        a, b = np.where(left, a, c), np.where(left, d, b)
+        c_new = np.where(left, b - _GOLDEN * (b - a), d)
+        d_new = np.where(left, c, a + _GOLDEN * (b - a))
+        x = np.where(left, c_new, d_new)
+        fx = f(x, BASINS)
+        fc, fd = np.where(left, fx, fd), np.where(left, fc, fx)
+        c, d = c_new, d_new
+        better = fx < best_y
+        best_x, best_y = np.where(better, x, best_x), np.where(better, fx, best_y)
+    pick = np.argmin(best_y.reshape(m, BASINS), axis=1)
+    best_x = best_x.reshape(m, BASINS)[np.arange(m), pick]
+    best_y = best_y.reshape(m, BASINS)[np.arange(m), pick]
+    runs = np.isfinite(best_y)
+    setting = np.where(runs, best_x, base[comp.parameter])
+    ev = mech.evaluate({**base, comp.parameter: setting}, [output])
+    return Adjusted(ev.outputs[output], setting, ev.status, ev.failed_group)
+
+
 # --- nominal -------------------------------------------------------------------------------
 
 @dataclass(frozen=True)
@@ -97,14 +173,20 @@ class ScanResult:
                 "rows": self.rows.to_dict("records")}
 
 
-def scan(mech, tolerances: ToleranceSet, outputs=None) -> ScanResult:
+def scan(mech, tolerances: ToleranceSet, outputs=None, adjust: str | None = None) -> ScanResult:
     """Each toleranced parameter at its upper and lower limit (others nominal): every output's
-    value and change from nominal; machines that cannot run keep their status."""
+    value and change from nominal; machines that cannot run keep their status. With `adjust`
+    (a compensator), rows NAME_adjusted add the first output minimised over it (`setting`)."""
     tol = _check_tolerances(mech, tolerances)
     names = mech.output_names if outputs is None else list(outputs)
     base = nominal(mech).rows.set_index("output")["value"]
     params, sides, deltas, dev = tol.limit_variants()
-    ev = mech.evaluate(_values(mech, dev), names)
+    values = _values(mech, dev)
+    ev = mech.evaluate(values, names)
+    adj = adj0 = None
+    if adjust is not None:
+        adj = optimise_compensator(mech, values, names[0], adjust)
+        adj0 = optimise_compensator(mech, None, names[0], adjust)
     rows = []
     for i, (p, s, d) in enumerate(zip(params, sides, deltas, strict=True)):
         for name in names:
@@ -113,6 +195,12 @@ def scan(mech, tolerances: ToleranceSet, outputs=None) -> ScanResult:
                          "nominal": float(base[name]), "value": v,
                          "change": v - float(base[name]), "status": ev.status[i],
                          "failed_group": ev.failed_group[i]})
+        if adj is not None:
+            v, v0 = float(adj.value[i]), float(adj0.value[0])
+            rows.append({"param": p, "side": s, "deviation": d,
+                         "output": f"{names[0]}_adjusted", "nominal": v0, "value": v,
+                         "change": v - v0, "status": adj.status[i],
+                         "failed_group": adj.failed_group[i], "setting": float(adj.setting[i])})
     return ScanResult(mech.name, tolerances.name, pd.DataFrame(rows))
 
 
@@ -127,6 +215,7 @@ class WorstCaseResult:
     corners: int
     failed_corners: int
     monotone_on_axes: bool
+    adjust: str | None = None
 
     method = ("every corner and the centre of the tolerance box, then L-BFGS-B inside the box "
               "from the best corner (never below any evaluated point); not proven global: the "
@@ -137,24 +226,31 @@ class WorstCaseResult:
 
     def to_dict(self) -> dict:
         return {"mechanism": self.mechanism, "tolerances": self.tolerances,
-                "output": self.output, "method": self.method, "corners": self.corners,
+                "output": self.output, "adjust": self.adjust, "method": self.method,
+                "corners": self.corners,
                 "failed_corners": self.failed_corners,
                 "monotone_on_axes": self.monotone_on_axes,
                 "rows": self.rows.to_dict("records")}
 
 
-def _output_of(mech, names, output):
+def _output_of(mech, names, output, compensator=None):
     def f(X):
         X = np.atleast_2d(X)
         dev = {k: X[:, i] for i, k in enumerate(names)}
+        if compensator is not None:
+            return optimise_compensator(mech, _values(mech, dev), output, compensator).value
         return mech.evaluate(_values(mech, dev), [output]).outputs[output]
     return f
 
 
-def worst_case(mech, tolerances: ToleranceSet, output: str, maxiter: int = 100
-               ) -> WorstCaseResult:
-    """Largest and smallest `output` over the tolerance box (see the module doc)."""
+def worst_case(mech, tolerances: ToleranceSet, output: str, maxiter: int = 100,
+               adjust: str | None = None) -> WorstCaseResult:
+    """Largest and smallest `output` over the tolerance box (see the module doc); with `adjust`
+    (a compensator), of the output minimised over it on each trial machine."""
     mech.output(output)
+    if adjust is not None and adjust not in mech.compensators:
+        raise ParameterError("adjust", "must name a compensator of the file ("
+                             + (", ".join(mech.compensators) or "it has none") + ")", adjust)
     tol = _check_tolerances(mech, tolerances)
     names = tol.params
     if len(names) > MAX_CORNER_PARAMS:
@@ -162,7 +258,7 @@ def worst_case(mech, tolerances: ToleranceSet, output: str, maxiter: int = 100
                              f"{MAX_CORNER_PARAMS} toleranced parameters", len(names))
     lo = np.array([t.lower for t in tol.items])
     hi = np.array([t.upper for t in tol.items])
-    f = _output_of(mech, names, output)
+    f = _output_of(mech, names, output, adjust)
     corners = np.array(list(itertools.product(*zip(lo, hi, strict=True))))
     cands = np.vstack([corners, 0.5 * (lo + hi)])
     val = f(cands)
@@ -196,12 +292,14 @@ def worst_case(mech, tolerances: ToleranceSet, output: str, maxiter: int = 100
         if np.isfinite(v_opt) and v_opt > best_s:
             best_s, best_x = v_opt, x_opt
         at_corner = bool(np.all(np.isclose(best_x, lo) | np.isclose(best_x, hi)))
-        row = {"extreme": extreme, "output": output, "value": sign * best_s,
+        row = {"extreme": extreme,
+               "output": output if adjust is None else f"{output}_adjusted",
+               "value": sign * best_s,
                "corner_value": sign * corner_s, "interior": not at_corner}
         row.update({f"{k}_dev": float(v) for k, v in zip(names, best_x, strict=True)})
         rows.append(row)
     return WorstCaseResult(mech.name, tolerances.name, output, pd.DataFrame(rows),
-                           len(corners), failed, _monotone_on_axes(f, lo, hi))
+                           len(corners), failed, _monotone_on_axes(f, lo, hi), adjust)
 
 
 def _monotone_on_axes(f, lo, hi, points: int = 7) -> bool:
@@ -223,9 +321,16 @@ def _monotone_on_axes(f, lo, hi, points: int = 7) -> bool:
 
 # --- Monte-Carlo ---------------------------------------------------------------------------
 
-def _file_model(record, dev, mech, outputs):
-    ev = mech.evaluate(_values(mech, dev), outputs)
-    return {**ev.outputs, "status": ev.status, "failed_group": ev.failed_group}
+def _file_model(record, dev, mech, outputs, compensator=None, target=None):
+    values = _values(mech, dev)
+    ev = mech.evaluate(values, outputs)
+    out = {**ev.outputs, "status": ev.status, "failed_group": ev.failed_group}
+    if compensator is not None:
+        a = optimise_compensator(mech, values, target, compensator)
+        out.update({f"{target}_adjusted": a.value,
+                    f"{mech.compensators[compensator].parameter}_setting": a.setting,
+                    "status_adjusted": a.status, "failed_group_adjusted": a.failed_group})
+    return out
 
 
 @dataclass(frozen=True)
@@ -237,15 +342,23 @@ class GenericMonteCarloResult:
     seed: int
     limit: float | None = None
     limit_output: str | None = None
+    adjust: str | None = None  # the compensator of the adjusted case (column NAME_adjusted)
 
     @property
     def n(self) -> int:
         return len(self.machines)
 
+    @property
+    def adjusted_output(self) -> str | None:
+        return None if self.adjust is None else f"{self.limit_output}_adjusted"
+
     def status(self, output: str | None = None) -> np.ndarray:
-        """Per machine: ok, out_of_spec (only for the limited output), cannot_close, dead_point."""
-        s = self.machines["status"].to_numpy(object).copy()
-        if self.limit is not None and output == self.limit_output:
+        """Per machine: ok, out_of_spec (only for the limited output and its adjusted case),
+        cannot_close, dead_point (the adjusted case: at the machine's chosen setting)."""
+        col = "status_adjusted" if output is not None and output == self.adjusted_output \
+            else "status"
+        s = self.machines[col].to_numpy(object).copy()
+        if self.limit is not None and output in (self.limit_output, self.adjusted_output):
             v = self.machines[output].to_numpy(float)
             s[(s == "ok") & (v > self.limit)] = "out_of_spec"
         return s
@@ -257,8 +370,8 @@ class GenericMonteCarloResult:
         c["n"] = int(s.size)
         return c
 
-    def failed_groups(self) -> dict[str, int]:
-        g = self.machines["failed_group"]
+    def failed_groups(self, adjusted: bool = False) -> dict[str, int]:
+        g = self.machines["failed_group_adjusted" if adjusted else "failed_group"]
         return {str(k): int(v) for k, v in g[g != ""].value_counts().sort_index().items()}
 
     def summary_frame(self) -> pd.DataFrame:
@@ -278,7 +391,7 @@ class GenericMonteCarloResult:
             else:
                 row.update(dict.fromkeys(("mean", "std", "min", "p50", "p95", "p99", "max"),
                                          float("nan")))
-            if self.limit is not None and name == self.limit_output:
+            if self.limit is not None and name in (self.limit_output, self.adjusted_output):
                 k = c["ok"]
                 ci = stats.binomtest(k, c["n"]).proportion_ci(0.95, method="exact")
                 row.update({"limit": self.limit, "yield": k / c["n"],
@@ -292,23 +405,33 @@ class GenericMonteCarloResult:
                 "limit_output": self.limit_output,
                 "counts": {name: self.counts(name) for name in self.outputs},
                 "failed_groups": self.failed_groups(),
+                **({} if self.adjust is None else {
+                    "adjust": self.adjust,
+                    "failed_groups_adjusted": self.failed_groups(adjusted=True)}),
                 "summary": self.summary_frame().to_dict("records")}
 
 
 def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
                limit: float | None = None, limit_output: str | None = None, n_jobs: int = 1,
-               progress=False, chunk_size: int = CHUNK) -> GenericMonteCarloResult:
+               progress=False, chunk_size: int = CHUNK,
+               adjust: str | None = None) -> GenericMonteCarloResult:
     """n machines of the file (see the module doc); `limit` (an upper limit of limit_output,
-    default the first output) splits ok machines into ok and out_of_spec."""
+    default the first output) splits ok machines into ok and out_of_spec. `adjust` (a
+    compensator of the file) adds the adjusted case: limit_output minimised over the
+    compensator on each machine (`optimise_compensator`), columns NAME_adjusted, PARAM_setting,
+    status_adjusted, failed_group_adjusted."""
     names = tuple(mech.output_names if outputs is None else outputs)
     for name in names:
         mech.output(name)
-    if limit is not None:
+    if adjust is not None and adjust not in mech.compensators:
+        raise ParameterError("adjust", "must name a compensator of the file ("
+                             + (", ".join(mech.compensators) or "it has none") + ")", adjust)
+    if limit is not None or adjust is not None:
         limit_output = limit_output or names[0]
         mech.output(limit_output)
         if limit_output not in names:
             names = (*names, limit_output)
-        if not np.isfinite(limit):
+        if limit is not None and not np.isfinite(limit):
             raise ParameterError("limit", "must be a finite number", limit)
     record = mech.parameter_record()
     mc.check_seed(seed)
@@ -316,9 +439,13 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
                       columns=len(tolerances.items) + len(names) + 3)
     machines = mc.sample_machines(_file_model, record, tolerances, n, seed, n_jobs, progress,
                                   chunk_size=chunk_size, desc=f"Monte-Carlo {mech.name}",
-                                  mech=mech, outputs=list(names))
+                                  mech=mech, outputs=list(names), compensator=adjust,
+                                  target=limit_output)
+    if adjust is not None:
+        names = (*names, f"{limit_output}_adjusted")
     return GenericMonteCarloResult(mech.name, machines, names, tolerances.name, int(seed),
-                                   None if limit is None else float(limit), limit_output)
+                                   None if limit is None else float(limit), limit_output,
+                                   adjust)
 
 
 # --- Sobol ---------------------------------------------------------------------------------
