@@ -438,3 +438,90 @@ def test_adjusted_scan_equals_the_builtin_scan(nominal):
     np.testing.assert_allclose(rows["value"], built["total_um"], atol=2e-3)
     code, _, err = run("run", str(NEEDLE), "scan", "--adjust", "nope")
     assert code == 2 and "--adjust: must name a compensator of the file (beta)" in err
+
+
+SLIDER_CRANK = """format = "sewtol-mechanism/1"
+
+[mechanism]
+name = "slider_crank"
+samples = 360
+
+[parameters]
+r = { nominal = 12.0, unit = "mm", rule = "positive" }
+l = { nominal = 50.0, unit = "mm", rule = "positive" }
+e = { nominal = 3.0, unit = "mm", rule = "finite", doc = "offset of the slide line" }
+
+[[groups]]
+type = "point"
+name = "A"
+x = 0.0
+y = 0.0
+
+[[groups]]
+type = "crank"
+name = "B"
+center = "A"
+radius = "r"
+
+[[groups]]
+type = "rrp"
+name = "J"
+p1 = "B"
+r = "l"
+x = 0.0
+y = "e"
+angle_deg = 0.0
+branch = 1
+
+[[outputs]]
+name = "stroke_mm"
+unit = "mm"
+type = "coordinate"
+point = "J"
+axis = "x"
+measure = "range"
+
+[[outputs]]
+name = "custom_mm"
+unit = "mm"
+type = "custom"
+kind = "test_twice_x_max"
+point = "J"
+"""
+
+
+def test_slider_crank_file_is_analytic_and_closes():
+    from sewtol.mechanism import OUTPUTS, register_output
+
+    register_output("test_twice_x_max", lambda state, point: 2 * np.max(point.x, axis=-1),
+                    fields={"point": ("point", None, None)})
+    try:
+        mech = loads(SLIDER_CRANK, "s.toml")
+        q = mech.angles_rad()
+        st = mech.state({"r": np.array([12.0, 8.0])}, q)
+        r = np.array([[12.0], [8.0]])
+        x = r * np.cos(q) + np.sqrt(50.0**2 - (r * np.sin(q) - 3.0) ** 2)
+        np.testing.assert_allclose(st.points["J"].x, x, atol=1e-12)
+        np.testing.assert_allclose(st.points["J"].y, 3.0, atol=1e-12)
+        np.testing.assert_allclose(np.abs(st.points["J"].p - st.points["B"].p), 50.0, atol=1e-12)
+        ev = mech.evaluate({"r": np.array([12.0, 8.0])})
+        np.testing.assert_allclose(ev.outputs["custom_mm"], 2 * x.max(axis=1), atol=1e-12)
+        # the exact offset slider-crank stroke: sqrt((l + r)^2 - e^2) - sqrt((l - r)^2 - e^2),
+        # reached between the 1-deg samples of this file (each end at most r (0.5 deg)^2 / 2 in)
+        exact = np.sqrt(62.0**2 - 9) - np.sqrt(38.0**2 - 9)
+        assert exact - 2 * 12.0 * np.radians(0.5) ** 2 / 2 < ev.outputs["stroke_mm"][0] <= exact
+        # the rrp joint misses where the rod cannot reach the line
+        bad = mech.evaluate({"l": np.array([50.0, 14.0])})
+        assert list(bad.status) == ["ok", "cannot_close"] and bad.failed_group[1] == "J"
+    finally:
+        del OUTPUTS["test_twice_x_max"]
+    assert "must name a registered output kind" in refusal(SLIDER_CRANK)
+
+
+def test_rrr_links_keep_their_lengths_in_the_template():
+    mech = load(KHUJAND)
+    st = mech.state()
+    v = mech.nominal_values()
+    for a, b, length in (("B", "C", "BC"), ("D", "C", "CD"), ("N", "M", "NM"), ("H", "M", "HM")):
+        np.testing.assert_allclose(np.abs(st.points[a].p - st.points[b].p), v[length],
+                                   atol=1e-11)

@@ -19,7 +19,7 @@ from ..tolerances import Tolerance, ToleranceSet, _parse_item
 from . import expressions as X
 from .groups import GROUPS
 from .lines import Locator
-from .outputs import OUTPUT_TYPES, OUTPUTS
+from .outputs import OUTPUT_TYPES, OUTPUTS, PROVIDERS, provide
 from .spec import FORMAT, RULES, UNITS, Compensator, Group, Header, Output, Parameter
 
 MAX_BYTES = 1 << 20
@@ -338,10 +338,11 @@ def _outputs(ctx, table, pnames, groups, header) -> list[Output]:
         otype = o.get("type")
         if otype == "custom":
             kind = o.get("kind")
-            if kind not in OUTPUTS:
+            ot = provide(kind) if isinstance(kind, str) else None
+            if ot is None:
                 ctx.fail(path + ("kind",), f"{where}.kind", "must name a registered output kind ("
-                         + (", ".join(OUTPUTS) or "none registered") + ")", kind)
-            ot = OUTPUTS[kind]
+                         + (", ".join(sorted(set(OUTPUTS) | set(PROVIDERS)))
+                            or "none registered") + ")", kind)
         elif otype in OUTPUT_TYPES:
             kind = ""
             ot = OUTPUT_TYPES[otype]

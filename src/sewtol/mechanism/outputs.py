@@ -116,6 +116,21 @@ OUTPUT_TYPES: dict[str, OutputType] = {
 # custom kinds (type = "custom", kind = NAME): e.g. "presser_contact" from the presser-foot
 # module registers itself here
 OUTPUTS: dict[str, OutputType] = {}
+# kind -> the module that registers it when imported: the loader imports it the first time a
+# file names the kind, so a file works without the caller importing that module first
+PROVIDERS: dict[str, str] = {}
+
+
+def provide(kind: str) -> OutputType | None:
+    """The registered output kind, importing its provider module first if need be."""
+    if kind not in OUTPUTS and kind in PROVIDERS:
+        import importlib
+
+        try:
+            importlib.import_module(PROVIDERS[kind])
+        except ImportError:
+            return None
+    return OUTPUTS.get(kind)
 
 
 def register_output(kind: str, fn: Callable, fields: dict[str, tuple] | None = None,
