@@ -525,3 +525,18 @@ def test_rrr_links_keep_their_lengths_in_the_template():
     for a, b, length in (("B", "C", "BC"), ("D", "C", "CD"), ("N", "M", "NM"), ("H", "M", "HM")):
         np.testing.assert_allclose(np.abs(st.points[a].p - st.points[b].p), v[length],
                                    atol=1e-11)
+
+
+def test_sobol_of_a_file_output_that_depends_on_one_parameter():
+    text = FOUR_BAR.replace("[tolerances.wide]\nb = 3.0", "[tolerances.wide]\na = 0.5\nb = 0.5")
+    mech = loads(text, "m.toml")
+    res = G.sobol(mech, mech.tolerance_sets["wide"], "B_y_range_mm", 64, 3)
+    ix = res.to_dataframe().set_index("param")
+    # B_y_range = 2a exactly: b has no effect at all, a explains everything
+    assert ix.loc["b", "ST"] == 0.0 and ix.loc["b", "S1"] == 0.0
+    assert ix.loc["a", "ST"] == pytest.approx(1.0, abs=0.05)
+    assert ix.loc["a", "S1"] == pytest.approx(1.0, abs=0.1)
+    # a box where some machines cannot close is refused in one line, with the count
+    wide = loads(text.replace("a = 0.5", "a = [-5.0, 19.0]"), "m.toml")
+    with pytest.raises(ParameterError, match=r"sobol: \d+ of 256 samples cannot run \("):
+        G.sobol(wide, wide.tolerance_sets["wide"], "B_y_range_mm", 64, 3)
