@@ -210,6 +210,12 @@ def test_fast_path_refused_when_the_file_differs(tmp_path):
     assert "E differs by" in msg
     assert msg.startswith(f"n.toml:{line_of(text, 'fast_path = ')}:")
     # without fast_path the same file loads and runs the generic study
+    # the file's SumDelta must be the built-in's too (same guide, same figure)
+    for old, new in (('angle_deg = "guide_angle"', 'angle_deg = "guide_angle + 0.01"'),
+                     ("samples = 720", "samples = 36")):
+        with pytest.raises(ParameterError, match="output SumDelta_um differs from the built-in "
+                           r"SumDelta by \d"):
+            loads(NEEDLE.read_text().replace(old, new), "n.toml")
     plain = text.replace('fast_path = "needle_208"\n', "")
     assert loads(plain, "n.toml").header.fast_path is None
     f = tmp_path / "n.toml"

@@ -14,6 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 
 POSITION_TOL_MM = 1e-9
+# the file's SumDelta takes its extremes on the sampled angles, the built-in model exactly: at
+# 720 samples they agree to 1e-4 um; a file with far fewer samples is not the built-in model
+SUMDELTA_TOL_UM = 0.01
 PERTURBED = 4
 CHECK_SEED = 20261122
 
@@ -85,9 +88,36 @@ def check_needle_208(mech) -> str:
         _needle_params(mech)
     except ValueError as exc:
         return str(exc)
-    worst, where = needle_positions_residual(mech, needle_perturbations(mech))
+    values = needle_perturbations(mech)
+    worst, where = needle_positions_residual(mech, values)
     if not worst <= POSITION_TOL_MM:
         return f"{where} differs by {worst:.3g} mm > {POSITION_TOL_MM:g} mm"
+    return _needle_sumdelta_problem(mech, values)
+
+
+def _needle_sumdelta_problem(mech, values) -> str:
+    """The file's SumDelta (a line_deviation of E, sum_extremes) must be the built-in one: same
+    guide, same figure (to SUMDELTA_TOL_UM), since the fast path computes the built-in's."""
+    from ..mechanisms import params as P
+    from ..mechanisms.needle_208 import Needle208
+    from ..metrics import needle as nm
+
+    outs = [o for o in mech.outputs if o.type == "line_deviation" and o.fields["point"] == "E"
+            and o.fields["measure"] == "sum_extremes"]
+    if not outs:
+        return "no SumDelta output (a line_deviation of E with measure sum_extremes)"
+    full = {**mech.nominal_values(), **values}
+    n = len(next(iter(values.values())))
+    batch = Needle208(**{k: np.broadcast_to(np.asarray(full[k], float), (n,))
+                         for k in P.field_names(Needle208)})
+    exact = nm.deviation_figures(nm.columns(batch)[0]).total_um
+    for o in outs:
+        got = mech.evaluate(values, [o.name]).outputs[o.name]
+        diff = np.abs(got - exact)
+        if not np.all(diff <= SUMDELTA_TOL_UM):
+            return (f"output {o.name} differs from the built-in SumDelta by "
+                    f"{float(np.nanmax(np.where(np.isnan(diff), np.inf, diff))):.3g} um > "
+                    f"{SUMDELTA_TOL_UM:g} um")
     return ""
 
 
