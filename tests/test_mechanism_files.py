@@ -345,7 +345,7 @@ def test_generic_worst_case_equals_builtin_fixed_beta_worst_case(nominal):
 
     built = worst_case(nominal, NEEDLE_208_SETS["base"], adjust=False)
     mech = load(NEEDLE)
-    assert mech.nominal_values()["beta"] == built.beta_deg  # the frame's beta is its beta*
+    assert mech.nominal_values()["beta"] == built.beta_deg  # both keep the nominal beta
     rows = G.worst_case(mech, mech.tolerance_sets["base"], "SumDelta_um").rows
     top = rows.set_index("extreme").loc["max"]
     assert top["value"] == pytest.approx(built.total_um, abs=1e-3)  # 720 samples vs exact
@@ -546,3 +546,13 @@ def test_sobol_of_a_file_output_that_depends_on_one_parameter():
     wide = loads(text.replace("a = 0.5", "a = [-5.0, 19.0]"), "m.toml")
     with pytest.raises(ParameterError, match=r"sobol: \d+ of 256 samples cannot run \("):
         G.sobol(wide, wide.tolerance_sets["wide"], "B_y_range_mm", 64, 3)
+
+
+def test_a_nominal_that_cannot_run_names_group_angle_and_gap():
+    code, out, err = run("run", str(NEEDLE), "nominal", "--set", "CD=5")
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert err.startswith("sewtol: error: dyad C cannot close at angle ")
+    assert "the nominal machine cannot make a full turn" in err
+    # the largest gap on the sampled cycle: the built-in's exact worst gap is 17.1984 mm
+    gap = float(err.split("misses by ")[1].split(" mm")[0])
+    assert 17.0 < gap <= 17.1984

@@ -148,10 +148,21 @@ def nominal(mech) -> NominalResult:
     """Every output of the nominal machine; AssemblyError if it cannot run a full turn."""
     ev = mech.evaluate()
     if ev.status[0] != "ok":
-        g = ev.failed_group[0]
-        raise AssemblyError(g, float("nan"), float("inf"), mech.nominal_values(),
-                            f"the nominal machine of {mech.name}: {ev.status[0]} at group {g} "
-                            f"(sampled cycle of {mech.samples} angles)")
+        g, status = ev.failed_group[0], ev.status[0]
+        state = mech.state()
+        cl = state.closures[g]
+        if status == "cannot_close":
+            miss = np.nan_to_num(np.broadcast_to(cl.miss_mm, state.shape)[0], nan=np.inf)
+            k = int(np.argmax(miss))
+            raise AssemblyError(g, np.degrees(state.q_rad[k]), float(miss[k]),
+                                mech.nominal_values(), "driving angle q of "
+                                f"{mech.path}; the nominal machine cannot make a full turn")
+        t = np.broadcast_to(cl.transmission_deg, state.shape)[0]
+        k = int(np.nanargmin(t))
+        raise AssemblyError(g, np.degrees(state.q_rad[k]), 0.0, mech.nominal_values(),
+                            f"driving angle q of {mech.path}; dead point: the links are "
+                            f"{float(t[k]):.3f} deg from collinear (< 1), the joint can flip to "
+                            "its other assembly (branch flip)")
     rows = pd.DataFrame([{"output": o.name, "unit": o.unit, "value": float(ev.outputs[o.name][0]),
                           "doc": o.doc} for o in mech.outputs])
     return NominalResult(mech.name, rows)
