@@ -148,6 +148,7 @@ class FileMechanism:
             cols[p.name] = np.broadcast_to(v.reshape(-1, 1) if v.ndim else v, (m, 1))
         return cols, m
 
+    @np.errstate(invalid="ignore", divide="ignore", over="ignore")
     def state(self, values: dict | None = None, q_rad=None) -> State:
         """Every point, angle and closure for the machines of `values` at driving angles q_rad
         (default: the file's samples); shapes (m, len(q_rad))."""
