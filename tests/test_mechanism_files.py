@@ -556,3 +556,34 @@ def test_a_nominal_that_cannot_run_names_group_angle_and_gap():
     # the largest gap on the sampled cycle: the built-in's exact worst gap is 17.1984 mm
     gap = float(err.split("misses by ")[1].split(" mm")[0])
     assert 17.0 < gap <= 17.1984
+
+
+def test_spatial_rocker_group_is_wired_to_engine_spatial(monkeypatch):
+    """The group calls engine.spatial.spatial_rocker(phi, a, b, c, e, f, g, alpha_rad, branch)
+    (H2's contract); a stand-in module checks the wiring until the real one is merged."""
+    import sys
+    import types
+
+    from sewtol import engine
+
+    calls = []
+
+    def spatial_rocker(phi, a, b, c, e, f, g, alpha_rad, branch):
+        calls.append((float(np.ravel(a)[0]), float(np.ravel(alpha_rad)[0]), float(branch)))
+        psi = engine.Angle(0.5 * phi.a + a, 0.5 * phi.da, 0.5 * phi.dda)
+        return psi, engine.Closure(np.zeros(np.broadcast(phi.a, a).shape),
+                                   np.full(np.broadcast(phi.a, a).shape, 45.0))
+
+    stub = types.ModuleType("sewtol.engine.spatial")
+    stub.spatial_rocker = spatial_rocker
+    monkeypatch.setitem(sys.modules, "sewtol.engine.spatial", stub)
+    monkeypatch.setattr(engine, "spatial", stub, raising=False)
+    text = FOUR_BAR.replace('[[groups]]\ntype = "rrr"', '[[groups]]\ntype = "spatial_rocker"\n'
+                            'name = "psi"\na = 0.25\nb = 1\nc = 1\ne = 1\nf = 1\ng = 1\n'
+                            'alpha_deg = 90\nbranch = -1\n\n[[groups]]\ntype = "rrr"')
+    text += ('\n[[outputs]]\nname = "psi_range_deg"\nunit = "deg"\ntype = "angle"\n'
+             'angle = "psi"\nmeasure = "range"\n')
+    mech = loads(text, "m.toml")
+    ev = mech.evaluate(outputs=["psi_range_deg"])
+    assert calls[-1] == (0.25, pytest.approx(np.pi / 2), -1.0)
+    assert ev.outputs["psi_range_deg"][0] == pytest.approx(0.5 * 359.0)  # half of q's span
