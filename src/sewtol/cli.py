@@ -788,6 +788,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--b-range", nargs=3, type=float, default=[0.0, 60.0, 2.0],
                    metavar=("LOW", "HIGH", "STEP"), help="b values swept (deg)")
     p.set_defaults(func=cmd_feed_regulator)
+
+    from .cli_run import add_run  # `sewtol run FILE.toml STUDY` (mechanism files)
+
+    add_run(sub, Parser)
     return ap
 
 
