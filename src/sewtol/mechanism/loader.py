@@ -25,6 +25,8 @@ from .spec import FORMAT, RULES, UNITS, Compensator, Group, Header, Output, Para
 MAX_BYTES = 1 << 20
 NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 MECH_NAME = re.compile(r"^[a-z0-9_]+$")
+# groups whose Closure carries a transmission angle (a transmission output may name them)
+TRANSMISSION_GROUPS = ("rrr", "spatial_rocker")
 TOP_KEYS = ("format", "mechanism", "parameters", "groups", "outputs", "compensators",
             "tolerances")
 MECH_KEYS = ("name", "title", "source", "assumptions", "samples", "rpm", "driver", "fast_path")
@@ -321,7 +323,7 @@ def _outputs(ctx, table, pnames, groups, header) -> list[Output]:
         ctx.fail(("outputs",), "[[outputs]]", "must be an array of tables", table)
     defined = {g.name: "angle" if GROUPS[g.type].produces == "angle" else "point"
                for g in groups}
-    closures = {g.name for g in groups if g.type == "rrr"}
+    closures = {g.name for g in groups if g.type in TRANSMISSION_GROUPS}
     out = []
     for i, o in enumerate(table):
         path = ("outputs", i)
@@ -386,7 +388,7 @@ def _outputs(ctx, table, pnames, groups, header) -> list[Output]:
                 fields[k] = tuple(v)
             elif fkind == "group":
                 if v not in closures:
-                    ctx.fail(fpath, f"{where}.{k}", "must name an rrr group ("
+                    ctx.fail(fpath, f"{where}.{k}", "must name a group with a transmission angle, an rrr or spatial_rocker group ("
                              f"{', '.join(sorted(closures))})", v)
                 fields[k] = v
             elif fkind == "choice":

@@ -385,6 +385,10 @@ class GenericMonteCarloResult:
         g = self.machines["failed_group_adjusted" if adjusted else "failed_group"]
         return {str(k): int(v) for k, v in g[g != ""].value_counts().sort_index().items()}
 
+    def to_dataframe(self) -> pd.DataFrame:
+        """One row per machine: deviations, outputs, status and the group that failed."""
+        return self.machines.copy()
+
     def summary_frame(self) -> pd.DataFrame:
         rows = []
         for name in self.outputs:
