@@ -388,7 +388,8 @@ def _outputs(ctx, table, pnames, groups, header) -> list[Output]:
                 fields[k] = tuple(v)
             elif fkind == "group":
                 if v not in closures:
-                    ctx.fail(fpath, f"{where}.{k}", "must name a group with a transmission angle, an rrr or spatial_rocker group ("
+                    ctx.fail(fpath, f"{where}.{k}", "must name a group with a transmission "
+                             "angle, an rrr or spatial_rocker group ("
                              f"{', '.join(sorted(closures))})", v)
                 fields[k] = v
             elif fkind == "choice":
