@@ -310,3 +310,73 @@ def fit_source(nominal: PresserFoot | None = None) -> SourceFit:
     ang = np.r_[t.loss_residual_deg, t.regain_residual_deg]
     return SourceFit(phase, material, rows, float(np.sqrt(np.mean(ang**2))),
                      float(np.sqrt(np.mean(t.separation_residual_mm**2))))
+
+
+# --- the "presser_contact" output kind of mechanism files (type = "custom") -----------------
+# Each field names a parameter of the file (or is a number); measure picks the output.
+MEASURES = ("loss_deg", "regain_deg", "lost_deg", "separation_mm")
+PRESSER_CONTACT_FIELDS = {
+    # name: (kind, default, choices) in the registry's form (default None: required)
+    "crank_mm": ("expr", None, None),
+    "rod_mm": ("expr", None, None),
+    "offset_mm": ("expr", None, None),
+    "speed_rad_s": ("expr", None, None),
+    "phase_deg": ("expr", 0.0, None),
+    "material_mm": ("expr", None, None),
+    "mass_kg": ("expr", None, None),
+    "stiffness_n_per_mm": ("expr", None, None),
+    "preload_n": ("expr", None, None),
+    "damping_ratio": ("expr", 0.012, None),
+    "measure": ("choice", "separation_mm", MEASURES),
+}
+
+
+def _machines(resolved: dict) -> PresserFoot:
+    cols = {k: np.asarray(v, float).reshape(-1) for k, v in resolved.items()}
+    m = max(v.size for v in cols.values())
+    cols = {k: (np.broadcast_to(v, (m,)).copy() if v.size in (1, m) else v)
+            for k, v in cols.items()}
+    return PresserFoot(**cols)
+
+
+def presser_contact(values: dict[str, np.ndarray], **fields) -> dict[str, np.ndarray]:
+    """Every contact output for the machines of `values` (parameter name -> array (m,)).
+
+    fields: each name of PRESSER_CONTACT_FIELDS but `measure`, given as the name of a
+    parameter in `values` or a number (defaults as in the table). Returns loss_deg, regain_deg,
+    lost_deg, separation_mm (arrays (m,)) and status (strings). A machine that never loses
+    contact has lost_deg = separation_mm = 0 and NaN angles, and status "never_lost"."""
+    resolved = {}
+    for name, (_, default, _) in PRESSER_CONTACT_FIELDS.items():
+        if name == "measure":
+            continue
+        spec = fields.get(name, default)
+        if spec is None:
+            raise ParameterError(name, "is a required field of output kind presser_contact",
+                                 None)
+        if isinstance(spec, str):
+            if spec not in values:
+                raise ParameterError(name, "names no parameter; valid names are "
+                                     + ", ".join(values), spec)
+            resolved[name] = values[spec]
+        else:
+            resolved[name] = spec
+    unknown = sorted(set(fields) - set(PRESSER_CONTACT_FIELDS))
+    if unknown:
+        raise ParameterError(unknown[0], "unknown field of output kind presser_contact; valid "
+                             "fields are " + ", ".join(PRESSER_CONTACT_FIELDS), unknown[0])
+    res = evaluate(_machines(resolved))
+    never = res.status == "never_lost"
+    lost = np.where(never, 0.0, res.lost_deg)
+    sep = np.where(never, 0.0, res.separation_mm)
+    return {"loss_deg": res.loss_deg, "regain_deg": res.regain_deg, "lost_deg": lost,
+            "separation_mm": sep, "status": res.status}
+
+
+def presser_contact_output(state, measure: str = "separation_mm", **fields) -> np.ndarray:
+    """The registry's form, fn(state, **fields) -> array (m,): fields arrive resolved (arrays
+    (m, 1) or numbers); `state` is not needed (the contact cycle is sampled by the kernel)."""
+    if measure not in MEASURES:
+        raise ParameterError("measure", "must be one of " + ", ".join(MEASURES), measure)
+    values = {k: np.asarray(v, float).reshape(-1) for k, v in fields.items()}
+    return presser_contact(values, **{k: k for k in values})[measure]
