@@ -120,6 +120,22 @@ def _max_gap(lo, hi, phi0, x0, v0, r, L, a, nu, zeta, x_eq, y_m):
 
 
 @nb.njit(cache=True)
+def _max_seat(lo, hi, r, L, a):
+    # golden section for the seat's largest y in [lo, hi] (bracketing a sampled maximum)
+    g = (math.sqrt(5.0) - 1.0) / 2.0
+    c = hi - g * (hi - lo)
+    d = lo + g * (hi - lo)
+    while hi - lo > 1e-10:
+        if slider(c, r, L, a)[0] > slider(d, r, L, a)[0]:
+            hi = d
+        else:
+            lo = c
+        c = hi - g * (hi - lo)
+        d = lo + g * (hi - lo)
+    return slider(0.5 * (lo + hi), r, L, a)[0]
+
+
+@nb.njit(cache=True)
 def one_machine(r, L, a, nu, zeta, x_eq, y_m):
     """(loss_deg, regain_deg, lost_deg, separation_mm, impacts, landed, status, lost_by_force)
     of one machine (angles are crank angles phi, from the y axis).
@@ -161,7 +177,12 @@ def one_machine(r, L, a, nu, zeta, x_eq, y_m):
     phi_s, x0, v0 = phi_l, y, d1
     on_material = False
     if y_m - y <= 0.0 and contact_force(phi_l, r, L, a, nu, zeta, x_eq) >= 0.0:
-        on_material = True  # the seat passed the material level: the foot stays there
+        # the seat passed the material level: the sole stops there (plastic) and stays if its
+        # spring and weight press it on; otherwise it is pulled back up from rest
+        if nu * nu * (x_eq - y_m) >= 0.0:
+            on_material = True
+        else:
+            phi_s, x0, v0 = phi_l, y_m, 0.0
     p = phi_l
     end = phi_l + MAX_TURNS * 2.0 * math.pi
     while p < end:
@@ -170,10 +191,14 @@ def one_machine(r, L, a, nu, zeta, x_eq, y_m):
             landed = 1
             q_prev = p
             found = False
+            p_max = -1.0
+            g_best = -np.inf
             while p < end:
                 p += h
                 gm = slider(p, r, L, a)[0] - y_m
-                sep = max(sep, gm)
+                if gm > g_best:
+                    g_best = gm
+                    p_max = p
                 if gm <= 0.0:
                     lo, hi = q_prev, p
                     while hi - lo > ROOT_TOL_RAD:
@@ -188,6 +213,8 @@ def one_machine(r, L, a, nu, zeta, x_eq, y_m):
                 q_prev = p
             if not found:
                 break
+            if p_max > 0.0:
+                sep = max(sep, _max_seat(p_max - h, p_max + h, r, L, a) - y_m)
             # pick-up by the seat: the foot takes the seat's speed
             if contact_force(p, r, L, a, nu, zeta, x_eq) >= 0.0:
                 return (math.degrees(phi_l) % 360.0, math.degrees(p) % 360.0,
