@@ -120,7 +120,7 @@ def main(argv=None) -> None:
     f, ax = plt.subplots(figsize=(7.5, 4.2))
     plots.presser_cycle(PF.foot_path(nom, 0.25), lowest, float(nom.material_mm), ax)
     wr = PF.evaluate(weak)
-    if wr.status[0] == "ok" and wr.impacts[0] == 0:
+    if wr.status[0] == "ok" and wr.impacts[0] == 0 and wr.intervals[0] == 1:
         plots.presser_cycle(PF.foot_path(weak, 0.25), lowest, float(nom.material_mm), ax,
                             label=" (k = 0.02 N/mm, (F + m g)/m at 80 % of the follow threshold)",
                             shade=False, style="--", seat=False)

@@ -25,7 +25,7 @@ MAX_TURNS = 3.0                   # a lost interval must close within this many 
 # status codes (mechanisms.presser_foot.STATUS names them)
 OK, NO_LOSS, NO_CONTACT, NOT_REGAINED, CANNOT_ASSEMBLE = 0, 1, 2, 3, 4
 COLUMNS = ("loss_deg", "regain_deg", "lost_deg", "separation_mm", "impacts", "landed",
-           "status", "lost_by_force")
+           "status", "lost_by_force", "intervals")
 
 
 @nb.njit(cache=True)
@@ -136,38 +136,24 @@ def _max_seat(lo, hi, r, L, a):
 
 
 @nb.njit(cache=True)
-def one_machine(r, L, a, nu, zeta, x_eq, y_m):
-    """(loss_deg, regain_deg, lost_deg, separation_mm, impacts, landed, status, lost_by_force)
-    of one machine (angles are crank angles phi, from the y axis).
-
-    The foot starts riding on the seat where the contact force is largest; the first lost
-    interval after that is followed to the re-contact after which contact holds (a re-contact
-    whose contact force is negative is a bounce: counted in `impacts`, flight continues)."""
+def _interval(start, stop, h, r, L, a, nu, zeta, x_eq, y_m):
+    """The first lost interval after `start` (the foot riding on the seat there), if contact
+    is lost before `stop`: (phi_loss, phi_regain, separation_mm, impacts, landed, status,
+    lost_by_force), angles in radians, unwrapped. The interval runs to the re-contact after
+    which contact holds (a re-contact with a negative push is a bounce: counted in `impacts`,
+    the flight goes on)."""
     nan = np.nan
-    if not (r > 0.0 and L > r):
-        return nan, nan, nan, nan, 0, 0, CANNOT_ASSEMBLE, 0
-    n = int(math.ceil(2.0 * math.pi / STEP_RAD))
-    h = 2.0 * math.pi / n
-    best = -np.inf
-    phi0 = 0.0
-    for i in range(n):
-        f = _loss_fn(i * h, r, L, a, nu, zeta, x_eq, y_m)
-        if f > best:
-            best = f
-            phi0 = i * h
-    if best < 0.0:
-        return nan, nan, nan, nan, 0, 0, NO_CONTACT, 0
-    # contact from phi0: the first angle where it is lost
     phi_l = -1.0
-    prev = phi0
-    for i in range(1, n + 1):
-        p = phi0 + i * h
+    prev = start
+    p = start
+    while p < stop:
+        p = min(p + h, stop)
         if _loss_fn(p, r, L, a, nu, zeta, x_eq, y_m) < 0.0:
             phi_l = _bisect_loss(prev, p, r, L, a, nu, zeta, x_eq, y_m)
             break
         prev = p
     if phi_l < 0.0:
-        return nan, nan, nan, nan, 0, 0, NO_LOSS, 0
+        return nan, nan, 0.0, 0, 0, NO_LOSS, 0
     y, d1, _ = slider(phi_l, r, L, a)
     by_force = 1 if contact_force(phi_l, r, L, a, nu, zeta, x_eq) < 0.0 else 0
     landed = 0
@@ -217,8 +203,7 @@ def one_machine(r, L, a, nu, zeta, x_eq, y_m):
                 sep = max(sep, _max_seat(p_max - h, p_max + h, r, L, a) - y_m)
             # pick-up by the seat: the foot takes the seat's speed
             if contact_force(p, r, L, a, nu, zeta, x_eq) >= 0.0:
-                return (math.degrees(phi_l) % 360.0, math.degrees(p) % 360.0,
-                        math.degrees(p - phi_l), sep, impacts, landed, OK, by_force)
+                return phi_l, p, sep, impacts, landed, OK, by_force
             impacts += 1
             y, d1, _ = slider(p, r, L, a)
             phi_s, x0, v0 = p, y, d1
@@ -259,21 +244,67 @@ def one_machine(r, L, a, nu, zeta, x_eq, y_m):
         # re-contact with the seat: plastic impact, the foot takes the seat's speed
         if contact_force(p, r, L, a, nu, zeta, x_eq) >= 0.0 and \
                 slider(p, r, L, a)[0] < y_m:
-            return (math.degrees(phi_l) % 360.0, math.degrees(p) % 360.0,
-                    math.degrees(p - phi_l), sep, impacts, landed, OK, by_force)
+            return phi_l, p, sep, impacts, landed, OK, by_force
         impacts += 1
         y, d1, _ = slider(p, r, L, a)
         phi_s, x0, v0 = p, y, d1
-    return math.degrees(phi_l) % 360.0, nan, nan, sep, impacts, landed, NOT_REGAINED, by_force
+    return phi_l, nan, sep, impacts, landed, NOT_REGAINED, by_force
+
+
+@nb.njit(cache=True)
+def one_machine(r, L, a, nu, zeta, x_eq, y_m):
+    """(loss_deg, regain_deg, lost_deg, separation_mm, impacts, landed, status, lost_by_force,
+    intervals) of one machine; angles are crank angles phi (from the y axis), mod 360.
+
+    The foot starts riding on the seat where its push is largest (phi0) and is followed
+    interval by interval over one turn. A turn can hold several lost intervals (e.g. a hop on
+    the way up and the stop on the material); the one reported is the interval with the largest
+    separation, `intervals` counts them all, `impacts` counts the bounces of all."""
+    nan = np.nan
+    if not (r > 0.0 and L > r):
+        return nan, nan, nan, nan, 0, 0, CANNOT_ASSEMBLE, 0, 0
+    n = int(math.ceil(2.0 * math.pi / STEP_RAD))
+    h = 2.0 * math.pi / n
+    best = -np.inf
+    phi0 = 0.0
+    for i in range(n):
+        f = _loss_fn(i * h, r, L, a, nu, zeta, x_eq, y_m)
+        if f > best:
+            best = f
+            phi0 = i * h
+    if best < 0.0:
+        return nan, nan, nan, nan, 0, 0, NO_CONTACT, 0, 0
+    stop = phi0 + 2.0 * math.pi
+    start = phi0
+    count = 0
+    impacts = 0
+    res_l, res_r, res_sep, res_land, res_force = nan, nan, -1.0, 0, 0
+    while start < stop:
+        lo, re, sep, imp, land, st, bf = _interval(start, stop, h, r, L, a, nu, zeta, x_eq,
+                                                   y_m)
+        if st == NO_LOSS:
+            break
+        count += 1
+        impacts += imp
+        if st == NOT_REGAINED:
+            return math.degrees(lo) % 360.0, nan, nan, sep, impacts, land, NOT_REGAINED, bf, \
+                count
+        if sep > res_sep:
+            res_l, res_r, res_sep, res_land, res_force = lo, re, sep, land, bf
+        start = re
+    if count == 0:
+        return nan, nan, nan, nan, 0, 0, NO_LOSS, 0, 0
+    return (math.degrees(res_l) % 360.0, math.degrees(res_r) % 360.0,
+            math.degrees(res_r - res_l), res_sep, impacts, res_land, OK, res_force, count)
 
 
 @nb.njit(cache=True)
 def batch(r, L, a, nu, zeta, x_eq, y_m):
-    """one_machine over equal-length 1-D arrays; returns (m, 8) floats (COLUMNS order)."""
+    """one_machine over equal-length 1-D arrays; returns (m, 9) floats (COLUMNS order)."""
     m = r.shape[0]
-    out = np.empty((m, 8))
+    out = np.empty((m, 9))
     for i in range(m):
-        lo, re, lost, sep, imp, land, st, bf = one_machine(r[i], L[i], a[i], nu[i], zeta[i],
+        lo, re, lost, sep, imp, land, st, bf, cnt = one_machine(r[i], L[i], a[i], nu[i], zeta[i],
                                                        x_eq[i], y_m[i])
         out[i, 0] = lo
         out[i, 1] = re
@@ -283,4 +314,5 @@ def batch(r, L, a, nu, zeta, x_eq, y_m):
         out[i, 5] = land
         out[i, 6] = st
         out[i, 7] = bf
+        out[i, 8] = cnt
     return out

@@ -143,7 +143,9 @@ def slider(phi_rad, crank_mm, rod_mm, offset_mm):
 @dataclass(frozen=True)
 class ContactResult:
     """Per machine: shaft angles of loss and regain (deg), lost interval (deg), largest
-    separation (mm), bounces, whether the foot rested on the material, status."""
+    separation (mm) of the turn's principal lost interval (the one with the largest
+    separation), bounces, whether the foot rested on the material, whether contact was lost by
+    the force (the foot flew), status, and how many lost intervals the turn has."""
 
     loss_deg: np.ndarray
     regain_deg: np.ndarray
@@ -153,6 +155,7 @@ class ContactResult:
     landed: np.ndarray
     lost_by_force: np.ndarray
     status: np.ndarray
+    intervals: np.ndarray
 
     def to_dataframe(self) -> pd.DataFrame:
         return pd.DataFrame({f.name: getattr(self, f.name) for f in dataclasses.fields(self)})
@@ -183,6 +186,7 @@ def evaluate(params: PresserFoot) -> ContactResult:
         landed=out[:, 5].astype(bool),
         lost_by_force=out[:, 7].astype(bool),
         status=status.astype(str),
+        intervals=out[:, 8].astype(int),
     )
 
 
@@ -217,9 +221,10 @@ def foot_path(params: PresserFoot, step_deg: float = 0.5) -> pd.DataFrame:
             x = ym if landed else K.free(d[i], yl, vl, nu, z, xe)[0]
             landed = landed or x >= ym
             foot[i] = min(x, ym)
-        if res.impacts[0] > 0:
-            raise ParameterError("params", "foot_path replays only cycles without bounces",
-                                 int(res.impacts[0]))
+        if res.impacts[0] > 0 or res.intervals[0] > 1:
+            raise ParameterError("params", "foot_path replays only cycles of one lost interval "
+                                 "without bounces", (int(res.intervals[0]),
+                                                     int(res.impacts[0])))
     return pd.DataFrame({"shaft_deg": theta, "seat_mm": y, "foot_mm": foot,
                          "contact": contact})
 

@@ -2,8 +2,9 @@
 the spring's identifiability bound (docs/presser_foot.md).
 
 Every machine gets a status (mechanisms.presser_foot.STATUS); the counts add up to n. Among
-the "ok" machines two modes are counted as well: the foot left the seat by the force (it flew
-before the material) and bounces at re-contact.
+the "ok" machines three modes are counted as well: the principal interval began by the force
+(the foot flew before the material), bounces at re-contact, and turns with more than one lost
+interval (e.g. a hop off the seat on the way up besides the stop on the material).
 """
 
 from __future__ import annotations
@@ -71,6 +72,8 @@ class PresserMonteCarlo:
         ok = st == "ok"
         out["ok_lost_by_force"] = int(np.sum(ok & self.machines["lost_by_force"].to_numpy()))
         out["ok_bounced"] = int(np.sum(ok & (self.machines["impacts"].to_numpy() > 0)))
+        out["ok_several_intervals"] = int(np.sum(ok & (self.machines["intervals"].to_numpy()
+                                                       > 1)))
         return out
 
     def summary_frame(self) -> pd.DataFrame:
