@@ -238,3 +238,49 @@ def test_bad_parameters_name_the_field_the_rule_and_the_value(field, value, rule
     with pytest.raises(ParameterError) as err:
         PF.PresserFoot().override(**{field: value})
     assert str(err.value).startswith(f"{field}: {rule}")
+
+
+def test_the_mechanism_file_is_the_model():
+    """examples/presser_foot.toml: its chain (built here with the engine as the file's groups
+    say) moves the seat as the published formula, with the same transfer functions; its
+    nominal values and tolerances are the module's."""
+    import tomllib
+    from pathlib import Path
+
+    from sewtol import engine
+
+    doc = tomllib.loads((Path(__file__).parents[1] / "examples" / "presser_foot.toml")
+                        .read_text())
+    par = {k: v["nominal"] for k, v in doc["parameters"].items()}
+    g = {x["name"]: x for x in doc["groups"]}
+    q = np.radians(np.arange(0.0, 360.0, 5.0))
+    o = engine.fixed(g["O"]["x"], g["O"]["y"])
+    cr = g["B"]
+    ang = engine.Angle(cr["sense"] * q + math.radians(cr["phase_deg"]),
+                       cr["sense"] * np.ones_like(q), np.zeros_like(q))
+    b = engine.polar(o, par[cr["radius"]], ang)
+    rr = g["C"]
+    c, closure = engine.rrp(b, par[rr["r"]], rr["x"], rr["y"], math.radians(rr["angle_deg"]),
+                            rr["branch"])
+    assert np.all(closure.miss_mm == 0.0)
+    d = engine.on_body(c, engine.direction(o, c), par[g["D"]["u"]] + 1j * g["D"]["v"])
+    y, d1, d2 = PF.slider(q, par["r"], par["L"], par["a"])
+    np.testing.assert_allclose(d.p.imag, y, atol=1e-9)
+    np.testing.assert_allclose(d.p.real, 0.0, atol=1e-9)
+    np.testing.assert_allclose(d.dp.imag, d1, atol=1e-9)
+    np.testing.assert_allclose(d.ddp.imag, d2, atol=1e-9)
+    nom = PF.PresserFoot()
+    names = {"r": "crank_mm", "L": "rod_mm", "a": "offset_mm", "omega_rad_s": "speed_rad_s",
+             "phase": "phase_deg", "y_m": "material_mm", "m_kg": "mass_kg",
+             "k_n_per_mm": "stiffness_n_per_mm", "F_n": "preload_n", "zeta": "damping_ratio"}
+    assert {names[k]: v for k, v in par.items()} == {f: getattr(nom, f) for f in names.values()}
+    assumed = {t.param: t.upper for t in S.PRESSER_SETS["assumed"].items}
+    assert {names[k]: v for k, v in doc["tolerances"]["assumed"].items()} == assumed
+    kinds = {o["kind"] for o in doc["outputs"] if o["type"] == "custom"}
+    assert kinds == {"presser_contact"}
+    for out in doc["outputs"]:
+        if out["type"] == "custom":
+            fields = {k: v for k, v in out.items()
+                      if k not in ("name", "unit", "type", "kind", "doc")}
+            assert set(fields) <= set(PF.PRESSER_CONTACT_FIELDS)
+            assert out["name"] == fields["measure"]
