@@ -111,7 +111,7 @@ def test_undamped_flight_keeps_its_energy():
 
 
 def test_fit_reproduces_the_source_table_within_the_stated_residuals():
-    fit = S_fit()
+    fit = _fit()
     assert fit.phase_deg == pytest.approx(317.75, abs=0.01)
     assert fit.material_mm == pytest.approx(61.2804, abs=2e-4)
     rows = fit.rows
@@ -139,7 +139,7 @@ def test_fit_reproduces_the_source_table_within_the_stated_residuals():
 _FIT = {}
 
 
-def S_fit():
+def _fit():
     if "fit" not in _FIT:
         _FIT["fit"] = PF.fit_source()
     return _FIT["fit"]
