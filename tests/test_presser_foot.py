@@ -110,6 +110,20 @@ def test_undamped_flight_keeps_its_energy():
         assert 0.5 * v**2 + 0.5 * nu**2 * (x - xe) ** 2 == pytest.approx(e0, rel=1e-12)
 
 
+def test_damped_flight_loses_exactly_the_damper_work():
+    from scipy.integrate import quad
+
+    nu, z, xe, x0, v0 = 2.3, 0.012, 60.0, 50.0, 15.0
+
+    def energy(x, v):
+        return 0.5 * v**2 + 0.5 * nu**2 * (x - xe) ** 2
+    for end in (0.7, 2.9, 6.1):
+        work, _ = quad(lambda t: 2 * z * nu * K.free(t, x0, v0, nu, z, xe)[1] ** 2, 0.0, end,
+                       epsabs=1e-13, epsrel=1e-13, limit=200)
+        lost = energy(x0, v0) - energy(*K.free(end, x0, v0, nu, z, xe))
+        assert lost == pytest.approx(work, rel=1e-10)
+
+
 def test_fit_reproduces_the_source_table_within_the_stated_residuals():
     fit = _fit()
     assert fit.phase_deg == pytest.approx(317.75, abs=0.01)
