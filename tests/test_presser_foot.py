@@ -298,3 +298,36 @@ def test_the_mechanism_file_is_the_model():
                       if k not in ("name", "unit", "type", "kind", "doc")}
             assert set(fields) <= set(PF.PRESSER_CONTACT_FIELDS)
             assert out["name"] == fields["measure"]
+
+
+def test_invariants_over_random_machines_in_every_regime():
+    rng = np.random.default_rng(20261122)
+    m = 300
+    base = PF.PresserFoot()
+    batch = base.override(
+        stiffness_n_per_mm=rng.uniform(0.005, 5.0, m), mass_kg=rng.uniform(0.02, 0.2, m),
+        preload_n=rng.uniform(-1.0, 20.0, m), material_mm=rng.uniform(55.0, 70.0, m),
+        crank_mm=rng.uniform(15.0, 20.0, m))
+    res = PF.evaluate(batch)
+    counts = res.counts()
+    assert sum(counts.values()) == m and counts["ok"] > 50 and counts["never_lost"] > 0
+    ok = res.status == "ok"
+    assert np.all(res.separation_mm[ok] > 0) and np.all(res.intervals[ok] >= 1)
+    assert np.all((res.lost_deg[ok] > 0) & (res.lost_deg[ok] < 3 * 360))
+    r = np.asarray(batch.crank_mm)
+    for i in np.nonzero(ok)[0]:
+        phi_l = math.radians(res.loss_deg[i] - base.phase_deg)
+        phi_r = math.radians(res.regain_deg[i] - base.phase_deg)
+        y_m = float(np.asarray(batch.material_mm)[i])
+        nu, x_eq = float(np.asarray(batch.nu)[i]), float(np.asarray(batch.x_eq_mm)[i])
+        y_l = PF.slider(phi_l, r[i], L, A)[0]
+        if res.lost_by_force[i]:      # the push is zero where the foot leaves the seat
+            assert K.contact_force(phi_l, r[i], L, A, nu, 0.012, x_eq) == pytest.approx(
+                0.0, abs=1e-6)
+        else:                         # or the seat passes the material level
+            assert y_l == pytest.approx(y_m, abs=1e-9)
+        # contact returns above (or at) the material, and the push then holds
+        assert PF.slider(phi_r, r[i], L, A)[0] <= y_m + 1e-9
+        assert K.contact_force(phi_r, r[i], L, A, nu, 0.012, x_eq) >= 0.0
+        if res.landed[i] and not res.lost_by_force[i] and res.intervals[i] == 1:
+            assert res.separation_mm[i] == pytest.approx(r[i] + L + A - y_m, abs=1e-9)
