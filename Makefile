@@ -35,6 +35,7 @@ report: $(STAMP)
 	$(BIN)/python studies/needle_208_strategies.py --out $(REPORTS) --n 2000
 	$(BIN)/python studies/needle_208_index.py --out $(REPORTS)
 	$(BIN)/python studies/feed_131_report.py --out $(REPORTS) --n-jobs 2 --progress
+	$(BIN)/python studies/presser_foot_report.py --out $(REPORTS)
 
 lint: $(STAMP)
 	$(BIN)/ruff check src tests studies examples $(wildcard benchmarks)
