@@ -142,7 +142,8 @@ def slider(phi_rad, crank_mm, rod_mm, offset_mm):
 
 @dataclass(frozen=True)
 class ContactResult:
-    """Per machine: shaft angles of loss and regain (deg), lost interval (deg), largest
+    """Per machine: shaft angles of loss (in [0, 360)) and regain (loss + lost interval, so it
+    reads above 360 when contact returns in the next turn) (deg), lost interval (deg), largest
     separation (mm) of the turn's principal lost interval (the one with the largest
     separation), bounces, whether the foot rested on the material, whether contact was lost by
     the force (the foot flew), status, and how many lost intervals the turn has."""
@@ -177,9 +178,11 @@ def evaluate(params: PresserFoot) -> ContactResult:
                   cols["damping_ratio"], x_eq, cols["material_mm"])
     status = np.array(STATUS, dtype=object)[out[:, 6].astype(int)]
     phase = cols["phase_deg"]
+    loss = (out[:, 0] + phase) % 360.0
     return ContactResult(
-        loss_deg=(out[:, 0] + phase) % 360.0,
-        regain_deg=(out[:, 1] + phase) % 360.0,
+        loss_deg=loss,
+        # loss + lost interval: continuous across 360 (a regain in the next turn reads > 360)
+        regain_deg=loss + out[:, 2],
         lost_deg=out[:, 2],
         separation_mm=out[:, 3],
         impacts=out[:, 4].astype(int),
