@@ -36,6 +36,7 @@ report: $(STAMP)
 	$(BIN)/python studies/needle_208_index.py --out $(REPORTS)
 	$(BIN)/python studies/feed_131_report.py --out $(REPORTS) --n-jobs 2 --progress
 	$(BIN)/python studies/m6_needle_report.py --out $(REPORTS)
+	$(BIN)/python studies/presser_foot_report.py --out $(REPORTS)
 
 lint: $(STAMP)
 	$(BIN)/ruff check src tests studies examples $(wildcard benchmarks)
