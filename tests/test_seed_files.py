@@ -63,7 +63,8 @@ def test_m6_file_equals_the_module():
     assert np.all(gap >= -1e-9) and np.all(gap < 1e-3)
 
 
-@pytest.mark.parametrize("name", ["spatial_crank_rocker", "m6_needle", "khujand_feed"])
+@pytest.mark.parametrize("name", ["spatial_crank_rocker", "m6_needle", "khujand_feed",
+                                  "presser_foot"])
 def test_every_seed_file_runs_a_tolerance_study_with_counts_that_add_up(name):
     from sewtol.studies import generic
 
@@ -74,3 +75,35 @@ def test_every_seed_file_runs_a_tolerance_study_with_counts_that_add_up(name):
     assert len(res.to_dataframe()) == 300
     for _, row in table.iterrows():
         assert row["ok"] + row["out_of_spec"] + row["cannot_close"] + row["dead_point"] == 300
+
+
+FOOT_NAMES = {"r": "crank_mm", "L": "rod_mm", "a": "offset_mm", "omega_rad_s": "speed_rad_s",
+              "phase": "phase_deg", "y_m": "material_mm", "m_kg": "mass_kg",
+              "k_n_per_mm": "stiffness_n_per_mm", "F_n": "preload_n", "zeta": "damping_ratio"}
+
+
+def test_presser_file_equals_the_module_and_counts_machines_that_never_lose_contact():
+    from sewtol.mechanisms import presser_foot as pf
+    from sewtol.studies import generic
+
+    mech = load(EXAMPLES / "presser_foot.toml")
+    nominal = {p.name: p.nominal for p in mech.parameters}
+    assert set(nominal) == set(FOOT_NAMES)
+    rng = np.random.default_rng(8)
+    values = _batch(nominal, rng, 30, {"r": 0.05, "L": 0.1, "a": 0.1, "y_m": 0.3})
+    values["y_m"][:3] = 70.0  # above the seat's lowest point (67.5): contact is never lost
+    ours = mech.evaluate(values)
+    theirs = pf.evaluate(pf.PresserFoot(**{FOOT_NAMES[k]: v for k, v in values.items()}))
+    assert list(theirs.status[:3]) == ["never_lost"] * 3
+    for name in ("loss_deg", "regain_deg"):
+        np.testing.assert_allclose(ours.outputs[name], getattr(theirs, name), rtol=1e-12)
+    np.testing.assert_allclose(ours.outputs["separation_mm"][3:], theirs.separation_mm[3:],
+                               rtol=1e-12)
+    assert np.all(ours.outputs["separation_mm"][:3] == 0.0)
+    # a Monte-Carlo counts the machines whose loss angle has no value, never drops them
+    tol = mech.tolerance_sets["assumed"] if "assumed" in mech.tolerance_sets else next(
+        iter(mech.tolerance_sets.values()))
+    res = generic.montecarlo(mech, tol, n=200, seed=3)
+    row = res.summary_frame().set_index("output").loc["loss_deg"]
+    defined = res.machines["loss_deg"].notna().sum()
+    assert row["undefined"] + defined + row["cannot_close"] + row["dead_point"] == 200

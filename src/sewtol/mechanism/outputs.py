@@ -118,7 +118,9 @@ OUTPUT_TYPES: dict[str, OutputType] = {
 OUTPUTS: dict[str, OutputType] = {}
 # kind -> the module that registers it when imported: the loader imports it the first time a
 # file names the kind, so a file works without the caller importing that module first
-PROVIDERS: dict[str, str] = {}
+# built-in custom kinds: the module that registers each, imported on first use (a file can only
+# name a kind that is registered or listed here; nothing a file holds names a module)
+PROVIDERS: dict[str, str] = {"presser_contact": "sewtol.mechanisms.presser_foot"}
 
 
 def provide(kind: str) -> OutputType | None:

@@ -388,3 +388,12 @@ def presser_contact_output(state, measure: str = "separation_mm", **fields) -> n
         raise ParameterError("measure", "must be one of " + ", ".join(MEASURES), measure)
     values = {k: np.asarray(v, float).reshape(-1) for k, v in fields.items()}
     return presser_contact(values, **{k: k for k in values})[measure]
+
+
+def _register() -> None:
+    from ..mechanism.outputs import register_output
+
+    register_output("presser_contact", presser_contact_output, fields=PRESSER_CONTACT_FIELDS)
+
+
+_register()

@@ -397,6 +397,10 @@ class GenericMonteCarloResult:
             c = self.counts(name)
             row = {"output": name, **{k: c[k] for k in ("n", "ok", "out_of_spec",
                                                          "cannot_close", "dead_point")}}
+            # machines that run but whose output has no value (e.g. the contact-loss angle of a
+            # presser foot that never loses contact): counted here, left out of the statistics
+            running = np.isin(self.status(name), ("ok", "out_of_spec"))
+            row["undefined"] = int(np.sum(running & np.isnan(v)))
             if ok.size:
                 q = np.quantile(ok, [0.5, 0.95, 0.99])
                 row.update({"mean": float(ok.mean()),
