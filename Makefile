@@ -11,7 +11,7 @@ REPORTS ?= reports
 NARROWED := OPENBLAS_CORETYPE=Prescott NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL AVX512_SPR" \
 	NUMBA_CPU_NAME=generic
 
-.PHONY: report test test-narrowed test-latest lint bench lock validate clean
+.PHONY: report test test-narrowed test-latest lint bench lock validate clean docs
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -35,6 +35,8 @@ report: $(STAMP)
 	$(BIN)/python studies/needle_208_strategies.py --out $(REPORTS) --n 2000
 	$(BIN)/python studies/needle_208_index.py --out $(REPORTS)
 	$(BIN)/python studies/feed_131_report.py --out $(REPORTS) --n-jobs 2 --progress
+	$(BIN)/python studies/m6_needle_report.py --out $(REPORTS)
+	$(BIN)/python studies/presser_foot_report.py --out $(REPORTS)
 
 lint: $(STAMP)
 	$(BIN)/ruff check src tests studies examples $(wildcard benchmarks)
@@ -57,13 +59,20 @@ test-latest:
 	$(LATEST)/bin/python -m pip list --format=freeze | grep -iE '^(numpy|scipy|pandas|numba|salib|joblib|distributed)=='
 	$(LATEST)/bin/python -m pytest -q -p no:cacheprovider
 
+# The documentation site: the user guide (docs/*.md) and the API reference built from the
+# docstrings (docs/api/*.md), into site/. --strict turns every warning into a failure: a broken
+# link between pages, a missing anchor, a ::: reference to a name that does not exist. The docs
+# tools (the `docs` extra) come from the same hash-checked lock as everything else.
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/python -m mkdocs build --strict --site-dir site
+
 # refresh the lock: uv resolves once for every platform and Python >= 3.11 (one version of each
 # package where possible); pip installs it with hash checking, so users need no extra tool
 lock:
 	$(PYTHON) -m venv .venv-lock
 	.venv-lock/bin/python -m pip install --quiet uv==0.13.8
-	.venv-lock/bin/uv pip compile pyproject.toml --extra test --universal --python-version 3.11 \
-		--fork-strategy fewest --generate-hashes -o $(LOCK)
+	.venv-lock/bin/uv pip compile pyproject.toml --extra test --extra docs --universal \
+		--python-version 3.11 --fork-strategy fewest --generate-hashes -o $(LOCK)
 
 # The benchmarks run in their own venv so the peer (pylinkage) is never a dependency of sewtol.
 BENCH := .venv-bench
@@ -80,7 +89,7 @@ bench: $(BENCH)/.installed
 	$(BENCH)/bin/python benchmarks/studies.py --json
 
 clean:
-	rm -rf $(VENV) $(BENCH) $(LATEST) .venv-lock .pytest_cache .hypothesis build src/*.egg-info
+	rm -rf $(VENV) $(BENCH) $(LATEST) .venv-lock .pytest_cache .hypothesis build site src/*.egg-info
 
 # the exact optimiser against a dense brute force on the 10,000 seed-2026 recommended-set
 # machines (beta alone, then beta + guide shift); about 10 min each on 2 cores

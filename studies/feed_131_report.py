@@ -37,7 +37,7 @@ def main(argv=None) -> None:
     started = now()
     out = Path(args.out) / "feed_131-42-3"
     p = Feed131()
-    settings = {"data": "../shared/design/feed_131-42-3.md (the analysis program's link data)",
+    settings = {"data": "docs/feed_131.md (the analysis program's link data)",
                 "regulator b (deg)": p.b, "plate level H (mm)": p.plate_mm,
                 "material thickness (mm)": p.material_mm}
 
@@ -52,7 +52,7 @@ def main(argv=None) -> None:
     wide = res.wide()
     write_table(wide, out, "readoffs", "The source's plot read-offs against the model, residual "
                 "(model - source) under each explanation a careful reader would test",
-                {**settings, "read-offs": "../shared/design/feed_131-42-3.md (thesis plots: lower "
+                {**settings, "read-offs": "docs/feed_131.md (thesis plots: lower "
                  "top point, upper bottom point of the middle tooth)",
                  "residuals": "phases wrapped to (-180, 180] deg; steps compared as lengths "
                  "|T|, their sense as feed_direction (+1 forward, -1 reverse); NaN: the tooth "

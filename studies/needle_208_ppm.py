@@ -1,4 +1,4 @@
-"""Failures per million of the 208 needle drive after adjustment (issue 15).
+"""Failures per million of the 208 needle drive after adjustment.
 
 For each tolerance set (the source study's base and recommended sets, the allocation study's set
 for 99.73 % after beta adjustment, and that set tightened) and each strategy (beta fixed at the

@@ -1,4 +1,4 @@
-"""Yield by adjustment strategy for the 208 needle drive (issue 13), base and recommended sets.
+"""Yield by adjustment strategy for the 208 needle drive, base and recommended sets.
 
 Writes reports/needle_208/strategies.md/.csv (both sets), strategies_SET_machines_STRATEGY.csv,
 strategies_SET_failures.md/.csv (which tolerances drive the machines still out of spec),

@@ -15,6 +15,11 @@ Strategy, estimate and needle_limit_state (rare events). Errors: ParameterError,
 from __future__ import annotations
 
 import importlib
+import os
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from .tolerances import ToleranceSet
 
 __version__ = "0.1.0"
 
@@ -50,9 +55,35 @@ _PUBLIC = {
 __all__ = ["__version__", "tolerance_set", *_PUBLIC]
 
 
-def tolerance_set(name_or_path):
-    """A needle tolerance set from a name ("base", "recommended"), "FILE.toml[:SET]", or a
-    ToleranceSet (returned as it is): the string shortcut the CLI's --tolerances takes."""
+def tolerance_set(name_or_path: str | os.PathLike | ToleranceSet) -> ToleranceSet:
+    """A needle tolerance set from a name, a TOML file, or a set: the string shortcut.
+
+    The same strings the command line's ``--tolerances`` takes.
+
+    Parameters
+    ----------
+    name_or_path : str, os.PathLike or ToleranceSet
+        ``"base"`` or ``"recommended"`` (the source study's sets, lengths in mm);
+        ``"FILE.toml"`` (a file holding one ``[sets.NAME]`` table) or ``"FILE.toml:NAME"``;
+        or a `ToleranceSet`, returned as it is.
+
+    Returns
+    -------
+    ToleranceSet
+        The set, its parameter names checked against `Needle208`'s.
+
+    Raises
+    ------
+    ParameterError
+        For an unknown name, an unreadable or invalid file, or a parameter the needle drive
+        does not have (the message lists the valid ones).
+
+    Examples
+    --------
+    >>> import sewtol
+    >>> sewtol.tolerance_set("recommended").params
+    ['LF', 'LM', 'AM', 'AB', 'BC', 'BE', 'CD']
+    """
     from .mechanisms.needle_208 import Needle208
     from .mechanisms.params import field_names
     from .tolerances import NEEDLE_208_SETS, ToleranceSet, resolve

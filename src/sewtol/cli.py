@@ -219,7 +219,7 @@ def _context(args, params, tolerances, strategy) -> dict:
     """What decides a study's numbers, carried by its JSON (its CSVs: run.json beside them)."""
     from .frames import DEFAULT_FRAME
 
-    beta = list(getattr(args, "beta_range", None) or [])
+    beta = list(getattr(args, "beta_range", None) or (10.0, 35.0))
     for c in getattr(strategy, "compensators", ()):
         if c.name == "beta":  # the strategy's own range of beta
             beta = [c.low, c.high]
@@ -228,7 +228,7 @@ def _context(args, params, tolerances, strategy) -> dict:
             "guide_shift_um": float(params.guide_shift_um),
             "guide_angle_deg": float(params.guide_angle),
             "strategy": "beta" if strategy is None else strategy.name,
-            "beta_search_range_deg": beta, "limit_um": getattr(args, "limit_um", None)}
+            "beta_search_range_deg": beta, "limit_um": getattr(args, "limit_um", None) or 10.0}
 
 
 def _deviation_columns(machines, params, units=None):
@@ -523,8 +523,7 @@ def cmd_needle_montecarlo(args):
             res = montecarlo(params, tolerances, args.n, args.seed, limit_um=limit,
                              range_deg=rng, n_jobs=args.n_jobs, progress=args.progress,
                              store=store, chunk_size=CHUNK, scheduler=client)
-        record = {**res.to_dict(), "context": _context(args, params, tolerances, None),
-                  "fixed_beta_at_bound": _beta_star_figures(args, params).beta_at_bound}
+        record = _montecarlo_record(args, params, tolerances, res)
         _write_outputs(args, "montecarlo", inputs, started, record,
                        {"machines": _deviation_columns(res.machines, res.params),
                         "summary": res.summary_frame()}, runs)
@@ -532,16 +531,27 @@ def cmd_needle_montecarlo(args):
         if store is not None:
             store.close()
     emit(args.format, obj=record, frame=res.summary_frame())
-    k, pinned = res.beta_at_bound(), res.beta_at_bound(pinned=True)
-    _print_notes(args, [f"yield intervals: {record['yield_ci']['method']}, 95 %"]
-                 + _fixed_notes({**record, "fixed_beta_deg": res.nominal_beta_deg})
-                 + ([f"{k} of {res.n} machines have an adjusted beta* whose optimum reaches a "
-                     f"bound of the searched range {list(rng)} deg; {pinned} of them are pinned "
-                     "there (SumDelta still falling: the optimum lies outside the range), the "
-                     "others sit on a flat plateau"] if k else []))
+    _print_notes(args, _montecarlo_notes(res, record))
     _save_plot(args, lambda ax: _plots().montecarlo_histograms(
         res.machines["total_fixed_um"], res.machines["total_adjusted_um"], res.limit_um,
         (res.yield_of("fixed"), res.yield_of("adjusted")), ax=ax))
+
+
+def _montecarlo_record(args, params, tolerances, res) -> dict:
+    """The JSON of `needle montecarlo` (and of `run FILE montecarlo` on the needle fast path):
+    the result, its context and whether the fixed case's beta* lies on a range bound."""
+    return {**res.to_dict(), "context": _context(args, params, tolerances, None),
+            "fixed_beta_at_bound": _beta_star_figures(args, params).beta_at_bound}
+
+
+def _montecarlo_notes(res, record) -> list[str]:
+    k, pinned = res.beta_at_bound(), res.beta_at_bound(pinned=True)
+    return ([f"yield intervals: {record['yield_ci']['method']}, 95 %"]
+            + _fixed_notes({**record, "fixed_beta_deg": res.nominal_beta_deg})
+            + ([f"{k} of {res.n} machines have an adjusted beta* whose optimum reaches a bound "
+                f"of the searched range {list(res.range_deg)} deg; {pinned} of them are pinned "
+                "there (SumDelta still falling: the optimum lies outside the range), the others "
+                "sit on a flat plateau"] if k else []))
 
 
 # --- adjustment strategies (issue 13): --adjust/--range/--step/--resolution, `needle strategies`
@@ -1219,6 +1229,10 @@ def build_parser() -> argparse.ArgumentParser:
     _plot_option(p, "the feed steps against b")
     p.set_defaults(func=cmd_feed_regulator)
     add_feed_studies(fsub, common)
+
+    from .cli_run import add_run  # `sewtol run FILE.toml STUDY` (mechanism files)
+
+    add_run(sub, Parser)
     return ap
 
 

@@ -4,9 +4,28 @@ from __future__ import annotations
 
 
 class ParameterError(ValueError):
-    """A parameter broke a rule. The message names the field, the rule and the value."""
+    """A parameter broke a rule. The message names the field, the rule and the value.
 
-    def __init__(self, field: str, rule: str, value: object):
+    The command line prints it as one line on stderr and exits with status 2.
+
+    Parameters
+    ----------
+    field : str
+        The parameter, field or flag that broke the rule (e.g. ``"CD"``, ``"LF.lower"``,
+        ``"n"``); kept as the attribute ``field``.
+    rule : str
+        The rule, in words (e.g. ``"must be a positive length in mm"``); attribute ``rule``.
+    value : object
+        The offending value, shown with ``repr``; attribute ``value``.
+
+    Examples
+    --------
+    >>> from sewtol import ParameterError
+    >>> str(ParameterError("n", "must be an integer >= 1", 0))
+    'n: must be an integer >= 1 (got 0)'
+    """
+
+    def __init__(self, field: str, rule: str, value: object) -> None:
         self.field = field
         self.rule = rule
         self.value = value
@@ -20,10 +39,25 @@ class AssemblyError(ValueError):
 
     Carries the group (e.g. the dyad "B-C-D"), the crank or rocker angle where it fails, by how much
     it misses (mm) and the parameters that were used, so a single run can say exactly where.
+    Studies never raise it for one machine: they count such a machine as failed
+    (``cannot_close``) and go on.
+
+    Parameters
+    ----------
+    group : str
+        The group that cannot close, e.g. ``"L-M-A"`` or ``"B-C-D"``; attribute ``group``.
+    angle_deg : float
+        Where it fails: the crank angle for L-M-A, the rocker angle for B-C-D (deg).
+    miss_mm : float
+        By how much the links miss each other there (mm).
+    params : dict or None
+        The parameters of the machine that failed (copied; attribute ``params``).
+    detail : str
+        Anything else the message should say (appended after a semicolon).
     """
 
     def __init__(self, group: str, angle_deg: float, miss_mm: float, params: dict | None = None,
-                 detail: str = ""):
+                 detail: str = "") -> None:
         self.group = group
         self.angle_deg = float(angle_deg)
         self.miss_mm = float(miss_mm)

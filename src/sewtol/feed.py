@@ -194,8 +194,8 @@ def contributor_table(machines: pd.DataFrame, tolerances: ToleranceSet, top: int
     return pd.concat(frames, ignore_index=True)
 
 
-# The source's read-offs from its plots of the program's output (../shared/design/
-# feed_131-42-3.md, "The thesis read-offs in full"): (dog, figure, value). Lower: top point of
+# The source's read-offs from its plots of the program's output (docs/feed_131.md restates
+# them): (dog, figure, value). Lower: top point of
 # the middle tooth; upper: bottom point of the middle tooth; plate level not stated. The steps
 # are read as travel (a length); feed_direction is +1 where the tooth feeds forward (T > 0), as
 # the source's dogs both do ("vertical differential": both feed in step).

@@ -24,11 +24,30 @@ from .errors import ParameterError
 # the frame Needle208.nominal() and every needle command use unless told otherwise
 # (docs/needle_208.md, "Which frame is the default")
 DEFAULT_FRAME = "sewtol-0.1"
+"""The frame `Needle208.nominal()` and every needle command use unless told otherwise."""
 
 
 @dataclass(frozen=True)
 class Frame:
-    """One reconstruction of the frame: the nominal machine and where it came from."""
+    """One reconstruction of the frame: the nominal machine and where it came from.
+
+    Read with `load_frame`; ``frame.machine()`` is the nominal `Needle208` on it.
+
+    Parameters
+    ----------
+    name : str
+        The frame's name (``"sewtol-0.1"``, ``"window"``, ``"table41"``).
+    version : int
+        The version of the record; a refit that changes the geometry raises it.
+    summary : str
+        One line saying what the frame was fitted to.
+    params : dict
+        Every `Needle208` parameter of the nominal machine (mm, deg, um).
+    provenance : dict
+        Targets, achieved values, residuals, the fit's conditioning and its settings.
+    published : tuple
+        Rows of the residual table against every published figure of the source study.
+    """
 
     name: str
     version: int
@@ -117,7 +136,23 @@ def frame_from_record(record: dict) -> Frame:
 
 
 def load_frame(name: str) -> Frame:
-    """The named frame; an unknown name fails and lists the valid ones."""
+    """The named frame, read from the package data.
+
+    Parameters
+    ----------
+    name : str
+        A frame name (see `list_frames`; the default is ``DEFAULT_FRAME``).
+
+    Returns
+    -------
+    Frame
+        The frame record with its nominal parameters and provenance.
+
+    Raises
+    ------
+    ParameterError
+        For an unknown name; the message lists the valid ones.
+    """
     names = frame_names()
     if name not in names:
         raise ParameterError("frame", f"unknown frame; valid names are {', '.join(names)}", name)
@@ -137,6 +172,13 @@ def resolve(frame) -> Frame:
 
 
 def list_frames() -> list[Frame]:
+    """Every frame shipped with sewtol.
+
+    Returns
+    -------
+    list of Frame
+        One record per named frame, in name order.
+    """
     return [load_frame(n) for n in frame_names()]
 
 

@@ -51,6 +51,7 @@ class NominalFigures:
         return out
 
     def to_dict(self) -> dict:
+        """The figures as plain data (the JSON of ``sewtol needle nominal``)."""
         return {
             "beta_opt_deg": self.beta_opt_deg,
             "total_um": self.total_um,
@@ -70,6 +71,7 @@ class NominalFigures:
         }
 
     def to_dataframe(self) -> pd.DataFrame:
+        """The figures as quantity/value rows (the table of ``sewtol needle nominal``)."""
         rows = [
             ("beta* (deg)", self.beta_opt_deg),
             ("beta* on a bound of the searched range (1 = yes)", float(self.beta_at_bound)),
@@ -96,9 +98,33 @@ class NominalFigures:
         return pd.DataFrame(rows, columns=["quantity", "value"])
 
 
-def nominal_figures(params: Needle208, range_deg=sb.DEFAULT_RANGE_DEG,
+def nominal_figures(params: Needle208, range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
                     limit_um: float = sb.DEFAULT_LIMIT_UM) -> NominalFigures:
-    """Optimise beta with the guide fixed and collect the figures a designer reads."""
+    """Optimise beta with the guide fixed and collect the figures a designer reads.
+
+    What ``sewtol needle nominal`` prints.
+
+    Parameters
+    ----------
+    params : Needle208
+        One machine (scalar parameters), e.g. ``Needle208.nominal()``.
+    range_deg : tuple of float
+        The regulating range searched for beta*, (low, high) in deg; default (10, 35).
+    limit_um : float
+        The SumDelta limit (um) that defines the beta window; default 10.
+
+    Returns
+    -------
+    NominalFigures
+        beta* (deg), SumDelta, Delta+ and Delta- at beta* (um), the window of beta with
+        SumDelta <= limit_um (deg), the guide and the fitted minimum-zone guide at beta*, the
+        needle stroke (mm) and the pivots A and D (mm).
+
+    Raises
+    ------
+    AssemblyError
+        If the machine cannot assemble (the dyad, the angle and the miss are named).
+    """
     check_assembly(params)
     c, _ = nm.columns(params)
     opt = sb.optimise_beta_columns(c, range_deg, limit_um)
@@ -134,7 +160,28 @@ def nominal_figures(params: Needle208, range_deg=sb.DEFAULT_RANGE_DEG,
 
 
 def deviation_table(params: Needle208, step_deg: float = 1.0) -> pd.DataFrame:
-    """E and d(phi) over one crank turn at the machine's beta, guide fixed."""
+    """E and d(phi) over one crank turn at the machine's beta, guide fixed.
+
+    What ``sewtol needle deviation`` prints.
+
+    Parameters
+    ----------
+    params : Needle208
+        One machine (scalar parameters); its own ``beta`` is used, not beta*.
+    step_deg : float
+        The crank-angle step (deg); the table runs from 0 up to, not including, 360.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns ``phi_deg`` (crank angle, deg), ``x_mm`` and ``y_mm`` (the needle-bar point E)
+        and ``d_um`` (its signed distance from the guide line, um).
+
+    Raises
+    ------
+    AssemblyError
+        If the machine cannot assemble.
+    """
     check_assembly(params)
     phi = np.arange(0.0, 360.0, step_deg)
     c, _ = nm.columns(params)

@@ -3,7 +3,7 @@
 A tolerance gives the lower and upper deviation from nominal (mm, or the parameter's own unit),
 and how machines scatter inside: `uniform` over the limits, `normal` with the limits at
 +/-3 sigma around their midpoint, or `truncnorm`, a normal (sigma = width/6) cut at the limits.
-Built-in sets restate the source study (../shared/design/needle_208.md): `base` and
+Built-in sets restate the source study (docs/needle_208.md, "Tolerances"): `base` and
 `recommended`. CD has no base tolerance in the source; `base` leaves CD exact.
 
 TOML form (a file of one or more sets):
@@ -44,6 +44,23 @@ def is_branch(param: str) -> bool:
 
 @dataclass(frozen=True)
 class Tolerance:
+    """The limits and distribution of one parameter's deviation from nominal.
+
+    Validated at construction: finite limits, ``lower <= upper``, a known distribution.
+
+    Parameters
+    ----------
+    param : str
+        The parameter's name, as the mechanism names it (``"CD"``, ``"Ax"``, ...).
+    lower, upper : float
+        The lower and upper deviation from nominal, in the parameter's unit (mm for lengths and
+        coordinates, deg for angles, um for ``guide_shift_um``); e.g. ``-0.8, 0.25``.
+    dist : str
+        How machines scatter inside: ``"uniform"`` over the limits, ``"normal"`` with the
+        limits at +/-3 sigma around their midpoint, or ``"truncnorm"``, that normal cut at the
+        limits.
+    """
+
     param: str
     lower: float
     upper: float
@@ -69,10 +86,12 @@ class Tolerance:
 
     @property
     def mid(self) -> float:
+        """The middle of the limits (mm, or the parameter's unit)."""
         return 0.5 * (self.lower + self.upper)
 
     @property
     def sigma(self) -> float:
+        """A sixth of the width: the normal's sigma with the limits at +/-3 sigma."""
         return (self.upper - self.lower) / 6.0
 
     def reach(self) -> tuple[float, float]:
@@ -103,6 +122,23 @@ class Tolerance:
 
 @dataclass(frozen=True)
 class ToleranceSet:
+    """A named set of tolerances, one per parameter: what a study draws machines from.
+
+    Built in (`NEEDLE_208_SETS`, or ``sewtol.tolerance_set("recommended")``), read from a TOML
+    file, or built here. Vary it by copying: ``scaled({"CD": 0.5})`` halves CD's limits.
+
+    Parameters
+    ----------
+    name : str
+        The set's name (it labels tables and study folders).
+    items : tuple of Tolerance
+        The tolerances; a parameter may appear once. Parameters not named stay nominal.
+    description : str
+        What the set is, in words.
+    nominal_names : tuple of str
+        The mechanism's parameter names, if known (not compared).
+    """
+
     name: str
     items: tuple[Tolerance, ...]
     description: str = ""
@@ -137,6 +173,7 @@ class ToleranceSet:
 
     @property
     def params(self) -> list[str]:
+        """The toleranced parameters, in the set's order."""
         return [t.param for t in self.items]
 
     def active(self) -> ToleranceSet:
@@ -145,6 +182,7 @@ class ToleranceSet:
                             self.description)
 
     def check_names(self, valid: list[str]) -> ToleranceSet:
+        """This set, if every parameter is in `valid`; otherwise ParameterError listing the valid names."""
         for t in self.items:
             if t.param not in valid:
                 raise ParameterError(t.param, f"unknown parameter in tolerance set '{self.name}'; "
@@ -195,6 +233,7 @@ class ToleranceSet:
                                 if changed else ""))
 
     def as_dict(self) -> dict:
+        """The set as plain data: per parameter its lower and upper limit and distribution."""
         return {t.param: {"lower": t.lower, "upper": t.upper, "dist": t.dist} for t in self.items}
 
 
@@ -212,6 +251,12 @@ NEEDLE_208_SETS = {
         _sym("BC", 0.05), _sym("BE", 0.05), _sym("CD", 0.01)),
         "source study, recommended tolerances"),
 }
+"""The source study's tolerance sets of the 208 needle drive, by name (lengths in mm).
+
+``base``: LF +/-0.05, LM +/-0.5, AM +/-0.1, AB, BC, BE +/-0.05, CD exact (the source gives it no
+base tolerance). ``recommended``: LF +0.25/-0.8, LM +/-0.5, AM +/-0.5, AB, BC, BE +/-0.05,
+CD +/-0.01. All uniform.
+"""
 
 
 SYMMETRIC_RULE = ("must not be negative: a symmetric tolerance +/-X needs X >= 0 (give lower "

@@ -10,8 +10,19 @@ from .crank import crank
 from .dyad import Closure, rrr
 from .motion import Angle, Motion, direction, driving_angle, fixed, on_body, polar
 from .slider import rpr, rrp
+from .spatial import (
+    RockerExtremes,
+    position_function,
+    rocker_extremes,
+    rocker_sensitivities,
+    spatial_joints,
+    spatial_rocker,
+    spatial_rocker_third,
+)
 
 __all__ = [
     "Angle", "Closure", "Motion", "crank", "direction", "driving_angle", "fixed", "on_body",
     "polar", "rpr", "rrp", "rrr",
+    "RockerExtremes", "position_function", "rocker_extremes", "rocker_sensitivities",
+    "spatial_joints", "spatial_rocker", "spatial_rocker_third",
 ]

@@ -1,6 +1,6 @@
 """Exact per-machine optimum of beta (and the guide shift) as a sliding-window problem.
 
-Structure (issue 11 item 1): B = A + AB e(theta + s beta) with the rocker angle theta swinging
+Structure: B = A + AB e(theta + s beta) with the rocker angle theta swinging
 over [lo, hi] independently of beta (mechanisms/needle_208.rocker_interval). With
 psi = theta + s beta the needle point E(psi) and d(psi) = n.(E(psi) - G) are ONE function of psi
 per machine, and beta only slides the window W(u) = [u, u + w], u = lo + s beta, w = hi - lo,

@@ -1,6 +1,6 @@
 """Feed chains of the 131-42+3 class: lower and upper feed dogs ("vertical differential").
 
-Built group by group in the order of ../shared/design/feed_131-42-3.md (steps 1-23), with the
+Built group by group in the source's order (docs/feed_131.md, steps 1-23), with the
 analysis program's data. Frame origin O1 (main shaft), x right, y up, lengths mm, angles deg
 counter-clockwise from +x, phi = main-shaft angle. "RRR dyad X-J-Y, J left of X->Y" is
 engine.rrr(X, XJ, Y, YJ, +1).
@@ -28,7 +28,48 @@ DYADS = ("O4-K-F", "D-B-A1", "O3-C-B", "M-N-E", "O6-R-C", "O8-V-S", "X-L-W", "O7
 
 @dataclass(frozen=True)
 class Feed131:
-    """Every length, pivot, phase and the regulator setting b (mm, deg)."""
+    """Every length, pivot, phase and setting of the 131-42+3 feed chains (mm, deg).
+
+    Frozen and validated at construction. The defaults are the source's analysis-program data;
+    the field names follow the points of the chains (docs/feed_131.md lists the 23 steps): a
+    two-letter name is the length between two points (``O4K`` is O4 to K), ``..x``/``..y`` a
+    fixed pivot's coordinates, ``.._angle`` the angle of an arm on its rocker. Frame origin O1
+    (the main shaft), x to the right, y up; angles counter-clockwise from +x.
+
+    Parameters
+    ----------
+    O1F, lift_phase : float
+        Lower lift eccentric: radius (mm) and phase (deg), F = O1 + O1F e(phi + lift_phase).
+    O4x, O4y, O4K, FK, O4M, M_angle : float
+        The lift rocker at O4 (mm), its links and the arm O4M at M_angle (deg) from O4K.
+    O1A1, feed_phase : float
+        Feed eccentric: radius (mm) and phase (deg), A1 = O1 + O1A1 e(phi + feed_phase).
+    O2x, O2y, O2D, b : float
+        The stitch regulator: pivot O2 (mm), arm O2D (mm) and the setting b (deg), which sets
+        the stitch length and, past its neutral, reverses the feed.
+    DB, A1B, O3x, O3y, O3C, BC, O3E, E_angle : float
+        The feed chain to the feed rocker at O3 and its arm O3E at E_angle (deg) from O3C.
+    MN, EN, EP, PN, tooth1_u, tooth1_v : float
+        The lower dog bar (the right triangle E-N-P) and its middle tooth Q1 along and across
+        the bar (mm).
+    dog_bar_program : float
+        0: the exact right triangle (default); 1: the analysis program's arithmetic, whose
+        tooth sits about 2.3 um further along the bar.
+    O6x, O6y, O6R, CR, O6S, RS, O8x, O8y, O8V, SV, O8W, Xx, Xy, XL, WL : float
+        The upper dog's horizontal chain, driven from joint C of the lower feed chain (mm).
+    O5x, O5y, O5A2, upper_phase : float
+        The upper lift eccentric on its own shaft O5: radius (mm) and phase (deg).
+    upper_sense : float
+        -1 (the source): A2 = O5 + O5A2 e(upper_phase - phi); +1: e(upper_phase + phi).
+    O7x, O7y, O7H, A2H, O7I, Ux, Uy, UJ, IJ, UY, Y_angle : float
+        The upper lift chain (mm) and the arm UY at Y_angle (deg) from UJ.
+    slot_offset, tooth2_u, tooth2_v : float
+        The upper dog holder's slot offset from L and the middle tooth Q2 (mm).
+    plate_mm : float
+        The needle-plate level H (mm); the lower dog works above it.
+    material_mm : float
+        The material thickness (mm); the upper dog works below plate_mm + material_mm.
+    """
 
     # lower dog, lift chain
     O1F: float = 1.8
@@ -133,7 +174,20 @@ class Feed131:
             raise P.ParameterError("RS", "the triangle O6-R-S must close: |O6R - O6S| <= RS <= "
                                    "O6R + O6S", self.RS)
 
-    def override(self, **changes) -> Feed131:
+    def override(self, **changes: float) -> Feed131:
+        """A copy with some parameters changed (validated like a new machine).
+
+        Parameters
+        ----------
+        **changes : float
+            New values by parameter name (mm, deg); an unknown name fails and lists the valid
+            ones.
+
+        Returns
+        -------
+        Feed131
+            The changed copy; this machine is unchanged.
+        """
         return P.override(self, changes)
 
 

@@ -1,6 +1,6 @@
 """The 208-class overlock needle drive: two four-bars in series, zero mobility.
 
-Topology (see docs/needle_208.md and ../shared/design/needle_208.md):
+Topology (the source's data and these conventions: docs/needle_208.md):
 
     crank F-L (LF)  ->  RRR dyad L-M-A (LM, AM; M on side branch_M of L->A)
     rocker angle theta = ang(A->M); second arm B = A + AB e(theta + beta_sense*beta)
@@ -37,7 +37,49 @@ DEAD_POINT_DEG = 1.0
 
 @dataclass(frozen=True)
 class Needle208:
-    """Every dimension of the needle drive (mm, deg; floats, or equal-length arrays for a batch)."""
+    """Every dimension of the 208 needle drive: one machine, or a batch of machines.
+
+    Frozen and validated at construction (lengths > 0, finite values, branch signs +/-1). Each
+    field is a float, or all are equal-length arrays for a batch. Vary a machine by copying:
+    ``m.override(CD=30.01)``. Lengths in mm, angles in deg; frame origin at the main shaft F,
+    x to the right, y up.
+
+    Parameters
+    ----------
+    LF, LM : float
+        Crank radius F-L and connecting rod L-M (mm); source 6.75 and 58.
+    AM, AB : float
+        The two rocker arms on the upper shaft A (mm); source 17 and 10.
+    BC, BE : float
+        The ternary rod: middle head B to rear head C and to the needle-bar head E (mm);
+        source 20 and 40.
+    CD : float
+        The rear rocker C-D (mm); source 30.
+    CBE : float
+        The angle of the ternary rod at B from B->C to B->E (deg); 180 is collinear.
+    beta : float
+        The regulating angle between the arms AM and AB (deg), set at assembly.
+    Ax, Ay, Dx, Dy : float
+        The upper-shaft axis A and the rear rocker's pivot D (mm); not published, taken from
+        the frame.
+    guide_x, guide_y : float
+        A point of the guide line (mm); source N1 = (38.5, 79.729).
+    guide_angle : float
+        The guide's inclination from the vertical (deg); positive leans its top towards +x.
+    guide_shift_um : float
+        A shift of the guide along its normal (um); 0 leaves it where the frame puts it.
+    branch_M, branch_C : float
+        The assembly branch of M (left of L->A: +1) and of C (left of B->D: +1).
+    beta_sense : float
+        +1: AB lies counter-clockwise of AM by beta; -1: clockwise.
+
+    Examples
+    --------
+    >>> from sewtol import Needle208
+    >>> m = Needle208.nominal()          # the default frame's nominal machine
+    >>> m.override(CD=30.01).CD
+    30.01
+    """
 
     LF: float
     LM: float
@@ -74,13 +116,37 @@ class Needle208:
     def nominal(cls, frame=None) -> Needle208:
         """The reconstructed nominal machine of a named frame (package data, see sewtol.frames).
 
-        `frame` is a frame name, a sewtol.frames.Frame, or None for the default frame
-        (sewtol.frames.DEFAULT_FRAME); studies/calibrate_needle_208.py rebuilds the frames."""
+        studies/calibrate_needle_208.py rebuilds the frames.
+
+        Parameters
+        ----------
+        frame : str, Frame or None
+            A frame name (``"sewtol-0.1"``, ``"window"``, ``"table41"``), a
+            `sewtol.frames.Frame`, or None for the default frame (``DEFAULT_FRAME``).
+
+        Returns
+        -------
+        Needle208
+            The nominal machine: the source's link lengths on that frame's pivots and guide.
+        """
         from ..frames import resolve
 
         return cls(**resolve(frame).params)
 
-    def override(self, **changes) -> Needle208:
+    def override(self, **changes: float) -> Needle208:
+        """A copy with some parameters changed (validated like a new machine).
+
+        Parameters
+        ----------
+        **changes : float
+            New values by parameter name (mm, deg, um); an unknown name fails and lists the
+            valid ones.
+
+        Returns
+        -------
+        Needle208
+            The changed copy; this machine is unchanged.
+        """
         return P.override(self, changes)
 
 

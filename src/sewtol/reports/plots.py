@@ -193,3 +193,29 @@ def save_as(fig, path: Path) -> Path:
     plt.close(fig)
     write_bytes_atomic(path, buf.getvalue())
     return path
+
+
+def presser_cycle(path, lowest_mm: float, material_mm: float, ax=None, label: str = "",
+                  shade: bool = True, style: str = "-", seat: bool = True):
+    """Seat and foot over one shaft turn (a mechanisms.presser_foot.foot_path frame), drawn as
+    heights above the seat's lowest point (mm, up is up); the lost interval shaded."""
+    if ax is None:
+        _, ax = plt.subplots(figsize=(7, 4))
+    th = path["shaft_deg"].to_numpy()
+    seat_h = lowest_mm - path["seat_mm"].to_numpy()
+    foot = lowest_mm - path["foot_mm"].to_numpy()
+    if seat:
+        ax.plot(th, seat_h, "k" + style, lw=1.2, label=f"seat D{label}")
+    ax.plot(th, foot, "C3" + style, lw=1.6 if style == "-" else 1.0, label=f"foot lug{label}")
+    if shade:
+        lost = ~path["contact"].to_numpy()
+        ax.fill_between(th, 0, 1, where=lost, transform=ax.get_xaxis_transform(),
+                        color="C1", alpha=0.15, label="contact lost")
+        ax.axhline(lowest_mm - material_mm, color="C2", ls=":", lw=1.0,
+                   label="material (foot sole on it)")
+    ax.set_xlabel("shaft angle (deg)")
+    ax.set_ylabel("height above the seat's lowest point (mm)")
+    ax.set_xlim(0, 360)
+    ax.set_xticks(range(0, 361, 45))
+    ax.grid(alpha=0.3)
+    return ax

@@ -1,4 +1,4 @@
-"""The exact joint optimum of the needle's compensators per machine (issue 11 item 1, 13 item 2).
+"""The exact joint optimum of the needle's compensators per machine.
 
 Compensators and their boxes (low, high): `beta` (deg), `guide_shift_um` (um, the setting of
 the guide's lateral shift; it replaces the machine's own value) and `guide_angle` (deg, the
@@ -106,12 +106,51 @@ def _rocker(c, feas=None):
     return r_lo, r_hi, code
 
 
-def optimise(c: dict, active: dict, engine: str = "numba", h_deg: float = 2.0,
-             tol_um: float = PLATEAU_TOL_UM, angle_grid: int | None = None, feas=None) -> AdjustResult:
+def optimise(c: dict[str, np.ndarray], active: dict[str, tuple[float, float] | None],
+             engine: str = "numba", h_deg: float = 2.0, tol_um: float = PLATEAU_TOL_UM,
+             angle_grid: int | None = None, feas: nm.Feasibility | None = None) -> AdjustResult:
     """Joint optimum of the active compensators for machines given as parameter columns
     (c from metrics.needle.columns, each (n, 1)); `active` maps compensator names to their
     (low, high) box (None: DEFAULT_BOXES). feas: metrics.needle.feasibility(c) if known (the
-    rocker interval does not depend on any compensator)."""
+    rocker interval does not depend on any compensator).
+
+    The minimum is global in the box for beta and the guide shift (an exact sliding-window
+    solution); the guide angle or CD, at most one of them, is an outer search around it.
+
+    Parameters
+    ----------
+    c : dict of numpy.ndarray
+        The machines as parameter columns of shape (n, 1), by `Needle208` field name: e.g.
+        ``c, n = sewtol.metrics.needle.columns(machine)`` (mm, deg, um).
+    active : dict
+        Compensator name (``"beta"``, ``"guide_shift_um"``, ``"guide_angle"``, ``"CD"``) to
+        its box ``(low, high)``, or None for the default box: beta 10 ... 35 deg (absolute),
+        the shift -100 ... 100 um (absolute), the angle +/-0.1 deg and CD +/-0.3 mm (relative
+        to the machine's own value).
+    engine : str
+        ``"numba"`` (the kernel) or ``"numpy"`` (the reference implementation).
+    h_deg : float
+        The node spacing of the kernel's Hermite surrogate of d along the rocker (deg); 2 deg
+        keeps its error near 4e-4 um.
+    tol_um : float
+        Settings within this much (um) of the minimum form the plateau reported.
+    angle_grid : int or None
+        Grid points of the outer search (None: 21 for the guide angle, 61 for CD).
+    feas : Feasibility or None
+        ``metrics.needle.feasibility(c)`` if already known.
+
+    Returns
+    -------
+    AdjustResult
+        Per machine: the minimum SumDelta (um), SumDelta, Delta+ and Delta- at the settings,
+        each compensator's setting (its plateau's centre), plateau range and at-bound flag,
+        and the status (``"ok"``, ``"cannot assemble"``, ``"dead point"``).
+
+    Raises
+    ------
+    ParameterError
+        For an unknown compensator, a bad box, an unknown engine, or both outer compensators.
+    """
     if engine not in ("numba", "numpy"):
         raise ParameterError("engine", "must be 'numba' or 'numpy'", engine)
     boxes = check_boxes(active)
@@ -438,7 +477,7 @@ def _window_feasible(c, u, w):
     return ok
 
 
-# --- discrete compensators (issue 13 item 2): settings on a grid of steps ----------------------
+# --- discrete compensators: settings on a grid of steps -------------------------------------------
 
 @dataclass(frozen=True)
 class DiscreteResult:

@@ -1,7 +1,7 @@
 """Adjustment at assembly: the joint optimum of the needle's SumDelta over a strategy's
 compensators, per machine, batched.
 
-Structure used (issue 13 item 2), innermost first:
+Structure used, innermost first:
 - guide_shift_um: with the band of n.(E - G) over the cycle [m, M] (um), a guide shift t gives
   SumDelta(t) = max(0, M - t) + max(0, t - m), so over t in [T0, T1] the minimum is
   max(M - m, M - T1, T0 - m) in closed form, a plateau [max(m, T0), min(M, T1)] when the band
@@ -24,7 +24,7 @@ Resolution model: the assembler aims at the chosen setting but lands anywhere wi
 compensator at -r/2, 0, +r/2, the others at their settings); exact wherever SumDelta is convex
 in the settings over that small box (it is piecewise linear and convex in the shift).
 
-The exact beta (and beta + shift) optimum is written elsewhere (issue 11); `_joint_optimum` is
+The exact beta (and beta + shift) optimum is in studies/adjust.py; `_joint_optimum` is
 the one function to switch to it.
 """
 
@@ -422,9 +422,34 @@ def _status(feas: nm.Feasibility, total, limit_um) -> np.ndarray:
                     np.where(feas.dead_point, "dead point", "cannot assemble")).astype(object)
 
 
-def adjust(c: dict, strategy: Strategy, limit_um: float = 10.0,
+def adjust(c: dict[str, np.ndarray], strategy: Strategy, limit_um: float = 10.0,
            plateaus: bool = True) -> Adjustment:
-    """The assembler's adjustment of each machine (parameter columns c, shape (n, 1))."""
+    """The assembler's adjustment of each machine (parameter columns c, shape (n, 1)).
+
+    Every machine gets the strategy's joint optimum: the settings of its compensators, within
+    their ranges and steps, that minimise SumDelta with the guide fixed.
+
+    Parameters
+    ----------
+    c : dict of numpy.ndarray
+        The machines as parameter columns of shape (n, 1), by `Needle208` field name: e.g.
+        ``c, n = sewtol.metrics.needle.columns(machine)`` (mm, deg, um).
+    strategy : Strategy
+        The compensators the assembler may set; an empty strategy leaves every machine as
+        built.
+    limit_um : float
+        The SumDelta limit (um) that makes a machine ok or out of spec.
+    plateaus : bool
+        Also find each setting's plateau (the range within 1e-3 um of the optimum).
+
+    Returns
+    -------
+    Adjustment
+        Per machine: SumDelta before (as built) and after (um), Delta+/Delta- after, each
+        setting with its plateau and at-limit flag, what the assembler achieves within the
+        setting resolution, and the status (``"ok"``, ``"out of spec"``,
+        ``"cannot assemble"``, ``"dead point"``).
+    """
     if not (np.isfinite(limit_um) and limit_um > 0):
         raise ParameterError("limit_um", "must be a positive number of um", limit_um)
     strategy.check_names(list(c))

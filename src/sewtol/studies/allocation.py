@@ -12,6 +12,7 @@ the yield with per-machine beta is at least the target. Insensitive parameters a
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -22,9 +23,19 @@ from . import beta as sb
 from .needle_eval import evaluate
 from .scan import scan
 
+if TYPE_CHECKING:
+    from ..mechanisms.needle_208 import Needle208
+
 
 @dataclass(frozen=True)
 class Allocation:
+    """Allocated symmetric tolerances and the yield they give (see `allocate`).
+
+    ``to_dataframe()`` has per parameter ``cost_weight``, ``slope_um_per_mm``,
+    ``tolerance_mm`` (the allocated +/- limit) and the reference limits;
+    ``as_tolerance_set()`` turns it into a `ToleranceSet` for further studies.
+    """
+
     table: pd.DataFrame  # param, cost_weight, slope_um_per_mm, tolerance_mm, reference_mm
     yield_adjusted: float
     target: float
@@ -33,17 +44,59 @@ class Allocation:
     scale: float
 
     def to_dataframe(self) -> pd.DataFrame:
+        """The allocation table (a copy)."""
         return self.table.copy()
 
     def as_tolerance_set(self, name: str = "allocated") -> ToleranceSet:
+        """The allocated limits as a symmetric, uniform ToleranceSet."""
         return ToleranceSet(name, tuple(Tolerance(p, -t, t) for p, t in
                                         zip(self.table["param"], self.table["tolerance_mm"],
                                             strict=True)), "allocated by sewtol")
 
 
-def allocate(nominal, reference: ToleranceSet, target: float = 0.9973, n: int = 2000,
-             seed: int = 0, costs: dict | None = None, max_mm: float = 1.0,
-             range_deg=sb.DEFAULT_RANGE_DEG, steps: int = 12) -> Allocation:
+def allocate(nominal: Needle208, reference: ToleranceSet, target: float = 0.9973,
+             n: int = 2000, seed: int = 0, costs: dict[str, float] | None = None,
+             max_mm: float = 1.0, range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
+             steps: int = 12) -> Allocation:
+    """The widest symmetric tolerances that keep the yield after beta adjustment at a target.
+
+    Cost is reciprocal, sum c_i / t_i; the shape t_i ~ (c_i / s_i^2)^(1/3) (s_i the slope of
+    SumDelta at beta* from the scan, um per mm) is the root-sum-square optimum, and the common
+    scale is found by bisection on the Monte-Carlo yield of the real model with beta set per
+    machine (the same random numbers for every trial scale).
+
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters).
+    reference : ToleranceSet
+        Which parameters to allocate, and the limits at which the slopes are taken.
+    target : float
+        The yield to keep, strictly between 0 and 1; default 0.9973 (+/-3 sigma).
+    n : int
+        Monte-Carlo machines per trial scale.
+    seed : int
+        Seed of the common random numbers (>= 0).
+    costs : dict or None
+        Cost weight c_i per parameter (> 0); a parameter not named weighs 1.
+    max_mm : float
+        The cap on any tolerance (mm); insensitive parameters end there.
+    range_deg : tuple of float
+        The regulating range for beta, (low, high) in deg.
+    steps : int
+        Bisection steps on the scale.
+
+    Returns
+    -------
+    Allocation
+        The allocated +/- tolerance per parameter (mm), the yield it gives with beta adjusted,
+        the target, n, seed and the scale found.
+
+    Raises
+    ------
+    ParameterError
+        For a target outside (0, 1) or a non-positive cost weight.
+    """
     if not (0 < target < 1):
         raise ParameterError("target", "must be a yield strictly between 0 and 1", target)
     ref = reference.active()

@@ -37,8 +37,28 @@ MODES = ("absolute", "offset")
 
 @dataclass(frozen=True)
 class Compensator:
-    """One setting: range [low, high] (absolute value, or offset from the as-built value),
-    optional discrete step (allowed settings low + k step) and resolution (0: exact)."""
+    """One setting the assembler makes on each machine, and its range.
+
+    Built-in ones for the needle: ``beta`` (10 ... 35 deg, absolute), ``guide_shift_um``
+    (+/-100 um), ``guide_angle`` (+/-0.1 deg about N1) and ``CD`` (+/-0.3 mm, a sliding head).
+
+    Parameters
+    ----------
+    name : str
+        The parameter it sets (a `Needle208` field name).
+    low, high : float
+        The range, in the parameter's unit: absolute values (``mode="absolute"``) or offsets
+        from the as-built value (``mode="offset"``).
+    step : float or None
+        None for a continuous setting; otherwise the allowed settings are ``low + k * step``.
+    resolution : float
+        How finely the assembler can set it (0: exactly); studies report the worst case within
+        it.
+    mode : str
+        ``"offset"`` (added to the as-built value) or ``"absolute"`` (replaces it).
+    unit : str
+        The unit, for tables (``"deg"``, ``"um"``, ``"mm"``).
+    """
 
     name: str
     low: float
@@ -73,6 +93,7 @@ class Compensator:
 
     @property
     def discrete(self) -> bool:
+        """True when the compensator has steps (allowed settings low + k step)."""
         return self.step is not None
 
     def settings(self) -> np.ndarray:
@@ -88,10 +109,11 @@ class Compensator:
         return setting if self.mode == "absolute" else as_built + setting
 
     def with_changes(self, **changes) -> Compensator:
+        """A copy with some fields changed (validated again)."""
         return replace(self, **changes)
 
 
-# Built in for the needle drive (issue 13): the clamp angle, a lateral move and a turn of the
+# Built in for the needle drive: the clamp angle, a lateral move and a turn of the
 # guide, and CD made adjustable by a sliding head.
 NEEDLE_COMPENSATORS = {
     "beta": Compensator("beta", 10.0, 35.0, mode="absolute", unit="deg"),
@@ -103,7 +125,16 @@ NEEDLE_COMPENSATORS = {
 
 @dataclass(frozen=True)
 class Strategy:
-    """A named set of compensators (empty: no adjustment at assembly)."""
+    """A named set of compensators the assembler may use together.
+
+    Parameters
+    ----------
+    name : str
+        The strategy's name (it labels cases such as ``adjusted_<name>``).
+    compensators : tuple of Compensator
+        The settings made on each machine; empty means no adjustment at assembly. A
+        compensator may appear once.
+    """
 
     name: str
     compensators: tuple[Compensator, ...] = ()
@@ -116,9 +147,11 @@ class Strategy:
 
     @property
     def names(self) -> tuple[str, ...]:
+        """The compensators' names, in order."""
         return tuple(c.name for c in self.compensators)
 
     def get(self, name: str) -> Compensator:
+        """The compensator of that name; ParameterError naming the ones there are otherwise."""
         for c in self.compensators:
             if c.name == name:
                 return c

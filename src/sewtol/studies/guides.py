@@ -10,6 +10,9 @@ same machines.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
+
 import numpy as np
 import pandas as pd
 
@@ -17,6 +20,12 @@ from ..needle import nominal_figures
 from ..tolerances import ToleranceSet
 from . import beta as sb
 from .montecarlo import check_sampling, draw_deviations, montecarlo
+
+if TYPE_CHECKING:
+    from distributed import Client
+
+    from ..mechanisms.needle_208 import Needle208
+    from .compensators import Strategy
 
 DEFAULT_VARIANTS = (
     ("nominal", 0.0, 0.0),
@@ -27,11 +36,51 @@ DEFAULT_VARIANTS = (
 )
 
 
-def compare_guides(nominal, tolerances: ToleranceSet, n: int, seed: int,
-                   variants=DEFAULT_VARIANTS, range_deg=sb.DEFAULT_RANGE_DEG,
-                   n_jobs: int = 1, progress=False, scheduler=None, strategy=None,
+def compare_guides(nominal: Needle208, tolerances: ToleranceSet, n: int, seed: int,
+                   variants: Sequence[tuple[str, float, float]] = DEFAULT_VARIANTS,
+                   range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
+                   n_jobs: int = 1, progress: bool | Callable[[int, int], None] = False,
+                   scheduler: str | Client | None = None, strategy: Strategy | None = None,
                    limit_um: float = sb.DEFAULT_LIMIT_UM) -> pd.DataFrame:
-    """One row per guide setting (shift um along the guide normal, turn deg about its point)."""
+    """One row per guide setting (shift um along the guide normal, turn deg about its point).
+
+    Every setting sees the same machines (the ones `montecarlo` draws from the seed), so the
+    rows differ by the guide alone.
+
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters).
+    tolerances : ToleranceSet
+        What the machines draw from.
+    n : int
+        Monte-Carlo machines per setting.
+    seed : int
+        The seed (>= 0), as in `montecarlo`.
+    variants : sequence of (str, float, float)
+        ``(label, shift_um, turn_deg)`` per setting: a shift along the guide's normal (um) and
+        a turn about its point (deg). Default: nominal, +/-50 um, +/-0.02 deg.
+    range_deg : tuple of float
+        The regulating range for beta, (low, high) in deg.
+    n_jobs : int
+        Worker processes on this machine; the table does not depend on it.
+    progress : bool or callable
+        True: a bar on stderr; or ``progress(done, total)`` as chunks finish.
+    scheduler : str, distributed.Client or None
+        A Dask scheduler address or client.
+    strategy : Strategy or None
+        None: beta re-optimised per machine. A strategy: its joint optimum on top of each
+        setting, with the counts after it.
+    limit_um : float
+        The SumDelta limit (um).
+
+    Returns
+    -------
+    pandas.DataFrame
+        Per setting: ``guide``, ``shift_um``, ``angle_from_vertical_deg``, ``beta_opt_deg``,
+        ``total_um`` (nominal SumDelta at beta*), the beta window (deg) and the yields with
+        beta fixed and adjusted (or after the strategy, with its counts).
+    """
     if strategy is not None:
         return _compare_adjusted(nominal, tolerances, n, seed, variants, range_deg, strategy,
                                  limit_um)

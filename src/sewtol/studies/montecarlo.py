@@ -9,7 +9,9 @@ every summary satisfies ok + out_of_spec + failed = n (studies/needle_status.py)
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -21,6 +23,12 @@ from . import beta as sb
 from . import needle_status as ns
 from .needle_eval import evaluate
 from .parallel import child_generators, chunk_bounds, run_chunks
+
+if TYPE_CHECKING:
+    from distributed import Client
+
+    from ..mechanisms.needle_208 import Needle208
+    from .checkpoint import ChunkStore
 
 CHUNK = 500
 # bytes per machine and column of a study table (float64) plus pandas' working copies
@@ -204,6 +212,16 @@ def _needle_model(nominal, dev, range_deg):
 
 @dataclass(frozen=True)
 class MonteCarloResult:
+    """The machines of a needle Monte-Carlo and what they give (see `montecarlo`).
+
+    Two cases: ``fixed`` (every machine at the fixed beta) and ``adjusted`` (beta re-optimised
+    per machine). ``summary_frame()`` has per case the counts (``ok + out_of_spec + failed =
+    n``), the yield with its Clopper-Pearson interval, SumDelta quantiles and capability;
+    ``yield_of(case)``, ``yield_ci(case)``, ``counts(case)``, ``quantiles(case)`` and
+    ``capability(case)`` give them one by one; ``machines`` has every machine's deviations
+    (mm), outputs (um, deg) and status.
+    """
+
     machines: pd.DataFrame  # deviations (mm) and outputs per machine
     params: tuple[str, ...]
     tolerances: str
@@ -215,6 +233,7 @@ class MonteCarloResult:
 
     @property
     def n(self) -> int:
+        """The number of machines drawn."""
         return len(self.machines)
 
     @property
@@ -232,6 +251,7 @@ class MonteCarloResult:
         return c
 
     def status(self, case: str) -> np.ndarray:
+        """Per machine: ok, out_of_spec, cannot_close, dead_point or unexplained."""
         case = self.case_of(case)
         col = f"status_{case}"
         if col in self.machines:
@@ -245,10 +265,12 @@ class MonteCarloResult:
         return ns.counts(self.status(case))
 
     def passed(self, case: str) -> np.ndarray:
+        """Per machine: True where SumDelta <= limit_um (a failed machine never passes)."""
         case = self.case_of(case)
         return (self.machines[f"total_{case}_um"] <= self.limit_um).to_numpy()
 
     def yield_of(self, case: str) -> float:
+        """The share of machines that pass in a case (``"fixed"`` or ``"adjusted"``)."""
         return float(self.passed(case).mean())
 
     def yield_ci(self, case: str = "adjusted", level: float = 0.95) -> tuple[float, float]:
@@ -259,12 +281,14 @@ class MonteCarloResult:
         return float(ci.low), float(ci.high)
 
     def quantiles(self, case: str) -> dict:
+        """p50, p95 and p99 of SumDelta (um); failed machines rank as infinitely bad."""
         case = self.case_of(case)
         # failed machines rank as infinitely bad, so they are not hidden by the quantiles
         x = self.machines[f"total_{case}_um"].fillna(np.inf).to_numpy()
         return {f"p{q}": float(np.quantile(x, q / 100, method="higher")) for q in (50, 95, 99)}
 
     def beta_range(self) -> tuple[float, float]:
+        """The smallest and largest per-machine beta* (deg) among machines that assemble."""
         b = self.machines["beta_opt_deg"].dropna()
         return (float(b.min()), float(b.max())) if len(b) else (float("nan"), float("nan"))
 
@@ -301,6 +325,8 @@ class MonteCarloResult:
         return int(at.sum())
 
     def to_dict(self) -> dict:
+        """The JSON of ``sewtol needle montecarlo``: counts, yields, labelled intervals and
+        capability of both cases, quantiles, beta* picks and their at-bound counts."""
         cases = {"fixed_beta": "fixed", "adjusted_beta": "adjusted"}
         return {
             "n": self.n,
@@ -326,6 +352,7 @@ class MonteCarloResult:
         }
 
     def summary_frame(self) -> pd.DataFrame:
+        """One row per case: counts (ok + out_of_spec + failed = n), yield and interval, quantiles, Cpu."""
         rows = []
         for case in ("fixed", "adjusted"):
             q = self.quantiles(case)
@@ -374,10 +401,12 @@ def fixed_beta_of(nominal, fixed_beta: str, range_deg, limit_um) -> float:
     return float(nominal_figures(nominal, tuple(range_deg), limit_um).beta_opt_deg)
 
 
-def montecarlo(nominal, tolerances: ToleranceSet, n: int, seed: int, limit_um: float = 10.0,
-               range_deg=sb.DEFAULT_RANGE_DEG, n_jobs: int = 1, progress=False,
+def montecarlo(nominal: Needle208, tolerances: ToleranceSet, n: int, seed: int,
+               limit_um: float = 10.0, range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
+               n_jobs: int = 1, progress: bool | Callable[[int, int], None] = False,
                backend: str | None = None, chunk_size: int = CHUNK,
-               store=None, fixed_beta: str = "optimum", scheduler=None) -> MonteCarloResult:
+               store: ChunkStore | None = None, fixed_beta: str = "optimum",
+               scheduler: str | Client | None = None) -> MonteCarloResult:
     """N machines in chunks of chunk_size, chunk i drawing from child i of the seed.
 
     The fixed case keeps every machine at the nominal machine's beta* (fixed_beta="optimum",
@@ -386,6 +415,60 @@ def montecarlo(nominal, tolerances: ToleranceSet, n: int, seed: int, limit_um: f
     chunks are saved as they arrive and an interrupted study resumes without recomputing them.
     progress: True (bar on stderr) or a callable progress(done, total) in chunks; scheduler: run
     on a Dask cluster (address or distributed.Client), same machines as a local run.
+
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters); machines deviate from it.
+    tolerances : ToleranceSet
+        What each machine's parameters draw from (deviations in mm, deg or um).
+    n : int
+        The number of machines (>= 1).
+    seed : int
+        The seed (>= 0; 0 is a seed). Chunk i draws from child i of
+        ``numpy.random.default_rng(seed)`` (``spawn``).
+    limit_um : float
+        The SumDelta limit (um) a machine must keep to count as ok; default 10.
+    range_deg : tuple of float
+        The regulating range for beta, (low, high) in deg; default (10, 35).
+    n_jobs : int
+        Worker processes on this machine (joblib); the tables do not depend on it.
+    progress : bool or callable
+        True: a bar on stderr; a callable ``progress(done, total)`` is called as chunks finish.
+    backend : str or None
+        A joblib backend (e.g. ``"dask"`` inside a ``distributed.Client()``); None: joblib's
+        default.
+    chunk_size : int
+        Machines per chunk; part of the study's identity (another chunk size draws other
+        machines).
+    store : ChunkStore or None
+        A study folder (``studies.checkpoint.ChunkStore``) that saves finished chunks and
+        resumes an interrupted study.
+    fixed_beta : str
+        ``"optimum"``: the fixed case is the nominal machine's beta*; ``"as_given"``: the
+        nominal's own ``beta`` parameter.
+    scheduler : str, distributed.Client or None
+        A Dask scheduler address or client: the chunks run on that cluster.
+
+    Returns
+    -------
+    MonteCarloResult
+        Every machine with its deviations, SumDelta (um) in both cases, beta* (deg) and status;
+        yields, counts, quantiles and capability per case.
+
+    Raises
+    ------
+    ParameterError
+        For a bad n, seed, limit, range or tolerance set (before anything runs).
+
+    Examples
+    --------
+    >>> import sewtol
+    >>> res = sewtol.montecarlo(sewtol.Needle208.nominal(), sewtol.tolerance_set("base"),
+    ...                         n=200, seed=2026)
+    >>> c = res.counts("adjusted")
+    >>> c["ok"] + c["out_of_spec"] + c["failed"] == 200
+    True
     """
     if not (np.isfinite(limit_um) and limit_um > 0):
         raise ParameterError("limit_um", "must be a positive number of um", limit_um)

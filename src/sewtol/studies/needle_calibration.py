@@ -8,7 +8,7 @@ D = A + |AD| e(g), and the discrete family: the branches of both dyads, the sens
 fitted (minimum-zone) guide at the joint optimum of beta and the guide, so beta* with the guide
 fixed equals the joint optimum exactly.
 
-Well-posedness (issue 9): the forward map x -> achieved targets is smooth and well conditioned
+Well-posedness: the forward map x -> achieved targets is smooth and well conditioned
 (its inner optima, beta to 1e-7 deg and the zone angle to 1e-10 deg, are converged far below the
 printed digits). The old fit took finite differences with a relative step of 1e-6 over that inner
 search, so its Jacobian was mostly noise and it stopped far from the optimum (|J^T r| = 0.04):
@@ -81,7 +81,7 @@ SEWTOL_01_FAMILY = Family(1.0, 1.0, -1.0, 1.0)
 
 def window_targets(lean: float) -> dict:
     """The study's nominal statements: target value and the scale each residual is divided by
-    (half the acceptance band of issue 2)."""
+    (half the acceptance band of each target)."""
     return {
         "beta_opt_deg": (22.7, 0.25),
         "guide_offset_from_N1_um": (0.0, 0.5),
@@ -339,7 +339,7 @@ def search(families=FAMILIES, keep: int = 2, proxy_limit: float = 5.0, progress=
 
 # --- residuals against every published figure -----------------------------------------------------
 
-# The study's Table 4.1 (../shared/design/needle_208.md): each link at its recommended limit,
+# The study's Table 4.1 (docs/needle_208.md): each link at its recommended limit,
 # every other link nominal, the guide fixed through N1, beta re-optimised (kept in 19 ... 25).
 # limit (mm), beta* (deg), Delta+ (um), Delta- (um) for UL and LL; 2Delta max and min (um);
 # guide: the study's guide move at UL (um, the study's sign; LL gets the opposite).
@@ -555,7 +555,8 @@ def frame_record(name: str, summary: str, m: Needle208, family: Family, targets:
         "name": name, "version": FRAME_VERSION, "summary": summary,
         "params": P.as_dict(m),
         "provenance": {
-            "source": "../shared/design/needle_208.md (2021 diploma study; Polukhin)",
+            "source": "2021 diploma study of 208-class overlock needle mechanisms; V. P. Polukhin "
+                      "(restated in docs/needle_208.md)",
             "method": method, "kind": kind,
             "family": family.as_dict(), "family_label": family.label,
             "frame_x": prov["frame_x"],

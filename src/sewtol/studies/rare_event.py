@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -33,6 +34,9 @@ from scipy import special, stats
 
 from ..errors import ParameterError
 from ..tolerances import ToleranceSet
+
+if TYPE_CHECKING:
+    from ..mechanisms.needle_208 import Needle208
 
 METHODS = ("auto", "montecarlo", "subset", "nais")
 PASS = "pass"
@@ -186,10 +190,12 @@ class RareEventResult:
 
     @property
     def resolved(self) -> bool:
+        """True when failures were found (otherwise only an upper bound is known)."""
         return self.failures > 0
 
     @property
     def statement(self) -> str:
+        """The result in one line: ppm with c.o.v. and interval, or "< X at 95 %"."""
         if not self.resolved:
             return (f"< {_fmt_ppm(self.upper_95)} at 95 % (no failure in {self.model_calls} "
                     f"model calls, {self.method})")
@@ -198,6 +204,7 @@ class RareEventResult:
                 f"found, {self.model_calls} model calls, {self.method})")
 
     def to_dict(self) -> dict:
+        """The result as plain data (what ``sewtol needle ppm --format json`` extends)."""
         return {"method": self.method, "probability": self.probability,
                 "ppm": self.probability * 1e6, "cov": self.cov,
                 "ci95": [self.ci_low, self.ci_high], "upper_95": self.upper_95,
@@ -207,6 +214,7 @@ class RareEventResult:
                 "limit": self.limit, "output": self.output, "notes": self.notes}
 
     def to_dataframe(self) -> pd.DataFrame:
+        """The result as one row."""
         row = {"method": self.method, "probability": self.probability,
                "ppm": self.probability * 1e6 if self.resolved else np.nan, "cov": self.cov,
                "ci_low_ppm": self.ci_low * 1e6, "ci_high_ppm": self.ci_high * 1e6,
@@ -652,7 +660,41 @@ def estimate(ls: LimitState, rng: np.random.Generator, method: str = "auto",
     """P(failure) with the method chosen by choose_method(target, budget), or the one named.
 
     budget is the number of model calls (subset simulation and NAIS take about that many; plain
-    Monte-Carlo exactly that many)."""
+    Monte-Carlo exactly that many).
+
+    Parameters
+    ----------
+    ls : LimitState
+        What fails: e.g. `needle_limit_state` (SumDelta over the limit, or a machine that
+        cannot run).
+    rng : numpy.random.Generator
+        The only source of randomness: ``numpy.random.default_rng(seed)``.
+    method : str
+        ``"auto"`` (plain Monte-Carlo when the budget sees about 10 failures at the target,
+        subset simulation otherwise), ``"montecarlo"``, ``"subset"`` or ``"nais"``.
+    target : float
+        The smallest probability the study must resolve, in (0, 1); e.g. 1e-6 for 1 ppm.
+    budget : int
+        Model calls (>= 100).
+    n_jobs : int
+        Worker processes for plain Monte-Carlo.
+    examples_per_mode : int
+        Failing samples kept per failure mode, in physical units, for the report.
+    progress : bool
+        A bar on stderr (plain Monte-Carlo).
+
+    Returns
+    -------
+    RareEventResult
+        The probability, its coefficient of variation and 95 % interval, model calls, the
+        method, failures found per mode and example failing machines; when nothing fails, a
+        "< X at 95 %" bound instead of a zero.
+
+    Raises
+    ------
+    ParameterError
+        For an unknown method, a target outside (0, 1) or a budget below 100.
+    """
     if method not in METHODS:
         raise ParameterError("method", f"must be one of {', '.join(METHODS)}", method)
     chosen = choose_method(target, budget) if method == "auto" else method
@@ -679,15 +721,43 @@ NEEDLE_MODES = ("cannot assemble", "dead point")
 ADJUSTMENTS = ("none", "beta")
 
 
-def needle_limit_state(nominal, tolerances: ToleranceSet, limit_um: float = 10.0,
-                       adjust: str = "beta", range_deg=None, engine: str = "numba"
-                       ) -> LimitState:
+def needle_limit_state(nominal: Needle208, tolerances: ToleranceSet, limit_um: float = 10.0,
+                       adjust: str = "beta", range_deg: tuple[float, float] | None = None,
+                       engine: str = "numba") -> LimitState:
     """SumDelta of the 208 needle drive after the assembly adjustment, as a LimitState.
 
     adjust "beta": beta re-optimised per machine in range_deg (total_adjusted_um); "none": beta
     left at the nominal beta* (total_fixed_um). A machine without a value is "cannot assemble"
     (a dyad misses at the nominal beta) or else "dead point" (a dyad passes within the dead-point
-    angle, or no beta in the range assembles it)."""
+    angle, or no beta in the range assembles it).
+
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters).
+    tolerances : ToleranceSet
+        The inputs, mapped from independent standard normals through each tolerance's
+        distribution.
+    limit_um : float
+        A machine fails when its SumDelta exceeds this (um), or when it cannot run.
+    adjust : str
+        ``"beta"`` (beta re-optimised per machine) or ``"none"`` (beta at the nominal's beta*).
+    range_deg : tuple of float or None
+        The regulating range for beta, (low, high) in deg; None: (10, 35).
+    engine : str
+        ``"numba"`` (the kernel) or ``"numpy"`` (the reference).
+
+    Returns
+    -------
+    LimitState
+        The failure event for `estimate`, with failure modes ``"cannot assemble"`` and
+        ``"dead point"`` and the deviations (mm) of failing machines.
+
+    Raises
+    ------
+    ParameterError
+        For an unknown adjustment, a non-positive limit, or a set without any tolerance.
+    """
     from . import beta as sb
 
     if adjust not in ADJUSTMENTS:

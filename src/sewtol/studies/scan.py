@@ -13,6 +13,7 @@ keeps SumDelta at beta* <= the limit.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -23,9 +24,19 @@ from ..optimize import bisect_root
 from ..tolerances import ToleranceSet
 from . import beta as sb
 
+if TYPE_CHECKING:
+    from ..mechanisms.needle_208 import Needle208
+    from .compensators import Strategy
+
 
 @dataclass(frozen=True)
 class ScanResult:
+    """The rows of a per-parameter scan and the nominal machine's row (see `scan`).
+
+    ``to_dataframe()`` gives the rows; ``to_records()`` the same as dicts (the JSON of
+    ``sewtol needle scan``).
+    """
+
     rows: pd.DataFrame  # param, side, delta_mm, value_mm, beta_deg, plus_um, minus_um, total_um
     nominal_row: dict
     tolerances: str
@@ -34,19 +45,54 @@ class ScanResult:
     strategy: str = "beta"  # the adjustment of every row (scan(strategy=...))
 
     def to_dataframe(self) -> pd.DataFrame:
+        """The rows (a copy)."""
         return self.rows.copy()
 
     def to_records(self) -> list[dict]:
+        """The rows as dicts, the fixed columns first (the JSON rows of ``sewtol needle scan``)."""
         cols = ["param", "side", "delta_mm", "value_mm", "beta_deg", "plus_um", "minus_um",
                 "total_um"]
         cols += [c for c in self.rows.columns if c not in cols]
         return self.rows[cols].to_dict(orient="records")
 
 
-def scan(nominal, tolerances: ToleranceSet, guide_shift_um: float | None = None,
-         limit_um: float = sb.DEFAULT_LIMIT_UM, range_deg=sb.DEFAULT_RANGE_DEG,
-         strategy=None) -> ScanResult:
-    """guide_shift_um: the guide's shift for every row; None keeps the nominal's own."""
+def scan(nominal: Needle208, tolerances: ToleranceSet, guide_shift_um: float | None = None,
+         limit_um: float = sb.DEFAULT_LIMIT_UM,
+         range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
+         strategy: Strategy | None = None) -> ScanResult:
+    """Each tolerance at its upper and its lower limit, every other parameter nominal.
+
+    The layout of the source study's Table 4.1: the guide stays fixed where the nominal machine
+    put it (optionally shifted) and beta is re-optimised on every row. All 2k rows are one
+    batch.
+
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters).
+    tolerances : ToleranceSet
+        The limits to visit; parameters not in the set stay nominal.
+    guide_shift_um : float or None
+        The guide's shift along its normal for every row (um); the source moved the guide
+        by about 50 um for AB and BE. None keeps the nominal's own guide_shift_um.
+    limit_um : float
+        The SumDelta limit (um); default 10.
+    range_deg : tuple of float
+        The regulating range searched for beta*, (low, high) in deg; default (10, 35).
+    strategy : Strategy or None
+        None: beta re-optimised on each row. A strategy: each row adjusted by the strategy's
+        exact joint optimum, with each compensator's setting in a ``NAME_setting`` column and
+        a ``status`` column.
+
+    Returns
+    -------
+    ScanResult
+        Rows with ``param``, ``side`` (upper/lower), ``delta_mm`` (the deviation), ``value_mm``
+        (the parameter's value), ``beta_deg`` (beta*), ``plus_um``, ``minus_um`` and
+        ``total_um`` (Delta+, Delta-, SumDelta) and ``beta_at_bound`` (beta*'s plateau reaches
+        an end of range_deg: the row's optimum may lie outside it); ``nominal_row`` the same
+        for the nominal.
+    """
     if guide_shift_um is None:
         guide_shift_um = float(nominal.guide_shift_um)
     base = nominal.override(guide_shift_um=guide_shift_um)
@@ -103,13 +149,38 @@ def _scan_adjusted(base, tolerances, params, sides, deltas, dev, batch, strategy
                       strategy.name)
 
 
-def largest_tolerances(nominal, params: list[str], limit_um: float = sb.DEFAULT_LIMIT_UM,
-                       max_mm: float = 1.0, guide_shift_um: float = 0.0,
-                       range_deg=sb.DEFAULT_RANGE_DEG, xtol_mm: float = 1e-5) -> pd.DataFrame:
+def largest_tolerances(nominal: Needle208, params: list[str],
+                       limit_um: float = sb.DEFAULT_LIMIT_UM, max_mm: float = 1.0,
+                       guide_shift_um: float = 0.0,
+                       range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
+                       xtol_mm: float = 1e-5) -> pd.DataFrame:
     """Per parameter and side, the largest |deviation| <= max_mm with SumDelta(beta*) <= limit.
 
     A geometric grid from 1 um to max_mm brackets the first crossing, bisection refines it to
     xtol_mm. `reaches_max` marks sides where even max_mm keeps the limit.
+
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters).
+    params : list of str
+        The parameters to search, one at a time, every other one nominal.
+    limit_um : float
+        The SumDelta limit (um) at beta*; default 10.
+    max_mm : float
+        The largest deviation tried (mm, or the parameter's unit).
+    guide_shift_um : float
+        A shift of the guide along its normal (um).
+    range_deg : tuple of float
+        The regulating range searched for beta*, (low, high) in deg.
+    xtol_mm : float
+        The bisection's tolerance on the deviation (mm).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per parameter and side: ``param``, ``side`` (upper/lower),
+        ``largest_delta_mm`` (signed: negative on the lower side) and ``reaches_max``.
     """
     base = nominal.override(guide_shift_um=guide_shift_um)
     c0, _ = nm.columns(base)

@@ -13,7 +13,9 @@ interaction that involves i, so a large ST - S1 with S2 shows which partner it i
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -25,6 +27,13 @@ from ..tolerances import ToleranceSet
 from . import beta as sb
 from .needle_eval import evaluate
 from .parallel import chunk_bounds, run_chunks
+
+if TYPE_CHECKING:
+    from distributed import Client
+
+    from ..mechanisms.needle_208 import Needle208
+    from .checkpoint import ChunkStore
+    from .compensators import Strategy
 
 CHUNK = 1000
 
@@ -113,6 +122,14 @@ def analyze(problem: dict, y: np.ndarray, seed: int, resamples: int = 200,
 
 @dataclass(frozen=True)
 class SobolResult:
+    """Sobol indices per case at n and n/2 base samples, and their convergence.
+
+    ``to_dataframe()`` has the indices at n: ``param``, ``S1``, ``S1_conf``, ``ST``,
+    ``ST_conf`` (first-order and total indices with the half-widths of their bootstrap
+    intervals) and ``case``; ``convergence`` the largest change of S1 and ST between n/2 and n;
+    ``failed`` the machines per case that could not run.
+    """
+
     indices: pd.DataFrame  # param, S1, S1_conf, ST, ST_conf, case, n
     convergence: pd.DataFrame  # case, max |dS1|, max |dST| between n/2 and n
     n: int
@@ -131,9 +148,11 @@ class SobolResult:
         return self.second_order.reset_index(drop=True)
 
     def to_dataframe(self) -> pd.DataFrame:
+        """The indices at n: param, S1, S1_conf, ST, ST_conf, case."""
         return self.indices[self.indices["n"] == self.n].drop(columns="n").reset_index(drop=True)
 
     def to_records(self) -> list[dict]:
+        """The indices at n as dicts (the JSON rows of ``sewtol needle sobol``)."""
         return self.to_dataframe()[["param", "S1", "S1_conf", "ST", "ST_conf", "case"]].to_dict(
             orient="records")
 
@@ -202,12 +221,16 @@ def _needle_chunk(nominal, names, X, range_deg, strategy=None, limit_um=sb.DEFAU
     return fixed, adjust(columns_of(nominal, dev), strategy, limit_um, plateaus=False).total_um
 
 
-def needle_sobol(nominal, tolerances: ToleranceSet, n: int, seed: int,
-                 range_deg=sb.DEFAULT_RANGE_DEG, n_jobs: int = 1, progress=False,
+def needle_sobol(nominal: Needle208, tolerances: ToleranceSet, n: int, seed: int,
+                 range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG, n_jobs: int = 1,
+                 progress: bool | Callable[[int, int], None] = False,
                  backend: str | None = None, resamples: int = 200,
-                 chunk_size: int = CHUNK, store=None, conf_level: float = 0.95,
-                 fixed_beta: str = "optimum", limit_um: float = sb.DEFAULT_LIMIT_UM,
-                 scheduler=None, strategy=None, second_order: bool = False) -> SobolResult:
+                 chunk_size: int = CHUNK, store: ChunkStore | None = None,
+                 conf_level: float = 0.95, fixed_beta: str = "optimum",
+                 limit_um: float = sb.DEFAULT_LIMIT_UM,
+                 scheduler: str | Client | None = None,
+                 strategy: Strategy | None = None,
+                 second_order: bool = False) -> SobolResult:
     """Sobol indices of SumDelta, beta fixed and beta adjusted, at n and n/2 base samples.
 
     strategy (a studies.compensators.Strategy): the adjusted case is SumDelta after the
@@ -220,9 +243,55 @@ def needle_sobol(nominal, tolerances: ToleranceSet, n: int, seed: int,
     progress(done, total) in chunks; scheduler: run the model on a Dask cluster (address or
     distributed.Client; parallel.run_chunks).
 
-    second_order=True: the design of n (2D + 2) runs per case and the S2 of every pair
-    (`SobolResult.second_order_frame()`); the S1/ST of that design differ from the first-order
-    design's by their sampling error only."""
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters).
+    tolerances : ToleranceSet
+        The inputs: each tolerance is one factor with its distribution (uniform, normal,
+        truncated normal).
+    n : int
+        Base samples, a power of 2 (>= 16); the sample holds n (k + 2) machines for k factors,
+        each evaluated in both cases.
+    seed : int
+        Seeds the scrambled Sobol' sample and the bootstrap (>= 0; 0 is a seed).
+    range_deg : tuple of float
+        The regulating range for beta, (low, high) in deg.
+    n_jobs : int
+        Worker processes on this machine (joblib); the indices do not depend on it.
+    progress : bool or callable
+        True: a bar on stderr; a callable ``progress(done, total)`` is called as chunks finish.
+    backend : str or None
+        A joblib backend (e.g. ``"dask"`` inside a ``distributed.Client()``); None: joblib's
+        default.
+    resamples : int
+        Bootstrap resamples for the confidence intervals.
+    chunk_size : int
+        Model runs per chunk.
+    store : ChunkStore or None
+        A study folder that saves finished chunks and resumes an interrupted study.
+    conf_level : float
+        The confidence level of the bootstrap intervals, in (0, 1).
+    fixed_beta : str
+        ``"optimum"`` (the nominal's beta*) or ``"as_given"`` (its ``beta`` parameter).
+    limit_um : float
+        The SumDelta limit (um) used by the beta search.
+    scheduler : str, distributed.Client or None
+        A Dask scheduler address or client: the model runs on that cluster.
+    strategy : Strategy or None
+        The adjusted case: None for beta re-optimised, or a strategy's joint optimum.
+    second_order : bool
+        True: the design of n (2k + 2) machines per case and the second-order index S2 of
+        every pair with its interval (`SobolResult.second_order_frame()`); the S1/ST of that
+        design differ from the first-order design's by their sampling error only.
+
+    Returns
+    -------
+    SobolResult
+        S1 and ST with their confidence half-widths per parameter and case
+        (``fixed_beta``, ``adjusted_<strategy>``), at n and n/2, and the convergence table
+        (with second_order, the S2 pairs and max |dS2|).
+    """
     from .montecarlo import fixed_beta_of
 
     check_sobol(nominal, tolerances, n, seed, second_order)

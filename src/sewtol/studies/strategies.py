@@ -1,4 +1,4 @@
-"""Yield by adjustment strategy (issue 13): the same machines adjusted under each strategy.
+"""Yield by adjustment strategy: the same machines adjusted under each strategy.
 
 Every strategy sees the SAME machines (common random numbers: one draw of deviations from the
 seed), so differences between rows are the strategies', not sampling noise. Per row: counts
@@ -12,6 +12,7 @@ the number of distinct settings (shim sizes) the machines in spec need.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -25,7 +26,10 @@ from .adjustment import STATUSES, Adjustment, adjust
 from .compensators import Strategy, strategy_of
 from .montecarlo import contributors
 
-# the issue's rows, in order
+if TYPE_CHECKING:
+    from ..mechanisms.needle_208 import Needle208
+
+# the rows of the default strategies table, in order
 STRATEGY_ROWS = {
     "none": (),
     "beta": ("beta",),
@@ -172,10 +176,36 @@ class StrategiesResult:
             .reset_index(drop=True)
 
 
-def strategies_table(nominal, tolerances: ToleranceSet, n: int, seed: int,
+def strategies_table(nominal: Needle208, tolerances: ToleranceSet, n: int, seed: int,
                      strategies: list[Strategy] | None = None, limit_um: float = 10.0,
                      ) -> StrategiesResult:
-    """Adjust the same n machines (one draw from `seed`) under each strategy."""
+    """Adjust the same n machines (one draw from `seed`) under each strategy.
+
+    What ``sewtol needle strategies`` prints.
+
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters).
+    tolerances : ToleranceSet
+        What the machines draw from.
+    n : int
+        Machines (>= 2), the same for every strategy.
+    seed : int
+        The seed of the one draw (>= 0).
+    strategies : list of Strategy or None
+        The rows; None: none, beta, beta+shift, beta+shift+angle, beta+CD and all, with the
+        built-in compensator ranges.
+    limit_um : float
+        The SumDelta limit (um).
+
+    Returns
+    -------
+    StrategiesResult
+        ``to_dataframe()``: per strategy the counts (ok, out of spec, cannot assemble, dead
+        point; they add up to n), the yield and its interval, SumDelta quantiles (um), Cpk,
+        at-limit shares and distinct settings; ``machines(name)`` per machine.
+    """
     if int(n) != n or n < 2:
         raise ParameterError("n", "must be a whole number >= 2", n)
     if not (np.isfinite(limit_um) and limit_um > 0):
@@ -232,7 +262,7 @@ def allocate_for_strategy(nominal, reference: ToleranceSet, strategy: Strategy,
                           target: float = 0.9973, n: int = 500, seed: int = 0,
                           costs: dict | None = None, max_mm: float = 1.0, steps: int = 10,
                           limit_um: float = 10.0) -> StrategyAllocation:
-    """Issue 13 item 6: the allocation of studies.allocation with the yield taken after the
+    """The allocation of studies.allocation with the yield taken after the
     strategy's joint adjustment.
 
     Cost model: reciprocal in the width, cost = sum c_i / (upper_i - lower_i). Each reference

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -23,6 +24,10 @@ from ..errors import ParameterError
 from ..tolerances import ToleranceSet
 from . import beta as sb
 from .needle_eval import evaluate
+
+if TYPE_CHECKING:
+    from ..mechanisms.needle_208 import Needle208
+    from .compensators import Strategy
 
 
 @dataclass(frozen=True)
@@ -108,9 +113,32 @@ def worst_case(nominal, tolerances: ToleranceSet, adjust: bool, range_deg=sb.DEF
                      at_bound)
 
 
-def worst_case_table(nominal, tolerances: ToleranceSet, range_deg=sb.DEFAULT_RANGE_DEG,
-                     strategy=None) -> pd.DataFrame:
-    """Rows fixed_beta and the adjusted case (beta alone, or the strategy's)."""
+def worst_case_table(nominal: Needle208, tolerances: ToleranceSet,
+                     range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
+                     strategy: Strategy | None = None) -> pd.DataFrame:
+    """The worst SumDelta over the tolerance box, with beta fixed and after adjustment.
+
+    Every corner of the box and its centre are evaluated as one batch; the three worst are
+    polished by L-BFGS-B inside the box, so a worst point inside the box is found too.
+
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters); its beta* is the fixed case's beta.
+    tolerances : ToleranceSet
+        The box: every tolerance between its lower and upper limit.
+    range_deg : tuple of float
+        The regulating range for beta, (low, high) in deg.
+    strategy : Strategy or None
+        The adjusted case: None for beta re-optimised, or a strategy's joint optimum.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Rows ``fixed_beta`` and the adjusted case, with ``total_um`` (the worst SumDelta),
+        ``worst_corner_total_um``, ``beta_deg``, ``interior`` (True when the worst point is not
+        a corner) and the worst point's deviation per parameter (``NAME_mm``).
+    """
     return pd.DataFrame([worst_case(nominal, tolerances, a, range_deg,
                                     strategy=strategy if a else None).to_row()
                          for a in (False, True)])

@@ -1,0 +1,222 @@
+"""`sewtol run FILE.toml STUDY`: the studies of sewtol.studies.generic on a mechanism file.
+
+A file that names `fast_path = "needle_208"` (and passed the loader's check that it reproduces
+the built-in needle drive) runs `montecarlo` without --output/--limit through the very code of
+`sewtol needle montecarlo`, so both commands print the same bytes for the same seed.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from .errors import ParameterError
+
+STUDIES = ("nominal", "scan", "montecarlo", "sobol", "worst-case")
+RUN_FORMATS = ("text", "table", "json", "csv")
+DEFAULT_N = {"montecarlo": 2000, "sobol": 256}
+# which flags each study reads; any other given flag is refused in one line
+USES = {"nominal": (), "scan": ("output", "tolerances", "adjust"),
+        "worst-case": ("output", "tolerances", "adjust"),
+        "montecarlo": ("output", "tolerances", "n", "seed", "limit", "n_jobs", "adjust"),
+        "sobol": ("output", "tolerances", "n", "seed")}
+
+
+def add_run(sub, parser_class=None) -> None:
+    p = sub.add_parser("run", help="a study of a mechanism file (docs/mechanism_files.md)")
+    p.add_argument("file", metavar="FILE.toml", help="mechanism file (format sewtol-mechanism/1)")
+    p.add_argument("study", choices=STUDIES)
+    p.add_argument("--output", default=None, metavar="NAME",
+                   help="the output studied (default: all for nominal/scan/montecarlo, the "
+                        "first for worst-case/sobol)")
+    p.add_argument("--tolerances", default=None, metavar="SET|FILE.toml[:SET]",
+                   help="a [tolerances.SET] of the file (default: its first) or a tolerance file")
+    p.add_argument("--n", type=int, default=None,
+                   help="machines (montecarlo, default 2000) or base samples (sobol, 256)")
+    p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
+    p.add_argument("--limit", type=float, default=None,
+                   help="upper limit of --output (default the first output) for the yield")
+    p.add_argument("--n-jobs", type=int, default=None, help="parallel workers (montecarlo)")
+    p.add_argument("--adjust", default=None, metavar="COMPENSATOR",
+                   help="add the adjusted case: --output (default the first) minimised over "
+                        "this [compensators.NAME] of the file on each machine")
+    p.add_argument("--format", choices=RUN_FORMATS, default="text")
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="write the tables, the result and run.json here")
+    p.add_argument("--set", action="append", metavar="NAME=VALUE",
+                   help="override a nominal value of the file (repeatable)")
+    p.set_defaults(func=cmd_run, resume=False, progress=False, scheduler=None)
+
+
+def parse_sets(items) -> dict:
+    """--set NAME=VALUE pairs (the loader checks the names and each parameter's rule)."""
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            raise ParameterError("--set", "must be NAME=VALUE", item)
+        name, _, text = item.partition("=")
+        name = name.strip()
+        try:
+            out[name] = float(text)
+        except ValueError:
+            raise ParameterError(name, "must be a number", text) from None
+    return out
+
+
+def resolve_tolerances(mech, spec):
+    """A set of the file by name (default its first), or FILE.toml / FILE.toml:SET."""
+    from .tolerances import resolve
+
+    sets = mech.tolerance_sets
+    if spec is None:
+        if not sets:
+            raise ParameterError("--tolerances", "the file has no [tolerances.NAME] set; give a "
+                                 "tolerance file FILE.toml", None)
+        return next(iter(sets.values()))
+    if spec in sets:
+        return sets[spec]
+    if ".toml" in spec:
+        return resolve(spec, {}, mech.parameter_names)
+    raise ParameterError("--tolerances", "must be a set of the file ("
+                         + (", ".join(sets) or "it has none") + ") or FILE.toml[:SET]", spec)
+
+
+def _check_flags(args) -> None:
+    used = USES[args.study]
+    for key, flag in (("output", "--output"), ("tolerances", "--tolerances"), ("n", "--n"),
+                      ("seed", "--seed"), ("limit", "--limit"), ("n_jobs", "--n-jobs"),
+                      ("adjust", "--adjust")):
+        value = getattr(args, key)
+        if value is not None and key not in used:
+            raise ParameterError(flag, f"is not used by `run {args.study}`", value)
+    if args.n is None and args.study in DEFAULT_N:
+        args.n = DEFAULT_N[args.study]
+    args.seed = 0 if args.seed is None else args.seed
+    args.n_jobs = 1 if args.n_jobs is None else args.n_jobs
+    if args.study == "montecarlo" and args.n < 2:
+        raise ParameterError("--n", "must be >= 2", args.n)
+
+
+def cmd_run(args) -> None:
+    from .cli import _check_study
+    from .mechanism import load
+    from .studies import generic as G
+
+    _check_flags(args)
+    _check_study(args)
+    mech = load(args.file, parse_sets(args.set))
+    fmt = "table" if args.format == "text" else args.format
+    if args.output is not None:
+        mech.output(args.output)
+    if args.study == "nominal":
+        res = G.nominal(mech)
+        return _finish(args, fmt, mech, None, res.to_dict(), {"nominal": res.to_dataframe()},
+                       res.to_dataframe())
+    tolerances = resolve_tolerances(mech, args.tolerances)
+    outputs = None if args.output is None else [args.output]
+    if args.study == "scan":
+        res = _as_flags(G.scan, mech, tolerances, outputs, args.adjust)
+        return _finish(args, fmt, mech, tolerances, res.to_dict(), {"scan": res.rows}, res.rows)
+    if args.study == "worst-case":
+        res = _as_flags(G.worst_case, mech, tolerances, args.output or mech.output_names[0],
+                        100, args.adjust)
+        return _finish(args, fmt, mech, tolerances, res.to_dict(), {"worst_case": res.rows},
+                       res.rows)
+    if args.study == "sobol":
+        res = _as_flags(G.sobol, mech, tolerances, args.output or mech.output_names[0], args.n,
+                        args.seed)
+        obj = {"mechanism": mech.name, "tolerances": tolerances.name, "n": res.n,
+               "seed": res.seed, "output": args.output or mech.output_names[0],
+               "rows": res.to_records(), "convergence": res.convergence.to_dict("records")}
+        return _finish(args, fmt, mech, tolerances, obj,
+                       {"indices": res.indices, "convergence": res.convergence},
+                       res.to_dataframe())
+    # montecarlo
+    if mech.header.fast_path == "needle_208" and args.output is None and args.limit is None \
+            and args.adjust is None:
+        return _needle_montecarlo(args, mech, tolerances)
+    res = _as_flags(G.montecarlo, mech, tolerances, args.n, args.seed, outputs, args.limit,
+                    args.output, args.n_jobs, False, G.CHUNK, args.adjust)
+    return _finish(args, fmt, mech, tolerances, res.to_dict(),
+                   {"machines": res.machines, "summary": res.summary_frame()},
+                   res.summary_frame())
+
+
+def _as_flags(fn, *a):
+    from .cli import FLAGS
+
+    flags = {**FLAGS, "adjust": "--adjust", "limit": "--limit"}
+    try:
+        return fn(*a)
+    except ParameterError as exc:
+        if exc.field in flags:
+            raise ParameterError(flags[exc.field], exc.rule, exc.value) from None
+        raise
+
+
+def _finish(args, fmt, mech, tolerances, obj, frames, frame) -> None:
+    from .cli import _write_outputs, emit
+    from .provenance import now, version_record
+
+    if args.out:
+        inputs = {"study": f"run {args.study}", "mechanism_file": str(args.file),
+                  "mechanism": mech.name, "n": args.n, "seed": args.seed,
+                  "output": args.output, "limit": args.limit, "adjust": args.adjust,
+                  "params": mech.nominal_values(),
+                  "tolerances": None if tolerances is None else
+                  {"name": tolerances.name, "items": tolerances.as_dict()},
+                  **version_record()}
+        _write_outputs(args, args.study.replace("-", "_"), inputs, now(), obj, frames, None)
+    emit(fmt, obj=obj, frame=frame)
+
+
+def _needle_montecarlo(args, mech, tolerances) -> None:
+    """The needle_208 fast path: exactly `sewtol needle montecarlo` (beta fixed at the nominal's
+    beta* and re-optimised per machine), on the file's nominal machine and tolerance set."""
+    from .cli import _as_flags as as_flags
+    from .cli import (
+        _check_n,
+        _cluster,
+        _deviation_columns,
+        _history,
+        _inputs,
+        _montecarlo_notes,
+        _montecarlo_record,
+        _print_notes,
+        _store,
+        _write_outputs,
+        emit,
+    )
+    from .mechanism.fast_paths import _needle_params
+    from .mechanisms.needle_208 import check_assembly
+    from .provenance import now
+    from .studies import beta as sb
+    from .studies.montecarlo import CHUNK, check_sampling, montecarlo
+
+    _check_n(args.n)
+    params = _needle_params(mech)
+    check_assembly(params)
+    limit, rng = sb.DEFAULT_LIMIT_UM, sb.DEFAULT_RANGE_DEG
+    as_flags(check_sampling, params, tolerances, args.n, args.seed, CHUNK)
+    started = now()
+    inputs = _inputs(args, "montecarlo", params, tolerances, limit_um=limit,
+                     beta_search_range_deg=list(rng), chunk_size=CHUNK,
+                     strategy="beta fixed at the nominal's beta* (fixed_beta=optimum) and beta "
+                     "re-optimised per machine", mechanism_file=str(args.file),
+                     fast_path="needle_208")
+    store = _store(args, inputs)
+    try:
+        runs = _history(store, started)
+        with _cluster(args) as client:
+            res = montecarlo(params, tolerances, args.n, args.seed, limit_um=limit,
+                             range_deg=rng, n_jobs=args.n_jobs, progress=args.progress,
+                             store=store, chunk_size=CHUNK, scheduler=client)
+        record = _montecarlo_record(args, params, tolerances, res)
+        _write_outputs(args, "montecarlo", inputs, started, record,
+                       {"machines": _deviation_columns(res.machines, res.params),
+                        "summary": res.summary_frame()}, runs)
+    finally:
+        if store is not None:
+            store.close()
+    fmt = "table" if args.format == "text" else args.format
+    emit(fmt, obj=record, frame=res.summary_frame())
+    _print_notes(argparse.Namespace(format=fmt), _montecarlo_notes(res, record))

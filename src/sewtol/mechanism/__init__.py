@@ -1,0 +1,24 @@
+"""Mechanisms as data: a TOML file that reads like the drawing, checked, then evaluated by the
+generic engine (docs/mechanism_files.md).
+
+    from sewtol.mechanism import load
+    mech = load("examples/needle_208.toml")
+    ev = mech.evaluate({"LF": [6.70, 6.75, 6.80]})
+    ev.outputs["SumDelta_um"], ev.status
+
+New group types and output kinds register themselves here (register_group, register_output);
+studies over a FileMechanism live in sewtol.studies.generic.
+"""
+
+from .expressions import ExpressionError
+from .expressions import parse as parse_expression
+from .groups import GROUPS, register_group
+from .loader import load, loads
+from .model import DEAD_POINT_DEG, Evaluation, FileMechanism, State
+from .outputs import OUTPUT_TYPES, OUTPUTS, register_output
+
+__all__ = [
+    "DEAD_POINT_DEG", "Evaluation", "ExpressionError", "FileMechanism", "GROUPS", "OUTPUTS",
+    "OUTPUT_TYPES", "State", "load", "loads", "parse_expression", "register_group",
+    "register_output",
+]

@@ -1,0 +1,464 @@
+"""Read and check a mechanism file (format sewtol-mechanism/1; docs/mechanism_files.md).
+
+Every refusal is one ParameterError whose field reads FILE:LINE: WHERE, e.g.
+"m.toml:31: [[groups]] M.r1: names 'LMX', which is not a parameter of the file (got 'LMX')".
+Nothing in the file is executed: expressions go through mechanism.expressions.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+import re
+import stat
+import tomllib
+from pathlib import Path
+
+from ..errors import ParameterError
+from ..tolerances import Tolerance, ToleranceSet, _parse_item
+from . import expressions as X
+from .groups import GROUPS
+from .lines import Locator
+from .outputs import OUTPUT_TYPES, OUTPUTS, PROVIDERS, provide
+from .spec import FORMAT, RULES, UNITS, Compensator, Group, Header, Output, Parameter
+
+MAX_BYTES = 1 << 20
+NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+MECH_NAME = re.compile(r"^[a-z0-9_]+$")
+# groups whose Closure carries a transmission angle (a transmission output may name them)
+TRANSMISSION_GROUPS = ("rrr", "spatial_rocker")
+TOP_KEYS = ("format", "mechanism", "parameters", "groups", "outputs", "compensators",
+            "tolerances")
+MECH_KEYS = ("name", "title", "source", "assumptions", "samples", "rpm", "driver", "fast_path")
+PARAM_KEYS = ("nominal", "unit", "rule", "doc")
+MIN_SAMPLES, MAX_SAMPLES = 8, 100_000
+RESERVED = set(X.FUNCTIONS) | set(X.CONSTANTS)
+
+
+class _Ctx:
+    def __init__(self, path: str, text: str):
+        self.path = path
+        self.loc = Locator(text)
+
+    def fail(self, where_path: tuple, where: str, rule: str, value):
+        raise ParameterError(f"{self.path}:{self.loc.line(*where_path)}: {where}", rule, value)
+
+
+def read_text(path) -> str:
+    path = Path(path)
+    try:
+        st = path.stat()
+        if not stat.S_ISREG(st.st_mode):
+            raise ParameterError(str(path), "is not a regular file", str(path))
+        if st.st_size > MAX_BYTES:
+            raise ParameterError(str(path), f"is larger than {MAX_BYTES} bytes; a mechanism file "
+                                 "is a few pages", st.st_size)
+        return path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ParameterError(str(path), "is not UTF-8 text (TOML files are UTF-8)",
+                             f"offset {exc.start}") from None
+    except OSError as exc:
+        raise ParameterError(str(path), "cannot be read", exc.strerror) from None
+
+
+def load(path, overrides: dict | None = None):
+    """The FileMechanism of a file; `overrides` (name -> value) replace nominal values."""
+    text = read_text(path)
+    return loads(text, str(path), overrides)
+
+
+def loads(text: str, path: str = "<text>", overrides: dict | None = None):
+    from .model import FileMechanism
+
+    ctx = _Ctx(path, text)
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        m = re.search(r"line (\d+)", str(exc))
+        raise ParameterError(f"{path}:{m.group(1) if m else 1}", "is not valid TOML",
+                             str(exc)) from None
+    for k in data:
+        if k not in TOP_KEYS:
+            ctx.fail((k,), k, f"unknown key; allowed: {', '.join(TOP_KEYS)}", k)
+    if data.get("format") != FORMAT:
+        ctx.fail(("format",), "format", f'must be "{FORMAT}"', data.get("format"))
+    header = _header(ctx, data.get("mechanism"))
+    params = _parameters(ctx, data.get("parameters"), overrides or {})
+    pnames = {p.name: p for p in params}
+    groups = _groups(ctx, data.get("groups"), pnames)
+    if header.driver is not None and not any(g.name == header.driver and g.type == "crank"
+                                             for g in groups):
+        ctx.fail(("mechanism", "driver"), "[mechanism] driver", "must name a crank group",
+                 header.driver)
+    outputs = _outputs(ctx, data.get("outputs"), pnames, groups, header)
+    comps = _compensators(ctx, data.get("compensators", {}), pnames)
+    sets = _tolerance_sets(ctx, data.get("tolerances", {}), pnames)
+    mech = FileMechanism(path=path, header=header, parameters=tuple(params),
+                         groups=tuple(groups), outputs=tuple(outputs), compensators=comps,
+                         tolerance_sets=sets)
+    if header.fast_path is not None:
+        from .fast_paths import FAST_PATHS
+
+        if header.fast_path not in FAST_PATHS:
+            ctx.fail(("mechanism", "fast_path"), "[mechanism] fast_path",
+                     f"must name a built-in kernel: {', '.join(FAST_PATHS)}", header.fast_path)
+        problem = FAST_PATHS[header.fast_path].check(mech)
+        if problem:
+            ctx.fail(("mechanism", "fast_path"), "[mechanism] fast_path",
+                     f"the file does not reproduce the built-in {header.fast_path} model "
+                     f"({problem}); remove fast_path or fix the file", header.fast_path)
+    return mech
+
+
+def _str(ctx, path, where, v, pattern=None, what="a string"):
+    if not isinstance(v, str):
+        ctx.fail(path, where, f"must be {what}", v)
+    if pattern is not None and not pattern.match(v):
+        ctx.fail(path, where, f"must be {what}", v)
+    return v
+
+
+def _number(ctx, path, where, v):
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        ctx.fail(path, where, "must be a finite number", v)
+    return float(v)
+
+
+def _header(ctx, m) -> Header:
+    if not isinstance(m, dict):
+        ctx.fail(("mechanism",), "[mechanism]", "must be a table with at least name", m)
+    for k in m:
+        if k not in MECH_KEYS:
+            ctx.fail(("mechanism", k), f"[mechanism] {k}",
+                     f"unknown key; allowed: {', '.join(MECH_KEYS)}", k)
+    if "name" not in m:
+        ctx.fail(("mechanism",), "[mechanism] name", "is required", None)
+    name = _str(ctx, ("mechanism", "name"), "[mechanism] name", m["name"], MECH_NAME,
+                "an identifier of [a-z0-9_]")
+    for k in ("title", "source"):
+        if k in m:
+            _str(ctx, ("mechanism", k), f"[mechanism] {k}", m[k])
+    assumptions = m.get("assumptions", [])
+    if not isinstance(assumptions, list) or not all(isinstance(a, str) for a in assumptions):
+        ctx.fail(("mechanism", "assumptions"), "[mechanism] assumptions",
+                 "must be a list of strings", assumptions)
+    samples = m.get("samples", 720)
+    if isinstance(samples, bool) or not isinstance(samples, int) \
+            or not MIN_SAMPLES <= samples <= MAX_SAMPLES:
+        ctx.fail(("mechanism", "samples"), "[mechanism] samples",
+                 f"must be a whole number in [{MIN_SAMPLES}, {MAX_SAMPLES}]", samples)
+    rpm = m.get("rpm")
+    if rpm is not None and not (_number(ctx, ("mechanism", "rpm"), "[mechanism] rpm", rpm) > 0):
+        ctx.fail(("mechanism", "rpm"), "[mechanism] rpm", "must be positive", rpm)
+    driver = m.get("driver")
+    if driver is not None:
+        _str(ctx, ("mechanism", "driver"), "[mechanism] driver", driver, NAME, "a group name")
+    fast = m.get("fast_path")
+    if fast is not None:
+        _str(ctx, ("mechanism", "fast_path"), "[mechanism] fast_path", fast)
+    return Header(name, m.get("title", ""), m.get("source", ""), tuple(assumptions), samples,
+                  None if rpm is None else float(rpm), driver, fast)
+
+
+def check_rule(name: str, rule: str, value) -> None:
+    """Raise ParameterError if value (a number or an array) breaks the parameter's rule."""
+    import numpy as np
+
+    from ..mechanisms import params as P
+
+    if rule == "positive":
+        P.positive(name, value)
+    elif rule == "branch":
+        P.branch(name, value)
+    else:
+        P.finite(name, value)
+        if rule == "nonnegative" and np.any(np.asarray(value, float) < 0):
+            raise ParameterError(name, "must not be negative", P._show(value))
+
+
+def _parameters(ctx, table, overrides) -> list[Parameter]:
+    if not isinstance(table, dict) or not table:
+        ctx.fail(("parameters",), "[parameters]", "must be a table of at least one parameter",
+                 table)
+    out = []
+    for name, spec in table.items():
+        path = ("parameters", name)
+        where = f"[parameters] {name}"
+        if not NAME.match(name) or name in RESERVED:
+            ctx.fail(path, where, "must be an identifier that is not a function or constant name "
+                     f"({', '.join(sorted(RESERVED))})", name)
+        if not isinstance(spec, dict):
+            ctx.fail(path, where, "must be a table { nominal = ..., unit = ..., rule = ..., "
+                     "doc = ... }", spec)
+        for k in spec:
+            if k not in PARAM_KEYS:
+                ctx.fail(path + (k,), f"{where}.{k}",
+                         f"unknown key; allowed: {', '.join(PARAM_KEYS)}", k)
+        if "nominal" not in spec:
+            ctx.fail(path, f"{where}.nominal", "is required", None)
+        nominal = _number(ctx, path + ("nominal",), f"{where}.nominal", spec["nominal"])
+        unit = spec.get("unit")
+        if unit not in UNITS:
+            ctx.fail(path + ("unit",), f"{where}.unit", f"must be one of {', '.join(UNITS)}",
+                     unit)
+        rule = spec.get("rule", "finite")
+        if rule not in RULES:
+            ctx.fail(path + ("rule",), f"{where}.rule", f"must be one of {', '.join(RULES)}",
+                     rule)
+        doc = spec.get("doc", "")
+        _str(ctx, path + ("doc",), f"{where}.doc", doc)
+        try:
+            check_rule(name, rule, nominal)
+        except ParameterError as exc:
+            ctx.fail(path + ("nominal",), f"{where}.nominal", exc.rule, nominal)
+        out.append(Parameter(name, nominal, unit, rule, doc, ctx.loc.line(*path)))
+    names = [p.name for p in out]
+    for name in overrides:
+        if name not in names:
+            raise ParameterError(name, f"unknown parameter; valid names are {', '.join(names)}",
+                                 name)
+    fixed = []
+    for p in out:
+        if p.name in overrides:
+            v = float(overrides[p.name])
+            check_rule(p.name, p.rule, v)
+            p = Parameter(p.name, v, p.unit, p.rule, p.doc, p.line)
+        fixed.append(p)
+    return fixed
+
+
+def _expr(ctx, path, where, v, pnames, kind="expr"):
+    try:
+        e = X.parse(v, pnames)
+    except X.ExpressionError as exc:
+        ctx.fail(path, where, f"{exc.rule}; allowed: {X.ALLOWED}" if "not allowed" in exc.rule
+                 or "not an allowed" in exc.rule else exc.rule, v)
+    if kind == "branch":
+        for n in e.names:
+            if pnames[n].rule != "branch":
+                ctx.fail(path, where, "must be +1, -1 or a parameter with rule = \"branch\"", v)
+        if e.constant and e({}) not in (1.0, -1.0):
+            ctx.fail(path, where, "must be +1 (left) or -1 (right)", v)
+    return e
+
+
+def _groups(ctx, table, pnames) -> list[Group]:
+    if not isinstance(table, list) or not table:
+        ctx.fail(("groups",), "[[groups]]", "at least one [[groups]] table is required", table)
+    points: dict[str, str] = {}  # defined name -> "point" | "angle"
+    out = []
+    cranks = 0
+    for i, g in enumerate(table):
+        path = ("groups", i)
+        if not isinstance(g, dict):
+            ctx.fail(path, f"[[groups]] #{i + 1}", "must be a table", g)
+        gtype = g.get("type")
+        if gtype not in GROUPS:
+            ctx.fail(path + ("type",), f"[[groups]] #{i + 1}.type",
+                     f"must be one of {', '.join(GROUPS)}", gtype)
+        gt = GROUPS[gtype]
+        if gt.requires:
+            try:
+                importlib.import_module(gt.requires)
+            except ImportError:
+                ctx.fail(path + ("type",), f"[[groups]] #{i + 1}.type", f"needs {gt.requires}, "
+                         "which this build of sewtol does not have", gtype)
+        name = g.get("name")
+        if not isinstance(name, str) or not NAME.match(name):
+            ctx.fail(path + ("name",), f"[[groups]] #{i + 1}.name", "must be an identifier",
+                     name)
+        where = f"[[groups]] {name}"
+        if name in points or name in pnames:
+            ctx.fail(path + ("name",), f"{where}.name", "is already defined (point, angle or "
+                     "parameter names must be unique)", name)
+        for k in g:
+            if k not in ("type", "name") and k not in gt.fields:
+                ctx.fail(path + (k,), f"{where}.{k}", f"unknown key for type {gtype}; allowed: "
+                         f"{', '.join(('type', 'name', *gt.fields))}", k)
+        for group_of in gt.one_of:
+            given = [k for k in group_of if k in g]
+            if len(given) != 1:
+                ctx.fail(path, where, f"give exactly one of {', '.join(group_of)}", given)
+        fields = {}
+        for k, (kind, default) in gt.fields.items():
+            if k not in g:
+                if default is None and not any(k in o for o in gt.one_of):
+                    ctx.fail(path, f"{where}.{k}", f"is required for type {gtype}", None)
+                if default is not None:
+                    fields[k] = X.parse(default)
+                continue
+            v = g[k]
+            fpath = path + (k,)
+            if kind in ("point", "angle"):
+                if not isinstance(v, str) or points.get(v) != kind:
+                    what = (f"no earlier group defines {v!r}" if v not in points
+                            else f"{v} is a {points[v]}, not a {kind}")
+                    ctx.fail(fpath, f"{where}.{k}", f"must name a {kind} defined by an earlier "
+                             f"group ({what})", v)
+                fields[k] = v
+            elif kind == "direction":
+                if not (isinstance(v, list) and len(v) == 2
+                        and all(isinstance(s, str) and points.get(s) == "point" for s in v)):
+                    ctx.fail(fpath, f"{where}.{k}", "must be [P, Q], two points defined by "
+                             "earlier groups", v)
+                if v[0] == v[1]:
+                    ctx.fail(fpath, f"{where}.{k}", "must join two different points", v)
+                fields[k] = tuple(v)
+            else:
+                fields[k] = _expr(ctx, fpath, f"{where}.{k}", v, pnames, kind)
+        if gtype == "crank":
+            cranks += 1
+        out.append(Group(gtype, name, fields, ctx.loc.line(*path)))
+        points[name] = gt.produces
+    if cranks == 0:
+        ctx.fail(("groups",), "[[groups]]", "at least one crank group is required (it carries "
+                 "the driving angle q)", [g.type for g in out])
+    return out
+
+
+def _outputs(ctx, table, pnames, groups, header) -> list[Output]:
+    if table is None:
+        table = []
+    if not isinstance(table, list):
+        ctx.fail(("outputs",), "[[outputs]]", "must be an array of tables", table)
+    defined = {g.name: "angle" if GROUPS[g.type].produces == "angle" else "point"
+               for g in groups}
+    closures = {g.name for g in groups if g.type in TRANSMISSION_GROUPS}
+    out = []
+    for i, o in enumerate(table):
+        path = ("outputs", i)
+        if not isinstance(o, dict):
+            ctx.fail(path, f"[[outputs]] #{i + 1}", "must be a table", o)
+        name = o.get("name")
+        if not isinstance(name, str) or not NAME.match(name):
+            ctx.fail(path + ("name",), f"[[outputs]] #{i + 1}.name",
+                     "must be an identifier with its unit suffix, e.g. SumDelta_um", name)
+        where = f"[[outputs]] {name}"
+        if any(x.name == name for x in out):
+            ctx.fail(path + ("name",), f"{where}.name", "is already used by another output",
+                     name)
+        otype = o.get("type")
+        if otype == "custom":
+            kind = o.get("kind")
+            ot = provide(kind) if isinstance(kind, str) else None
+            if ot is None:
+                ctx.fail(path + ("kind",), f"{where}.kind", "must name a registered output kind ("
+                         + (", ".join(sorted(set(OUTPUTS) | set(PROVIDERS)))
+                            or "none registered") + ")", kind)
+        elif otype in OUTPUT_TYPES:
+            kind = ""
+            ot = OUTPUT_TYPES[otype]
+        else:
+            ctx.fail(path + ("type",), f"{where}.type",
+                     f"must be one of {', '.join((*OUTPUT_TYPES, 'custom'))}", otype)
+        base = ("name", "unit", "type", "doc") + (("kind",) if otype == "custom" else ())
+        for k in o:
+            if k not in base and k not in ot.fields:
+                ctx.fail(path + (k,), f"{where}.{k}", f"unknown key for type {otype}; allowed: "
+                         f"{', '.join((*base, *ot.fields))}", k)
+        unit = _str(ctx, path + ("unit",), f"{where}.unit", o.get("unit"),
+                    what="a string (the unit)")
+        doc = o.get("doc", "")
+        _str(ctx, path + ("doc",), f"{where}.doc", doc)
+        if ot.needs_rpm and header.rpm is None:
+            ctx.fail(path + ("type",), f"{where}.type", "needs rpm in [mechanism]", otype)
+        for group_of in ot.one_of:
+            given = [k for k in group_of if k in o]
+            if len(given) != 1:
+                ctx.fail(path, where, f"give exactly one of {', '.join(group_of)}", given)
+        fields = {}
+        for k, (fkind, default, choices) in ot.fields.items():
+            fpath = path + (k,)
+            if k not in o:
+                if default is None and not any(k in g for g in ot.one_of):
+                    ctx.fail(path, f"{where}.{k}", f"is required for type {otype}", None)
+                if default is not None:
+                    fields[k] = X.parse(default) if fkind == "expr" else default
+                continue
+            v = o[k]
+            if fkind in ("point", "angle"):
+                if not isinstance(v, str) or defined.get(v) != fkind:
+                    ctx.fail(fpath, f"{where}.{k}", f"must name a {fkind} defined by a group", v)
+                fields[k] = v
+            elif fkind == "direction":
+                if not (isinstance(v, list) and len(v) == 2
+                        and all(isinstance(s, str) and defined.get(s) == "point" for s in v)):
+                    ctx.fail(fpath, f"{where}.{k}", "must be [P, Q], two points defined by "
+                             "groups", v)
+                fields[k] = tuple(v)
+            elif fkind == "group":
+                if v not in closures:
+                    ctx.fail(fpath, f"{where}.{k}", "must name a group with a transmission "
+                             "angle, an rrr or spatial_rocker group ("
+                             f"{', '.join(sorted(closures))})", v)
+                fields[k] = v
+            elif fkind == "choice":
+                if v not in choices:
+                    ctx.fail(fpath, f"{where}.{k}", f"must be one of {', '.join(choices)}", v)
+                fields[k] = v
+            else:
+                fields[k] = _expr(ctx, fpath, f"{where}.{k}", v, pnames)
+        out.append(Output(name, unit, otype, doc, fields, kind, ctx.loc.line(*path)))
+    return out
+
+
+def _compensators(ctx, table, pnames) -> dict[str, Compensator]:
+    if not isinstance(table, dict):
+        ctx.fail(("compensators",), "[compensators]", "must be a table of [compensators.NAME]",
+                 table)
+    out = {}
+    for name, c in table.items():
+        path = ("compensators", name)
+        where = f"[compensators.{name}]"
+        if not isinstance(c, dict):
+            ctx.fail(path, where, "must be a table with parameter, low, high", c)
+        for k in c:
+            if k not in ("parameter", "low", "high"):
+                ctx.fail(path + (k,), f"{where} {k}", "unknown key; allowed: parameter, low, high",
+                         k)
+        p = c.get("parameter")
+        if p not in pnames:
+            ctx.fail(path + ("parameter",), f"{where} parameter", "must name a parameter", p)
+        if pnames[p].rule == "branch":
+            ctx.fail(path + ("parameter",), f"{where} parameter", "must not be a branch sign", p)
+        low = _number(ctx, path + ("low",), f"{where} low", c.get("low"))
+        high = _number(ctx, path + ("high",), f"{where} high", c.get("high"))
+        if not low < high:
+            ctx.fail(path + ("high",), f"{where} high", "must be above low", (low, high))
+        out[name] = Compensator(name, p, low, high, ctx.loc.line(*path))
+    return out
+
+
+def _tolerance_sets(ctx, table, pnames) -> dict[str, ToleranceSet]:
+    if not isinstance(table, dict):
+        ctx.fail(("tolerances",), "[tolerances]", "must be a table of [tolerances.NAME]", table)
+    out = {}
+    for set_name, body in table.items():
+        path = ("tolerances", set_name)
+        if not isinstance(body, dict):
+            ctx.fail(path, f"[tolerances.{set_name}]", "must be a table", body)
+        items = []
+        desc = ""
+        for param, spec in body.items():
+            where = f"[tolerances.{set_name}] {param}"
+            if param == "description":
+                desc = _str(ctx, path + (param,), where, spec)
+                continue
+            if param not in pnames:
+                ctx.fail(path + (param,), where, "must name a parameter of the file", param)
+            if pnames[param].rule == "branch":
+                ctx.fail(path + (param,), where, "a branch sign is never toleranced", param)
+            try:
+                if isinstance(spec, list):
+                    if len(spec) != 2:
+                        raise ParameterError(param, "must be [lower, upper]", spec)
+                    lo = _number(ctx, path + (param,), where, spec[0])
+                    hi = _number(ctx, path + (param,), where, spec[1])
+                    items.append(Tolerance(param, lo, hi))
+                else:
+                    items.append(_parse_item(set_name, param, spec))
+            except ParameterError as exc:
+                ctx.fail(path + (param,), where, exc.rule, spec)
+        ts = ToleranceSet(set_name, tuple(items), desc)
+        out[set_name] = ts
+    return out

@@ -1,0 +1,279 @@
+"""A mechanism read from a file, and its generic evaluation over (machines, angles) arrays.
+
+evaluate(values) builds the groups in assembly order with sewtol.engine, over m machines (the
+values given per parameter; the rest nominal) and the file's `samples` driving angles, then
+reduces each output to one number per machine. Every machine gets a status: "ok",
+"cannot_close" (some group misses at some sampled angle) or "dead_point" (an rrr dyad comes
+closer than DEAD_POINT_DEG to collinear, where the joint can flip to its other assembly), and
+the name of the first group that failed (assembly order; cannot_close before dead_point).
+Outputs of a failed machine are NaN: counted, never dropped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from .. import engine
+from ..errors import ParameterError
+from ..tolerances import ToleranceSet
+from .groups import GROUPS
+from .outputs import OUTPUT_TYPES, OUTPUTS
+from .spec import Compensator, Group, Header, Output, Parameter
+
+DEAD_POINT_DEG = 1.0
+# machines evaluated together: a (block, samples) complex array of a joint stays near
+# BLOCK_CELLS * 16 bytes (1.5 MB at 720 samples), whatever `samples` is
+BLOCK, BLOCK_CELLS = 128, 92_160
+STATUSES = ("ok", "cannot_close", "dead_point")
+
+
+@dataclass(frozen=True)
+class State:
+    """Everything built for m machines over the sampled angles (shape (m, samples))."""
+
+    points: dict
+    angles: dict
+    closures: dict
+    values: dict
+    q_rad: np.ndarray
+    rpm: float | None
+    shape: tuple
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """Outputs per machine, each machine's status and the group that failed ("" when ok)."""
+
+    outputs: dict[str, np.ndarray]
+    status: np.ndarray
+    failed_group: np.ndarray
+
+    def counts(self) -> dict[str, int]:
+        c = {s: int(np.sum(self.status == s)) for s in STATUSES}
+        c["n"] = int(self.status.size)
+        return c
+
+    def to_dataframe(self) -> pd.DataFrame:
+        f = pd.DataFrame(dict(self.outputs))
+        f["status"] = self.status
+        f["failed_group"] = self.failed_group
+        return f
+
+
+@dataclass(frozen=True)
+class FileMechanism:
+    path: str
+    header: Header
+    parameters: tuple[Parameter, ...]
+    groups: tuple[Group, ...]
+    outputs: tuple[Output, ...]
+    compensators: dict[str, Compensator] = field(default_factory=dict)
+    tolerance_sets: dict[str, ToleranceSet] = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        return self.header.name
+
+    @property
+    def samples(self) -> int:
+        return self.header.samples
+
+    @property
+    def parameter_names(self) -> list[str]:
+        return [p.name for p in self.parameters]
+
+    @property
+    def output_names(self) -> list[str]:
+        return [o.name for o in self.outputs]
+
+    def nominal_values(self) -> dict[str, float]:
+        return {p.name: p.nominal for p in self.parameters}
+
+    def override(self, **changes) -> FileMechanism:
+        """A copy with new nominal values (checked by each parameter's rule)."""
+        from .loader import check_rule
+
+        names = self.parameter_names
+        for k in changes:
+            if k not in names:
+                raise ParameterError(k, f"unknown parameter; valid names are {', '.join(names)}",
+                                     k)
+        params = []
+        for p in self.parameters:
+            if p.name in changes:
+                check_rule(p.name, p.rule, float(changes[p.name]))
+                p = dataclasses.replace(p, nominal=float(changes[p.name]))
+            params.append(p)
+        return dataclasses.replace(self, parameters=tuple(params))
+
+    def parameter_record(self):
+        """The nominal machine as a frozen dataclass (fields = parameter names), so the generic
+        study machinery (tolerances.check_against, montecarlo.sample_machines) can use it."""
+        return parameter_class(self)(**self.nominal_values())
+
+    def output(self, name: str) -> Output:
+        for o in self.outputs:
+            if o.name == name:
+                return o
+        raise ParameterError("--output", "must name an output of the file: "
+                             + ", ".join(self.output_names), name)
+
+    def angles_rad(self) -> np.ndarray:
+        return 2.0 * np.pi * np.arange(self.samples) / self.samples
+
+    # --- evaluation -------------------------------------------------------------------------
+
+    def columns(self, values: dict | None = None) -> tuple[dict, int]:
+        """Every parameter as an (m, 1) column: the given values, nominal for the rest."""
+        from .loader import check_rule
+
+        values = dict(values or {})
+        names = self.parameter_names
+        for k in values:
+            if k not in names:
+                raise ParameterError(k, f"unknown parameter; valid names are {', '.join(names)}",
+                                     k)
+        sizes = {np.size(v) for v in values.values() if np.ndim(v) > 0}
+        if len(sizes) > 1:
+            raise ParameterError("values", "all arrays must have the same length", sorted(sizes))
+        m = sizes.pop() if sizes else 1
+        cols = {}
+        for p in self.parameters:
+            v = np.asarray(values.get(p.name, p.nominal), float)
+            check_rule(p.name, p.rule, v)
+            cols[p.name] = np.broadcast_to(v.reshape(-1, 1) if v.ndim else v, (m, 1))
+        return cols, m
+
+    @np.errstate(invalid="ignore", divide="ignore", over="ignore")
+    def state(self, values: dict | None = None, q_rad=None) -> State:
+        """Every point, angle and closure for the machines of `values` at driving angles q_rad
+        (default: the file's samples); shapes (m, len(q_rad))."""
+        cols, m = self.columns(values)
+        q_rad = self.angles_rad() if q_rad is None else np.asarray(q_rad, float)
+        q = engine.driving_angle(q_rad)
+        shape = (m, q_rad.size)
+        points, angles, closures = {}, {}, {}
+        for g in self.groups:
+            gt = GROUPS[g.type]
+            kwargs = {}
+            for k, v in g.fields.items():
+                kind = gt.fields[k][0]
+                if kind == "point":
+                    kwargs[k] = points[v]
+                elif kind == "angle":
+                    kwargs[k] = angles[v]
+                elif kind == "direction":
+                    kwargs[k] = engine.direction(points[v[0]], points[v[1]])
+                else:
+                    kwargs[k] = np.asarray(v(cols), float)
+            made, closure = gt.builder(q, **kwargs)
+            if gt.produces == "point":
+                points[g.name] = _broadcast_motion(made, shape)
+            else:
+                angles[g.name] = _broadcast_angle(made, shape)
+            if closure is not None:
+                closures[g.name] = closure
+        return State(points, angles, closures, cols, q_rad, self.header.rpm, shape)
+
+    def status_of(self, state: State) -> tuple[np.ndarray, np.ndarray]:
+        m = state.shape[0]
+        status = np.full(m, "ok", dtype=object)
+        failed = np.full(m, "", dtype=object)
+        for g in self.groups:  # a group that cannot close, first in assembly order
+            cl = state.closures.get(g.name)
+            if cl is None:
+                continue
+            miss = np.broadcast_to(cl.miss_mm, state.shape)
+            bad = ~np.all(miss == 0.0, axis=-1) & (status == "ok")
+            status[bad], failed[bad] = "cannot_close", g.name
+        for g in self.groups:
+            cl = state.closures.get(g.name)
+            if cl is None or cl.transmission_deg is None:
+                continue
+            t = np.broadcast_to(cl.transmission_deg, state.shape)
+            dead = (np.min(t, axis=-1) < DEAD_POINT_DEG) & (status == "ok")
+            status[dead], failed[dead] = "dead_point", g.name
+        return status, failed
+
+    def evaluate(self, values: dict | None = None, outputs=None) -> Evaluation:
+        """Outputs (one number per machine), status and failed group of the machines given by
+        `values` (parameter name -> array of m values; the others nominal)."""
+        names = self.output_names if outputs is None else list(outputs)
+        chosen = [self.output(n) for n in names]
+        cols, m = self.columns(values)
+        parts = []
+        block = max(1, min(BLOCK, BLOCK_CELLS // self.samples))
+        for a in range(0, m, block):
+            sub = {k: np.asarray(v)[a:a + block, 0] for k, v in cols.items()}
+            parts.append(self._evaluate_block(sub, chosen))
+        out = {o.name: np.concatenate([p[0][o.name] for p in parts]) for o in chosen}
+        return Evaluation(out, np.concatenate([p[1] for p in parts]),
+                          np.concatenate([p[2] for p in parts]))
+
+    def _evaluate_block(self, values, chosen):
+        state = self.state(values)
+        status, failed = self.status_of(state)
+        ok = status == "ok"
+        out = {}
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            for o in chosen:
+                ot = OUTPUTS[o.kind] if o.type == "custom" else OUTPUT_TYPES[o.type]
+                kwargs = {}
+                for k, v in o.fields.items():
+                    kind = ot.fields[k][0]
+                    if kind == "point":
+                        kwargs[k] = state.points[v]
+                    elif kind == "angle":
+                        kwargs[k] = state.angles[v]
+                    elif kind == "direction":
+                        kwargs[k] = engine.direction(state.points[v[0]], state.points[v[1]])
+                    elif kind == "expr":
+                        kwargs[k] = np.asarray(v(state.values), float)
+                    else:
+                        kwargs[k] = v
+                y = np.asarray(ot.fn(state, **kwargs), float).reshape(-1)
+                y = np.broadcast_to(y, (state.shape[0],))
+                out[o.name] = np.where(ok, y, np.nan)
+        return out, status, failed
+
+
+def _broadcast_motion(mo, shape):
+    return engine.Motion(*(np.broadcast_to(np.asarray(a, complex), shape)
+                           for a in (mo.p, mo.dp, mo.ddp)))
+
+
+def _broadcast_angle(an, shape):
+    return engine.Angle(*(np.broadcast_to(np.asarray(a, float), shape)
+                          for a in (an.a, an.da, an.dda)))
+
+
+_CLASSES: dict = {}
+
+
+def parameter_class(mech: FileMechanism):
+    """A frozen dataclass whose fields are the file's parameters, checked by their rules."""
+    key = (mech.name, tuple((p.name, p.rule) for p in mech.parameters))
+    if key in _CLASSES:
+        return _CLASSES[key]
+    from ..mechanisms import params as P
+    from .loader import check_rule
+
+    rules = {p.name: p.rule for p in mech.parameters}
+
+    def __post_init__(self):
+        P.freeze(self)
+        for name, rule in rules.items():
+            check_rule(name, rule, getattr(self, name))
+
+    def override(self, **changes):
+        return P.override(self, changes)
+
+    cls = dataclasses.make_dataclass(
+        f"{mech.name}_parameters", [(p.name, float) for p in mech.parameters], frozen=True,
+        namespace={"__post_init__": __post_init__, "override": override})
+    _CLASSES[key] = cls
+    return cls
