@@ -231,15 +231,16 @@ def write(report: GenericReport, out) -> list[Path]:
 
     out = Path(out)
     m = report.mechanism
-    settings = {"mechanism": m.name, "file": m.path, "tolerances": report.tolerances.name,
-                "n": report.n, "seed": report.seed}
+    base = {"mechanism": m.name, "file": m.path, "tolerances": report.tolerances.name}
+    sampled = {**base, "n": report.n, "seed": report.seed}
     written = []
     tables = _tables(report)
     for name, title, frame in tables:
+        settings = sampled if name in ("montecarlo_summary", "yield") else base
         write_text_atomic(out / f"{name}.csv", to_csv(frame, settings))
         write_text_atomic(out / f"{name}.md", to_markdown(frame, title, settings))
         written += [out / f"{name}.csv", out / f"{name}.md"]
-    write_text_atomic(out / "machines.csv", to_csv(report.machines, settings))
+    write_text_atomic(out / "machines.csv", to_csv(report.machines, sampled))
     written.append(out / "machines.csv")
     figures = {}
     for name in m.output_names:
