@@ -93,6 +93,21 @@ def test_ppm_no_failure_is_a_bound_never_zero_ppm(mech):
     assert res.upper_95 == pytest.approx(1 - 0.05 ** (1 / 1000), rel=1e-9)
 
 
+def test_ppm_with_compensator_is_the_adjusted_output(mech):
+    # J_x_max = L + r, minimised over L in [39, 41] at L = 39: fails when 39 + r > limit
+    truth = 1e-3
+    limit = 39 + R0 + SIGMA_R * stats.norm.isf(truth)
+    ls = GY.file_limit_state(mech, mech.tolerance_sets["normal"], "J_x_max_mm", upper=limit,
+                             adjust="rod")
+    assert ls.output == "J_x_max_mm_adjusted"
+    z = np.array([[0.0, 0.0], [1.0, -2.0], [-3.0, 3.0]])
+    value, mode = ls.response(z)
+    np.testing.assert_allclose(value, 39 + R0 + SIGMA_R * z[:, 0], rtol=0, atol=1e-9)
+    assert list(mode) == [0, 0, 0]
+    res = R.estimate(ls, np.random.default_rng(6), "subset", truth, 6000)
+    assert res.ci_low <= truth <= res.ci_high
+
+
 def _order_statistic_scale(n, seed, target, half_mm, t_mm):
     """The largest k at which the same uniforms give yield >= target: P(|d_r| <= half) with
     d_r = k * t * (2 u - 1), i.e. k <= half / (t * V_(m)), V = |2 u - 1|, m = ceil(target n)."""
@@ -151,6 +166,16 @@ def test_allocation_normal_scale_matches_closed_form(mech):
     assert abs(a.scale / k_true - 1) < 4 * rel_sd
 
 
+def test_report_same_seed_same_tables(mech, tmp_path):
+    tol = mech.tolerance_sets["normal"]
+    for d in ("a", "b"):
+        GR.write(GR.build(mech, tol, n=100, seed=9, limit_output="stroke_mm", upper=20.03),
+                 tmp_path / d)
+    for name in ("machines.csv", "scan.csv", "worst_case.csv", "yield.csv", "index.md",
+                 "report.html", "hist_stroke_mm.png"):
+        assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
+
+
 def test_report_words_tables_and_histograms(mech, tmp_path):
     rep = GR.build(mech, mech.tolerance_sets["uniform"], n=400, seed=3,
                    limit_output="stroke_mm", upper=20.05, lower=19.95)
@@ -186,13 +211,14 @@ def test_report_words_tables_and_histograms(mech, tmp_path):
 
 def test_cli_ppm_allocation_report(tmp_path):
     code, out, err = run("run", FILE, "ppm", "--tolerances", "normal", "--limit", "20.07",
-                         "--method", "montecarlo", "--n", "5000", "--seed", "2",
+                         "--method", "mc", "--n", "5000", "--seed", "2",
                          "--format", "json")
     assert code == 0, err
     obj = strict_loads(out)
     truth = stats.norm.sf((20.07 / 2 - R0) / SIGMA_R)
     assert obj["ci95"][0] <= truth <= obj["ci95"][1]
     assert obj["pass_condition"] == "stroke_mm <= 20.07 mm" and obj["budget"] == 5000
+    assert obj["method"] == "montecarlo" and obj["model_calls"] == 5000
     code, out, err = run("run", FILE, "allocation", "--tolerances", "uniform", "--limit",
                          "20.02", "--lower-limit", "19.98", "--n", "2000", "--format", "json")
     assert code == 0, err

@@ -48,9 +48,10 @@ def add_run(sub, parser_class=None) -> None:
     p.add_argument("--lower-limit", type=float, default=None,
                    help="lower limit of --output (ppm, allocation, report; with or without "
                         "--limit)")
-    p.add_argument("--method", choices=("auto", "montecarlo", "subset", "nais"), default=None,
+    p.add_argument("--method", choices=("auto", "montecarlo", "mc", "subset", "nais"),
+                   default=None,
                    help="ppm: auto (Monte-Carlo if n * target >= 10, else subset simulation), "
-                        "montecarlo, subset or nais")
+                        "montecarlo (or mc), subset or nais")
     p.add_argument("--target", type=float, default=None,
                    help="ppm: the smallest probability to resolve (default 1e-6); allocation: "
                         "the yield to keep (default 0.9973)")
@@ -142,8 +143,8 @@ def _check_yield_flags(args) -> None:
     minimum = {"ppm": 100, "allocation": 10, "report": 2}[args.study]
     if args.n < minimum:
         raise ParameterError("--n", f"must be >= {minimum} for `run {args.study}`", args.n)
-    if args.study == "ppm" and args.method is None:
-        args.method = "auto"
+    if args.study == "ppm":
+        args.method = {None: "auto", "mc": "montecarlo"}.get(args.method, args.method)
     if args.study == "report" and not args.out:
         raise ParameterError("--out", "`run report` needs --out DIR, the report's folder", None)
 
