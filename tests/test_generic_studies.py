@@ -154,6 +154,23 @@ def test_allocation_weight_halves_r_doubles_the_scale(mech):
     assert rb == pytest.approx(ra, rel=3 * GY.SCALE_RTOL)
 
 
+def test_allocation_counts_machines_that_cannot_close_against_the_yield():
+    # L = 10.5 + d, d uniform +/- 0.1 k: the rod cannot reach the guide at q = 90 deg when
+    # L < r = 10, so yield = (0.1 k + 0.5) / (0.2 k) -> 0.1 k = 0.5 / (2 target - 1)
+    mech = load(FILE, {"L": 10.5})
+    tol = ToleranceSet("L", (Tolerance("L", -0.1, 0.1),))
+    target, n = 0.9, 4000
+    a = GY.allocate(mech, tol, "stroke_mm", target, upper=100.0, n=n, seed=4)
+    k_true = 0.5 / (2 * target - 1) / 0.1
+    # the crossing is the sample's (1 - target) quantile of d / (0.1 k): sd sqrt(p (1-p) / n)
+    # in u, i.e. 2 sqrt(p (1 - p) / n) / (2 (1 - target)) relative to the distance -0.5
+    u_sd = np.sqrt(target * (1 - target) / n)
+    assert abs(a.scale / k_true - 1) < 4 * 2 * u_sd / (2 * target - 1)
+    over = a.trials[a.trials["scale"] > a.scale]
+    assert (over["cannot_close"] > 0).all() and (over["out_of_limits"] == 0).all()
+    assert (over["ok"] + over["cannot_close"] == n).all()
+
+
 def test_allocation_normal_scale_matches_closed_form(mech):
     # r normal with sigma 0.01 k: P(|2 sigma k z| <= 0.02) = target -> k = 1 / z_{(1+t)/2}
     target, n = 0.9, 4000
