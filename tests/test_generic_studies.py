@@ -259,7 +259,7 @@ def test_cli_ppm_allocation_report(tmp_path):
     (("report",), "--out"),
     (("ppm", "--limit", "nan"), "--limit"),
     (("allocation", "--limit", "20.1", "--weight", "Q=2"), "--weight"),
-    (("allocation", "--limit", "20.1", "--weight", "r=-1"), "weights.r"),
+    (("allocation", "--limit", "20.1", "--weight", "r=-1"), "--weight: r's weight"),
     (("ppm", "--limit", "20.1", "--adjust", "beta"), "--adjust"),
     (("ppm", "--limit", "20.1", "--n", "50"), "--n"),
 ])

@@ -215,7 +215,7 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
                              + ", ".join(tol.params) + ")", unknown)
     for k, w in weights.items():
         if not (np.isfinite(w) and w > 0):
-            raise ParameterError(f"weights.{k}", "must be a positive number", w)
+            raise ParameterError("weights", f"{k}'s weight must be a positive number", w)
     w = np.array([float(weights.get(p, 1.0)) for p in tol.params])
     # common random numbers: the deviations at k = 1, scaled along their ray for every k
     u = np.random.default_rng(seed).random((int(n), len(tol.items)))
