@@ -11,14 +11,21 @@ import argparse
 
 from .errors import ParameterError
 
-STUDIES = ("nominal", "scan", "montecarlo", "sobol", "worst-case")
+STUDIES = ("nominal", "scan", "montecarlo", "sobol", "worst-case", "ppm", "allocation", "report")
 RUN_FORMATS = ("text", "table", "json", "csv")
-DEFAULT_N = {"montecarlo": 2000, "sobol": 256}
+DEFAULT_N = {"montecarlo": 2000, "sobol": 256, "ppm": 20000, "allocation": 2000, "report": 1000}
+# --target: the smallest probability ppm must resolve; the yield allocation must keep
+DEFAULT_TARGET = {"ppm": 1e-6, "allocation": 0.9973}
 # which flags each study reads; any other given flag is refused in one line
 USES = {"nominal": (), "scan": ("output", "tolerances", "adjust"),
         "worst-case": ("output", "tolerances", "adjust"),
         "montecarlo": ("output", "tolerances", "n", "seed", "limit", "n_jobs", "adjust"),
-        "sobol": ("output", "tolerances", "n", "seed")}
+        "sobol": ("output", "tolerances", "n", "seed"),
+        "ppm": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "method", "target",
+                "adjust", "n_jobs"),
+        "allocation": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "target",
+                       "weight", "adjust"),
+        "report": ("output", "tolerances", "n", "seed", "limit", "lower_limit")}
 
 
 def add_run(sub, parser_class=None) -> None:
@@ -31,7 +38,8 @@ def add_run(sub, parser_class=None) -> None:
     p.add_argument("--tolerances", default=None, metavar="SET|FILE.toml[:SET]",
                    help="a [tolerances.SET] of the file (default: its first) or a tolerance file")
     p.add_argument("--n", type=int, default=None,
-                   help="machines (montecarlo, default 2000) or base samples (sobol, 256)")
+                   help="machines (montecarlo 2000, allocation 2000 per trial scale, report "
+                        "1000), base samples (sobol, 256) or model calls (ppm, 20000)")
     p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
     p.add_argument("--limit", type=float, default=None,
                    help="upper limit of --output (default the first output) for the yield")
@@ -39,6 +47,19 @@ def add_run(sub, parser_class=None) -> None:
     p.add_argument("--adjust", default=None, metavar="COMPENSATOR",
                    help="add the adjusted case: --output (default the first) minimised over "
                         "this [compensators.NAME] of the file on each machine")
+    p.add_argument("--lower-limit", type=float, default=None,
+                   help="lower limit of --output (ppm, allocation, report; with or without "
+                        "--limit)")
+    p.add_argument("--method", choices=("auto", "montecarlo", "mc", "subset", "nais"),
+                   default=None,
+                   help="ppm: auto (Monte-Carlo if n * target >= 10, else subset simulation), "
+                        "montecarlo (or mc), subset or nais")
+    p.add_argument("--target", type=float, default=None,
+                   help="ppm: the smallest probability to resolve (default 1e-6); allocation: "
+                        "the yield to keep (default 0.9973)")
+    p.add_argument("--weight", action="append", default=None, metavar="NAME=W",
+                   help="allocation: tolerance NAME scales as W times the common scale "
+                        "(repeatable; default 1)")
     p.add_argument("--format", choices=RUN_FORMATS, default="text")
     p.add_argument("--out", default=None, metavar="DIR",
                    help="write the tables, the result and run.json here")
@@ -84,7 +105,8 @@ def _check_flags(args) -> None:
     used = USES[args.study]
     for key, flag in (("output", "--output"), ("tolerances", "--tolerances"), ("n", "--n"),
                       ("seed", "--seed"), ("limit", "--limit"), ("n_jobs", "--n-jobs"),
-                      ("adjust", "--adjust")):
+                      ("adjust", "--adjust"), ("lower_limit", "--lower-limit"),
+                      ("method", "--method"), ("target", "--target"), ("weight", "--weight")):
         value = getattr(args, key)
         if value is not None and key not in used:
             raise ParameterError(flag, f"is not used by `run {args.study}`", value)
@@ -94,6 +116,39 @@ def _check_flags(args) -> None:
     args.n_jobs = 1 if args.n_jobs is None else args.n_jobs
     if args.study == "montecarlo" and args.n < 2:
         raise ParameterError("--n", "must be >= 2", args.n)
+    _check_yield_flags(args)
+
+
+def _check_yield_flags(args) -> None:
+    """The flags of ppm, allocation and report, before anything runs."""
+    import math
+
+    if args.study not in ("ppm", "allocation", "report"):
+        return
+    if args.study in DEFAULT_TARGET:
+        if args.target is None:
+            args.target = DEFAULT_TARGET[args.study]
+        if not (math.isfinite(args.target) and 0 < args.target < 1):
+            what = "probability" if args.study == "ppm" else "yield"
+            raise ParameterError("--target", f"must be a {what} strictly between 0 and 1",
+                                 args.target)
+        if args.limit is None and args.lower_limit is None:
+            raise ParameterError("--limit", f"`run {args.study}` needs --limit and/or "
+                                 "--lower-limit", None)
+    for flag, v in (("--limit", args.limit), ("--lower-limit", args.lower_limit)):
+        if v is not None and not math.isfinite(v):
+            raise ParameterError(flag, "must be a finite number", v)
+    if args.limit is not None and args.lower_limit is not None \
+            and not args.lower_limit < args.limit:
+        raise ParameterError("--lower-limit", f"must be below --limit {args.limit:g}",
+                             args.lower_limit)
+    minimum = {"ppm": 100, "allocation": 10, "report": 2}[args.study]
+    if args.n < minimum:
+        raise ParameterError("--n", f"must be >= {minimum} for `run {args.study}`", args.n)
+    if args.study == "ppm":
+        args.method = {None: "auto", "mc": "montecarlo"}.get(args.method, args.method)
+    if args.study == "report" and not args.out:
+        raise ParameterError("--out", "`run report` needs --out DIR, the report's folder", None)
 
 
 def cmd_run(args) -> None:
@@ -130,6 +185,8 @@ def cmd_run(args) -> None:
         return _finish(args, fmt, mech, tolerances, obj,
                        {"indices": res.indices, "convergence": res.convergence},
                        res.to_dataframe())
+    if args.study in ("ppm", "allocation", "report"):
+        return _yield_study(args, fmt, mech, tolerances)
     # montecarlo
     if mech.header.fast_path == "needle_208" and args.output is None and args.limit is None \
             and args.adjust is None:
@@ -144,7 +201,8 @@ def cmd_run(args) -> None:
 def _as_flags(fn, *a):
     from .cli import FLAGS
 
-    flags = {**FLAGS, "adjust": "--adjust", "limit": "--limit"}
+    flags = {**FLAGS, "adjust": "--adjust", "limit": "--limit", "lower_limit": "--lower-limit",
+             "target": "--target", "weights": "--weight"}
     try:
         return fn(*a)
     except ParameterError as exc:
@@ -161,6 +219,8 @@ def _finish(args, fmt, mech, tolerances, obj, frames, frame) -> None:
         inputs = {"study": f"run {args.study}", "mechanism_file": str(args.file),
                   "mechanism": mech.name, "n": args.n, "seed": args.seed,
                   "output": args.output, "limit": args.limit, "adjust": args.adjust,
+                  **{k: getattr(args, k) for k in ("lower_limit", "method", "target", "weight")
+                     if getattr(args, k, None) is not None},
                   "params": mech.nominal_values(),
                   "tolerances": None if tolerances is None else
                   {"name": tolerances.name, "items": tolerances.as_dict()},
@@ -220,3 +280,64 @@ def _needle_montecarlo(args, mech, tolerances) -> None:
     fmt = "table" if args.format == "text" else args.format
     emit(fmt, obj=record, frame=res.summary_frame())
     _print_notes(argparse.Namespace(format=fmt), _montecarlo_notes(res, record))
+
+
+def _yield_study(args, fmt, mech, tolerances) -> None:
+    """ppm, allocation and report (sewtol.studies.generic_yield, sewtol.reports.generic_report)."""
+    import numpy as np
+
+    from .studies import generic_yield as GY
+    from .studies import rare_event as R
+
+    output = args.output or mech.output_names[0]
+    if args.study == "report":
+        from .cli import _check_out
+        from .reports import generic_report as GR
+
+        _check_out(args)
+        rep = _as_flags(GR.build, mech, tolerances, args.n, args.seed,
+                        output if args.limit is not None or args.lower_limit is not None
+                        else None, args.limit, args.lower_limit)
+        try:
+            GR.write(rep, args.out)
+        except OSError as exc:
+            raise ParameterError("--out", f"cannot be written ({exc.strerror})",
+                                 str(exc.filename or args.out)) from None
+        obj = {"mechanism": mech.name, "tolerances": tolerances.name, "n": args.n,
+               "seed": args.seed, "yield": rep.yield_row, "words": rep.words(),
+               "index": str(args.out) + "/index.md", "html": str(args.out) + "/report.html"}
+        _finish(args, fmt, mech, tolerances, obj, {}, rep.dominance[rep.dominance["rank"] <= 3])
+        if fmt == "table":
+            print(f"\nreport: {obj['index']} and {obj['html']}"
+                  + ("" if rep.yield_row is None else
+                     f"; yield {rep.yield_row['yield']:.4f} of {rep.yield_row['n']} machines "
+                     f"passing {rep.yield_row['condition']}"))
+        return None
+    if args.study == "allocation":
+        weights = parse_sets(args.weight)
+        res = _as_flags(GY.allocate, mech, tolerances, output, args.target, args.limit,
+                        args.lower_limit, args.n, args.seed, weights, args.adjust)
+        _finish(args, fmt, mech, tolerances, res.to_dict(),
+                {"allocation": res.table, "trials": res.trials}, res.table)
+        if fmt == "table":
+            cond = GY.limits_text(output, args.limit, args.lower_limit, mech.output(output).unit)
+            print(f"\nscale {res.scale:.6g} of set '{tolerances.name}': yield {res.yield_:.4f} "
+                  f"(target {args.target:g}) of {res.n} machines passing {cond}"
+                  + (" (capped: the yield stays above the target up to this scale)"
+                     if res.capped else ""))
+        return None
+    ls = _as_flags(GY.file_limit_state, mech, tolerances, output, args.limit, args.lower_limit,
+                   args.adjust)
+    res = _as_flags(R.estimate, ls, np.random.default_rng(args.seed), args.method, args.target,
+                    args.n, args.n_jobs)
+    cond = GY.limits_text(output if args.adjust is None else f"{output}_adjusted", args.limit,
+                          args.lower_limit, mech.output(output).unit)
+    obj = {**res.to_dict(), "mechanism": mech.name, "tolerances": tolerances.name,
+           "pass_condition": cond, "lower_limit": args.lower_limit, "upper_limit": args.limit,
+           "adjust": args.adjust, "seed": args.seed, "target": args.target, "budget": args.n}
+    _finish(args, fmt, mech, tolerances, obj,
+            {"levels": res.levels, "failing_examples": res.examples},
+            res.to_dataframe().assign(tolerances=tolerances.name))
+    if fmt == "table":
+        print(f"\nP(not {cond}, or the machine cannot run) = {res.statement}")
+    return None

@@ -1,0 +1,270 @@
+"""ppm, allocation and the report of any mechanism file, against analytic answers.
+
+The case: a centred crank-slider (tests/data/crank_slider.toml) whose stroke is exactly 2 r at
+the file's 8 sampled angles (the slider's extremes L + r and L - r are sampled at q = 0 and
+180 deg), so every probability and scale below has a closed form in r's distribution."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+from scipy import stats  # noqa: E402
+
+from cli_helpers import run, strict_loads  # noqa: E402
+from sewtol.mechanism import load  # noqa: E402
+from sewtol.reports import generic_report as GR  # noqa: E402
+from sewtol.studies import generic_yield as GY  # noqa: E402
+from sewtol.studies import rare_event as R  # noqa: E402
+from sewtol.tolerances import Tolerance, ToleranceSet  # noqa: E402
+
+FILE = str(Path(__file__).parent / "data" / "crank_slider.toml")
+R0 = 10.0
+SIGMA_R = 0.01  # the set "normal": r +/-0.03 at +/-3 sigma
+
+
+@pytest.fixture(scope="module")
+def mech():
+    return load(FILE)
+
+
+def test_stroke_is_exactly_two_r(mech):
+    r = np.array([9.5, 10.0, 10.37])
+    ev = mech.evaluate({"r": r, "L": [40.0, 39.0, 41.2]})
+    np.testing.assert_allclose(ev.outputs["stroke_mm"], 2 * r, rtol=0, atol=1e-12)
+    assert list(ev.status) == ["ok"] * 3
+
+
+def test_ppm_subset_simulation_normal_tail_at_1e_5(mech):
+    # P(stroke > limit) = P(r > limit / 2) = P(z > z_true) with z_true chosen for 1e-5
+    truth = 1e-5
+    limit = 2 * (R0 + SIGMA_R * stats.norm.isf(truth))
+    ls = GY.file_limit_state(mech, mech.tolerance_sets["normal"], "stroke_mm", upper=limit)
+    assert ls.failure_modes == ("cannot_close at J", "dead_point at J")
+    assert ls.limit == limit and ls.output == "stroke_mm"
+    res = R.estimate(ls, np.random.default_rng(1), "auto", 1e-5, 20000)
+    assert res.method == "subset"
+    assert res.ci_low <= res.probability <= res.ci_high
+    assert res.ci_low <= truth <= res.ci_high
+    assert res.cov < 0.5
+    assert res.mode_counts == {"value > limit": res.failures, "cannot_close at J": 0,
+                               "dead_point at J": 0}
+    # the failing examples sit beyond the limit in r, not in L
+    assert (res.examples["r"] > limit / 2 - R0 - 1e-12).all()
+
+
+def test_ppm_two_sided_and_lower_limit_monte_carlo(mech):
+    tol = mech.tolerance_sets["normal"]
+    a = 0.035  # limits 20 +/- a: fail when |2 d| > a
+    truth = 2 * stats.norm.sf(a / (2 * SIGMA_R))
+    ls = GY.file_limit_state(mech, tol, "stroke_mm", upper=20 + a, lower=20 - a)
+    assert ls.output == "stroke_mm_excess" and ls.limit == 0.0
+    res = R.estimate(ls, np.random.default_rng(3), "montecarlo", 1e-2, 20000)
+    assert res.ci_low <= truth <= res.ci_high
+    low = GY.file_limit_state(mech, tol, "stroke_mm", lower=20 - a)
+    res = R.estimate(low, np.random.default_rng(4), "montecarlo", 1e-2, 20000)
+    assert res.ci_low <= truth / 2 <= res.ci_high
+
+
+def test_ppm_machines_that_cannot_close_are_failures_named_by_group():
+    # L near r: at q = 90 deg the rod cannot reach the guide when L < r
+    mech = load(FILE, {"L": 10.05})
+    tol = ToleranceSet("L", (Tolerance("L", -0.3, 0.3, "normal"),))
+    ls = GY.file_limit_state(mech, tol, "stroke_mm", upper=100.0)
+    res = R.estimate(ls, np.random.default_rng(5), "montecarlo", 0.1, 4000)
+    truth = stats.norm.cdf((R0 - 10.05) / 0.1)
+    assert res.mode_counts["cannot_close at J"] == res.failures > 0
+    assert res.mode_counts["value > limit"] == 0
+    assert res.ci_low <= truth <= res.ci_high
+
+
+def test_ppm_no_failure_is_a_bound_never_zero_ppm(mech):
+    ls = GY.file_limit_state(mech, mech.tolerance_sets["uniform"], "stroke_mm", upper=20.5)
+    res = R.estimate(ls, np.random.default_rng(0), "montecarlo", 0.01, 1000)
+    assert not res.resolved and res.failures == 0
+    assert res.statement.startswith("< ") and "at 95 %" in res.statement
+    # Clopper-Pearson one-sided 95 % bound for 0 of 1000: 1 - 0.05 ** (1 / 1000)
+    assert res.upper_95 == pytest.approx(1 - 0.05 ** (1 / 1000), rel=1e-9)
+
+
+def test_ppm_with_compensator_is_the_adjusted_output(mech):
+    # J_x_max = L + r, minimised over L in [39, 41] at L = 39: fails when 39 + r > limit
+    truth = 1e-3
+    limit = 39 + R0 + SIGMA_R * stats.norm.isf(truth)
+    ls = GY.file_limit_state(mech, mech.tolerance_sets["normal"], "J_x_max_mm", upper=limit,
+                             adjust="rod")
+    assert ls.output == "J_x_max_mm_adjusted"
+    z = np.array([[0.0, 0.0], [1.0, -2.0], [-3.0, 3.0]])
+    value, mode = ls.response(z)
+    np.testing.assert_allclose(value, 39 + R0 + SIGMA_R * z[:, 0], rtol=0, atol=1e-9)
+    assert list(mode) == [0, 0, 0]
+    res = R.estimate(ls, np.random.default_rng(6), "subset", truth, 6000)
+    assert res.ci_low <= truth <= res.ci_high
+
+
+def _order_statistic_scale(n, seed, target, half_mm, t_mm):
+    """The largest k at which the same uniforms give yield >= target: P(|d_r| <= half) with
+    d_r = k * t * (2 u - 1), i.e. k <= half / (t * V_(m)), V = |2 u - 1|, m = ceil(target n)."""
+    u = np.random.default_rng(seed).random((n, 2))
+    v = np.sort(np.abs(2 * u[:, 0] - 1))
+    m = int(np.ceil(target * n))
+    return half_mm / (t_mm * v[m - 1])
+
+
+def test_allocation_uniform_scale_matches_closed_form(mech):
+    # P(|2 r - 2 r0| <= 0.02) with r uniform +/- 0.03 k is 0.01 / (0.03 k) = target
+    target, n = 0.9973, 2000
+    a = GY.allocate(mech, mech.tolerance_sets["uniform"], "stroke_mm", target, upper=20.02,
+                    lower=19.98, n=n, seed=0)
+    k_true = 0.01 / (0.03 * target)
+    k_sample = _order_statistic_scale(n, 0, target, 0.01, 0.03)
+    # bisection to SCALE_RTOL below the sample's exact crossing
+    assert k_sample * (1 - 2 * GY.SCALE_RTOL) <= a.scale <= k_sample * (1 + 1e-9)
+    # the sample crossing is an order statistic: sd of V_(m) is sqrt(p (1 - p) / n) ~ 0.0012
+    assert abs(a.scale / k_true - 1) < 4 * np.sqrt(target * (1 - target) / n)
+    assert a.yield_ >= target and not a.capped
+    tab = a.table.set_index("param")
+    assert tab.loc["r", "upper"] == pytest.approx(0.03 * a.scale, rel=1e-12)
+    assert tab.loc["L", "upper"] == pytest.approx(0.1 * a.scale, rel=1e-12)
+    # every trial above the found scale has a yield below the target (monotone here)
+    tr = a.trials
+    assert (tr.loc[tr["scale"] > a.scale, "yield"] < target).all()
+    assert (tr.loc[tr["scale"] <= a.scale, "yield"] >= target).all()
+    # same seed, same answer
+    b = GY.allocate(mech, mech.tolerance_sets["uniform"], "stroke_mm", target, upper=20.02,
+                    lower=19.98, n=n, seed=0)
+    assert b.scale == a.scale
+
+
+def test_allocation_weight_halves_r_doubles_the_scale(mech):
+    tol = mech.tolerance_sets["uniform"]
+    a = GY.allocate(mech, tol, "stroke_mm", 0.95, upper=20.02, lower=19.98, n=500, seed=2)
+    b = GY.allocate(mech, tol, "stroke_mm", 0.95, upper=20.02, lower=19.98, n=500, seed=2,
+                    weights={"r": 0.5})
+    # r's allocated limit is the same (stroke depends on r only): k_b * 0.5 = k_a
+    assert b.scale * 0.5 == pytest.approx(a.scale, rel=3 * GY.SCALE_RTOL)
+    ra = a.table.set_index("param").loc["r", "upper"]
+    rb = b.table.set_index("param").loc["r", "upper"]
+    assert rb == pytest.approx(ra, rel=3 * GY.SCALE_RTOL)
+
+
+def test_allocation_counts_machines_that_cannot_close_against_the_yield():
+    # L = 10.5 + d, d uniform +/- 0.1 k: the rod cannot reach the guide at q = 90 deg when
+    # L < r = 10, so yield = (0.1 k + 0.5) / (0.2 k) -> 0.1 k = 0.5 / (2 target - 1)
+    mech = load(FILE, {"L": 10.5})
+    tol = ToleranceSet("L", (Tolerance("L", -0.1, 0.1),))
+    target, n = 0.9, 4000
+    a = GY.allocate(mech, tol, "stroke_mm", target, upper=100.0, n=n, seed=4)
+    k_true = 0.5 / (2 * target - 1) / 0.1
+    # the crossing is the sample's (1 - target) quantile of d / (0.1 k): sd sqrt(p (1-p) / n)
+    # in u, i.e. 2 sqrt(p (1 - p) / n) / (2 (1 - target)) relative to the distance -0.5
+    u_sd = np.sqrt(target * (1 - target) / n)
+    assert abs(a.scale / k_true - 1) < 4 * 2 * u_sd / (2 * target - 1)
+    over = a.trials[a.trials["scale"] > a.scale]
+    assert (over["cannot_close"] > 0).all() and (over["out_of_limits"] == 0).all()
+    assert (over["ok"] + over["cannot_close"] == n).all()
+
+
+def test_allocation_normal_scale_matches_closed_form(mech):
+    # r normal with sigma 0.01 k: P(|2 sigma k z| <= 0.02) = target -> k = 1 / z_{(1+t)/2}
+    target, n = 0.9, 4000
+    a = GY.allocate(mech, mech.tolerance_sets["normal"], "stroke_mm", target, upper=20.02,
+                    lower=19.98, n=n, seed=1)
+    k_true = 1.0 / stats.norm.ppf(0.5 + target / 2)
+    # quantile of |z| at p: sd sqrt(p (1 - p) / n) / (2 phi(q)) relative to q
+    q = stats.norm.ppf(0.5 + target / 2)
+    rel_sd = np.sqrt(target * (1 - target) / n) / (2 * stats.norm.pdf(q)) / q
+    assert abs(a.scale / k_true - 1) < 4 * rel_sd
+
+
+def test_report_same_seed_same_tables(mech, tmp_path):
+    tol = mech.tolerance_sets["normal"]
+    for d in ("a", "b"):
+        GR.write(GR.build(mech, tol, n=100, seed=9, limit_output="stroke_mm", upper=20.03),
+                 tmp_path / d)
+    for name in ("machines.csv", "scan.csv", "worst_case.csv", "yield.csv", "index.md",
+                 "report.html", "hist_stroke_mm.png"):
+        assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
+
+
+def test_report_words_tables_and_histograms(mech, tmp_path):
+    rep = GR.build(mech, mech.tolerance_sets["uniform"], n=400, seed=3,
+                   limit_output="stroke_mm", upper=20.05, lower=19.95)
+    words = "\n".join(rep.words())
+    assert "Centred crank-slider (stroke = 2 r)" in words
+    assert "the slider's extreme positions are L + r and L - r" in words
+    assert "the guide passes through the crank centre" in words
+    # stroke changes only with r: +/- 0.03 mm -> 0.06 mm, the whole share
+    assert "- stroke_mm: r (0.06 mm, 100 %), L (0 mm, 0 %)" in words
+    assert "- J_x_max_mm: L (0.1 mm, 77 %), r (0.03 mm, 23 %)" in words
+    # yield: |2 d_r| <= 0.05 with d_r uniform +/-0.03, the same uniforms as the Monte-Carlo
+    d = rep.machines["r"].to_numpy()
+    assert rep.yield_row["ok"] == int(np.sum(np.abs(2 * d) <= 0.05 + 1e-12))
+    assert rep.yield_row["ok"] + rep.yield_row["out_of_limits"] == 400
+    wc = rep.worst_case.set_index(["output", "extreme"])["value"]
+    assert wc[("stroke_mm", "max")] == pytest.approx(20.06, abs=1e-9)
+    assert wc[("J_x_max_mm", "min")] == pytest.approx(50 - 0.13, abs=1e-9)
+    GR.write(rep, tmp_path)
+    for name in ("nominal", "scan", "worst_case", "montecarlo_summary", "dominance", "yield"):
+        assert (tmp_path / f"{name}.csv").exists() and (tmp_path / f"{name}.md").exists()
+    index = (tmp_path / "index.md").read_text()
+    assert index.startswith("# Centred crank-slider") and "hist_stroke_mm.png" in index
+    page = (tmp_path / "report.html").read_text()
+    assert page.count("data:image/png;base64,") == 2
+    assert "http" not in page and "<script" not in page and "src=\"hist" not in page
+    # legend counts add up to n
+    fig, ax = plt.subplots()
+    GR.histogram(rep, "stroke_mm", ax)
+    counts = [int(t.get_text().split()[0]) for t in ax.get_legend().get_texts()[:3]]
+    plt.close(fig)
+    assert sum(counts) == 400
+
+
+def test_cli_ppm_allocation_report(tmp_path):
+    code, out, err = run("run", FILE, "ppm", "--tolerances", "normal", "--limit", "20.07",
+                         "--method", "mc", "--n", "5000", "--seed", "2",
+                         "--format", "json")
+    assert code == 0, err
+    obj = strict_loads(out)
+    truth = stats.norm.sf((20.07 / 2 - R0) / SIGMA_R)
+    assert obj["ci95"][0] <= truth <= obj["ci95"][1]
+    assert obj["pass_condition"] == "stroke_mm <= 20.07 mm" and obj["budget"] == 5000
+    assert obj["method"] == "montecarlo" and obj["model_calls"] == 5000
+    code, out, err = run("run", FILE, "allocation", "--tolerances", "uniform", "--limit",
+                         "20.02", "--lower-limit", "19.98", "--n", "2000", "--format", "json")
+    assert code == 0, err
+    obj = strict_loads(out)
+    k = _order_statistic_scale(2000, 0, 0.9973, 0.01, 0.03)
+    assert k * (1 - 2 * GY.SCALE_RTOL) <= obj["scale"] <= k * (1 + 1e-9)
+    code, out, err = run("run", FILE, "report", "--tolerances", "uniform", "--n", "200",
+                         "--limit", "20.05", "--out", str(tmp_path / "rep"))
+    assert code == 0, err
+    assert "yield" in out and (tmp_path / "rep" / "report.html").exists()
+    run_json = json.loads((tmp_path / "rep" / "run.json").read_text())
+    assert run_json["inputs"]["study"] == "run report"
+    assert run_json["inputs"]["limit"] == 20.05 and run_json["inputs"]["n"] == 200
+
+
+@pytest.mark.parametrize("argv, flag", [
+    (("allocation",), "--limit"),
+    (("ppm", "--limit", "20", "--lower-limit", "21"), "--lower-limit"),
+    (("allocation", "--limit", "20.1", "--target", "1.5"), "--target"),
+    (("ppm", "--limit", "20.1", "--weight", "r=2"), "--weight"),
+    (("report",), "--out"),
+    (("ppm", "--limit", "nan"), "--limit"),
+    (("allocation", "--limit", "20.1", "--weight", "Q=2"), "--weight"),
+    (("allocation", "--limit", "20.1", "--weight", "r=-1"), "--weight: r's weight"),
+    (("ppm", "--limit", "20.1", "--adjust", "beta"), "--adjust"),
+    (("ppm", "--limit", "20.1", "--n", "50"), "--n"),
+])
+def test_cli_bad_inputs_one_line_exit_2(argv, flag):
+    code, out, err = run("run", FILE, *argv)
+    assert code == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and flag in lines[0], err
