@@ -190,9 +190,23 @@ EXPLAINED, REMAINDER = "(sum: explained by single tolerances)", \
 
 
 def with_remainder(frame: pd.DataFrame, top: int | None = None) -> pd.DataFrame:
-    """A `contributors` table (its first `top` rows) with two more rows: the sum of every
-    tolerance's first-order share of the variance and the remainder 100 - sum (what no single
-    tolerance explains)."""
+    """A `contributors` table with the explained sum and the interaction remainder as rows.
+
+    Parameters
+    ----------
+    frame : DataFrame
+        The result of `contributors` (every tolerance, largest first).
+    top : int or None
+        Keep only the first `top` tolerances' rows; the sum still covers every tolerance.
+
+    Returns
+    -------
+    DataFrame
+        The rows, then ``EXPLAINED`` (the sum of every tolerance's first-order share of the
+        variance, ``variance_pct``) and ``REMAINDER`` (100 - sum: what no single tolerance
+        explains, i.e. interactions and estimation noise; negative when the estimates' noise
+        exceeds the interactions).
+    """
     explained = float(frame["variance_pct"].sum())
     frame = frame if top is None else frame.head(top)
     rows = pd.DataFrame([{"param": EXPLAINED, "eta2": explained / 100,

@@ -168,8 +168,32 @@ def sobol_indices(model, problem: dict, n: int, seed: int, case: str = "y",
 def sobol_pairs(model, problem: dict, n: int, seed: int, case: str = "y",
                 resamples: int = 200, conf_level: float = 0.95
                 ) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
-    """First, total and second-order indices of model (N (2D + 2) runs): (indices at n and n/2,
-    convergence, S2 pairs at n)."""
+    """First, total and second-order Sobol indices of any vectorised model (SALib).
+
+    Parameters
+    ----------
+    model : callable
+        Maps an (N, D) array of inputs to N outputs.
+    problem : dict
+        SALib's problem: ``num_vars``, ``names``, ``bounds`` (and optionally ``dists``).
+    n : int
+        Base samples, a power of 2 (>= 16); the model runs n (2D + 2) times.
+    seed : int
+        Seeds the scrambled Sobol' sample and the bootstrap (0 is a seed).
+    case : str
+        The label of the rows (the ``case`` column).
+    resamples : int
+        Bootstrap resamples of the confidence intervals.
+    conf_level : float
+        Their confidence level, in (0, 1).
+
+    Returns
+    -------
+    tuple of DataFrame
+        S1/ST per parameter at n and n/2 (``n`` column), the convergence row (max |dS1|,
+        |dST|, |dS2| between them) and the S2 of every pair at n (``param_i``, ``param_j``,
+        ``S2``, ``S2_conf``, ``case``).
+    """
     X = sample(problem, n, seed, second_order=True)
     y = np.asarray(model(X), float)
     both, conv, _, pairs = _indices_and_pairs(problem, y, n, seed, case, resamples, conf_level,
