@@ -33,6 +33,7 @@ def main(argv=None) -> None:
     ap.add_argument("--progress", action="store_true")
     ap.add_argument("--scheduler", default=None, metavar="ADDRESS",
                     help="run the Monte-Carlo on a Dask cluster (same tables)")
+    plots.add_figure_format(ap)
     args = ap.parse_args(argv)
     started = now()
     out = Path(args.out) / "feed_131-42-3"
@@ -69,11 +70,11 @@ def main(argv=None) -> None:
     f, ax = plt.subplots(figsize=(6, 5))
     plots.tooth_paths(traj, p.plate_mm, p.material_mm, ax)
     ax.set_title("131-42+3 feed dogs: middle-tooth paths", fontsize=10)
-    plots.save(f, out / "tooth_paths.png")
+    plots.save(f, out / "tooth_paths.png", args.figure_format)
     f, axes = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
     plots.feed_xy_vs_phi(traj, p.plate_mm, axes)
     axes[0].set_title("x and y of the middle teeth against the main-shaft angle", fontsize=10)
-    plots.save(f, out / "xy_vs_phi.png")
+    plots.save(f, out / "xy_vs_phi.png", args.figure_format)
 
     sweep = feed.regulator_sweep(p, np.arange(0.0, 60.0001, 1.0))
     neutral = feed.b_for_step(p, 0.0)
@@ -91,7 +92,7 @@ def main(argv=None) -> None:
     ax.axvline(neutral, color="C3", ls="--", lw=1, label=f"neutral b = {neutral:.2f} deg")
     ax.legend(fontsize=7)
     ax.set_title("Stitch regulator: forward, neutral, reverse", fontsize=10)
-    plots.save(f, out / "regulator.png")
+    plots.save(f, out / "regulator.png", args.figure_format)
 
     ts = feed.default_tolerances()
     tset = {**settings, "tolerance set": ts.description, "seed": args.seed}

@@ -105,6 +105,7 @@ def main(argv=None) -> None:
     ap.add_argument("--n-sobol", type=int, default=256)
     ap.add_argument("--n-jobs", type=int, default=1)
     ap.add_argument("--progress", action="store_true")
+    plots.add_figure_format(ap)
     args = ap.parse_args(argv)
     out = Path(args.out) / "needle_208"
 
@@ -160,7 +161,7 @@ def main(argv=None) -> None:
     axes[0].axhline(10.0, ls=":", c="k")
     axes[2].set_yscale("log")
     axes[0].legend(fontsize=8)
-    plots.save(fig, out / "frames.png")
+    plots.save(fig, out / "frames.png", args.figure_format)
     print(f"wrote {out / 'frames.md'} and {out / 'frames.png'}")
 
 

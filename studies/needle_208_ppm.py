@@ -83,6 +83,7 @@ def main(argv=None) -> int:
     ap.add_argument("--n-alloc", type=int, default=2000, help="as in needle_208_tolerances.py")
     ap.add_argument("--n-jobs", type=int, default=1)
     ap.add_argument("--progress", action="store_true")
+    plots.add_figure_format(ap)
     args = ap.parse_args(argv)
     try:
         check_args(args)
@@ -191,7 +192,7 @@ def main(argv=None) -> int:
                  fontsize=9)
     ax.grid(True, which="both", lw=0.3)
     ax.legend(fontsize=8, loc="lower left")
-    plots.save(fig, out / "ppm_exceedance.png")
+    plots.save(fig, out / "ppm_exceedance.png", args.figure_format)
     write_table(pd.concat(frames, ignore_index=True), out, "ppm_exceedance",
                 "Exceedance P(SumDelta > x) of the allocated set, with 95 % band",
                 {"set": tol_text(allocated), "units": "x um",

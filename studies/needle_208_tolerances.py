@@ -47,6 +47,7 @@ def main(argv=None) -> None:
     ap.add_argument("--n-guides", type=int, default=2000)
     ap.add_argument("--n-jobs", type=int, default=1)
     ap.add_argument("--progress", action="store_true")
+    plots.add_figure_format(ap)
     args = ap.parse_args(argv)
     started = now()
     out = Path(args.out) / "needle_208"
@@ -75,12 +76,15 @@ def main(argv=None) -> None:
                     for side, d in (("upper", t.upper), ("lower", t.lower)):
                         row = sc.rows[(sc.rows.param == t.param) & (sc.rows.side == side)].iloc[0]
                         q = p.override(**{t.param: getattr(p, t.param) + d, "beta": row.beta_deg})
-                        curves[t.param][f"{side} {d:+g} mm, beta* {row.beta_deg:.2f}"] = \
-                            deviation_table(q, step_deg=2.0)
-                fig = plots.scan_deviation_grid(nominal_curve, curves)
-                fig.suptitle(f"d(phi) at each limit, {name} tolerances, beta re-optimised, "
-                             "guide fixed (dotted: +/-5 um)", fontsize=10)
-                plots.save(fig, out / f"scan_{name}_deviation.png")
+                        label = (f"{side} {d:+g} mm: \u03b2* {row.beta_deg:.2f}\u00b0, "
+                                 f"\u03a3\u0394 {row.total_um:.2f} {plots.MICRO}")
+                        curves[t.param][label] = deviation_table(q, step_deg=2.0)
+                fig = plots.scan_deviation_grid(nominal_curve, curves,
+                                                nominal_total_um=sc.nominal_row["total_um"])
+                fig.suptitle(f"d(\u03c6) at each limit, {name} tolerances, \u03b2 re-optimised, "
+                             f"guide fixed; limit \u03a3\u0394 \u2264 10 {plots.MICRO} "
+                             f"(dotted: \u00b15 {plots.MICRO})", fontsize=10, y=1.01)
+                plots.save(fig, out / f"scan_{name}_deviation.png", args.figure_format)
 
         wc = worst_case_table(p, ts)
         write_table(wc, out, f"worst_case_{name}", f"Worst case over the {name} tolerance box",
@@ -90,7 +94,15 @@ def main(argv=None) -> None:
         mset = {**base, "machines": mc.n, "seed": args.seed, "failed (cannot assemble)": mc.failed,
                 "limit": "SumDelta <= 10 um", "beta range searched": "10 ... 35 deg",
                 "fixed beta": f"{mc.nominal_beta_deg:.4f} deg (the nominal machine's beta*)"}
-        write_table(mc.summary_frame(), out, f"montecarlo_{name}",
+        low, high = plots.at_bound(mc.machines["beta_opt_deg"], mc.range_deg)
+        mset["beta* at a search bound"] = (f"{low} machines at {mc.range_deg[0]:g} deg, {high} at "
+                                           f"{mc.range_deg[1]:g} deg (their optimum may lie "
+                                           "beyond: adjusted as far as the range goes)")
+        summary_table = mc.summary_frame()
+        # beta is only searched in the adjusted case; the fixed case never sits at a bound
+        summary_table["beta_at_bound"] = [low + high if "adjusted" in c else 0
+                                          for c in summary_table["case"]]
+        write_table(summary_table, out, f"montecarlo_{name}",
                     f"Monte-Carlo, {name} tolerances", mset)
         write_table(mc.pareto(), out, f"montecarlo_{name}_pareto",
                     f"Contributors to SumDelta after beta adjustment, {name} tolerances",
@@ -99,11 +111,12 @@ def main(argv=None) -> None:
         fig, axes = plt.subplots(1, 2, figsize=(11, 4))
         plots.montecarlo_histograms(mc.machines["total_fixed_um"], mc.machines["total_adjusted_um"],
                                     10.0, (mc.yield_of("fixed"), mc.yield_of("adjusted")), axes[0])
-        axes[0].set_title(f"SumDelta of {mc.n} machines, {name} tolerances, seed {args.seed}",
-                          fontsize=9)
+        axes[0].set_title(f"\u03a3\u0394 of {mc.n} machines, {name} tolerances, seed "
+                          f"{args.seed}", fontsize=9)
         plots.beta_histogram(mc.machines["beta_opt_deg"], mc.range_deg, axes[1])
-        axes[1].set_title("beta* per machine (dotted: searched range)", fontsize=9)
-        plots.save(fig, out / f"montecarlo_{name}.png")
+        axes[1].set_title(f"\u03b2* per machine ({mc.n - mc.counts('adjusted')['failed']} that "
+                          "run; red: at a bound of the searched range)", fontsize=9)
+        plots.save(fig, out / f"montecarlo_{name}.png", args.figure_format)
 
         sob = needle_sobol(p, ts, args.n_sobol, args.seed, n_jobs=args.n_jobs,
                            progress=args.progress)
@@ -117,9 +130,9 @@ def main(argv=None) -> None:
         idx = sob.to_dataframe()
         for ax, case in zip(axes, ("fixed_beta", "adjusted_beta"), strict=True):
             plots.sobol_bars(idx[idx.case == case].reset_index(drop=True), ax,
-                             f"SumDelta, {case.replace('_', ' ')}, {name} tolerances, "
+                             f"\u03a3\u0394, {case.replace('_', ' ')}, {name} tolerances, "
                              f"N = {args.n_sobol}")
-        plots.save(fig, out / f"sobol_{name}.png")
+        plots.save(fig, out / f"sobol_{name}.png", args.figure_format)
 
     largest = largest_tolerances(p, ["LF", "LM", "AM", "AB", "BC", "BE", "CD"])
     write_table(largest, out, "largest_tolerances",
