@@ -240,7 +240,9 @@ def tooth_paths(traj, plate_mm: float, material_mm: float = 0.0, ax=None,
     of travel, a dot every mark_every_deg of phi (labelled every 90 deg) and, with phases =
     {dog: (entry_phi_deg, exit_phi_deg)}, where each tooth enters and leaves its working part."""
     ax = ax or plt.gca()
-    for dog, color in (("lower", "C0"), ("upper", "C1")):
+    # the phase labels of the two dogs on opposite sides of their dots, so they do not collide
+    for (dog, color), offset in zip((("lower", "C0"), ("upper", "C1")), ((-22, 4), (4, -10)),
+                                    strict=True):
         x, y = traj[f"{dog}_x_mm"], traj[f"{dog}_y_mm"]
         ax.plot(np.r_[x, x[:1]], np.r_[y, y[:1]], color=color, label=f"{dog} dog, middle tooth")
         ax.annotate("", xy=(x.iloc[6], y.iloc[6]), xytext=(x.iloc[0], y.iloc[0]),
@@ -250,7 +252,7 @@ def tooth_paths(traj, plate_mm: float, material_mm: float = 0.0, ax=None,
             ax.plot(px, py, ".", color=color, ms=3)
             if phi % 90 == 0:
                 ax.annotate(f"{phi:.0f}\u00b0", (px, py), fontsize=6, color=color,
-                            xytext=(3, 3), textcoords="offset points")
+                            xytext=offset, textcoords="offset points")
         if phases and dog in phases:
             for phi, marker, what in zip(phases[dog], ("^", "v"), ("entry", "exit"),
                                          strict=True):
@@ -279,14 +281,20 @@ def feed_xy_vs_phi(traj, plate_mm: float, axes, phases: dict | None = None):
         axes[0].plot(traj["phi_deg"], traj[f"{dog}_x_mm"], color=color, label=f"{dog} dog")
         axes[1].plot(traj["phi_deg"], traj[f"{dog}_y_mm"], color=color, label=f"{dog} dog")
         if phases and dog in phases and np.all(np.isfinite(phases[dog])):
+            # each dog's working part as its own strip along the top (no blended overlap)
             a, b = (float(v) % 360.0 for v in phases[dog])
             spans = [(a, b)] if a < b else [(a, 360.0), (0.0, b)]
+            strip = (0.93, 0.965) if dog == "lower" else (0.965, 1.0)
             for k, (lo, hi) in enumerate(spans):
                 for ax in axes:
-                    ax.axvspan(lo, hi, color=color, alpha=0.08,
-                               label=(f"{dog} works {a:.1f}\u00b0 \u2192 {b:.1f}\u00b0"
+                    ax.axvspan(lo, hi, *strip, color=color, alpha=0.9, lw=0,
+                               label=(f"{dog} works {a:.1f}\u00b0 \u2192 {b:.1f}\u00b0 (strip)"
                                       if k == 0 and ax is axes[1] else None))
     axes[1].axhline(plate_mm, color="k", lw=1, label="needle plate")
+    if phases:
+        for ax in axes:  # head room for the strips above the curves
+            lo, hi = ax.get_ylim()
+            ax.set_ylim(lo, hi + 0.12 * (hi - lo))
     axes[0].set_ylabel("x (mm)")
     axes[1].set_ylabel("y (mm)")
     for ax in axes:
@@ -310,8 +318,11 @@ def regulator_curve(sweep, b_nominal: float, ax=None):
         ax.axvspan(lo, hi, color="C2", alpha=0.08,
                    label=f"chain assembles: b = {lo:g} ... {hi:g} deg")
     if (~ok).any():
-        ax.plot(b[~ok], np.zeros((~ok).sum()), "x", color="C3",
-                label=f"cannot assemble ({int((~ok).sum())} settings)")
+        bad = b[~ok]
+        for k, side in enumerate((bad[bad < lo], bad[bad > hi]) if ok.any() else (bad,)):
+            if side.size:
+                ax.axvspan(side.min(), side.max(), color="C3", alpha=0.12, lw=0,
+                           label="cannot assemble" if k == 0 or not (bad < lo).any() else None)
     ax.plot(sweep["b_deg"], sweep["lower_step_mm"], color="C0", label="lower dog")
     ax.plot(sweep["b_deg"], sweep["upper_step_mm"], color="C1", label="upper dog")
     ax.axhline(0, color="k", lw=0.8)
