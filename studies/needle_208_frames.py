@@ -154,7 +154,8 @@ def main(argv=None) -> None:
         axes[0].bar(x + i * w, r["worst"].to_numpy(), w, label=n)
         axes[1].bar(x + i * w, r["st"].to_numpy(), w, label=n)
         axes[2].bar(x + i * w, r["largest"].to_numpy(), w, label=n)
-    for ax, t in zip(axes, ("scan: worst SumDelta (um)", "Sobol ST (adjusted)",
+    for ax, t in zip(axes, (f"scan: worst \u03a3\u0394 ({plots.MICRO}), dotted: 10 {plots.MICRO} "
+                            "limit", "Sobol ST (\u03b2 adjusted)",
                             "largest tolerance (mm)"), strict=True):
         ax.set_xticks(x + 0.4 - w / 2, LINKS)
         ax.set_title(t, fontsize=9)

@@ -40,6 +40,10 @@ def _csv(path: Path) -> pd.DataFrame:
     return pd.read_csv(path, comment="#")
 
 
+def _and(words: list[str]) -> str:
+    return words[0] if len(words) == 1 else f"{', '.join(words[:-1])} and {words[-1]}"
+
+
 def _json(path: Path) -> dict:
     return json.loads(path.read_text()) if path.exists() else {}
 
@@ -82,7 +86,7 @@ def tighten_conclusions(out: Path, sets: list[str]) -> list[Conclusion]:
             shares = ", ".join(f"{p} {v:.1f} %" for p, v in zip(top["param"], top["share_pct"],
                                                                 strict=True))
             items.append(Conclusion(
-                f"{name} tolerances: {' and '.join(top['param'])} carry "
+                f"{name} tolerances: {_and(list(top['param']))} carry "
                 f"{top['cumulative_pct'].iloc[-1]:.1f} % of the scatter of SumDelta after beta "
                 f"adjustment (eta^2 shares {shares}; "
                 f"[montecarlo_{name}_pareto.md](montecarlo_{name}_pareto.md))."))

@@ -185,11 +185,11 @@ def main(argv=None) -> int:
     ax.axvline(LIMIT_UM, color="k", lw=0.8, ls=":")
     ax.axhline(1e-6, color="0.5", lw=0.6, ls=":")
     ax.set_ylim(1e-8, 1.2)
-    ax.set_xlabel("SumDelta x (um)")
-    ax.set_ylabel("P(SumDelta > x)")
-    ax.set_title("Allocated tolerances (99.73 % after beta adjustment): exceedance with 95 % band"
-                 "\n(dashed black / grey: brute-force Monte-Carlo; dotted: the 10 um limit)",
-                 fontsize=9)
+    ax.set_xlabel(f"\u03a3\u0394 x ({plots.MICRO})")
+    ax.set_ylabel("P(\u03a3\u0394 > x)")
+    ax.set_title("Allocated tolerances (99.73 % after \u03b2 adjustment): exceedance with 95 % "
+                 "band\n(dashed black / grey: brute-force Monte-Carlo; dotted: the "
+                 f"{LIMIT_UM:g} {plots.MICRO} limit)", fontsize=9)
     ax.grid(True, which="both", lw=0.3)
     ax.legend(fontsize=8, loc="lower left")
     plots.save(fig, out / "ppm_exceedance.png", args.figure_format)

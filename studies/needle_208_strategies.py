@@ -6,12 +6,14 @@ strategies_yield.png and strategies_SET_STRATEGY_hist.png (one histogram per com
 its limits drawn), and strategies_run.json.
 
     python studies/needle_208_strategies.py [--out reports] [--seed 2026] [--n 500]
+        [--tolerances FILE.toml[:SET] ...]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import matplotlib
@@ -21,13 +23,15 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from sewtol.errors import ParameterError  # noqa: E402
 from sewtol.io import write_text_atomic  # noqa: E402
 from sewtol.mechanisms.needle_208 import Needle208  # noqa: E402
+from sewtol.mechanisms.params import field_names  # noqa: E402
 from sewtol.provenance import now, run_record  # noqa: E402
 from sewtol.reports import plots  # noqa: E402
 from sewtol.reports.tables import write_table  # noqa: E402
 from sewtol.studies.strategies import strategies_table  # noqa: E402
-from sewtol.tolerances import NEEDLE_208_SETS  # noqa: E402
+from sewtol.tolerances import NEEDLE_208_SETS, resolve_all  # noqa: E402
 
 SETS = ("base", "recommended")
 
@@ -69,20 +73,30 @@ def plot_settings(adj, set_name, out: Path, fmt: str = "png") -> list[Path]:
     return paths
 
 
-def main(argv=None) -> None:
+def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="reports")
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--n", type=int, default=500)
+    ap.add_argument("--tolerances", action="append", metavar="FILE.toml[:SET]",
+                    help="these sets instead of the built-in base and recommended (repeatable)")
     plots.add_figure_format(ap)
     args = ap.parse_args(argv)
+    try:
+        sets = resolve_all(args.tolerances, {k: NEEDLE_208_SETS[k] for k in SETS},
+                           field_names(Needle208))
+        for ts in sets.values():
+            ts.check_against(Needle208.nominal())
+    except ParameterError as exc:
+        print(f"needle_208_strategies.py: error: {exc}", file=sys.stderr)
+        return 2
     started = now()
     out = Path(args.out) / "needle_208"
     out.mkdir(parents=True, exist_ok=True)
     p = Needle208.nominal()
     tables, frames = {}, []
-    for set_name in SETS:
-        res = strategies_table(p, NEEDLE_208_SETS[set_name], args.n, args.seed)
+    for set_name, ts in sets.items():
+        res = strategies_table(p, ts, args.n, args.seed)
         t = res.to_dataframe()
         tables[set_name] = t
         frames.append(t.assign(tolerances=set_name))
@@ -118,10 +132,11 @@ def main(argv=None) -> None:
     plot_yield(tables, ax)
     fig.tight_layout()
     plots.save(fig, out / "strategies_yield.png", args.figure_format)
-    inputs = {"study": "strategies", "n": args.n, "seed": args.seed, "sets": list(SETS)}
+    inputs = {"study": "strategies", "n": args.n, "seed": args.seed, "sets": list(sets)}
     write_text_atomic(out / "strategies_run.json",
                       json.dumps(run_record(started, inputs), indent=2) + "\n")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

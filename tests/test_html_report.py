@@ -225,3 +225,30 @@ def test_saved_figures_print_resolution_and_formats(tmp_path):
     # SVG embeds inline, with no external reference
     page = rh.figure_html(rh.Figure("a", "x", svg.read_bytes(), "svg"))
     assert page.count("<svg") == 1 and "<?xml" not in page
+
+
+def test_report_tolerances_from_a_file(tmp_path, capsys):
+    from sewtol.errors import ParameterError
+    from sewtol.mechanisms.needle_208 import Needle208
+    from sewtol.mechanisms.params import field_names
+    from sewtol.tolerances import NEEDLE_208_SETS, resolve_all
+
+    path = tmp_path / "my.toml"
+    path.write_text("[sets.shop]\nAB = 0.01\nBE = {lower = -0.02, upper = 0.01}\n"
+                    "[sets.supplier]\nCD = 0.005\n")
+    valid = field_names(Needle208)
+    assert list(resolve_all(None, NEEDLE_208_SETS, valid)) == list(NEEDLE_208_SETS)
+    both = resolve_all([str(path)], NEEDLE_208_SETS, valid)
+    assert list(both) == ["shop", "supplier"]
+    assert both["shop"].items[1].lower == -0.02 and both["shop"].items[1].upper == 0.01
+    one = resolve_all([f"{path}:supplier", "base"], NEEDLE_208_SETS, valid)
+    assert list(one) == ["supplier", "base"] and one["supplier"].items[0].upper == 0.005
+    with pytest.raises(ParameterError, match="names a set twice"):
+        resolve_all([str(path), f"{path}:shop"], NEEDLE_208_SETS, valid)
+    # the report script refuses a bad set before it runs anything: one line, exit 2
+    rc = _script("needle_208_tolerances").main(["--out", str(tmp_path), "--tolerances",
+                                                f"{path}:nope"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1
+    assert "--tolerances" in err[0] and "no set 'nope'" in err[0] and "shop, supplier" in err[0]
+    assert not (tmp_path / "needle_208").exists()
