@@ -44,7 +44,7 @@ ifeq ($(strip $(TOLERANCES)),)
 		--n-jobs 2 --progress --figure-format $(FIGURE_FORMAT)
 	$(BIN)/python studies/needle_208_ppm.py --out $(REPORTS) --n-jobs 2 --progress \
 		--figure-format $(FIGURE_FORMAT)
-	$(BIN)/python studies/needle_208_strategies.py --out $(REPORTS) --n 2000 \
+	$(BIN)/python studies/needle_208_strategies.py --out $(REPORTS) --n 2000 --n-jobs 2 \
 		--figure-format $(FIGURE_FORMAT)
 	$(BIN)/python studies/needle_208_index.py --out $(REPORTS)
 	$(BIN)/python studies/feed_131_report.py --out $(REPORTS) --n-jobs 2 --progress \
@@ -53,7 +53,7 @@ else
 	$(BIN)/python studies/needle_208_nominal.py --out $(REPORTS) --figure-format $(FIGURE_FORMAT)
 	$(BIN)/python studies/needle_208_tolerances.py --out $(REPORTS) --n-jobs 2 --progress \
 		--figure-format $(FIGURE_FORMAT) --tolerances $(TOLERANCES)
-	$(BIN)/python studies/needle_208_strategies.py --out $(REPORTS) --n 2000 \
+	$(BIN)/python studies/needle_208_strategies.py --out $(REPORTS) --n 2000 --n-jobs 2 \
 		--figure-format $(FIGURE_FORMAT) --tolerances $(TOLERANCES)
 	$(BIN)/python studies/needle_208_index.py --out $(REPORTS)
 endif

@@ -5,7 +5,7 @@ strategies_SET_failures.md/.csv (which tolerances drive the machines still out o
 strategies_yield.png and strategies_SET_STRATEGY_hist.png (one histogram per compensator with
 its limits drawn), and strategies_run.json.
 
-    python studies/needle_208_strategies.py [--out reports] [--seed 2026] [--n 500]
+    python studies/needle_208_strategies.py [--out reports] [--seed 2026] [--n 500] [--n-jobs 1]
         [--tolerances FILE.toml[:SET] ...]
 """
 
@@ -78,6 +78,9 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="reports")
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--n", type=int, default=500)
+    ap.add_argument("--n-jobs", type=int, default=1,
+                    help="adjust the machines in chunks on this many processes (same tables)")
+    ap.add_argument("--progress", action="store_true")
     ap.add_argument("--tolerances", action="append", metavar="FILE.toml[:SET]",
                     help="these sets instead of the built-in base and recommended (repeatable)")
     plots.add_figure_format(ap)
@@ -96,7 +99,8 @@ def main(argv=None) -> int:
     p = Needle208.nominal()
     tables, frames = {}, []
     for set_name, ts in sets.items():
-        res = strategies_table(p, ts, args.n, args.seed)
+        res = strategies_table(p, ts, args.n, args.seed, n_jobs=args.n_jobs,
+                               progress=args.progress)
         t = res.to_dataframe()
         tables[set_name] = t
         frames.append(t.assign(tolerances=set_name))

@@ -252,3 +252,23 @@ def test_report_tolerances_from_a_file(tmp_path, capsys):
     assert rc == 2 and len(err) == 1
     assert "--tolerances" in err[0] and "no set 'nope'" in err[0] and "shop, supplier" in err[0]
     assert not (tmp_path / "needle_208").exists()
+
+
+def test_strategies_in_chunks_are_the_strategies_in_one_piece():
+    """The parallel path of the strategies report adjusts chunks of machines and concatenates
+    them: machine by machine the same numbers as one piece (compared exactly)."""
+    from sewtol.mechanisms.needle_208 import Needle208
+    from sewtol.studies import strategies as S
+    from sewtol.tolerances import NEEDLE_208_SETS
+
+    p = Needle208.nominal()
+    tol = NEEDLE_208_SETS["recommended"].active()
+    dev = tol.sample(np.random.default_rng(3), 30)
+    chosen = [s for s in S.default_strategies() if s.name in ("beta", "beta+shift", "beta+CD")]
+    whole = S._adjust_chunk(p, dev, chosen, 10.0)
+    parts = [S._adjust_chunk(p, {k: v[a:b] for k, v in dev.items()}, chosen, 10.0)
+             for a, b in ((0, 7), (7, 19), (19, 30))]
+    for i, one in enumerate(whole):
+        joined = S.concat_adjustments([part[i] for part in parts])
+        pd.testing.assert_frame_equal(joined.to_dataframe(), one.to_dataframe(), check_exact=True)
+        assert joined.n == 30 and joined.counts() == one.counts()
