@@ -272,3 +272,19 @@ def test_strategies_in_chunks_are_the_strategies_in_one_piece():
         joined = S.concat_adjustments([part[i] for part in parts])
         pd.testing.assert_frame_equal(joined.to_dataframe(), one.to_dataframe(), check_exact=True)
         assert joined.n == 30 and joined.counts() == one.counts()
+
+
+def test_feed_output_of_is_outputs_for_each_output():
+    """The feed Sobol study evaluates only the dogs an output needs: the same numbers, exactly,
+    as the full evaluation (including the machines that fail)."""
+    from sewtol import feed
+    from sewtol.mechanisms.feed_131 import Feed131
+
+    p = Feed131()
+    dev = feed.default_tolerances().sample(np.random.default_rng(11), 40)
+    dev["O1A1"] = dev["O1A1"].copy()
+    dev["O1A1"][:2] = 30.0  # an eccentric longer than the chain can take: two machines fail
+    full = feed.outputs(p, dev)
+    assert np.isnan(full["lower_step_mm"][:2]).all()
+    for k in feed.OUTPUTS:
+        np.testing.assert_array_equal(feed.output_of(p, dev, k), full[k], err_msg=k)
