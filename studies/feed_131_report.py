@@ -40,7 +40,7 @@ def reading_conclusions(explanations) -> list[Conclusion]:
     out = []
     for dog in ("lower", "upper"):
         senses = explanations[f"{dog}_feeds"]
-        made = explanations[senses != "n/a"]
+        made = explanations[senses.notna() & (senses != "n/a")]  # n/a: never crosses the level
         kinds = sorted(set(made[f"{dog}_feeds"]))
         verdict = "robust" if len(kinds) == 1 else "reading-dependent"
         spread = ", ".join(f"{e}: {f}" for e, f in zip(made["explanation"], made[f"{dog}_feeds"],

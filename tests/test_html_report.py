@@ -288,3 +288,24 @@ def test_feed_output_of_is_outputs_for_each_output():
     assert np.isnan(full["lower_step_mm"][:2]).all()
     for k in feed.OUTPUTS:
         np.testing.assert_array_equal(feed.output_of(p, dev, k), full[k], err_msg=k)
+
+
+def test_feed_conclusions_come_from_the_tables():
+    folder = ROOT / "reports" / "feed_131-42-3"
+    if not (folder / "readoff_explanations.csv").exists():
+        pytest.skip("no committed feed report")
+    mod = _script("feed_131_report")
+    expl = pd.read_csv(folder / "readoff_explanations.csv", comment="#")
+    found = {c.text.split(" feeds ")[0]: c for c in mod.reading_conclusions(expl) if c.verdict}
+    for dog in ("lower", "upper"):
+        made = expl[expl[f"{dog}_feeds"].notna()]  # pandas reads the table's n/a as NaN
+        senses = set(made[f"{dog}_feeds"])
+        c = found[f"the {dog} dog"]
+        assert c.verdict == ("robust" if len(senses) == 1 else "reading-dependent")
+        assert f"under the {len(made)} explanations" in c.text
+    contrib = pd.read_csv(folder / "contributors.csv", comment="#")
+    sob = pd.read_csv(folder / "sobol.csv", comment="#")
+    lines = mod.tighten_conclusions(contrib, sob)
+    assert len(lines) == contrib["output"].nunique()
+    top = contrib[contrib.output == "lower_step_mm"].iloc[0]
+    assert lines[0].text.startswith(f"lower_step_mm: {top.param} {top.share_pct:.1f} %")
