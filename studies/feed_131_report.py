@@ -21,7 +21,7 @@ from sewtol.mechanisms.feed_131 import Feed131
 from sewtol.mechanisms.params import as_dict
 from sewtol.provenance import now, run_record
 from sewtol.reports import plots
-from sewtol.reports.html import Conclusion, Figure, Report, Section, render
+from sewtol.reports.html import Conclusion, Figure, Report, Section, markdown_index, render
 from sewtol.reports.tables import write_table
 
 FIGURES = [("tooth_paths", "Middle-tooth paths with entry/exit and a dot every 30 deg of phi"),
@@ -33,6 +33,22 @@ SECTIONS = [("Working figures and paths", ["figures", "trajectory"], FIGURES[:2]
             ("Regulator", ["regulator", "regulator_ratio_band"], FIGURES[2:]),
             ("Tolerances: scan, Monte-Carlo, contributors, Sobol",
              ["scan", "montecarlo", "contributors", "sobol", "sobol_convergence"], [])]
+
+
+def write_pages(out: Path, intro: str, conclusions: dict, provenance: dict,
+                fmt: str = "png") -> Report:
+    """index.md and report.html of the feed folder from its tables and figures (already written)
+    and the conclusions; returns the report."""
+    sections = []
+    for heading, tables, figures in SECTIONS:
+        figs = tuple(Figure(stem, caption, (out / f"{stem}.{fmt}").read_bytes(), fmt)
+                     for stem, caption in figures)
+        sections.append(Section(heading, tuple((t, (out / f"{t}.md").read_text())
+                                               for t in tables), figs))
+    report = Report("131-42+3 feed chains: reports", intro, conclusions, sections, provenance)
+    write_text_atomic(out / "index.md", markdown_index(report))
+    write_text_atomic(out / "report.html", render(report))
+    return report
 
 
 def reading_conclusions(explanations) -> list[Conclusion]:
@@ -204,13 +220,6 @@ def main(argv=None) -> None:
              "are the analysis program's (exact, one frame); the tolerance studies use an assumed "
              f"set ({ts.description}), seed {args.seed}, Monte-Carlo {args.n_mc} machines, "
              f"Sobol N = {args.n_sobol}.")
-    sections, listing = [], []
-    for heading, tables, figures in SECTIONS:
-        figs = tuple(Figure(stem, caption, (out / f"{stem}.{fmt}").read_bytes(), fmt)
-                     for stem, caption in figures)
-        sections.append(Section(heading, tuple((t, (out / f"{t}.md").read_text())
-                                               for t in tables), figs))
-        listing.append((heading, tables, figs))
     record = run_record(started, {"mechanism": "131-42+3 feed chains", "params": as_dict(p),
                      "tolerance_set": {"name": ts.name, "description": ts.description,
                                        "items": ts.as_dict()},
@@ -225,24 +234,7 @@ def main(argv=None) -> None:
             "run time": f"{seconds:.0f} s ({started} ... {record['finished_utc']})",
             "command": "`" + " ".join(record["command_line"]) + "`",
             "libraries": ", ".join(f"{k} {v}" for k, v in record["libraries"].items())}
-    index = ["# 131-42+3 feed chains: reports", "", intro, "",
-             "[report.html](report.html): this page as one self-contained HTML file "
-             "(figures embedded).", ""]
-    for heading, items in conclusions.items():
-        index += [f"## {heading}", ""]
-        index += [f"- {'**' + c.verdict + '**: ' if c.verdict else ''}{c.text}" for c in items]
-        index.append("")
-    index += ["## Tables and figures", ""]
-    for heading, tables, figs in listing:
-        index += [f"### {heading}", "", "Tables: " + ", ".join(f"[{t}.md]({t}.md)"
-                                                               for t in tables), ""]
-        index += [f"![{f.caption}]({f.name}.{f.fmt})" for f in figs]
-        if figs:
-            index.append("")
-    index += ["## Provenance", ""] + [f"- {k}: {v}" for k, v in prov.items()]
-    write_text_atomic(out / "index.md", "\n".join(index) + "\n")
-    write_text_atomic(out / "report.html", render(Report(
-        "131-42+3 feed chains: tolerance report", intro, conclusions, sections, prov)))
+    write_pages(out, intro, conclusions, prov, fmt)
     write_text_atomic(out / "run.json", to_json(record))
     print(f"wrote {out}")
 

@@ -17,7 +17,7 @@ import pandas as pd
 
 from sewtol.frames import DEFAULT_FRAME
 from sewtol.io import write_text_atomic
-from sewtol.reports.html import Conclusion, Figure, Report, Section, render
+from sewtol.reports.html import Conclusion, Figure, Report, Section, markdown_index, render
 
 FIGURE_SUFFIXES = ("svg", "png")  # what the HTML embeds, in order of preference (pdf: its png)
 
@@ -194,10 +194,10 @@ LAYOUT = [
 ]
 
 
-def build_sections(out: Path, sets: list[str]) -> tuple[list[Section], list[tuple], list[str]]:
-    """The HTML sections, the (heading, tables, figures) the Markdown index lists, and the
-    files the layout names that this run did not write (listed in the provenance)."""
-    sections, listing, missing = [], [], []
+def build_sections(out: Path, sets: list[str]) -> tuple[list[Section], list[str]]:
+    """The report's sections and the files the layout names that this run did not write
+    (listed in the provenance)."""
+    sections, missing = [], []
 
     def each(text: str, names: list[str]) -> list[str]:
         return [text.replace("SET", n) for n in names] if "SET" in text else [text]
@@ -205,11 +205,10 @@ def build_sections(out: Path, sets: list[str]) -> tuple[list[Section], list[tupl
     for heading, tables, figures in LAYOUT:
         # a heading with SET gives one section per set; otherwise the section lists every set's
         for names in ([[n] for n in sets] if "SET" in heading else [sets]):
-            md, figs, tabs = [], [], []
+            md, figs = [], []
             for t in (x for table in tables for x in each(table, names)):
                 if (out / f"{t}.md").exists():
                     md.append((t, (out / f"{t}.md").read_text()))
-                    tabs.append(t)
                 else:
                     missing.append(f"{t}.md")
             for stem_pattern, caption_pattern in figures:
@@ -224,9 +223,7 @@ def build_sections(out: Path, sets: list[str]) -> tuple[list[Section], list[tupl
             title = heading.replace("SET", names[0])
             if md or figs:
                 sections.append(Section(title, tuple(md), tuple(figs)))
-                listing.append((title, tabs, [(f.name, f.caption, f"{f.name}.{f.fmt}")
-                                              for f in figs]))
-    return sections, listing, missing
+    return sections, missing
 
 
 def provenance(out: Path, sets: list[str], missing: list[str]) -> dict:
@@ -278,28 +275,11 @@ def main(argv=None) -> None:
              f"comes from the default reconstruction `{DEFAULT_FRAME}`; the Frames section "
              "repeats the studies on every named frame. Read the conclusions in that light. "
              "Criterion everywhere: SumDelta = Delta+ + Delta- <= 10 um, guide fixed.")
-    sections, listing, missing = build_sections(out, sets)
+    sections, missing = build_sections(out, sets)
     prov = provenance(out, sets, missing)
 
-    lines = ["# 208 needle drive: reports", "", intro, "",
-             "[report.html](report.html): this page as one self-contained HTML file "
-             "(figures embedded).", ""]
-    for heading, items in conclusions.items():
-        lines += [f"## {heading}", ""]
-        lines += [f"- {'**' + c.verdict + '**: ' if c.verdict else ''}{c.text}" for c in items]
-        lines.append("")
-    lines += ["## Tables and figures", ""]
-    for heading, tabs, figs in listing:
-        lines += [f"### {heading}", ""]
-        if tabs:
-            lines += ["Tables: " + ", ".join(f"[{t}.md]({t}.md)" for t in tabs), ""]
-        lines += [f"![{caption}]({path})" for _, caption, path in figs]
-        if figs:
-            lines.append("")
-    lines += ["## Provenance", ""]
-    lines += [f"- {k}: {v}" for k, v in prov.items()]
-    write_text_atomic(out / "index.md", "\n".join(lines) + "\n")
-    report = Report("208 needle drive: tolerance report", intro, conclusions, sections, prov)
+    report = Report("208 needle drive: reports", intro, conclusions, sections, prov)
+    write_text_atomic(out / "index.md", markdown_index(report))
     write_text_atomic(out / "report.html", render(report))
     print(f"wrote {out / 'index.md'} and {out / 'report.html'}")
 

@@ -309,3 +309,27 @@ def test_feed_conclusions_come_from_the_tables():
     assert len(lines) == contrib["output"].nunique()
     top = contrib[contrib.output == "lower_step_mm"].iloc[0]
     assert lines[0].text.startswith(f"lower_step_mm: {top.param} {top.share_pct:.1f} %")
+
+
+def test_feed_pages_hold_every_table_and_figure(tmp_path):
+    """The feed's index.md and report.html (write_pages) from a copy of the committed tables and
+    figures: every table the index links is in the page, every figure embedded."""
+    folder = ROOT / "reports" / "feed_131-42-3"
+    if not (folder / "regulator.png").exists():
+        pytest.skip("no committed feed report")
+    out = tmp_path / "feed"
+    shutil.copytree(folder, out, ignore=shutil.ignore_patterns("index.md", "report.html"))
+    mod = _script("feed_131_report")
+    conclusions = {"What holds": [rh.Conclusion("lower feeds forward", "robust")]}
+    mod.write_pages(out, "intro", conclusions, {"seed": 2026})
+    index_md, page = (out / "index.md").read_text(), (out / "report.html").read_text()
+    assert re.findall(r"<h2>([^<]*)</h2>", page)[0] == "Conclusions"
+    linked = set(re.findall(r"\]\(([\w.+\-]+)\.md\)", index_md))
+    assert linked == {t for _, tables, _ in mod.SECTIONS for t in tables}
+    for stem in linked:
+        assert f'<div class="table" id="{rh.anchor_of(stem)}">' in page
+    srcs = re.findall(r'<img src="([^"]+)"', page)
+    assert len(srcs) == len(re.findall(r"!\[", index_md)) == 3
+    for name in re.findall(r"!\[[^\]]*\]\(([\w.+\-]+\.png)\)", index_md):
+        assert "data:image/png;base64," + base64.b64encode((out / name).read_bytes()).decode() \
+            in srcs

@@ -210,3 +210,25 @@ def render(report: Report) -> str:
     parts += ['<section id="provenance">', "<h2>Provenance</h2>", _provenance(report.provenance),
               "</section>", "</body>", "</html>"]
     return "\n".join(parts) + "\n"
+
+
+def markdown_index(report: Report, html_name: str = "report.html") -> str:
+    """The same report as a Markdown index: the conclusions, then per section its tables as
+    links and its figures as images (the figure files beside it), then the provenance."""
+    lines = [f"# {report.title}", "", report.intro, "",
+             f"[{html_name}]({html_name}): this page as one self-contained HTML file "
+             "(figures embedded).", ""]
+    for heading, items in report.conclusions.items():
+        lines += [f"## {heading}", ""]
+        lines += [f"- {'**' + c.verdict + '**: ' if c.verdict else ''}{c.text}" for c in items]
+        lines.append("")
+    lines += ["## Tables and figures", ""]
+    for s in report.sections:
+        lines += [f"### {s.heading}", ""]
+        if s.tables:
+            lines += ["Tables: " + ", ".join(f"[{name}.md]({name}.md)" for name, _ in s.tables),
+                      ""]
+        if s.figures:
+            lines += [f"![{f.caption}]({f.name}.{f.fmt})" for f in s.figures] + [""]
+    lines += ["## Provenance", ""] + [f"- {k}: {v}" for k, v in report.provenance.items()]
+    return "\n".join(lines) + "\n"
