@@ -106,7 +106,7 @@ def tighten_conclusions(out: Path, sets: list[str]) -> list[Conclusion]:
         items.append(Conclusion(
             "Alone, the tightest parts are " + ", ".join(f"{p} (+/-{v:.4f} mm)" for p, v in
                                                          tight.items())
-            + ": the largest single deviation that keeps SumDelta(beta*) <= 10 um "
+            + ": the largest single deviation that keeps SumDelta(beta*) ≤ 10 µm "
             "([largest_tolerances.md](largest_tolerances.md))."))
     path = out / "allocation.csv"
     if path.exists():
@@ -158,7 +158,7 @@ def nominal_conclusion(out: Path) -> list[Conclusion]:
     nominal = _csv(path).set_index("quantity")["value"]
     return [Conclusion(
         f"Nominal: beta* = {nominal['beta* (deg)']:.3f} deg, SumDelta = "
-        f"{nominal['SumDelta at beta* (um)']:.3f} um, SumDelta <= 10 um for beta in "
+        f"{nominal['SumDelta at beta* (um)']:.3f} µm, SumDelta ≤ 10 µm for beta in "
         f"{nominal['window SumDelta <= 10 um, low (deg)']:.2f} ... "
         f"{nominal['window SumDelta <= 10 um, high (deg)']:.2f} deg, stroke "
         f"{nominal['stroke (mm)']:.2f} mm ([nominal.md](nominal.md)).")]
@@ -274,7 +274,7 @@ def main(argv=None) -> None:
              "D, the dyad branches, the sense of beta) is not published. Every figure below "
              f"comes from the default reconstruction `{DEFAULT_FRAME}`; the Frames section "
              "repeats the studies on every named frame. Read the conclusions in that light. "
-             "Criterion everywhere: SumDelta = Delta+ + Delta- <= 10 um, guide fixed.")
+             "Criterion everywhere: SumDelta = Delta+ + Delta- ≤ 10 µm, guide fixed.")
     sections, missing = build_sections(out, sets)
     prov = provenance(out, sets, missing)
 
