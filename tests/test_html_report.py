@@ -333,3 +333,22 @@ def test_feed_pages_hold_every_table_and_figure(tmp_path):
     for name in re.findall(r"!\[[^\]]*\]\(([\w.+\-]+\.png)\)", index_md):
         assert "data:image/png;base64," + base64.b64encode((out / name).read_bytes()).decode() \
             in srcs
+
+
+def test_the_tolerance_report_figures_say_um(monkeypatch, tmp_path):
+    """Scan panels, Monte-Carlo and Sobol figures as the tolerance script titles them (small n:
+    the labels do not depend on it)."""
+    seen = []
+
+    def capture(fig, path, fmt=None):
+        seen.extend(plots.figure_texts(fig))
+        plt.close(fig)
+        return Path(path)
+
+    monkeypatch.setattr(plots, "save", capture)
+    rc = _script("needle_208_tolerances").main([
+        "--out", str(tmp_path), "--n-mc", "64", "--n-sobol", "16", "--n-alloc", "32",
+        "--n-guides", "16", "--tolerances", "base"])
+    assert rc == 0
+    assert any("\u03a3\u0394" in t for t in seen) and any("\u00b5m" in t for t in seen)
+    assert not [t for t in seen if UM_LABEL.search(t)]
