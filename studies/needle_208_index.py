@@ -19,7 +19,7 @@ from sewtol.frames import DEFAULT_FRAME
 from sewtol.io import write_text_atomic
 from sewtol.reports.html import Conclusion, Figure, Report, Section, markdown_index, render
 
-FIGURE_SUFFIXES = ("svg", "png")  # what the HTML embeds, in order of preference (pdf: its png)
+FIGURE_SUFFIXES = ("svg", "png")  # what the HTML embeds (a pdf run writes a png beside it)
 
 
 def _section(md: str, heading: str) -> list[str]:
@@ -49,10 +49,10 @@ def _json(path: Path) -> dict:
 
 
 def figure_file(out: Path, stem: str) -> Path | None:
-    for suffix in FIGURE_SUFFIXES:
-        if (out / f"{stem}.{suffix}").exists():
-            return out / f"{stem}.{suffix}"
-    return None
+    """The figure's newest embeddable file (a run with --figure-format svg after a png run
+    leaves both; the newer one is this run's)."""
+    found = [out / f"{stem}.{s}" for s in FIGURE_SUFFIXES if (out / f"{stem}.{s}").exists()]
+    return max(found, key=lambda f: f.stat().st_mtime_ns) if found else None
 
 
 def set_names(run: dict) -> list[str]:

@@ -352,3 +352,17 @@ def test_the_tolerance_report_figures_say_um(monkeypatch, tmp_path):
     assert rc == 0
     assert any("\u03a3\u0394" in t for t in seen) and any("\u00b5m" in t for t in seen)
     assert not [t for t in seen if UM_LABEL.search(t)]
+
+
+def test_inline_svgs_keep_their_ids_apart(tmp_path):
+    svgs = []
+    for name in ("a", "b"):
+        fig, ax = plt.subplots()
+        ax.plot([0, 1], [0, 1])
+        svgs.append(rh.Figure(name, name, plots.save(fig, tmp_path / f"{name}.svg").read_bytes(),
+                              "svg"))
+    page = "\n".join(rh.figure_html(f) for f in svgs)
+    ids = re.findall(r'\bid="([^"]+)"', page)
+    assert len(ids) == len(set(ids)) > 4
+    for ref in re.findall(r"url\(#([^)]+)\)", page):  # every reference finds its target
+        assert ref in ids

@@ -163,7 +163,13 @@ def figure_html(fig: Figure) -> str:
         body = f'<img src="{src}" alt="{html.escape(fig.caption)}">'
     else:
         text = fig.data.decode("utf-8")
+        # several SVGs in one page: each one's ids (and the references to them) get the
+        # figure's name as a prefix, so no two figures share an id
+        prefix = re.sub(r"[^\w-]", "_", fig.name) + "-"
         body = text[text.index("<svg"):]
+        body = re.sub(r'\bid="', f'id="{prefix}', body)
+        body = re.sub(r"url\(#", f"url(#{prefix}", body)
+        body = re.sub(r'href="#', f'href="#{prefix}', body)
     return f'<figure id="f-{anchor_of(fig.name)[2:]}">\n{body}\n{cap}\n</figure>'
 
 
