@@ -5,7 +5,16 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 LOCK := requirements.lock
+# `make report TOLERANCES=my.toml` (or my.toml:SET) studies the needle with your own tolerance
+# sets and writes into reports-custom/ unless REPORTS says otherwise, so the committed reports
+# stay as they are
+TOLERANCES ?=
+ifeq ($(strip $(TOLERANCES)),)
 REPORTS ?= reports
+else
+REPORTS ?= reports-custom
+endif
+FIGURE_FORMAT ?= png
 # the narrowed CPU dispatch under which CI repeats the numerically sensitive tests: another
 # OpenBLAS kernel set, numpy's SIMD dispatch without AVX-512, numba compiled for a generic CPU
 NARROWED := OPENBLAS_CORETYPE=Prescott NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL AVX512_SPR" \
@@ -26,17 +35,33 @@ $(STAMP): pyproject.toml setup.py $(LOCK) | $(BIN)/python
 # revision they were made from: the package is reinstalled first so run.json records it.
 report: $(STAMP)
 	$(BIN)/python -m pip install --quiet --no-deps -e .
+ifeq ($(strip $(TOLERANCES)),)
 	$(BIN)/python studies/calibrate_needle_208.py --stored --out $(REPORTS)
-	$(BIN)/python studies/needle_208_nominal.py --out $(REPORTS)
-	$(BIN)/python studies/needle_208_tolerances.py --out $(REPORTS) --n-jobs 2 --progress
+	$(BIN)/python studies/needle_208_nominal.py --out $(REPORTS) --figure-format $(FIGURE_FORMAT)
+	$(BIN)/python studies/needle_208_tolerances.py --out $(REPORTS) --n-jobs 2 --progress \
+		--figure-format $(FIGURE_FORMAT)
 	$(BIN)/python studies/needle_208_frames.py --out $(REPORTS) --n-mc 10000 --n-sobol 1024 \
-		--n-jobs 2 --progress
-	$(BIN)/python studies/needle_208_ppm.py --out $(REPORTS) --n-jobs 2 --progress
-	$(BIN)/python studies/needle_208_strategies.py --out $(REPORTS) --n 2000
+		--n-jobs 2 --progress --figure-format $(FIGURE_FORMAT)
+	$(BIN)/python studies/needle_208_ppm.py --out $(REPORTS) --n-jobs 2 --progress \
+		--figure-format $(FIGURE_FORMAT)
+	$(BIN)/python studies/needle_208_strategies.py --out $(REPORTS) --n 2000 --n-jobs 2 \
+		--figure-format $(FIGURE_FORMAT)
 	$(BIN)/python studies/needle_208_index.py --out $(REPORTS)
-	$(BIN)/python studies/feed_131_report.py --out $(REPORTS) --n-jobs 2 --progress
+	$(BIN)/python studies/feed_131_report.py --out $(REPORTS) --n-jobs 2 --progress \
+		--figure-format $(FIGURE_FORMAT)
 	$(BIN)/python studies/m6_needle_report.py --out $(REPORTS)
 	$(BIN)/python studies/presser_foot_report.py --out $(REPORTS)
+	$(BIN)/python -m sewtol run examples/spatial_crank_rocker.toml report --seed 2026 \
+		--out $(REPORTS)/spatial_crank_rocker
+	$(BIN)/python -m sewtol run examples/khujand_feed.toml report --seed 2026 --out $(REPORTS)/khujand_feed
+else
+	$(BIN)/python studies/needle_208_nominal.py --out $(REPORTS) --figure-format $(FIGURE_FORMAT)
+	$(BIN)/python studies/needle_208_tolerances.py --out $(REPORTS) --n-jobs 2 --progress \
+		--figure-format $(FIGURE_FORMAT) --tolerances $(TOLERANCES)
+	$(BIN)/python studies/needle_208_strategies.py --out $(REPORTS) --n 2000 --n-jobs 2 \
+		--figure-format $(FIGURE_FORMAT) --tolerances $(TOLERANCES)
+	$(BIN)/python studies/needle_208_index.py --out $(REPORTS)
+endif
 
 lint: $(STAMP)
 	$(BIN)/ruff check src tests studies examples $(wildcard benchmarks)

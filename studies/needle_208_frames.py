@@ -105,6 +105,7 @@ def main(argv=None) -> None:
     ap.add_argument("--n-sobol", type=int, default=256)
     ap.add_argument("--n-jobs", type=int, default=1)
     ap.add_argument("--progress", action="store_true")
+    plots.add_figure_format(ap)
     args = ap.parse_args(argv)
     out = Path(args.out) / "needle_208"
 
@@ -153,14 +154,15 @@ def main(argv=None) -> None:
         axes[0].bar(x + i * w, r["worst"].to_numpy(), w, label=n)
         axes[1].bar(x + i * w, r["st"].to_numpy(), w, label=n)
         axes[2].bar(x + i * w, r["largest"].to_numpy(), w, label=n)
-    for ax, t in zip(axes, ("scan: worst SumDelta (um)", "Sobol ST (adjusted)",
+    for ax, t in zip(axes, (f"scan: worst \u03a3\u0394 ({plots.MICRO}), dotted: 10 {plots.MICRO} "
+                            "limit", "Sobol ST (\u03b2 adjusted)",
                             "largest tolerance (mm)"), strict=True):
         ax.set_xticks(x + 0.4 - w / 2, LINKS)
         ax.set_title(t, fontsize=9)
     axes[0].axhline(10.0, ls=":", c="k")
     axes[2].set_yscale("log")
     axes[0].legend(fontsize=8)
-    plots.save(fig, out / "frames.png")
+    plots.save(fig, out / "frames.png", args.figure_format)
     print(f"wrote {out / 'frames.md'} and {out / 'frames.png'}")
 
 

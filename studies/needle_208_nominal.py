@@ -26,6 +26,7 @@ from sewtol.studies import beta as sb
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="reports")
+    plots.add_figure_format(ap)
     args = ap.parse_args(argv)
     out = Path(args.out) / "needle_208"
 
@@ -38,9 +39,9 @@ def main(argv=None) -> None:
     write_table(fig.to_dataframe(), out, "nominal", "Nominal figures", settings, floatfmt=".4f")
 
     curves = {}
-    for label, beta in [(f"beta* = {fig.beta_opt_deg:.2f}", fig.beta_opt_deg),
-                        (f"window low {fig.window_deg[0]:.2f}", fig.window_deg[0]),
-                        (f"window high {fig.window_deg[1]:.2f}", fig.window_deg[1])]:
+    for label, beta in [(f"\u03b2* = {fig.beta_opt_deg:.2f}\u00b0", fig.beta_opt_deg),
+                        (f"window low {fig.window_deg[0]:.2f}\u00b0", fig.window_deg[0]),
+                        (f"window high {fig.window_deg[1]:.2f}\u00b0", fig.window_deg[1])]:
         curves[label] = deviation_table(p.override(beta=beta), step_deg=1.0)
     table = pd.DataFrame({"phi_deg": curves[next(iter(curves))]["phi_deg"]})
     for frame, key in zip(curves.values(), ("at_beta_opt", "at_window_low",
@@ -52,7 +53,7 @@ def main(argv=None) -> None:
     f, ax = plt.subplots(figsize=(7, 4))
     plots.deviation_vs_crank(curves, ax, limit_um=10.0)
     ax.set_title("208 needle drive: deviation from the fixed guide")
-    plots.save(f, out / "deviation.png")
+    plots.save(f, out / "deviation.png", args.figure_format)
 
     betas = np.round(np.arange(15.0, 30.0001, 0.1), 10)
     c, _ = nm.columns(p)
@@ -61,8 +62,8 @@ def main(argv=None) -> None:
                 "SumDelta against beta, guide fixed", settings)
     f, ax = plt.subplots(figsize=(7, 4))
     plots.sum_delta_vs_beta(betas, totals, fig.beta_opt_deg, fig.window_deg, 10.0, ax)
-    ax.set_title("208 needle drive: SumDelta against beta")
-    plots.save(f, out / "sum_delta_vs_beta.png")
+    ax.set_title("208 needle drive: \u03a3\u0394 against \u03b2, guide fixed")
+    plots.save(f, out / "sum_delta_vs_beta.png", args.figure_format)
 
     print(f"wrote {out}")
 

@@ -83,6 +83,7 @@ def main(argv=None) -> int:
     ap.add_argument("--n-alloc", type=int, default=2000, help="as in needle_208_tolerances.py")
     ap.add_argument("--n-jobs", type=int, default=1)
     ap.add_argument("--progress", action="store_true")
+    plots.add_figure_format(ap)
     args = ap.parse_args(argv)
     try:
         check_args(args)
@@ -184,14 +185,14 @@ def main(argv=None) -> int:
     ax.axvline(LIMIT_UM, color="k", lw=0.8, ls=":")
     ax.axhline(1e-6, color="0.5", lw=0.6, ls=":")
     ax.set_ylim(1e-8, 1.2)
-    ax.set_xlabel("SumDelta x (um)")
-    ax.set_ylabel("P(SumDelta > x)")
-    ax.set_title("Allocated tolerances (99.73 % after beta adjustment): exceedance with 95 % band"
-                 "\n(dashed black / grey: brute-force Monte-Carlo; dotted: the 10 um limit)",
-                 fontsize=9)
+    ax.set_xlabel(f"\u03a3\u0394 x ({plots.MICRO})")
+    ax.set_ylabel("P(\u03a3\u0394 > x)")
+    ax.set_title("Allocated tolerances (99.73 % after \u03b2 adjustment): exceedance with 95 % "
+                 "band\n(dashed black / grey: brute-force Monte-Carlo; dotted: the "
+                 f"{LIMIT_UM:g} {plots.MICRO} limit)", fontsize=9)
     ax.grid(True, which="both", lw=0.3)
     ax.legend(fontsize=8, loc="lower left")
-    plots.save(fig, out / "ppm_exceedance.png")
+    plots.save(fig, out / "ppm_exceedance.png", args.figure_format)
     write_table(pd.concat(frames, ignore_index=True), out, "ppm_exceedance",
                 "Exceedance P(SumDelta > x) of the allocated set, with 95 % band",
                 {"set": tol_text(allocated), "units": "x um",

@@ -5,13 +5,15 @@ strategies_SET_failures.md/.csv (which tolerances drive the machines still out o
 strategies_yield.png and strategies_SET_STRATEGY_hist.png (one histogram per compensator with
 its limits drawn), and strategies_run.json.
 
-    python studies/needle_208_strategies.py [--out reports] [--seed 2026] [--n 500]
+    python studies/needle_208_strategies.py [--out reports] [--seed 2026] [--n 500] [--n-jobs 1]
+        [--tolerances FILE.toml[:SET] ...]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import matplotlib
@@ -21,12 +23,15 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from sewtol.errors import ParameterError  # noqa: E402
 from sewtol.io import write_text_atomic  # noqa: E402
 from sewtol.mechanisms.needle_208 import Needle208  # noqa: E402
+from sewtol.mechanisms.params import field_names  # noqa: E402
 from sewtol.provenance import now, run_record  # noqa: E402
+from sewtol.reports import plots  # noqa: E402
 from sewtol.reports.tables import write_table  # noqa: E402
 from sewtol.studies.strategies import strategies_table  # noqa: E402
-from sewtol.tolerances import NEEDLE_208_SETS  # noqa: E402
+from sewtol.tolerances import NEEDLE_208_SETS, resolve_all  # noqa: E402
 
 SETS = ("base", "recommended")
 
@@ -41,13 +46,13 @@ def plot_yield(tables: dict[str, pd.DataFrame], ax):
         ax.bar(x + (j - 0.5 * (len(tables) - 1)) * width, y, width, yerr=err, capsize=3,
                label=f"{set_name} tolerances")
     ax.set_xticks(x, names, rotation=20)
-    ax.set_ylabel("yield, SumDelta <= 10 um (%)")
+    ax.set_ylabel(f"yield, \u03a3\u0394 \u2264 10 {plots.MICRO} (%)")
     ax.set_title("Yield by adjustment strategy (same machines per set, 95 % Clopper-Pearson)")
     ax.legend()
     return ax
 
 
-def plot_settings(adj, set_name, out: Path) -> list[Path]:
+def plot_settings(adj, set_name, out: Path, fmt: str = "png") -> list[Path]:
     paths = []
     for comp in adj.strategy.compensators:
         x = adj.settings[comp.name]
@@ -55,33 +60,47 @@ def plot_settings(adj, set_name, out: Path) -> list[Path]:
         ax.hist(x[np.isfinite(x)], bins=30, color="tab:blue")
         for lim in (comp.low, comp.high):
             ax.axvline(lim, color="tab:red", ls="--")
-        unit = f" ({comp.unit})" if comp.unit else ""
-        ax.set_xlabel(f"{comp.name} setting{unit}, {comp.mode}; limits dashed")
+        unit = f" ({comp.unit.replace('um', plots.MICRO)})" if comp.unit else ""
+        label = comp.name.removesuffix("_um").replace("_", " ")
+        ax.set_xlabel(f"{label} setting{unit}, {comp.mode}; limits dashed")
         ax.set_ylabel("machines")
         share = float(np.mean(adj.at_limit[comp.name]))
-        ax.set_title(f"{set_name}, {adj.strategy.name}: {comp.name} ({share:.1%} at a limit)")
+        ax.set_title(f"{set_name}, {adj.strategy.name}: {label} ({share:.1%} at a limit)")
         fig.tight_layout()
         safe = "".join(ch if ch.isalnum() else "_" for ch in adj.strategy.name)
-        p = out / f"strategies_{set_name}_{safe}_{comp.name}_hist.png"
-        fig.savefig(p, dpi=110)
-        plt.close(fig)
-        paths.append(p)
+        paths.append(plots.save(fig, out / f"strategies_{set_name}_{safe}_{comp.name}_hist.png",
+                                fmt))
     return paths
 
 
-def main(argv=None) -> None:
+def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="reports")
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--n", type=int, default=500)
+    ap.add_argument("--n-jobs", type=int, default=1,
+                    help="adjust the machines in chunks on this many processes (same tables)")
+    ap.add_argument("--progress", action="store_true")
+    ap.add_argument("--tolerances", action="append", metavar="FILE.toml[:SET]",
+                    help="these sets instead of the built-in base and recommended (repeatable)")
+    plots.add_figure_format(ap)
     args = ap.parse_args(argv)
+    try:
+        sets = resolve_all(args.tolerances, {k: NEEDLE_208_SETS[k] for k in SETS},
+                           field_names(Needle208))
+        for ts in sets.values():
+            ts.check_against(Needle208.nominal())
+    except ParameterError as exc:
+        print(f"needle_208_strategies.py: error: {exc}", file=sys.stderr)
+        return 2
     started = now()
     out = Path(args.out) / "needle_208"
     out.mkdir(parents=True, exist_ok=True)
     p = Needle208.nominal()
     tables, frames = {}, []
-    for set_name in SETS:
-        res = strategies_table(p, NEEDLE_208_SETS[set_name], args.n, args.seed)
+    for set_name, ts in sets.items():
+        res = strategies_table(p, ts, args.n, args.seed, n_jobs=args.n_jobs,
+                               progress=args.progress)
         t = res.to_dataframe()
         tables[set_name] = t
         frames.append(t.assign(tolerances=set_name))
@@ -91,7 +110,7 @@ def main(argv=None) -> None:
             write_text_atomic(out / f"strategies_{set_name}_machines_{safe}.csv",
                               m.to_csv(index=False, float_format="%.9g", lineterminator="\n"))
             if adj.strategy.name in ("beta+shift", "all"):
-                plot_settings(adj, set_name, out)
+                plot_settings(adj, set_name, out, args.figure_format)
         fail = res.failure_contributors("beta+shift")
         write_table(fail, out, f"strategies_{set_name}_failures",
                     f"What drives the machines still out of spec with beta + guide shift "
@@ -116,12 +135,12 @@ def main(argv=None) -> None:
     fig, ax = plt.subplots(figsize=(8, 4.5))
     plot_yield(tables, ax)
     fig.tight_layout()
-    fig.savefig(out / "strategies_yield.png", dpi=110)
-    plt.close(fig)
-    inputs = {"study": "strategies", "n": args.n, "seed": args.seed, "sets": list(SETS)}
+    plots.save(fig, out / "strategies_yield.png", args.figure_format)
+    inputs = {"study": "strategies", "n": args.n, "seed": args.seed, "sets": list(sets)}
     write_text_atomic(out / "strategies_run.json",
                       json.dumps(run_record(started, inputs), indent=2) + "\n")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

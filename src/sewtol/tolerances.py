@@ -370,3 +370,25 @@ def resolve(name_or_path: str, builtin: dict[str, ToleranceSet],
         raise ParameterError("--tolerances", f"no set '{set_name}' in the file; sets are "
                              f"{', '.join(sets)}", name_or_path)
     return sets[set_name]
+
+
+def resolve_all(specs: list[str] | None, builtin: dict[str, ToleranceSet],
+                valid_params: list[str]) -> dict[str, ToleranceSet]:
+    """The tolerance sets a report runs on: every built-in set when specs is empty; otherwise,
+    for each spec, a built-in name, 'file.toml' (every set in the file) or 'file.toml:NAME'."""
+    if not specs:
+        return dict(builtin)
+    out: dict[str, ToleranceSet] = {}
+    for spec in specs:
+        path, suffix, name = spec.partition(".toml")
+        if spec not in builtin and suffix and not name:
+            found = load_toml(path + suffix, valid_params)
+        else:
+            ts = resolve(spec, builtin, valid_params)
+            found = {ts.name: ts}
+        for set_name, ts in found.items():
+            if set_name in out:
+                raise ParameterError("--tolerances", "names a set twice; every set of a report "
+                                     "needs its own name", set_name)
+            out[set_name] = ts
+    return out

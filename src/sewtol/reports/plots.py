@@ -14,20 +14,48 @@ import numpy as np  # noqa: E402
 
 from ..io import write_bytes_atomic  # noqa: E402
 
+FIGURE_DPI = 200  # print resolution: a 7 in wide figure is 1400 px, sharp at 100 % in a report
+FIGURE_FORMATS = ("png", "svg", "pdf")
+MICRO = "\u00b5m"  # every label says µm; data columns keep _um
+
+
+def figure_texts(fig) -> list[str]:
+    """Every string a reader sees on a figure: titles, axis labels, tick labels, legend entries,
+    annotations (what the label tests check instead of pixels)."""
+    out = [t.get_text() for t in fig.texts]
+    for ax in fig.axes:
+        if not ax.get_visible():
+            continue
+        out += [ax.get_title(loc) for loc in ("left", "center", "right")]
+        out += [ax.get_xlabel(), ax.get_ylabel()]
+        out += [t.get_text() for t in ax.get_xticklabels() + ax.get_yticklabels()]
+        out += [t.get_text() for t in ax.texts]
+        leg = ax.get_legend()
+        if leg is not None:
+            out += [t.get_text() for t in leg.get_texts()]
+            out.append(leg.get_title().get_text())
+    return [t for t in out if t]
+
 
 def deviation_vs_crank(curves: dict, ax=None, limit_um: float | None = None):
-    """d(phi) in um against crank angle for each labelled frame (columns phi_deg, d_um)."""
+    """d(phi) in µm against crank angle for each labelled frame (columns phi_deg, d_um), with the
+    sign convention on the axis and, if limit_um is given, each curve's SumDelta against it."""
     ax = ax or plt.gca()
     for label, frame in curves.items():
-        ax.plot(frame["phi_deg"], frame["d_um"], label=label, lw=1.2)
+        d = np.asarray(frame["d_um"], float)
+        total = max(0.0, np.nanmax(d)) + max(0.0, -np.nanmin(d))
+        ax.plot(frame["phi_deg"], d, lw=1.2, label=f"{label}: \u03a3\u0394 = {total:.2f} {MICRO}")
+    ax.axhline(0.0, color="k", lw=0.7, label="guide line (d = 0)")
     if limit_um is not None:
-        ax.axhline(0.0, color="0.5", lw=0.6)
-    ax.set_xlabel("crank angle phi (deg)")
-    ax.set_ylabel("deviation d from the guide (um)")
+        ax.text(0.01, 0.02, f"limit: \u03a3\u0394 = \u0394+ + \u0394\u2212 = max(d, 0) + "
+                f"max(\u2212d, 0) \u2264 {limit_um:g} {MICRO}", transform=ax.transAxes,
+                fontsize=7, va="bottom")
+    ax.set_xlabel("crank angle \u03c6 (deg)")
+    ax.set_ylabel(f"deviation d ({MICRO})\n> 0: needle point right of the guide")
     ax.set_xlim(0, 360)
     ax.set_xticks(np.arange(0, 361, 60))
     ax.grid(True, lw=0.3)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     return ax
 
 
@@ -35,80 +63,153 @@ def sum_delta_vs_beta(betas, totals_um, beta_opt: float, window: tuple[float, fl
                       limit_um: float, ax=None):
     """SumDelta against beta with the limit line and the window where it holds."""
     ax = ax or plt.gca()
-    ax.plot(betas, totals_um, color="C0", label="SumDelta, guide fixed")
-    ax.axhline(limit_um, color="C3", ls="--", lw=1, label=f"limit {limit_um:g} um")
+    ax.plot(betas, totals_um, color="C0", label="\u03a3\u0394, guide fixed")
+    ax.axhline(limit_um, color="C3", ls="--", lw=1, label=f"limit {limit_um:g} {MICRO}")
     if np.all(np.isfinite(window)):
         ax.axvspan(window[0], window[1], color="C2", alpha=0.15,
                    label=f"window {window[0]:.2f} ... {window[1]:.2f} deg")
-    ax.axvline(beta_opt, color="C1", lw=1, label=f"beta* = {beta_opt:.2f} deg")
-    ax.set_xlabel("regulating angle beta (deg)")
-    ax.set_ylabel("total deviation SumDelta (um)")
+    ax.axvline(beta_opt, color="C1", lw=1, label=f"\u03b2* = {beta_opt:.2f} deg")
+    ax.set_xlabel("regulating angle \u03b2 (deg)")
+    ax.set_ylabel(f"total deviation \u03a3\u0394 ({MICRO})")
     ax.set_ylim(bottom=0)
     ax.grid(True, lw=0.3)
     ax.legend(fontsize=7)
     return ax
 
 
-def save(fig, path: Path) -> Path:
-    """PNG without timestamps in its metadata, written atomically, so reruns are byte-identical."""
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=130, bbox_inches="tight", metadata={"Software": None})
+def add_figure_format(parser) -> None:
+    """The report scripts' --figure-format option."""
+    parser.add_argument("--figure-format", choices=FIGURE_FORMATS, default="png",
+                        help=f"png (the default, {FIGURE_DPI} dpi), svg or pdf (pdf also writes "
+                        "the png the HTML report embeds)")
+
+
+def save(fig, path: Path, fmt: str | None = None) -> Path:
+    """The figure as PNG (FIGURE_DPI), SVG or PDF (fmt, default the path's suffix) without
+    timestamps in its metadata, written atomically, so reruns are byte-identical. A PDF comes
+    with a PNG beside it (the HTML report cannot embed a PDF)."""
+    path = Path(path)
+    fmt = fmt or path.suffix.lstrip(".") or "png"
+    if fmt not in FIGURE_FORMATS:
+        from ..errors import ParameterError
+        raise ParameterError("--figure-format", f"must be one of {', '.join(FIGURE_FORMATS)}", fmt)
+    path = path.with_suffix("." + fmt)
+    for f in (fmt, "png") if fmt == "pdf" else (fmt,):
+        buf = io.BytesIO()
+        with matplotlib.rc_context({"svg.hashsalt": "sewtol", "svg.fonttype": "none"}):
+            fig.savefig(buf, format=f, dpi=FIGURE_DPI, bbox_inches="tight",
+                        metadata={"png": {"Software": None}, "svg": {"Date": None},
+                                  "pdf": {"CreationDate": None, "Producer": None}}[f])
+        write_bytes_atomic(path.with_suffix("." + f), buf.getvalue())
     plt.close(fig)
-    write_bytes_atomic(Path(path), buf.getvalue())
-    return Path(path)
+    return path
 
 
-def scan_deviation_grid(nominal_curve, limit_curves: dict, limit_um: float = 10.0):
-    """One panel per parameter: d(phi) nominal against the upper and lower limit (beta*)."""
+def scan_deviation_grid(nominal_curve, limit_curves: dict, limit_um: float = 10.0,
+                        nominal_total_um: float | None = None):
+    """One panel per parameter: d(phi) nominal against the upper and lower limit (beta*). The
+    legend (each curve's label should carry its SumDelta) sits under each panel, off the curves."""
     k = len(limit_curves)
     cols = 3
     rows = int(np.ceil(k / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(11, 2.8 * rows), sharex=True, squeeze=False)
+    fig, axes = plt.subplots(rows, cols, figsize=(11, 3.6 * rows), sharex=True, squeeze=False)
+    nom_label = "nominal" if nominal_total_um is None else \
+        f"nominal, \u03a3\u0394 {nominal_total_um:.2f} {MICRO}"
     for ax, (param, curves) in zip(axes.ravel(), limit_curves.items(), strict=False):
-        ax.plot(nominal_curve["phi_deg"], nominal_curve["d_um"], color="0.3", lw=1, label="nominal")
+        ax.plot(nominal_curve["phi_deg"], nominal_curve["d_um"], color="0.3", lw=1, label=nom_label)
         for (label, frame), color in zip(curves.items(), ("C3", "C0"), strict=False):
             ax.plot(frame["phi_deg"], frame["d_um"], color=color, lw=1, label=label)
         ax.axhline(limit_um / 2, color="C3", ls=":", lw=0.6)
         ax.axhline(-limit_um / 2, color="C3", ls=":", lw=0.6)
         ax.set_title(param, fontsize=9)
-        ax.set_ylabel("d (um)")
+        ax.set_ylabel(f"d ({MICRO})")
         ax.grid(True, lw=0.3)
-        ax.legend(fontsize=6)
+        ax.legend(fontsize=6, loc="upper center", bbox_to_anchor=(0.5, -0.1), frameon=False)
+        ax.tick_params(labelbottom=True)
+        ax.set_xticks(np.arange(0, 361, 90))
     for ax in axes.ravel()[k:]:
         ax.set_visible(False)
-    for ax in axes[-1]:
-        ax.set_xlabel("crank angle phi (deg)")
-        ax.set_xticks(np.arange(0, 361, 90))
+    fig.supxlabel("crank angle \u03c6 (deg)", fontsize=9)
+    fig.tight_layout(h_pad=3.5)
     return fig
 
 
+def binned(values, edges) -> dict:
+    """Counts of values in the bins `edges`, plus the machines above the last edge (overflow)
+    and the non-finite ones (failed); counts.sum() + overflow + below + failed == n."""
+    x = np.asarray(values, float)
+    ok = np.isfinite(x)
+    counts, _ = np.histogram(x[ok], bins=edges)
+    return {"counts": counts, "edges": np.asarray(edges, float),
+            "overflow": int(np.sum(x[ok] > edges[-1])), "below": int(np.sum(x[ok] < edges[0])),
+            "failed": int(np.sum(~ok)), "n": int(x.size)}
+
+
 def montecarlo_histograms(fixed_um, adjusted_um, limit_um: float, yields: tuple[float, float],
-                          ax=None):
-    """Histograms of SumDelta with beta fixed and with beta adjusted, the limit and the yields."""
+                          ax=None, top_um: float | None = None, nbins: int = 60):
+    """Step histograms of SumDelta with beta fixed and with beta adjusted (no blended overlap),
+    the limit and the yields. Nothing is dropped: machines above top_um stand in an overflow bar
+    with its count, failed machines (non-finite SumDelta) are counted in the legend."""
     ax = ax or plt.gca()
-    data = [np.asarray(x)[np.isfinite(x)] for x in (fixed_um, adjusted_um)]
-    top = max(np.quantile(np.concatenate(data), 0.995), limit_um * 1.5)
-    bins = np.linspace(0, top, 60)
-    ax.hist(data[0], bins=bins, alpha=0.5, color="C1", label=f"beta fixed, yield {yields[0]:.1%}")
-    ax.hist(data[1], bins=bins, alpha=0.5, color="C0",
-            label=f"beta adjusted, yield {yields[1]:.1%}")
-    ax.axvline(limit_um, color="C3", ls="--", lw=1, label=f"limit {limit_um:g} um")
-    ax.set_xlabel("total deviation SumDelta (um)")
+    both = np.concatenate([np.asarray(x, float) for x in (fixed_um, adjusted_um)])
+    finite = both[np.isfinite(both)]
+    if top_um is None:
+        top_um = max(np.quantile(finite, 0.98) if finite.size else 0.0, limit_um * 1.5)
+    edges = np.linspace(0, top_um, nbins + 1)
+    width = edges[1] - edges[0]
+    parts = []
+    for j, (values, color, name, y) in enumerate(((fixed_um, "C1", "\u03b2 fixed", yields[0]),
+                                                 (adjusted_um, "C0", "\u03b2 adjusted",
+                                                  yields[1]))):
+        b = binned(values, edges)
+        parts.append(b)
+        ax.stairs(b["counts"], edges, color=color, lw=1.4,
+                  label=f"{name}: yield {y:.1%}, {b['overflow']} > {top_um:.0f} {MICRO}, "
+                  f"{b['failed']} failed of {b['n']}")
+        # the overflow: one bar per case side by side past the last edge, its count on top
+        x0 = top_um + width * (1.0 + 1.2 * j)
+        ax.bar(x0, b["overflow"], width * 1.1, align="edge", color=color, alpha=0.9,
+               hatch="//", edgecolor="k", lw=0.4)
+        ax.annotate(str(b["overflow"]), (x0 + 0.55 * width, b["overflow"]), ha="center",
+                    va="bottom", fontsize=6, color=color)
+    ax.axvline(limit_um, color="C3", ls="--", lw=1, label=f"limit {limit_um:g} {MICRO}")
+    ax.axvline(top_um, color="0.4", lw=0.6)
+    ax.set_xlabel(f"total deviation \u03a3\u0394 ({MICRO}); hatched bars: the machines above "
+                  f"{top_um:.0f} {MICRO}")
     ax.set_ylabel("machines")
     ax.grid(True, lw=0.3)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.18), frameon=False)
+    ax.binned = parts  # what was drawn, for the tests and the report text
     return ax
 
 
-def beta_histogram(beta_deg, range_deg, ax=None):
+def at_bound(beta_deg, range_deg, tol_deg: float = 1e-3) -> tuple[int, int]:
+    """Machines whose beta* sits on the lower / upper end of the searched range (the optimum
+    may lie beyond it: those machines are adjusted as far as the regulator goes)."""
+    b = np.asarray(beta_deg, float)
+    return (int(np.sum(np.abs(b - range_deg[0]) <= tol_deg)),
+            int(np.sum(np.abs(b - range_deg[1]) <= tol_deg)))
+
+
+def beta_histogram(beta_deg, range_deg, ax=None, tol_deg: float = 1e-3):
+    """beta* per machine; the machines at either end of the searched range drawn in red with
+    their count (their optimum may lie beyond the range)."""
     ax = ax or plt.gca()
-    b = np.asarray(beta_deg)[np.isfinite(beta_deg)]
-    ax.hist(b, bins=50, color="C2", alpha=0.7)
+    b = np.asarray(beta_deg, float)
+    b = b[np.isfinite(b)]
+    low, high = at_bound(b, range_deg, tol_deg)
+    inside = b[(np.abs(b - range_deg[0]) > tol_deg) & (np.abs(b - range_deg[1]) > tol_deg)]
+    edges = np.linspace(range_deg[0], range_deg[1], 51)
+    ax.hist(inside, bins=edges, color="C2", alpha=0.8, label=f"inside the range: {inside.size}")
+    w = edges[1] - edges[0]
+    ax.bar([range_deg[0] - w, range_deg[1]], [low, high], w, align="edge", color="C3",
+           label=f"at a bound: {low} at {range_deg[0]:g}, {high} at {range_deg[1]:g} deg")
     for edge in range_deg:
         ax.axvline(edge, color="0.4", ls=":", lw=1)
-    ax.set_xlabel("beta* per machine (deg)")
+    ax.set_xlabel("\u03b2* per machine (deg); dotted: searched range")
     ax.set_ylabel("machines")
     ax.grid(True, lw=0.3)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.18), frameon=False)
     return ax
 
 
@@ -128,14 +229,39 @@ def sobol_bars(indices, ax=None, title: str = ""):
     return ax
 
 
-def tooth_paths(traj, plate_mm: float, material_mm: float = 0.0, ax=None):
-    """Both middle-tooth paths with the plate line (and the material's top, if any)."""
+def _at_phi(traj, column: str, phi_deg: float) -> float:
+    """A trajectory column at a phase, interpolated periodically (traj is sampled on phi_deg)."""
+    phi = np.asarray(traj["phi_deg"], float)
+    return float(np.interp(phi_deg % 360.0, phi, np.asarray(traj[column], float), period=360.0))
+
+
+def tooth_paths(traj, plate_mm: float, material_mm: float = 0.0, ax=None,
+                phases: dict | None = None, mark_every_deg: float = 30.0):
+    """Both middle-tooth paths with the plate line (and the material's top, if any), the sense
+    of travel, a dot every mark_every_deg of phi (labelled every 90 deg) and, with phases =
+    {dog: (entry_phi_deg, exit_phi_deg)}, where each tooth enters and leaves its working part."""
     ax = ax or plt.gca()
-    for dog, color in (("lower", "C0"), ("upper", "C1")):
+    # the phase labels of the two dogs on opposite sides of their dots, so they do not collide
+    for (dog, color), offset in zip((("lower", "C0"), ("upper", "C1")), ((-22, 4), (4, -10)),
+                                    strict=True):
         x, y = traj[f"{dog}_x_mm"], traj[f"{dog}_y_mm"]
         ax.plot(np.r_[x, x[:1]], np.r_[y, y[:1]], color=color, label=f"{dog} dog, middle tooth")
         ax.annotate("", xy=(x.iloc[6], y.iloc[6]), xytext=(x.iloc[0], y.iloc[0]),
                     arrowprops={"arrowstyle": "->", "color": color})
+        for phi in np.arange(0.0, 360.0, mark_every_deg):
+            px, py = _at_phi(traj, f"{dog}_x_mm", phi), _at_phi(traj, f"{dog}_y_mm", phi)
+            ax.plot(px, py, ".", color=color, ms=3)
+            if phi % 90 == 0:
+                ax.annotate(f"{phi:.0f}\u00b0", (px, py), fontsize=6, color=color,
+                            xytext=offset, textcoords="offset points")
+        if phases and dog in phases:
+            for phi, marker, what in zip(phases[dog], ("^", "v"), ("entry", "exit"),
+                                         strict=True):
+                if not np.isfinite(phi):
+                    continue
+                ax.plot(_at_phi(traj, f"{dog}_x_mm", phi), _at_phi(traj, f"{dog}_y_mm", phi),
+                        marker, color=color, mec="k", ms=7,
+                        label=f"{dog} {what} at \u03c6 = {phi:.1f}\u00b0")
     ax.axhline(plate_mm, color="k", lw=1, label=f"needle plate y = {plate_mm:g} mm")
     if material_mm > 0:
         ax.axhline(plate_mm + material_mm, color="0.5", ls="--", lw=1,
@@ -144,30 +270,60 @@ def tooth_paths(traj, plate_mm: float, material_mm: float = 0.0, ax=None):
     ax.set_ylabel("y (mm)")
     ax.set_aspect("equal", adjustable="datalim")
     ax.grid(True, lw=0.3)
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0),
+              title=f"dots every {mark_every_deg:g}\u00b0 of \u03c6", title_fontsize=7)
     return ax
 
 
-def feed_xy_vs_phi(traj, plate_mm: float, axes):
-    """x and y of both teeth against the main-shaft angle, on two axes."""
+def feed_xy_vs_phi(traj, plate_mm: float, axes, phases: dict | None = None):
+    """x and y of both teeth against the main-shaft angle, on two axes; with phases =
+    {dog: (entry_phi_deg, exit_phi_deg)} the working part of each dog is shaded."""
     for dog, color in (("lower", "C0"), ("upper", "C1")):
         axes[0].plot(traj["phi_deg"], traj[f"{dog}_x_mm"], color=color, label=f"{dog} dog")
         axes[1].plot(traj["phi_deg"], traj[f"{dog}_y_mm"], color=color, label=f"{dog} dog")
+        if phases and dog in phases and np.all(np.isfinite(phases[dog])):
+            # each dog's working part as its own strip along the top (no blended overlap)
+            a, b = (float(v) % 360.0 for v in phases[dog])
+            spans = [(a, b)] if a < b else [(a, 360.0), (0.0, b)]
+            strip = (0.93, 0.965) if dog == "lower" else (0.965, 1.0)
+            for k, (lo, hi) in enumerate(spans):
+                for ax in axes:
+                    ax.axvspan(lo, hi, *strip, color=color, alpha=0.9, lw=0,
+                               label=(f"{dog} works {a:.1f}\u00b0 \u2192 {b:.1f}\u00b0 (strip)"
+                                      if k == 0 and ax is axes[1] else None))
     axes[1].axhline(plate_mm, color="k", lw=1, label="needle plate")
+    if phases:
+        for ax in axes:  # head room for the strips above the curves
+            lo, hi = ax.get_ylim()
+            ax.set_ylim(lo, hi + 0.12 * (hi - lo))
     axes[0].set_ylabel("x (mm)")
     axes[1].set_ylabel("y (mm)")
     for ax in axes:
-        ax.set_xlabel("main-shaft angle phi (deg)")
+        ax.set_xlabel("main-shaft angle \u03c6 (deg)")
         ax.set_xlim(0, 360)
         ax.set_xticks(np.arange(0, 361, 60))
         ax.grid(True, lw=0.3)
-        ax.legend(fontsize=7)
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     return axes
 
 
 def regulator_curve(sweep, b_nominal: float, ax=None):
-    """Feed step of both dogs against the regulator setting b, with neutral and reverse."""
+    """Feed step of both dogs against the regulator setting b, with neutral and reverse, and the
+    range of b over which the chain assembles (the regulator's usable range in this model; the
+    source states no range of its own) shaded."""
     ax = ax or plt.gca()
+    ok = np.isfinite(sweep["lower_step_mm"]) & np.isfinite(sweep["upper_step_mm"])
+    b = np.asarray(sweep["b_deg"], float)
+    if ok.any():
+        lo, hi = float(b[ok].min()), float(b[ok].max())
+        ax.axvspan(lo, hi, color="C2", alpha=0.08,
+                   label=f"chain assembles: b = {lo:g} ... {hi:g} deg")
+    if (~ok).any():
+        bad = b[~ok]
+        for k, side in enumerate((bad[bad < lo], bad[bad > hi]) if ok.any() else (bad,)):
+            if side.size:
+                ax.axvspan(side.min(), side.max(), color="C3", alpha=0.12, lw=0,
+                           label="cannot assemble" if k == 0 or not (bad < lo).any() else None)
     ax.plot(sweep["b_deg"], sweep["lower_step_mm"], color="C0", label="lower dog")
     ax.plot(sweep["b_deg"], sweep["upper_step_mm"], color="C1", label="upper dog")
     ax.axhline(0, color="k", lw=0.8)

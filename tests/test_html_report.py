@@ -1,0 +1,370 @@
+"""The HTML report and the report figures: conclusions first, every table of the Markdown report
+in the HTML one, every image embedded, "µm" in every label, histograms that drop nothing."""
+
+from __future__ import annotations
+
+import base64
+import importlib.util
+import json
+import re
+import shutil
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+import pytest  # noqa: E402
+from matplotlib.patches import Rectangle, StepPatch  # noqa: E402
+
+from sewtol.reports import html as rh  # noqa: E402
+from sewtol.reports import plots  # noqa: E402
+from sewtol.reports.tables import to_markdown  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+COMMITTED = ROOT / "reports" / "needle_208"
+# "um" as a unit in a label: not inside a word or an identifier (guide_shift_um, "number")
+UM_LABEL = re.compile(r"(?<![A-Za-z_])um(?![A-Za-z_])")
+
+
+def _script(name: str):
+    spec = importlib.util.spec_from_file_location(name, ROOT / "studies" / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.fixture(scope="module")
+def needle_report(tmp_path_factory):
+    """The index and report.html made from a copy of the committed needle tables and figures."""
+    if not (COMMITTED / "run.json").exists():
+        pytest.skip("no committed needle report to index")
+    out = tmp_path_factory.mktemp("reports")
+    shutil.copytree(COMMITTED, out / "needle_208",
+                    ignore=shutil.ignore_patterns("index.md", "report.html", "*.svg", "*.pdf"))
+    _script("needle_208_index").main(["--out", str(out)])
+    folder = out / "needle_208"
+    return folder, (folder / "index.md").read_text(), (folder / "report.html").read_text()
+
+
+def test_html_opens_with_the_conclusions_taken_from_the_tables(needle_report):
+    folder, _, page = needle_report
+    body = page[page.index("<body>"):]
+    headings = re.findall(r"<h2>([^<]*)</h2>", body)
+    assert headings[0] == "Conclusions"
+    assert body.index('id="conclusions"') < body.index("<table")
+    conclusions = body[:body.index("</section>")]
+    # the numbers in the words are the tables' numbers
+    mc = json.loads((folder / "montecarlo_summary.json").read_text())
+    for s in mc.values():
+        assert f"from {s['yield_fixed_beta']:.1%}" in conclusions
+        assert f"to {s['yield_adjusted_beta']:.1%}" in conclusions
+    pareto = pd.read_csv(folder / "montecarlo_recommended_pareto.csv", comment="#")
+    share = "variance_pct" if "variance_pct" in pareto else "share_pct"  # older tables
+    assert f"{pareto['param'].iloc[0]} {pareto[share].iloc[0]:.1f} %" in conclusions
+    for verdict in ("robust", "frame-dependent"):
+        assert f'">{verdict}</span>' in conclusions
+
+
+def test_every_table_of_the_markdown_report_is_in_the_html(needle_report):
+    folder, index_md, page = needle_report
+    linked = sorted(set(re.findall(r"\]\(([\w.+\-]+)\.md\)", index_md)))
+    assert len(linked) >= 30
+    for stem in linked:
+        md = (folder / f"{stem}.md").read_text()
+        start = page.index(f'<div class="table" id="{rh.anchor_of(stem)}">')
+        block = page[start:page.index("</div>", start)]
+        title = md.splitlines()[0].lstrip("# ").strip()
+        assert rh._inline(title) in block, stem
+        # every row of every pipe table (header + body, not the separator line)
+        md_rows = [x for x in md.splitlines() if x.startswith("|") and not
+                   re.fullmatch(r"\|[\s:|-]+\|", x.strip())]
+        assert block.count("<tr>") == len(md_rows), stem
+
+
+def test_every_image_is_embedded(needle_report):
+    folder, index_md, page = needle_report
+    srcs = re.findall(r'<img src="([^"]+)"', page)
+    assert srcs, "no figure in the report"
+    assert all(s.startswith("data:image/png;base64,") for s in srcs)
+    assert not re.search(r'(src|href)="(https?:|file:|[\w./-]+\.(png|svg|pdf))', page)
+    embedded = {base64.b64decode(s.split(",", 1)[1]) for s in srcs}
+    figures = re.findall(r"!\[[^\]]*\]\(([\w.+\-]+\.png)\)", index_md)
+    assert len(figures) == len(srcs) >= 10
+    for name in figures:  # the Markdown index shows the same figures, byte for byte
+        assert (folder / name).read_bytes() in embedded
+
+
+def test_markdown_to_html_keeps_settings_and_rows():
+    frame = pd.DataFrame({"param": ["AB", "BE"], "total_um": [1.25, 3.5]})
+    md = to_markdown(frame, "Scan <limits>", {"seed": 2026, "guide": "fixed"})
+    out = rh.markdown_to_html(md)
+    assert "<h2>Scan &lt;limits&gt;</h2>" in out
+    assert "<li>seed: 2026</li>" in out and out.count("<tr>") == 3
+    long = to_markdown(pd.DataFrame({"x": range(50)}), "long")
+    assert "<details><summary>50 rows" in rh.markdown_to_html(long, collapse_rows=40)
+
+
+def _mc_axes(fixed, adjusted, top):
+    fig, ax = plt.subplots()
+    plots.montecarlo_histograms(fixed, adjusted, 10.0, (0.1, 0.2), ax, top_um=top)
+    return fig, ax
+
+
+def test_histogram_bars_overflow_and_failed_add_up_to_n():
+    rng = np.random.default_rng(7)
+    n = 1000
+    fixed = rng.gamma(2.0, 15.0, n)
+    adjusted = fixed * 0.8
+    adjusted[:37] = np.nan  # 37 machines that cannot assemble
+    fixed[:5] = np.inf
+    top = 90.0
+    fig, ax = _mc_axes(fixed, adjusted, top)
+    steps = [p for p in ax.patches if isinstance(p, StepPatch)]
+    bars = [p for p in ax.patches if isinstance(p, Rectangle) and p.get_hatch() == "//"]
+    labels = [t.get_text() for t in ax.get_legend().get_texts()][:2]
+    assert len(steps) == 2 and len(bars) == 2
+    for values, step, bar, label in zip((fixed, adjusted), steps, bars, labels, strict=True):
+        drawn = int(step.get_data().values.sum())
+        overflow = int(round(bar.get_height()))
+        failed, of_n = map(int, re.search(r"(\d+) failed of (\d+)", label).groups())
+        assert drawn + overflow + failed == of_n == n
+        assert overflow == int(np.sum(np.isfinite(values) & (values > top)))
+        assert failed == int(np.sum(~np.isfinite(values)))
+        assert f"{overflow} > {top:.0f}" in label
+    plt.close(fig)
+
+
+def test_beta_at_the_search_bounds_is_counted_and_drawn():
+    beta = np.r_[np.full(14, 35.0), np.full(3, 10.0), np.linspace(12, 30, 83), np.nan]
+    assert plots.at_bound(beta, (10.0, 35.0)) == (3, 14)
+    fig, ax = plt.subplots()
+    plots.beta_histogram(beta, (10.0, 35.0), ax)
+    red = [p.get_height() for p in ax.patches if p.get_facecolor()[:3] == matplotlib.colors.
+           to_rgb("C3")]
+    assert sorted(red) == [3, 14]
+    assert any("3 at 10, 14 at 35 deg" in t.get_text() for t in ax.get_legend().get_texts())
+    plt.close(fig)
+
+
+def _example_figures():
+    """Every plot function of reports.plots, on data shaped like the reports'."""
+    phi = np.arange(0.0, 360.0, 2.0)
+    curve = pd.DataFrame({"phi_deg": phi, "d_um": 3 * np.sin(np.radians(2 * phi))})
+    figs = []
+    fig, ax = plt.subplots()
+    plots.deviation_vs_crank({"beta* 22.6": curve}, ax, limit_um=10.0)
+    figs.append(fig)
+    fig, ax = plt.subplots()
+    plots.sum_delta_vs_beta(np.arange(15, 30.0), np.linspace(20, 5, 15), 22.0, (19.0, 25.0),
+                            10.0, ax)
+    figs.append(fig)
+    figs.append(plots.scan_deviation_grid(curve, {"AB": {"upper": curve, "lower": curve}},
+                                          nominal_total_um=4.6))
+    figs.append(_mc_axes(np.linspace(0, 120, 50), np.linspace(0, 90, 50), None)[0])
+    fig, ax = plt.subplots()
+    plots.sobol_bars(pd.DataFrame({"param": ["AB"], "S1": [0.5], "S1_conf": [0.1],
+                                   "ST": [0.9], "ST_conf": [0.1]}), ax)
+    figs.append(fig)
+    traj = pd.DataFrame({"phi_deg": phi, "lower_x_mm": np.cos(np.radians(phi)),
+                         "lower_y_mm": 32.5 + np.sin(np.radians(phi)),
+                         "upper_x_mm": np.cos(np.radians(phi)),
+                         "upper_y_mm": 32.5 - np.sin(np.radians(phi))})
+    fig, ax = plt.subplots()
+    plots.tooth_paths(traj, 32.5, 0.0, ax, phases={"lower": (10.0, 170.0),
+                                                   "upper": (190.0, 350.0)})
+    figs.append(fig)
+    fig, axes = plt.subplots(2, 1)
+    plots.feed_xy_vs_phi(traj, 32.5, axes, phases={"lower": (200.0, 20.0)})
+    figs.append(fig)
+    fig, ax = plt.subplots()
+    sweep = pd.DataFrame({"b_deg": [-30.0, 0.0, 30.0, 70.0], "lower_step_mm": [np.nan, -3, 2, np.nan],
+                          "upper_step_mm": [np.nan, -4, 2.5, np.nan]})
+    plots.regulator_curve(sweep, 30.0, ax)
+    figs.append(fig)
+    return figs
+
+
+def test_no_figure_label_says_um():
+    texts = [t for fig in _example_figures() for t in plots.figure_texts(fig)]
+    plt.close("all")
+    assert any("\u00b5m" in t for t in texts)
+    assert not [t for t in texts if UM_LABEL.search(t)]
+
+
+def test_the_report_scripts_figures_say_um(monkeypatch, tmp_path):
+    """The labels the nominal report script adds itself (titles, legends) pass too."""
+    seen = []
+
+    def capture(fig, path, fmt=None):
+        seen.extend(plots.figure_texts(fig))
+        plt.close(fig)
+        return Path(path)
+
+    monkeypatch.setattr(plots, "save", capture)
+    _script("needle_208_nominal").main(["--out", str(tmp_path)])
+    assert len(seen) > 20
+    assert not [t for t in seen if UM_LABEL.search(t)]
+
+
+def test_saved_figures_print_resolution_and_formats(tmp_path):
+    from PIL import Image
+
+    fig, ax = plt.subplots(figsize=(4, 3))
+    ax.plot([0, 1], [0, 1])
+    png = plots.save(fig, tmp_path / "a.png")
+    with Image.open(png) as im:
+        assert round(im.info["dpi"][0]) == plots.FIGURE_DPI >= 200
+    fig, ax = plt.subplots()
+    svg = plots.save(fig, tmp_path / "a.png", "svg")
+    assert svg.suffix == ".svg" and svg.read_text().lstrip().startswith("<?xml")
+    fig, ax = plt.subplots()
+    pdf = plots.save(fig, tmp_path / "b.png", "pdf")
+    assert pdf.read_bytes()[:4] == b"%PDF" and (tmp_path / "b.png").exists()
+    # SVG embeds inline, with no external reference
+    page = rh.figure_html(rh.Figure("a", "x", svg.read_bytes(), "svg"))
+    assert page.count("<svg") == 1 and "<?xml" not in page
+
+
+def test_report_tolerances_from_a_file(tmp_path, capsys):
+    from sewtol.errors import ParameterError
+    from sewtol.mechanisms.needle_208 import Needle208
+    from sewtol.mechanisms.params import field_names
+    from sewtol.tolerances import NEEDLE_208_SETS, resolve_all
+
+    path = tmp_path / "my.toml"
+    path.write_text("[sets.shop]\nAB = 0.01\nBE = {lower = -0.02, upper = 0.01}\n"
+                    "[sets.supplier]\nCD = 0.005\n")
+    valid = field_names(Needle208)
+    assert list(resolve_all(None, NEEDLE_208_SETS, valid)) == list(NEEDLE_208_SETS)
+    both = resolve_all([str(path)], NEEDLE_208_SETS, valid)
+    assert list(both) == ["shop", "supplier"]
+    assert both["shop"].items[1].lower == -0.02 and both["shop"].items[1].upper == 0.01
+    one = resolve_all([f"{path}:supplier", "base"], NEEDLE_208_SETS, valid)
+    assert list(one) == ["supplier", "base"] and one["supplier"].items[0].upper == 0.005
+    with pytest.raises(ParameterError, match="names a set twice"):
+        resolve_all([str(path), f"{path}:shop"], NEEDLE_208_SETS, valid)
+    # the report script refuses a bad set before it runs anything: one line, exit 2
+    rc = _script("needle_208_tolerances").main(["--out", str(tmp_path), "--tolerances",
+                                                f"{path}:nope"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1
+    assert "--tolerances" in err[0] and "no set 'nope'" in err[0] and "shop, supplier" in err[0]
+    assert not (tmp_path / "needle_208").exists()
+
+
+def test_strategies_in_chunks_are_the_strategies_in_one_piece():
+    """The parallel path of the strategies report adjusts chunks of machines and concatenates
+    them: machine by machine the same numbers as one piece (compared exactly)."""
+    from sewtol.mechanisms.needle_208 import Needle208
+    from sewtol.studies import strategies as S
+    from sewtol.tolerances import NEEDLE_208_SETS
+
+    p = Needle208.nominal()
+    tol = NEEDLE_208_SETS["recommended"].active()
+    dev = tol.sample(np.random.default_rng(3), 30)
+    chosen = [s for s in S.default_strategies() if s.name in ("beta", "beta+shift", "beta+CD")]
+    whole = S._adjust_chunk(p, dev, chosen, 10.0)
+    parts = [S._adjust_chunk(p, {k: v[a:b] for k, v in dev.items()}, chosen, 10.0)
+             for a, b in ((0, 7), (7, 19), (19, 30))]
+    for i, one in enumerate(whole):
+        joined = S.concat_adjustments([part[i] for part in parts])
+        pd.testing.assert_frame_equal(joined.to_dataframe(), one.to_dataframe(), check_exact=True)
+        assert joined.n == 30 and joined.counts() == one.counts()
+
+
+def test_feed_output_of_is_outputs_for_each_output():
+    """The feed Sobol study evaluates only the dogs an output needs: the same numbers, exactly,
+    as the full evaluation (including the machines that fail)."""
+    from sewtol import feed
+    from sewtol.mechanisms.feed_131 import Feed131
+
+    p = Feed131()
+    dev = feed.default_tolerances().sample(np.random.default_rng(11), 40)
+    dev["O1A1"] = dev["O1A1"].copy()
+    dev["O1A1"][:2] = 30.0  # an eccentric longer than the chain can take: two machines fail
+    full = feed.outputs(p, dev)
+    assert np.isnan(full["lower_step_mm"][:2]).all()
+    for k in feed.OUTPUTS:
+        np.testing.assert_array_equal(feed.output_of(p, dev, k), full[k], err_msg=k)
+
+
+def test_feed_conclusions_come_from_the_tables():
+    folder = ROOT / "reports" / "feed_131-42-3"
+    if not (folder / "readoff_explanations.csv").exists():
+        pytest.skip("no committed feed report")
+    mod = _script("feed_131_report")
+    expl = pd.read_csv(folder / "readoff_explanations.csv", comment="#")
+    found = {c.text.split(" feeds ")[0]: c for c in mod.reading_conclusions(expl) if c.verdict}
+    for dog in ("lower", "upper"):
+        made = expl[expl[f"{dog}_feeds"].notna()]  # pandas reads the table's n/a as NaN
+        senses = set(made[f"{dog}_feeds"])
+        c = found[f"the {dog} dog"]
+        assert c.verdict == ("robust" if len(senses) == 1 else "reading-dependent")
+        assert f"under the {len(made)} explanations" in c.text
+    contrib = pd.read_csv(folder / "contributors.csv", comment="#")
+    sob = pd.read_csv(folder / "sobol.csv", comment="#")
+    lines = mod.tighten_conclusions(contrib, sob)
+    assert len(lines) == contrib["output"].nunique()
+    top = contrib[contrib.output == "lower_step_mm"].iloc[0]
+    share = top.variance_pct if "variance_pct" in contrib else top.share_pct
+    assert lines[0].text.startswith(f"lower_step_mm: {top.param} {share:.1f} %")
+
+
+def test_feed_pages_hold_every_table_and_figure(tmp_path):
+    """The feed's index.md and report.html (write_pages) from a copy of the committed tables and
+    figures: every table the index links is in the page, every figure embedded."""
+    folder = ROOT / "reports" / "feed_131-42-3"
+    if not (folder / "regulator.png").exists():
+        pytest.skip("no committed feed report")
+    out = tmp_path / "feed"
+    shutil.copytree(folder, out, ignore=shutil.ignore_patterns("index.md", "report.html"))
+    mod = _script("feed_131_report")
+    conclusions = {"What holds": [rh.Conclusion("lower feeds forward", "robust")]}
+    mod.write_pages(out, "intro", conclusions, {"seed": 2026})
+    index_md, page = (out / "index.md").read_text(), (out / "report.html").read_text()
+    assert re.findall(r"<h2>([^<]*)</h2>", page)[0] == "Conclusions"
+    linked = set(re.findall(r"\]\(([\w.+\-]+)\.md\)", index_md))
+    assert linked == {t for _, tables, _ in mod.SECTIONS for t in tables}
+    for stem in linked:
+        assert f'<div class="table" id="{rh.anchor_of(stem)}">' in page
+    srcs = re.findall(r'<img src="([^"]+)"', page)
+    assert len(srcs) == len(re.findall(r"!\[", index_md)) == 3
+    for name in re.findall(r"!\[[^\]]*\]\(([\w.+\-]+\.png)\)", index_md):
+        assert "data:image/png;base64," + base64.b64encode((out / name).read_bytes()).decode() \
+            in srcs
+
+
+def test_the_tolerance_report_figures_say_um(monkeypatch, tmp_path):
+    """Scan panels, Monte-Carlo and Sobol figures as the tolerance script titles them (small n:
+    the labels do not depend on it)."""
+    seen = []
+
+    def capture(fig, path, fmt=None):
+        seen.extend(plots.figure_texts(fig))
+        plt.close(fig)
+        return Path(path)
+
+    monkeypatch.setattr(plots, "save", capture)
+    rc = _script("needle_208_tolerances").main([
+        "--out", str(tmp_path), "--n-mc", "64", "--n-sobol", "16", "--n-alloc", "32",
+        "--n-guides", "16", "--tolerances", "base"])
+    assert rc == 0
+    assert any("\u03a3\u0394" in t for t in seen) and any("\u00b5m" in t for t in seen)
+    assert not [t for t in seen if UM_LABEL.search(t)]
+
+
+def test_inline_svgs_keep_their_ids_apart(tmp_path):
+    svgs = []
+    for name in ("a", "b"):
+        fig, ax = plt.subplots()
+        ax.plot([0, 1], [0, 1])
+        svgs.append(rh.Figure(name, name, plots.save(fig, tmp_path / f"{name}.svg").read_bytes(),
+                              "svg"))
+    page = "\n".join(rh.figure_html(f) for f in svgs)
+    ids = re.findall(r'\bid="([^"]+)"', page)
+    assert len(ids) == len(set(ids)) > 4
+    for ref in re.findall(r"url\(#([^)]+)\)", page):  # every reference finds its target
+        assert ref in ids
