@@ -97,13 +97,13 @@ def tighten_conclusions(out: Path, sets: list[str]) -> list[Conclusion]:
                     f"{name} tolerances: single tolerances explain {min(explained, 100.0):.1f} % "
                     f"of the variance of SumDelta after beta adjustment ({shares}; eta^2); "
                     f"{rest} ({link})."))
-                continue
-            shares = ", ".join(f"{p} {v:.1f} %" for p, v in zip(top["param"], top["share_pct"],
-                                                                strict=True))
-            items.append(Conclusion(
-                f"{name} tolerances: {_and(list(top['param']))} carry "
-                f"{top['cumulative_pct'].iloc[-1]:.1f} % of the scatter of SumDelta after beta "
-                f"adjustment (eta^2 shares {shares}; {link})."))
+            else:
+                shares = ", ".join(f"{p} {v:.1f} %" for p, v in zip(
+                    top["param"], top["share_pct"], strict=True))
+                items.append(Conclusion(
+                    f"{name} tolerances: {_and(list(top['param']))} carry "
+                    f"{top['cumulative_pct'].iloc[-1]:.1f} % of the scatter of SumDelta after "
+                    f"beta adjustment (eta^2 shares {shares}; {link})."))
         path = out / f"sobol_{name}.csv"
         if path.exists():
             sob = _csv(path)
@@ -112,6 +112,17 @@ def tighten_conclusions(out: Path, sets: list[str]) -> list[Conclusion]:
                 f"{name} tolerances, Sobol (beta adjusted): largest total indices "
                 + ", ".join(f"{r.param} ST = {r.ST:.3f} +/- {r.ST_conf:.3f}"
                             for r in adj.itertuples()) + f" ([sobol_{name}.md](sobol_{name}.md))."))
+        path = out / f"sobol_{name}_second_order.csv"
+        if path.exists():
+            s2 = _csv(path)
+            s2 = s2[s2["case"] == "adjusted_beta"].sort_values("S2", ascending=False)
+            top, rest = s2.iloc[0], s2.iloc[1:]
+            link = f"[sobol_{name}_second_order.md](sobol_{name}_second_order.md)"
+            items.append(Conclusion(
+                f"{name} tolerances, second-order Sobol (beta adjusted): S2({top.param_i}, "
+                f"{top.param_j}) = {top.S2:.3f} +/- {top.S2_conf:.3f}: the interaction of "
+                f"{top.param_i} and {top.param_j} carries most of the variance; every other "
+                f"pair is below {rest['S2'].abs().max():.3f} ({link})."))
     path = out / "largest_tolerances.csv"
     if path.exists():
         lt = _csv(path)
@@ -192,7 +203,7 @@ LAYOUT = [
     ("Monte-Carlo, SET tolerances", ["montecarlo_SET", "montecarlo_SET_pareto"],
      [("montecarlo_SET", "SumDelta with beta fixed and adjusted (overflow and failed machines "
        "counted), beta* per machine (machines at a search bound in red)")]),
-    ("Sobol, SET tolerances", ["sobol_SET", "sobol_SET_convergence"],
+    ("Sobol, SET tolerances", ["sobol_SET", "sobol_SET_second_order", "sobol_SET_convergence"],
      [("sobol_SET", "First-order and total Sobol indices with 95 % intervals")]),
     ("Tolerance limits and allocation", ["largest_tolerances", "allocation", "guides"], []),
     ("Adjustment strategies", ["strategies", "strategies_SET_failures"],

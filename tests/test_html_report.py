@@ -368,3 +368,19 @@ def test_inline_svgs_keep_their_ids_apart(tmp_path):
     assert len(ids) == len(set(ids)) > 4
     for ref in re.findall(r"url\(#([^)]+)\)", page):  # every reference finds its target
         assert ref in ids
+
+
+def test_tighten_conclusions_give_the_explained_share_the_sobol_and_the_pair_interaction(
+        needle_report):
+    """Every set gets its eta^2 share, its total Sobol indices and its largest S2 pair, each
+    with the table's own numbers (the Sobol lines were once skipped after the eta^2 line)."""
+    folder, index, _ = needle_report
+    for name in ("base", "recommended"):
+        sob = pd.read_csv(folder / f"sobol_{name}.csv", comment="#")
+        top = sob[sob["case"] == "adjusted_beta"].sort_values("ST", ascending=False).iloc[0]
+        assert f"{top.param} ST = {top.ST:.3f}" in index
+        s2 = pd.read_csv(folder / f"sobol_{name}_second_order.csv", comment="#")
+        pair = s2[s2["case"] == "adjusted_beta"].sort_values("S2", ascending=False).iloc[0]
+        assert (f"S2({pair.param_i}, {pair.param_j}) = {pair.S2:.3f} +/- {pair.S2_conf:.3f}"
+                in index)
+        assert f"{name} tolerances: single tolerances explain" in index
