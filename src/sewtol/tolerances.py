@@ -392,3 +392,28 @@ def resolve_all(specs: list[str] | None, builtin: dict[str, ToleranceSet],
                                      "needs its own name", set_name)
             out[set_name] = ts
     return out
+
+
+def needle_set(tolerances: ToleranceSet | str) -> ToleranceSet:
+    """The needle tolerance set a study was given: a ToleranceSet as it is, or its string
+    shortcut, a built-in name ("base", "recommended") or "FILE.toml[:SET]".
+
+    Parameters
+    ----------
+    tolerances : ToleranceSet or str
+        The set, or its name or file.
+
+    Returns
+    -------
+    ToleranceSet
+        The set itself.
+    """
+    if isinstance(tolerances, ToleranceSet):
+        return tolerances
+    if isinstance(tolerances, str):
+        from .mechanisms.needle_208 import Needle208
+        from .mechanisms.params import field_names
+
+        return resolve(tolerances, NEEDLE_208_SETS, field_names(Needle208))
+    raise ParameterError("tolerances", "must be a ToleranceSet, a set name (base, recommended) "
+                         "or 'FILE.toml[:SET]'", type(tolerances).__name__)

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import ParameterError
-from ..tolerances import Tolerance, ToleranceSet
+from ..tolerances import Tolerance, ToleranceSet, needle_set
 from . import beta as sb
 from .needle_eval import evaluate
 from .scan import scan
@@ -54,7 +54,7 @@ class Allocation:
                                             strict=True)), "allocated by sewtol")
 
 
-def allocate(nominal: Needle208, reference: ToleranceSet, target: float = 0.9973,
+def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 0.9973,
              n: int = 2000, seed: int = 0, costs: dict[str, float] | None = None,
              max_mm: float = 1.0, range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
              steps: int = 12) -> Allocation:
@@ -69,7 +69,7 @@ def allocate(nominal: Needle208, reference: ToleranceSet, target: float = 0.9973
     ----------
     nominal : Needle208
         The nominal machine (scalar parameters).
-    reference : ToleranceSet
+    reference : ToleranceSet or str
         Which parameters to allocate, and the limits at which the slopes are taken.
     target : float
         The yield to keep, strictly between 0 and 1; default 0.9973 (+/-3 sigma).
@@ -97,6 +97,7 @@ def allocate(nominal: Needle208, reference: ToleranceSet, target: float = 0.9973
     ParameterError
         For a target outside (0, 1) or a non-positive cost weight.
     """
+    reference = needle_set(reference)
     if not (0 < target < 1):
         raise ParameterError("target", "must be a yield strictly between 0 and 1", target)
     ref = reference.active()

@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from ..needle import nominal_figures
-from ..tolerances import ToleranceSet
+from ..tolerances import ToleranceSet, needle_set
 from . import beta as sb
 from .montecarlo import check_sampling, draw_deviations, montecarlo
 
@@ -36,7 +36,7 @@ DEFAULT_VARIANTS = (
 )
 
 
-def compare_guides(nominal: Needle208, tolerances: ToleranceSet, n: int, seed: int,
+def compare_guides(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed: int,
                    variants: Sequence[tuple[str, float, float]] = DEFAULT_VARIANTS,
                    range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
                    n_jobs: int = 1, progress: bool | Callable[[int, int], None] = False,
@@ -51,7 +51,7 @@ def compare_guides(nominal: Needle208, tolerances: ToleranceSet, n: int, seed: i
     ----------
     nominal : Needle208
         The nominal machine (scalar parameters).
-    tolerances : ToleranceSet
+    tolerances : ToleranceSet or str
         What the machines draw from.
     n : int
         Monte-Carlo machines per setting.
@@ -81,6 +81,7 @@ def compare_guides(nominal: Needle208, tolerances: ToleranceSet, n: int, seed: i
         ``total_um`` (nominal SumDelta at beta*), the beta window (deg) and the yields with
         beta fixed and adjusted (or after the strategy, with its counts).
     """
+    tolerances = needle_set(tolerances)
     if strategy is not None:
         return _compare_adjusted(nominal, tolerances, n, seed, variants, range_deg, strategy,
                                  limit_um)

@@ -18,7 +18,7 @@ import pandas as pd
 from scipy import stats
 
 from ..errors import ParameterError
-from ..tolerances import ToleranceSet
+from ..tolerances import ToleranceSet, needle_set
 from . import beta as sb
 from . import needle_status as ns
 from .needle_eval import evaluate
@@ -415,7 +415,7 @@ def fixed_beta_of(nominal, fixed_beta: str, range_deg, limit_um) -> float:
     return float(nominal_figures(nominal, tuple(range_deg), limit_um).beta_opt_deg)
 
 
-def montecarlo(nominal: Needle208, tolerances: ToleranceSet, n: int, seed: int,
+def montecarlo(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed: int,
                limit_um: float = 10.0, range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
                n_jobs: int = 1, progress: bool | Callable[[int, int], None] = False,
                backend: str | None = None, chunk_size: int = CHUNK,
@@ -434,7 +434,7 @@ def montecarlo(nominal: Needle208, tolerances: ToleranceSet, n: int, seed: int,
     ----------
     nominal : Needle208
         The nominal machine (scalar parameters); machines deviate from it.
-    tolerances : ToleranceSet
+    tolerances : ToleranceSet or str
         What each machine's parameters draw from (deviations in mm, deg or um).
     n : int
         The number of machines (>= 1).
@@ -484,6 +484,7 @@ def montecarlo(nominal: Needle208, tolerances: ToleranceSet, n: int, seed: int,
     >>> c["ok"] + c["out_of_spec"] + c["failed"] == 200
     True
     """
+    tolerances = needle_set(tolerances)
     if not (np.isfinite(limit_um) and limit_um > 0):
         raise ParameterError("limit_um", "must be a positive number of um", limit_um)
     sb.check_range(range_deg, limit_um)

@@ -33,7 +33,7 @@ import pandas as pd
 from scipy import special, stats
 
 from ..errors import ParameterError
-from ..tolerances import ToleranceSet
+from ..tolerances import ToleranceSet, needle_set
 
 if TYPE_CHECKING:
     from ..mechanisms.needle_208 import Needle208
@@ -721,7 +721,7 @@ NEEDLE_MODES = ("cannot assemble", "dead point")
 ADJUSTMENTS = ("none", "beta")
 
 
-def needle_limit_state(nominal: Needle208, tolerances: ToleranceSet, limit_um: float = 10.0,
+def needle_limit_state(nominal: Needle208, tolerances: ToleranceSet | str, limit_um: float = 10.0,
                        adjust: str = "beta", range_deg: tuple[float, float] | None = None,
                        engine: str = "numba") -> LimitState:
     """SumDelta of the 208 needle drive after the assembly adjustment, as a LimitState.
@@ -735,7 +735,7 @@ def needle_limit_state(nominal: Needle208, tolerances: ToleranceSet, limit_um: f
     ----------
     nominal : Needle208
         The nominal machine (scalar parameters).
-    tolerances : ToleranceSet
+    tolerances : ToleranceSet or str
         The inputs, mapped from independent standard normals through each tolerance's
         distribution.
     limit_um : float
@@ -758,6 +758,7 @@ def needle_limit_state(nominal: Needle208, tolerances: ToleranceSet, limit_um: f
     ParameterError
         For an unknown adjustment, a non-positive limit, or a set without any tolerance.
     """
+    tolerances = needle_set(tolerances)
     from . import beta as sb
 
     if adjust not in ADJUSTMENTS:

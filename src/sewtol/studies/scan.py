@@ -21,7 +21,7 @@ import pandas as pd
 from ..mechanisms import params as P
 from ..metrics import needle as nm
 from ..optimize import bisect_root
-from ..tolerances import ToleranceSet
+from ..tolerances import ToleranceSet, needle_set
 from . import beta as sb
 
 if TYPE_CHECKING:
@@ -56,7 +56,7 @@ class ScanResult:
         return self.rows[cols].to_dict(orient="records")
 
 
-def scan(nominal: Needle208, tolerances: ToleranceSet, guide_shift_um: float | None = None,
+def scan(nominal: Needle208, tolerances: ToleranceSet | str, guide_shift_um: float | None = None,
          limit_um: float = sb.DEFAULT_LIMIT_UM,
          range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
          strategy: Strategy | None = None) -> ScanResult:
@@ -70,7 +70,7 @@ def scan(nominal: Needle208, tolerances: ToleranceSet, guide_shift_um: float | N
     ----------
     nominal : Needle208
         The nominal machine (scalar parameters).
-    tolerances : ToleranceSet
+    tolerances : ToleranceSet or str
         The limits to visit; parameters not in the set stay nominal.
     guide_shift_um : float or None
         The guide's shift along its normal for every row (um); the source moved the guide
@@ -93,6 +93,7 @@ def scan(nominal: Needle208, tolerances: ToleranceSet, guide_shift_um: float | N
         an end of range_deg: the row's optimum may lie outside it); ``nominal_row`` the same
         for the nominal.
     """
+    tolerances = needle_set(tolerances)
     if guide_shift_um is None:
         guide_shift_um = float(nominal.guide_shift_um)
     base = nominal.override(guide_shift_um=guide_shift_um)

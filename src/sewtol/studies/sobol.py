@@ -23,7 +23,7 @@ from SALib.analyze import sobol as sobol_analyze
 from SALib.sample import sobol as sobol_sample
 
 from ..errors import ParameterError
-from ..tolerances import ToleranceSet
+from ..tolerances import ToleranceSet, needle_set
 from . import beta as sb
 from .needle_eval import evaluate
 from .parallel import chunk_bounds, run_chunks
@@ -245,7 +245,7 @@ def _needle_chunk(nominal, names, X, range_deg, strategy=None, limit_um=sb.DEFAU
     return fixed, adjust(columns_of(nominal, dev), strategy, limit_um, plateaus=False).total_um
 
 
-def needle_sobol(nominal: Needle208, tolerances: ToleranceSet, n: int, seed: int,
+def needle_sobol(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed: int,
                  range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG, n_jobs: int = 1,
                  progress: bool | Callable[[int, int], None] = False,
                  backend: str | None = None, resamples: int = 200,
@@ -271,7 +271,7 @@ def needle_sobol(nominal: Needle208, tolerances: ToleranceSet, n: int, seed: int
     ----------
     nominal : Needle208
         The nominal machine (scalar parameters).
-    tolerances : ToleranceSet
+    tolerances : ToleranceSet or str
         The inputs: each tolerance is one factor with its distribution (uniform, normal,
         truncated normal).
     n : int
@@ -316,6 +316,7 @@ def needle_sobol(nominal: Needle208, tolerances: ToleranceSet, n: int, seed: int
         (``fixed_beta``, ``adjusted_<strategy>``), at n and n/2, and the convergence table
         (with second_order, the S2 pairs and max |dS2|).
     """
+    tolerances = needle_set(tolerances)
     from .montecarlo import fixed_beta_of
 
     check_sobol(nominal, tolerances, n, seed, second_order)

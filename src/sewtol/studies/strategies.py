@@ -22,7 +22,7 @@ from scipy import stats
 from ..errors import ParameterError
 from ..mechanisms import params as P
 from ..metrics import needle as nm
-from ..tolerances import ToleranceSet
+from ..tolerances import ToleranceSet, needle_set
 from .adjustment import STATUSES, Adjustment, adjust
 from .compensators import Strategy, strategy_of
 from .montecarlo import contributors
@@ -216,7 +216,7 @@ def concat_adjustments(parts: list[Adjustment]) -> Adjustment:
     return Adjustment(**merged)
 
 
-def strategies_table(nominal: Needle208, tolerances: ToleranceSet, n: int, seed: int,
+def strategies_table(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed: int,
                      strategies: list[Strategy] | None = None, limit_um: float = 10.0,
                      n_jobs: int = 1, progress: bool | Callable[[int, int], None] = False,
                      ) -> StrategiesResult:
@@ -228,7 +228,7 @@ def strategies_table(nominal: Needle208, tolerances: ToleranceSet, n: int, seed:
     ----------
     nominal : Needle208
         The nominal machine (scalar parameters).
-    tolerances : ToleranceSet
+    tolerances : ToleranceSet or str
         What the machines draw from.
     n : int
         Machines (>= 2), the same for every strategy.
@@ -252,6 +252,7 @@ def strategies_table(nominal: Needle208, tolerances: ToleranceSet, n: int, seed:
         point; they add up to n), the yield and its interval, SumDelta quantiles (um), Cpk,
         at-limit shares and distinct settings; ``machines(name)`` per machine.
     """
+    tolerances = needle_set(tolerances)
     if int(n) != n or n < 2:
         raise ParameterError("n", "must be a whole number >= 2", n)
     if not (np.isfinite(limit_um) and limit_um > 0):
@@ -316,7 +317,7 @@ class StrategyAllocation:
                             f"allocated by sewtol for strategy {self.strategy}")
 
 
-def allocate_for_strategy(nominal, reference: ToleranceSet, strategy: Strategy,
+def allocate_for_strategy(nominal, reference: ToleranceSet | str, strategy: Strategy,
                           target: float = 0.9973, n: int = 500, seed: int = 0,
                           costs: dict | None = None, max_mm: float = 1.0, steps: int = 10,
                           limit_um: float = 10.0) -> StrategyAllocation:
@@ -332,6 +333,7 @@ def allocate_for_strategy(nominal, reference: ToleranceSet, strategy: Strategy,
     common random numbers (one uniform matrix for every trial k), so the yield is a step
     function of k and the result is the largest k found with yield >= target.
     """
+    reference = needle_set(reference)
     if not (0 < target < 1):
         raise ParameterError("target", "must be a yield strictly between 0 and 1", target)
     if int(n) != n or n < 2:

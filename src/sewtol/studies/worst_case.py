@@ -21,7 +21,7 @@ import pandas as pd
 from scipy.optimize import minimize
 
 from ..errors import ParameterError
-from ..tolerances import ToleranceSet
+from ..tolerances import ToleranceSet, needle_set
 from . import beta as sb
 from .needle_eval import evaluate
 
@@ -65,11 +65,12 @@ def _objective(nominal, names, adjust, range_deg, strategy=None):
     return totals
 
 
-def worst_case(nominal, tolerances: ToleranceSet, adjust: bool, range_deg=sb.DEFAULT_RANGE_DEG,
+def worst_case(nominal, tolerances: ToleranceSet | str, adjust: bool, range_deg=sb.DEFAULT_RANGE_DEG,
                starts: int = 3, strategy=None) -> WorstCase:
     """The worst SumDelta over the tolerance box: beta fixed (adjust=False), beta re-optimised
     per trial machine (adjust=True), or, with adjust=True and a strategy, the joint optimum over
     the strategy's compensators per trial machine."""
+    tolerances = needle_set(tolerances)
     tol = tolerances.active()
     names = tol.params
     if len(names) > 10:
@@ -113,7 +114,7 @@ def worst_case(nominal, tolerances: ToleranceSet, adjust: bool, range_deg=sb.DEF
                      at_bound)
 
 
-def worst_case_table(nominal: Needle208, tolerances: ToleranceSet,
+def worst_case_table(nominal: Needle208, tolerances: ToleranceSet | str,
                      range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
                      strategy: Strategy | None = None) -> pd.DataFrame:
     """The worst SumDelta over the tolerance box, with beta fixed and after adjustment.
@@ -125,7 +126,7 @@ def worst_case_table(nominal: Needle208, tolerances: ToleranceSet,
     ----------
     nominal : Needle208
         The nominal machine (scalar parameters); its beta* is the fixed case's beta.
-    tolerances : ToleranceSet
+    tolerances : ToleranceSet or str
         The box: every tolerance between its lower and upper limit.
     range_deg : tuple of float
         The regulating range for beta, (low, high) in deg.
@@ -139,6 +140,7 @@ def worst_case_table(nominal: Needle208, tolerances: ToleranceSet,
         ``worst_corner_total_um``, ``beta_deg``, ``interior`` (True when the worst point is not
         a corner) and the worst point's deviation per parameter (``NAME_mm``).
     """
+    tolerances = needle_set(tolerances)
     return pd.DataFrame([worst_case(nominal, tolerances, a, range_deg,
                                     strategy=strategy if a else None).to_row()
                          for a in (False, True)])
