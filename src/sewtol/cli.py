@@ -853,6 +853,57 @@ def add_needle_guides_allocation(nsub, needle_common, study) -> None:
     p.set_defaults(func=cmd_needle_allocation)
 
 
+# --- needle largest-tolerances: the largest single deviation of each part ----------------------
+
+def cmd_needle_largest_tolerances(args):
+    from .mechanisms.needle_208 import LENGTHS, Needle208
+    from .mechanisms.params import field_names
+    from .studies.scan import largest_tolerances
+    from .tolerances import is_branch
+
+    _check_beta_range(args)
+    params = _study_nominal(args)
+    names = list(LENGTHS) if args.params is None else [s.strip() for s in args.params.split(",")]
+    # beta is re-optimised per machine, so a deviation of it means nothing here
+    valid = [f for f in field_names(Needle208)
+             if not is_branch(f) and f not in ("guide_shift_um", "beta")]
+    for name in names:
+        if name not in valid:
+            raise ParameterError("--params", "must name parameters of the needle drive "
+                                 f"({', '.join(valid)})", name)
+    if not (np.isfinite(args.max_mm) and args.max_mm > 0):
+        raise ParameterError("--max-mm", "must be a positive deviation in mm", args.max_mm)
+    table = largest_tolerances(params, names, limit_um=args.limit_um, max_mm=args.max_mm,
+                               guide_shift_um=float(params.guide_shift_um),
+                               range_deg=tuple(args.beta_range))
+    obj = {"context": {**_context(args, params, _no_tolerances(), None),
+                       "tolerances": None, "seed": None, "n": None},
+           "limit_um": args.limit_um, "max_mm": args.max_mm,
+           "method": "each parameter alone, the others nominal: SumDelta at beta* (re-optimised "
+                     "in the searched range) on a geometric grid from 1 um, then bisection to "
+                     "1e-5 mm; reaches_max marks sides where even max_mm keeps the limit",
+           "rows": table.to_dict(orient="records")}
+    emit(args.format, obj=obj, frame=table)
+
+
+def _no_tolerances():
+    from .tolerances import ToleranceSet
+
+    return ToleranceSet("none", ())
+
+
+def add_needle_largest_tolerances(nsub, needle_common) -> None:
+    p = nsub.add_parser("largest-tolerances", help="largest single deviation of each part that "
+                        "keeps SumDelta(beta*) within the limit")
+    needle_common(p)
+    p.add_argument("--params", default=None, metavar="NAMES",
+                   help="comma-separated parameters (default the seven links LF ... CD)")
+    p.add_argument("--max-mm", type=float, default=1.0,
+                   help="largest deviation tried, mm (default 1)")
+    _beta_options(p)
+    p.set_defaults(func=cmd_needle_largest_tolerances)
+
+
 # --- needle ppm (rare-event probability of failure after adjustment; issue 15) ---------------
 
 def cmd_needle_ppm(args):
@@ -1055,6 +1106,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_needle_ppm(nsub, needle_common, study)
     add_needle_guides_allocation(nsub, needle_common, study)
+    add_needle_largest_tolerances(nsub, needle_common)
 
     p = nsub.add_parser("frames", help="the named frames of the 208 with their residuals")
     p.add_argument("--format", choices=FORMATS, default="table")
