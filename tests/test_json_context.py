@@ -100,6 +100,15 @@ def test_every_run_study_json_carries_its_context(argv, expected, tmp_path):
     assert strict_loads((tmp_path / "o" / name).read_text()) == obj
 
 
+def test_needle_nominal_json_names_its_frame_guide_and_range():
+    obj, ctx = _context_of(("needle", "nominal", "--frame", "window", "--guide-shift-um", "5",
+                            "--beta-range", "15", "30", "--limit-um", "12"))
+    _check(ctx, (None, None, None, "beta"))
+    assert ctx["frame"] == "window" and ctx["guide_shift_um"] == 5.0
+    assert ctx["beta_search_range_deg"] == [15.0, 30.0] and ctx["limit_um"] == 12.0
+    assert obj["beta_search_range_deg"] == [15.0, 30.0]
+
+
 def test_the_needle_fast_path_of_run_carries_the_needle_context():
     _, ctx = _context_of(("run", NEEDLE_FILE, "montecarlo", "--n", "20", "--seed", "3"))
     _check(ctx, ("base", 3, 20, "beta"))

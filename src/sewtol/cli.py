@@ -103,7 +103,9 @@ def cmd_needle_nominal(args):
     _check_beta_range(args)
     params = _needle_params(args)
     fig = nominal_figures(params, tuple(args.beta_range), args.limit_um)
-    emit(args.format, obj=fig.to_dict(), frame=fig.to_dataframe())
+    # the nominal machine: no tolerance set, nothing drawn; beta* searched as in every study
+    emit(args.format, obj={**fig.to_dict(), "context": _context(args, params, None, None)},
+         frame=fig.to_dataframe())
     _print_notes(args, fig.notes())
 
     def draw(ax):
@@ -223,7 +225,8 @@ def _context(args, params, tolerances, strategy) -> dict:
     for c in getattr(strategy, "compensators", ()):
         if c.name == "beta":  # the strategy's own range of beta
             beta = [c.low, c.high]
-    return {"tolerances": tolerances.name, "seed": getattr(args, "seed", None),
+    return {"tolerances": None if tolerances is None else tolerances.name,
+            "seed": getattr(args, "seed", None),
             "n": getattr(args, "n", None), "frame": getattr(args, "frame", None) or DEFAULT_FRAME,
             "guide_shift_um": float(params.guide_shift_um),
             "guide_angle_deg": float(params.guide_angle),
