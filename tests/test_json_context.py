@@ -157,3 +157,14 @@ def test_plot_draws_the_scan_rows_it_prints(tmp_path):
     lower = [r["total_um"] for r in rows if r["side"] == "lower"]
     assert heights == pytest.approx(upper + lower, abs=1e-12)
     plt.close(fig)
+
+
+def test_feed_montecarlo_needs_more_machines_than_contributor_bins():
+    """The contributors' bias correction divides by n - 20 bins: n = 20 used to crash with a
+    ZeroDivisionError; now it is refused in one line, and n = 21 runs."""
+    code, out, err = run("feed", "montecarlo", "--n", "20")
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert "--n: must be >= 21" in err
+    code, out, err = run("feed", "montecarlo", "--n", "21", "--format", "json")
+    assert code == 0, err
+    assert strict_loads(out)["context"]["n"] == 21

@@ -26,6 +26,10 @@ from .cli import (
 from .errors import ParameterError
 
 FEED_SCREEN_N = 1000  # machines of the Monte-Carlo that picks each output's parameters
+# the quantile bins of studies.montecarlo.contributors: its bias correction divides by n - bins,
+# so the contributor table needs more machines than bins (n = 20 divided by zero, n < 20 gave
+# shares of the wrong sign)
+CONTRIBUTOR_BINS = 20
 
 
 def _feed_tolerances(args, params):
@@ -91,7 +95,7 @@ def cmd_feed_montecarlo(args):
     from .provenance import now
     from .studies.montecarlo import check_sampling
 
-    _check_n(args.n)
+    _check_n(args.n, minimum=CONTRIBUTOR_BINS + 1)
     params, tolerances = _feed_study(args)
     _as_flags(check_sampling, params, tolerances, args.n, args.seed)
     started = now()
