@@ -27,8 +27,8 @@ from .errors import ParameterError
 
 FEED_SCREEN_N = 1000  # machines of the Monte-Carlo that picks each output's parameters
 # the quantile bins of studies.montecarlo.contributors: its bias correction divides by n - bins,
-# so the contributor table needs more machines than bins (n = 20 divided by zero, n < 20 gave
-# shares of the wrong sign)
+# so the contributor table needs more machines than bins (n = 20 divided by zero; n < 20 gave
+# meaningless shares: at n = 10 every tolerance 100 % of the variance)
 CONTRIBUTOR_BINS = 20
 
 
