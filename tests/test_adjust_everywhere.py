@@ -20,13 +20,13 @@ NUM = ["delta_mm", "value_mm", "beta_deg", "plus_um", "minus_um", "total_um"]
 def scan_plain():
     code, out, err = run("needle", "scan", "--format", "json")
     assert code == 0, err
-    return pd.DataFrame(strict(out))
+    return pd.DataFrame(strict(out)["rows"])
 
 
 def test_scan_adjust_beta_equals_todays_rows(scan_plain):
     code, out, err = run("needle", "scan", "--adjust", "beta", "--format", "json")
     assert code == 0, err
-    adj = pd.DataFrame(strict(out))
+    adj = pd.DataFrame(strict(out)["rows"])
     assert list(adj.columns[:len(scan_plain.columns)]) == list(scan_plain.columns)
     assert (adj["param"] == scan_plain["param"]).all() and (adj["side"] == scan_plain["side"]).all()
     # same exact beta optimum: the figures agree far below the 0.01 um precision
@@ -38,7 +38,7 @@ def test_scan_adjust_beta_equals_todays_rows(scan_plain):
 def test_scan_beta_and_shift_takes_ab_be_to_the_band(scan_plain):
     code, out, err = run("needle", "scan", "--adjust", "beta,guide_shift_um", "--format", "json")
     assert code == 0, err
-    adj = pd.DataFrame(strict(out))
+    adj = pd.DataFrame(strict(out)["rows"])
     ab_be = adj["param"].isin(["AB", "BE"]).to_numpy()
     # beta alone: about 50 um; beta + the guide shift: under the 10 um limit
     assert (scan_plain.loc[ab_be, "total_um"] > 45).all()
@@ -78,10 +78,10 @@ def test_sobol_adjust_beta_matches_todays_adjusted_case():
     (measured 8e-7), so they are compared at 1e-5. The fixed case is the same code: to 1e-12."""
     code, out, err = run("needle", "sobol", "--n", "16", "--format", "json")
     assert code == 0, err
-    today = pd.DataFrame(strict(out))
+    today = pd.DataFrame(strict(out)["indices"])
     code, out, err = run("needle", "sobol", "--n", "16", "--adjust", "beta", "--format", "json")
     assert code == 0, err
-    new = pd.DataFrame(strict(out))
+    new = pd.DataFrame(strict(out)["indices"])
     assert list(new.columns) == list(today.columns)
     assert list(new["case"]) == list(today["case"]) and list(new["param"]) == list(today["param"])
     fixed = (today["case"] == "fixed_beta").to_numpy()
@@ -115,7 +115,7 @@ def test_sobol_adjust_names_its_case_and_refuses():
     code, out, err = run("needle", "sobol", "--n", "16", "--adjust", "beta,guide_shift_um",
                          "--format", "json")
     assert code == 0, err
-    cases = {r["case"] for r in strict(out)}
+    cases = {r["case"] for r in strict(out)["indices"]}
     assert cases == {"fixed_beta", "adjusted_beta+guide_shift_um"}
     code, out, err = run("needle", "sobol", "--n", "16", "--step", "beta=1")
     assert code == 2 and out == "" and "--step" in err and len(err.strip().splitlines()) == 1

@@ -54,7 +54,7 @@ def test_nominal_flags_an_optimum_on_a_bound_in_json_table_and_text():
 
 def test_scan_flags_rows_at_the_bound_and_keeps_the_guide_shift():
     code, out, _ = run("needle", "scan", "--format", "json", "--beta-range", "22", "23")
-    rows = {(r["param"], r["side"]): r for r in strict_loads(out)}
+    rows = {(r["param"], r["side"]): r for r in strict_loads(out)["rows"]}
     # LM +/-0.5 mm moves beta* out of [22, 23] (to 20.68 / 24.42 in [10, 35]): on the bound
     assert rows[("LM", "upper")]["beta_at_bound"] and rows[("LM", "lower")]["beta_at_bound"]
     assert abs(rows[("LM", "upper")]["beta_deg"] - 22.0) < 1e-3
@@ -190,9 +190,13 @@ def test_needle_sobol_second_order_from_the_cli(tmp_path):
         assert len(pairs) == 15 and all(np.isfinite(p["S2_conf"]) for p in pairs)
     s2 = pd.read_csv(out / "second_order.csv")
     assert len(s2) == 30 and list(s2.columns) == ["param_i", "param_j", "S2", "S2_conf", "case"]
-    # without the flag: the records of S1/ST, as before
+    # without the flag: the same object, the S1/ST records under "indices", no S2
     code, text, _ = run("needle", "sobol", "--n", "16", "--format", "json")
-    assert isinstance(strict_loads(text), list)
+    plain = strict_loads(text)
+    assert "second_order" not in plain and plain["context"] == d["context"]
+    assert plain["model_runs_per_case"] == 16 * (6 + 2)
+    assert [(r["case"], r["param"]) for r in plain["indices"]] == \
+        [(r["case"], r["param"]) for r in d["indices"]]
 
 
 @pytest.mark.parametrize("suffix,magic", [(".png", b"\x89PNG"), (".svg", b"<?xml"),
@@ -315,7 +319,7 @@ def test_feed_montecarlo_and_sobol_from_the_cli(tmp_path):
     code, _, err = run("feed", "sobol", "--n", "8")
     assert code == 2 and "--n: must be a power of two >= 16" in err
     code, _, err = run("feed", "montecarlo", "--n", "1")
-    assert code == 2 and "--n: must be >= 2" in err
+    assert code == 2 and "--n: must be >= 21" in err  # more machines than contributor bins
 
 
 def test_fixed_beta_is_the_nominal_beta_star_in_every_needle_study():
@@ -340,7 +344,7 @@ def test_adjusted_scan_flags_the_same_rows():
     _, a, _ = run("needle", "scan", "--format", "json", "--beta-range", "22", "23")
     _, b, err = run("needle", "scan", "--format", "json", "--adjust", "beta", "--beta-range",
                     "22", "23")
-    plain, adj = strict_loads(a), strict_loads(b)
+    plain, adj = strict_loads(a)["rows"], strict_loads(b)["rows"]
     assert [r["beta_at_bound"] for r in adj] == [r["beta_at_bound"] for r in plain], err
 
 
@@ -390,7 +394,7 @@ def test_feed_plots_and_strategy_machine_tables(tmp_path):
                                     "dev_BC_mm", "dev_BE_mm"]
 
 
-def test_list_shaped_outputs_keep_their_context_in_run_json(tmp_path):
+def test_scan_and_sobol_carry_their_context_in_json_and_run_json(tmp_path):
     out = tmp_path / "scan"
     code, text, err = run("needle", "scan", "--format", "json", "--guide-shift-um", "5",
                           "--out", str(out))
@@ -399,7 +403,8 @@ def test_list_shaped_outputs_keep_their_context_in_run_json(tmp_path):
     ctx = strict_loads((out / "run.json").read_text())["inputs"]["context"]
     assert ctx["guide_shift_um"] == 5.0 and ctx["tolerances"] == "base"
     back = pd.read_csv(out / "scan.csv")  # plain CSV: no comment lines to skip
-    assert list(back["param"]) == [r["param"] for r in strict_loads(text)]
+    assert list(back["param"]) == [r["param"] for r in strict_loads(text)["rows"]]
+    assert strict_loads(text)["context"] == ctx
     s = tmp_path / "sobol"
     assert run("needle", "sobol", "--n", "16", "--seed", "7", "--out", str(s))[0] == 0
     ctx = strict_loads((s / "run.json").read_text())["inputs"]["context"]

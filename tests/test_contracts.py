@@ -314,7 +314,7 @@ def test_scaled_sets_are_renamed():
 
 def test_issue_14_contract_fixes(nominal):
     code, out, _ = run("needle", "scan", "--format", "json")
-    rows = strict_loads(out)
+    rows = strict_loads(out)["rows"]
     lf = next(r for r in rows if r["param"] == "LF" and r["side"] == "upper")
     assert lf["value_mm"] == pytest.approx(nominal.LF + lf["delta_mm"], abs=1e-12)
     code, out, err = run("needle", "nominal", "--format", "csv")

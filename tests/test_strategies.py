@@ -346,7 +346,9 @@ def test_cli_strategies_takes_a_frame_and_prints_strict_json(tmp_path):
         code, out, err = _run("needle", "strategies", "--n", "6", "--frame", frame,
                               "--format", "json")
         assert code == 0, err
-        rows[frame] = strict_loads(out)
+        d = strict_loads(out)
+        assert d["context"]["frame"] == frame and d["context"]["n"] == 6
+        rows[frame] = d["rows"]
         for r in rows[frame]:
             assert r["ok"] + r["out_of_spec"] + r["cannot_assemble"] + r["dead_point"] == 6
     # the frame reaches the model: the same machines give other SumDelta quantiles

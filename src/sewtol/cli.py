@@ -103,7 +103,9 @@ def cmd_needle_nominal(args):
     _check_beta_range(args)
     params = _needle_params(args)
     fig = nominal_figures(params, tuple(args.beta_range), args.limit_um)
-    emit(args.format, obj=fig.to_dict(), frame=fig.to_dataframe())
+    # the nominal machine: no tolerance set, nothing drawn; beta* searched as in every study
+    emit(args.format, obj={**fig.to_dict(), "context": _context(args, params, None, None)},
+         frame=fig.to_dataframe())
     _print_notes(args, fig.notes())
 
     def draw(ax):
@@ -223,7 +225,8 @@ def _context(args, params, tolerances, strategy) -> dict:
     for c in getattr(strategy, "compensators", ()):
         if c.name == "beta":  # the strategy's own range of beta
             beta = [c.low, c.high]
-    return {"tolerances": tolerances.name, "seed": getattr(args, "seed", None),
+    return {"tolerances": None if tolerances is None else tolerances.name,
+            "seed": getattr(args, "seed", None),
             "n": getattr(args, "n", None), "frame": getattr(args, "frame", None) or DEFAULT_FRAME,
             "guide_shift_um": float(params.guide_shift_um),
             "guide_angle_deg": float(params.guide_angle),
@@ -478,21 +481,34 @@ def cmd_needle_scan(args):
     rows = scan(params, tolerances, limit_um=args.limit_um, range_deg=tuple(args.beta_range),
                 strategy=strategy)
     frame = rows.to_dataframe()
+    context = _context(args, params, tolerances, strategy)
+    obj = {"context": context, "rows": rows.to_records()}
     if args.out:
         from .provenance import now
 
         started = now()
         inputs = _inputs(args, "scan", params, tolerances, limit_um=args.limit_um,
-                         beta_search_range_deg=list(args.beta_range),
-                         context=_context(args, params, tolerances, strategy))
-        _write_outputs(args, "scan", inputs, started, rows.to_records(), {"scan": frame},
+                         beta_search_range_deg=list(args.beta_range), context=context)
+        _write_outputs(args, "scan", inputs, started, obj, {"scan": frame},
                        [{"started_utc": started, "resumed": False}])
-    emit(args.format, obj=rows.to_records(), frame=frame)
+    emit(args.format, obj=obj, frame=frame)
     if "beta_at_bound" in frame:
         n = int(frame["beta_at_bound"].sum())
         _print_notes(args, [f"{n} of {len(frame)} rows have beta* on a bound of the searched "
                             f"range {list(args.beta_range)} deg (column beta_at_bound): their "
                             "optimum may lie outside it"] if n else [])
+    _save_plot(args, lambda ax: _scan_figure(frame, "total_um", ax, "SumDelta at beta* (um)",
+                                             args.limit_um))
+
+
+def _scan_figure(frame, column, ax, ylabel, limit=None):
+    """A scan's `column` at each tolerance's upper and lower limit, one group per tolerance."""
+    labels = list(dict.fromkeys(frame["param"]))
+    series = {side: [float(frame.loc[(frame["param"] == p) & (frame["side"] == side),
+                                     column].iloc[0]) for p in labels]
+              for side in ("upper", "lower")}
+    return _plots().grouped_bars(labels, series, ax=ax, ylabel=ylabel, limit=limit,
+                                 title="each tolerance at its limits")
 
 
 def cmd_needle_montecarlo(args):
@@ -648,9 +664,16 @@ def cmd_needle_strategies(args):
         frames[f"machines_{safe}"] = _deviation_columns(res.machines(r.name), res.params)
     inputs = _inputs(args, "strategies", params, tolerances, limit_um=10.0,
                      strategies={r.name: _strategy_record(r) for r in rows})
-    _write_outputs(args, "strategies", inputs, started, table.to_dict(orient="records"), frames,
-                   [])
-    emit(args.format, obj=table.to_dict(orient="records"), frame=table)
+    context = {**_context(args, params, tolerances, strategy),
+               "strategy": [r.name for r in rows], "limit_um": 10.0}
+    obj = {"context": context, **_fixed_record(args, params, strategy),
+           "rows": table.to_dict(orient="records")}
+    _write_outputs(args, "strategies", inputs, started, obj, frames, [])
+    emit(args.format, obj=obj, frame=table)
+    _save_plot(args, lambda ax: _plots().grouped_bars(
+        list(table["strategy"]), {"yield": table["yield"]}, ax=ax, ylabel="yield",
+        errors={"yield": (table["yield_ci_low"], table["yield_ci_high"])},
+        title=f"yield by adjustment strategy, {args.n} machines (95 % interval)"))
 
 
 def _adjust_options(p):
@@ -720,12 +743,11 @@ def cmd_needle_sobol(args):
 
 
 def _sobol_json(res, second_order: bool, context: dict):
-    """The records of S1/ST (unchanged); with --second-order an object that adds the S2 pairs
-    and the context."""
-    if not second_order:
-        return res.to_records()
+    """One shape for both forms: the S1/ST records under "indices", the context, and with
+    --second-order the S2 pairs under "second_order"."""
     return {"indices": res.to_records(),
-            "second_order": res.second_order_frame().to_dict(orient="records"),
+            **({"second_order": res.second_order_frame().to_dict(orient="records")}
+               if second_order else {}),
             "n": res.n, "seed": res.seed, "tolerances": res.tolerances,
             "model_runs_per_case": res.model_runs, "context": context}
 
@@ -762,6 +784,12 @@ def cmd_needle_guides(args):
            **({} if strategy is None else {"compensators": _strategy_record(strategy)}),
            "rows": table.to_dict(orient="records")}
     emit(args.format, obj=obj, frame=table)
+    _save_plot(args, lambda ax: _plots().grouped_bars(
+        list(table["guide"]), {"beta fixed at the guide's beta*": table["yield_fixed_beta"],
+                               **({"beta adjusted": table["yield_adjusted_beta"]}
+                                  if strategy is None else
+                                  {f"{strategy.name} adjusted": table["yield_adjusted"]})}, ax=ax,
+        ylabel="yield", title=f"yield by guide setting, {args.n} machines"))
 
 
 def cmd_needle_allocation(args):
@@ -820,6 +848,10 @@ def cmd_needle_worst_case(args):
     _print_notes(args, _fixed_notes(obj) + [
         f"the worst machine's beta* in {r['case']} reaches a bound of the searched range: its "
         "optimum may lie outside it" for r in obj["rows"] if r.get("beta_at_bound")])
+    _save_plot(args, lambda ax: _plots().grouped_bars(
+        list(table["case"]), {"worst SumDelta in the box": table["total_um"]}, ax=ax,
+        ylabel="SumDelta (um)", limit=_context(args, params, tolerances, strategy)["limit_um"],
+        title=f"worst case over the tolerance box ({tolerances.name})"))
 
 
 def add_needle_guides_allocation(nsub, needle_common, study) -> None:
@@ -830,6 +862,7 @@ def add_needle_guides_allocation(nsub, needle_common, study) -> None:
     p.add_argument("--beta-range", nargs=2, type=float, default=None, metavar=("LOW", "HIGH"),
                    help="regulating range searched for beta (deg); default 10 35")
     _adjust_options(p)
+    _plot_option(p, "the worst SumDelta of each case against the limit")
     p.set_defaults(func=cmd_needle_worst_case)
 
     p = nsub.add_parser("guides", help="guide settings compared: beta*, window, yields")
@@ -839,6 +872,7 @@ def add_needle_guides_allocation(nsub, needle_common, study) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     _beta_options(p)
     _adjust_options(p)
+    _plot_option(p, "the yields of each guide setting, beta fixed and adjusted")
     p.set_defaults(func=cmd_needle_guides)
 
     p = nsub.add_parser("allocation", help="widest tolerances for a yield after adjustment")
@@ -1073,6 +1107,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, metavar="DIR",
                    help="write scan.csv, scan.json and run.json (the context) here")
     _adjust_options(p)
+    _plot_option(p, "SumDelta at each tolerance's upper and lower limit")
     p.set_defaults(func=cmd_needle_scan, seed=None, n_jobs=1)
 
     p = nsub.add_parser("montecarlo", help="yield with beta fixed and adjusted per machine")
@@ -1090,6 +1125,7 @@ def build_parser() -> argparse.ArgumentParser:
     study(p)
     p.add_argument("--n", type=int, default=500, help="machines (default 500)")
     _adjust_options(p)
+    _plot_option(p, "the yield of each strategy with its 95 % interval")
     p.set_defaults(func=cmd_needle_strategies)
 
     p = nsub.add_parser("sobol", help="Sobol indices of SumDelta (SALib)")

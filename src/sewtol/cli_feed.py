@@ -14,14 +14,22 @@ from .cli import (
     _deviation_columns,
     _feed_params,
     _inputs,
+    _plot_option,
+    _plots,
     _print_notes,
     _progress_option,
+    _save_plot,
+    _scan_figure,
     _write_outputs,
     emit,
 )
 from .errors import ParameterError
 
 FEED_SCREEN_N = 1000  # machines of the Monte-Carlo that picks each output's parameters
+# the quantile bins of studies.montecarlo.contributors: its bias correction divides by n - bins,
+# so the contributor table needs more machines than bins (n = 20 divided by zero; n < 20 gave
+# meaningless shares: at n = 10 every tolerance 100 % of the variance)
+CONTRIBUTOR_BINS = 20
 
 
 def _feed_tolerances(args, params):
@@ -51,7 +59,10 @@ def _feed_study(args):
 def _feed_context(args, params, tolerances) -> dict:
     return {"mechanism": "131-42+3 feed", "tolerances": tolerances.name,
             "tolerances_description": tolerances.description,
-            "seed": getattr(args, "seed", None), "n": getattr(args, "n", None),
+            # a scan draws nothing: no seed, no n
+            "seed": getattr(args, "seed", None) if getattr(args, "n", None) is not None
+            else None, "n": getattr(args, "n", None),
+            "strategy": "none",  # the feed studies adjust nothing per machine
             "b_deg": float(params.b), "plate_mm": float(params.plate_mm),
             "material_mm": float(params.material_mm)}
 
@@ -75,6 +86,8 @@ def cmd_feed_scan(args):
            "rows": frame.to_dict(orient="records")}
     _feed_write(args, "scan", params, tolerances, started, obj, {"scan": frame})
     emit(args.format, obj=obj, frame=frame)
+    _save_plot(args, lambda ax: _scan_figure(frame, "change_differential_ratio", ax,
+                                             "change of the differential ratio"))
 
 
 def cmd_feed_montecarlo(args):
@@ -82,7 +95,7 @@ def cmd_feed_montecarlo(args):
     from .provenance import now
     from .studies.montecarlo import check_sampling
 
-    _check_n(args.n)
+    _check_n(args.n, minimum=CONTRIBUTOR_BINS + 1)
     params, tolerances = _feed_study(args)
     _as_flags(check_sampling, params, tolerances, args.n, args.seed)
     started = now()
@@ -107,6 +120,18 @@ def cmd_feed_montecarlo(args):
         _print_notes(args, [f"the first-order shares of {', '.join(over)} add up to more than "
                             "100 %: with this --n the estimates' noise exceeds the interactions "
                             "(a larger --n settles them)"] if over else [])
+    _save_plot(args, lambda ax: _contributor_figure(contrib, ax))
+
+
+def _contributor_figure(contrib, ax):
+    """Each output's share of variance (%) per tolerance (the single tolerances, not the sum
+    and remainder rows)."""
+    single = contrib[~contrib["param"].str.startswith("(")]
+    table = single.pivot_table(index="param", columns="output", values="variance_pct",
+                               sort=False).fillna(0.0)
+    return _plots().grouped_bars(list(table.index), {c: table[c] for c in table.columns},
+                                 ax=ax, ylabel="share of the output's variance (%)",
+                                 title="contributors (bias-corrected eta^2)")
 
 
 def cmd_feed_sobol(args):
@@ -134,6 +159,9 @@ def cmd_feed_sobol(args):
                 {"indices": table, "convergence": res.convergence},
                 screening_machines=args.n_screen)
     emit(args.format, obj=obj, frame=table)
+    first = table["output"].iloc[0]
+    _save_plot(args, lambda ax: _plots().sobol_bars(
+        table[table["output"] == first], ax=ax, title=f"Sobol indices of {first}"))
 
 
 def add_feed_studies(fsub, common) -> None:
@@ -157,9 +185,11 @@ def add_feed_studies(fsub, common) -> None:
     study(p)
     p.add_argument("--out", default=None, metavar="DIR",
                    help="write scan.csv, scan.json and run.json here")
+    _plot_option(p, "the change of the differential ratio at each tolerance's limits")
     p.set_defaults(func=cmd_feed_scan, seed=0, n_jobs=1)
     p = fsub.add_parser("montecarlo", help="feed outputs of N machines and their contributors")
     study(p, 2000, "machines (default 2000)")
+    _plot_option(p, "each output's shares of variance by tolerance")
     p.set_defaults(func=cmd_feed_montecarlo)
     p = fsub.add_parser("sobol", help="Sobol indices of each feed output over the tolerances "
                         "that matter to it (SALib)")
@@ -167,6 +197,7 @@ def add_feed_studies(fsub, common) -> None:
     p.add_argument("--n-screen", type=int, default=FEED_SCREEN_N,
                    help="machines of the Monte-Carlo (same seed) that picks the tolerances "
                         f"each output's indices are computed over (default {FEED_SCREEN_N})")
+    _plot_option(p, "S1 and ST of the first output with their intervals")
     p.set_defaults(func=cmd_feed_sobol)
 
 

@@ -211,9 +211,22 @@ def _as_flags(fn, *a):
         raise
 
 
+def _run_context(args, mech, tolerances) -> dict:
+    """What decides a `run` study's numbers, carried by its JSON (its CSVs: run.json beside
+    them); seed and n are null where the study draws nothing (nominal, scan, worst-case)."""
+    draws = args.study in DEFAULT_N
+    return {"mechanism": mech.name, "mechanism_file": str(args.file),
+            "tolerances": None if tolerances is None else tolerances.name,
+            "seed": args.seed if draws else None, "n": args.n if draws else None,
+            "strategy": args.adjust or "none", "output": args.output,
+            "limit": args.limit, "lower_limit": args.lower_limit}
+
+
 def _finish(args, fmt, mech, tolerances, obj, frames, frame) -> None:
     from .cli import _write_outputs, emit
     from .provenance import now, version_record
+
+    obj = {**obj, "context": _run_context(args, mech, tolerances)}
 
     if args.out:
         inputs = {"study": f"run {args.study}", "mechanism_file": str(args.file),

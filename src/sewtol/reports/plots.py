@@ -375,3 +375,31 @@ def presser_cycle(path, lowest_mm: float, material_mm: float, ax=None, label: st
     ax.set_xticks(range(0, 361, 45))
     ax.grid(alpha=0.3)
     return ax
+
+
+def grouped_bars(labels, series: dict, ax=None, ylabel: str = "", title: str = "",
+                 limit: float | None = None, errors: dict | None = None):
+    """One group of bars per label, one bar per series (name -> values in the labels' order),
+    optional (low, high) interval per series in `errors` and a dotted `limit` line: the figure
+    of the table-shaped studies (scan, strategies, guides, worst case, feed contributors)."""
+    ax = ax or plt.gca()
+    x = np.arange(len(labels))
+    width = 0.8 / max(len(series), 1)
+    for i, (name, values) in enumerate(series.items()):
+        values = np.asarray(values, dtype=float)
+        yerr = None
+        if errors and name in errors:
+            low, high = (np.asarray(v, dtype=float) for v in errors[name])
+            yerr = np.vstack([values - low, high - values])
+        ax.bar(x + (i - (len(series) - 1) / 2) * width, values, width, yerr=yerr, capsize=3,
+               label=name)
+    if limit is not None:
+        ax.axhline(limit, color="C3", ls=":", lw=0.8, label=f"limit {limit:g}")
+    ax.set_xticks(x)
+    ax.set_xticklabels(labels, rotation=30 if len(labels) > 6 else 0, ha="right"
+                       if len(labels) > 6 else "center", fontsize=8)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=9)
+    ax.grid(True, axis="y", lw=0.3)
+    ax.legend(fontsize=7)
+    return ax

@@ -1,0 +1,170 @@
+"""Every study's --format json is an object with a `context` block (tolerance set, seed, n,
+strategy; the needle's also frame and guide), and --plot FILE on every table-shaped study."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from cli_helpers import run, strict_loads
+
+ROOT = Path(__file__).resolve().parents[1]
+SLIDER = str(ROOT / "tests" / "data" / "crank_slider.toml")
+NEEDLE_FILE = str(ROOT / "examples" / "needle_208.toml")
+
+# (argv, expected context: tolerances, seed, n, strategy); None where the study draws nothing
+NEEDLE = [
+    (("scan",), ("base", None, None, "beta")),
+    (("scan", "--adjust", "beta,guide_shift_um"), ("base", None, None, "beta+guide_shift_um")),
+    (("montecarlo", "--n", "20", "--seed", "3"), ("base", 3, 20, "beta")),
+    (("montecarlo", "--n", "20", "--seed", "3", "--adjust", "beta,guide_shift_um"),
+     ("base", 3, 20, "beta+guide_shift_um")),
+    (("sobol", "--n", "16", "--seed", "4"), ("base", 4, 16, "beta")),
+    (("sobol", "--n", "16", "--seed", "4", "--second-order"), ("base", 4, 16, "beta")),
+    (("strategies", "--n", "6", "--seed", "5"), ("base", 5, 6, None)),
+    (("guides", "--n", "20", "--seed", "6"), ("base", 6, 20, "beta")),
+    (("allocation", "--n", "50", "--seed", "7", "--target", "0.5"), ("base", 7, 50, "beta")),
+    (("worst-case",), ("base", None, None, "beta")),
+    (("ppm", "--budget", "200", "--target", "0.1", "--seed", "8"), ("base", 8, None, "beta")),
+]
+FEED = [
+    (("scan",), ("feed_assumed", None, None, "none")),
+    (("montecarlo", "--n", "40", "--seed", "3"), ("feed_assumed", 3, 40, "none")),
+    (("sobol", "--n", "16", "--n-screen", "100", "--seed", "4"), ("feed_assumed", 4, 16, "none")),
+]
+RUN = [
+    ((SLIDER, "nominal"), (None, None, None, "none")),
+    ((SLIDER, "scan"), ("normal", None, None, "none")),
+    ((SLIDER, "worst-case", "--adjust", "rod"), ("normal", None, None, "rod")),
+    ((SLIDER, "montecarlo", "--n", "20", "--seed", "3"), ("normal", 3, 20, "none")),
+    ((SLIDER, "sobol", "--n", "16", "--seed", "4"), ("normal", 4, 16, "none")),
+    ((SLIDER, "ppm", "--n", "200", "--limit", "20.1", "--target", "0.1", "--seed", "5"),
+     ("normal", 5, 200, "none")),
+    ((SLIDER, "allocation", "--n", "50", "--limit", "20.1", "--seed", "6"),
+     ("normal", 6, 50, "none")),
+]
+
+
+def _context_of(argv):
+    code, out, err = run(*argv, "--format", "json")
+    assert code == 0, err
+    obj = strict_loads(out)
+    assert isinstance(obj, dict) and isinstance(obj.get("context"), dict), argv
+    return obj, obj["context"]
+
+
+def _check(ctx, expected):
+    tolerances, seed, n, strategy = expected
+    assert {"tolerances", "seed", "n", "strategy"} <= set(ctx)
+    assert ctx["tolerances"] == tolerances and ctx["seed"] == seed and ctx["n"] == n
+    if strategy is not None:
+        assert ctx["strategy"] == strategy
+
+
+@pytest.mark.parametrize("argv,expected", NEEDLE, ids=[" ".join(a) for a, _ in NEEDLE])
+def test_every_needle_study_json_carries_its_context(argv, expected):
+    obj, ctx = _context_of(("needle", *argv, "--frame", "window", "--guide-shift-um", "5"))
+    _check(ctx, expected)
+    assert ctx["frame"] == "window" and ctx["guide_shift_um"] == 5.0
+    from sewtol.mechanisms.needle_208 import Needle208
+
+    # the guide's angle parameter of that frame (about 20 deg off vertical)
+    assert ctx["guide_angle_deg"] == float(Needle208.nominal("window").guide_angle)
+    assert abs(abs(ctx["guide_angle_deg"]) - 20.0) < 0.01
+    if argv[0] == "strategies":  # every strategy compared, in the table's order
+        assert ctx["strategy"] == [r["strategy"] for r in obj["rows"]]
+        assert ctx["strategy"][:2] == ["none", "beta"]
+    if argv[0] == "sobol":  # one shape with and without --second-order
+        assert len(obj["indices"]) == 12 and obj["n"] == 16
+        assert ("second_order" in obj) == ("--second-order" in argv)
+    if argv[0] == "scan":
+        assert [(r["param"], r["side"]) for r in obj["rows"]][:2] == [("LF", "upper"),
+                                                                    ("LF", "lower")]
+
+
+@pytest.mark.parametrize("argv,expected", FEED, ids=[" ".join(a) for a, _ in FEED])
+def test_every_feed_study_json_carries_its_context(argv, expected):
+    _, ctx = _context_of(("feed", *argv, "--set", "b=25"))
+    _check(ctx, expected)
+    assert ctx["b_deg"] == 25.0
+
+
+@pytest.mark.parametrize("argv,expected", RUN, ids=[" ".join(a[1:]) for a, _ in RUN])
+def test_every_run_study_json_carries_its_context(argv, expected, tmp_path):
+    obj, ctx = _context_of(("run", *argv, "--out", str(tmp_path / "o")))
+    _check(ctx, expected)
+    assert ctx["mechanism"] == "crank_slider" and ctx["mechanism_file"] == SLIDER
+    # the file in --out is the printed object, context included
+    name = argv[1].replace("-", "_") + ".json"
+    assert strict_loads((tmp_path / "o" / name).read_text()) == obj
+
+
+def test_needle_nominal_json_names_its_frame_guide_and_range():
+    obj, ctx = _context_of(("needle", "nominal", "--frame", "window", "--guide-shift-um", "5",
+                            "--beta-range", "15", "30", "--limit-um", "12"))
+    _check(ctx, (None, None, None, "beta"))
+    assert ctx["frame"] == "window" and ctx["guide_shift_um"] == 5.0
+    assert ctx["beta_search_range_deg"] == [15.0, 30.0] and ctx["limit_um"] == 12.0
+    assert obj["beta_search_range_deg"] == [15.0, 30.0]
+
+
+def test_the_needle_fast_path_of_run_carries_the_needle_context():
+    _, ctx = _context_of(("run", NEEDLE_FILE, "montecarlo", "--n", "20", "--seed", "3"))
+    _check(ctx, ("base", 3, 20, "beta"))
+    assert ctx["frame"] == "sewtol-0.1" and ctx["guide_shift_um"] == 0.0
+
+
+PLOTS = [
+    ("needle", "scan"),
+    ("needle", "strategies", "--n", "6"),
+    ("needle", "guides", "--n", "20"),
+    ("needle", "worst-case"),
+    ("feed", "scan"),
+    ("feed", "montecarlo", "--n", "40"),
+    ("feed", "sobol", "--n", "16", "--n-screen", "100"),
+]
+
+
+@pytest.mark.parametrize("argv", PLOTS, ids=" ".join)
+def test_plot_writes_each_study_figure_as_png_and_svg(argv, tmp_path):
+    texts = {}
+    for suffix, magic in ((".png", b"\x89PNG"), (".svg", b"<?xml")):
+        path = tmp_path / f"fig{suffix}"
+        code, out, err = run(*argv, "--format", "json", "--plot", str(path))
+        assert code == 0, err
+        data = path.read_bytes()
+        assert len(data) > 5000 and data.startswith(magic)
+        texts[suffix] = out
+    # the figure changes nothing printed
+    assert texts[".png"] == texts[".svg"]
+
+
+def test_plot_draws_the_scan_rows_it_prints(tmp_path):
+    """The scan figure's bars are the printed total_um at each limit (upper, then lower)."""
+    import matplotlib.pyplot as plt
+    import pandas as pd
+
+    from sewtol.cli import _scan_figure
+
+    code, out, _ = run("needle", "scan", "--format", "json")
+    rows = strict_loads(out)["rows"]
+    frame = pd.DataFrame(rows)
+    fig, ax = plt.subplots()
+    _scan_figure(frame, "total_um", ax, "SumDelta", 10.0)
+    heights = [p.get_height() for p in ax.patches]
+    upper = [r["total_um"] for r in rows if r["side"] == "upper"]
+    lower = [r["total_um"] for r in rows if r["side"] == "lower"]
+    assert heights == pytest.approx(upper + lower, abs=1e-12)
+    plt.close(fig)
+
+
+def test_feed_montecarlo_needs_more_machines_than_contributor_bins():
+    """The contributors' bias correction divides by n - 20 bins: n = 20 used to crash with a
+    ZeroDivisionError; now it is refused in one line, and n = 21 runs."""
+    code, out, err = run("feed", "montecarlo", "--n", "20")
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert "--n: must be >= 21" in err
+    code, out, err = run("feed", "montecarlo", "--n", "21", "--format", "json")
+    assert code == 0, err
+    assert strict_loads(out)["context"]["n"] == 21
