@@ -910,20 +910,13 @@ def cmd_needle_largest_tolerances(args):
     table = largest_tolerances(params, names, limit_um=args.limit_um, max_mm=args.max_mm,
                                guide_shift_um=float(params.guide_shift_um),
                                range_deg=tuple(args.beta_range))
-    obj = {"context": {**_context(args, params, _no_tolerances(), None),
-                       "tolerances": None, "seed": None, "n": None},
+    obj = {"context": _context(args, params, None, None),
            "limit_um": args.limit_um, "max_mm": args.max_mm,
            "method": "each parameter alone, the others nominal: SumDelta at beta* (re-optimised "
                      "in the searched range) on a geometric grid from 1 um, then bisection to "
                      "1e-5 mm; reaches_max marks sides where even max_mm keeps the limit",
            "rows": table.to_dict(orient="records")}
     emit(args.format, obj=obj, frame=table)
-
-
-def _no_tolerances():
-    from .tolerances import ToleranceSet
-
-    return ToleranceSet("none", ())
 
 
 def add_needle_largest_tolerances(nsub, needle_common) -> None:
