@@ -512,8 +512,7 @@ def _scan_figure(frame, column, ax, ylabel, limit=None):
 
 
 def cmd_needle_montecarlo(args):
-    from .provenance import now
-    from .studies.montecarlo import CHUNK, check_sampling, montecarlo
+    from .studies.montecarlo import CHUNK, check_sampling
 
     _check_n(args.n)
     _check_study(args)
@@ -527,11 +526,26 @@ def cmd_needle_montecarlo(args):
             raise ParameterError("--plot", "is not offered with --adjust (the histograms show "
                                  "beta fixed against beta adjusted)", args.plot)
         return _adjusted_montecarlo(args, params, tolerances, strategy, limit)
+    res, record = run_montecarlo(args, params, tolerances, limit, rng)
+    emit(args.format, obj=record, frame=res.summary_frame())
+    _print_notes(args, _montecarlo_notes(res, record))
+    _save_plot(args, lambda ax: _plots().montecarlo_histograms(
+        res.machines["total_fixed_um"], res.machines["total_adjusted_um"], res.limit_um,
+        (res.yield_of("fixed"), res.yield_of("adjusted")), ax=ax))
+
+
+def run_montecarlo(args, params, tolerances, limit, rng, **inputs_extra):
+    """The Monte-Carlo of `needle montecarlo` (beta fixed and adjusted), with its study folder
+    (--out/--resume) and cluster: the result and its JSON record. `run FILE montecarlo` on the
+    needle fast path calls it too (inputs_extra names the file), so both print the same bytes."""
+    from .provenance import now
+    from .studies.montecarlo import CHUNK, montecarlo
+
     started = now()
     inputs = _inputs(args, "montecarlo", params, tolerances, limit_um=limit,
                      beta_search_range_deg=list(rng), chunk_size=CHUNK,
                      strategy="beta fixed at the nominal's beta* (fixed_beta=optimum) and beta "
-                     "re-optimised per machine")
+                     "re-optimised per machine", **inputs_extra)
     store = _store(args, inputs)
     try:
         runs = _history(store, started)
@@ -546,11 +560,7 @@ def cmd_needle_montecarlo(args):
     finally:
         if store is not None:
             store.close()
-    emit(args.format, obj=record, frame=res.summary_frame())
-    _print_notes(args, _montecarlo_notes(res, record))
-    _save_plot(args, lambda ax: _plots().montecarlo_histograms(
-        res.machines["total_fixed_um"], res.machines["total_adjusted_um"], res.limit_um,
-        (res.yield_of("fixed"), res.yield_of("adjusted")), ax=ax))
+    return res, record
 
 
 def _montecarlo_record(args, params, tolerances, res) -> dict:

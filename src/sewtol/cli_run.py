@@ -246,50 +246,19 @@ def _needle_montecarlo(args, mech, tolerances) -> None:
     """The needle_208 fast path: exactly `sewtol needle montecarlo` (beta fixed at the nominal's
     beta* and re-optimised per machine), on the file's nominal machine and tolerance set."""
     from .cli import _as_flags as as_flags
-    from .cli import (
-        _check_n,
-        _cluster,
-        _deviation_columns,
-        _history,
-        _inputs,
-        _montecarlo_notes,
-        _montecarlo_record,
-        _print_notes,
-        _store,
-        _write_outputs,
-        emit,
-    )
+    from .cli import _check_n, _montecarlo_notes, _print_notes, emit, run_montecarlo
     from .mechanism.fast_paths import _needle_params
     from .mechanisms.needle_208 import check_assembly
-    from .provenance import now
     from .studies import beta as sb
-    from .studies.montecarlo import CHUNK, check_sampling, montecarlo
+    from .studies.montecarlo import CHUNK, check_sampling
 
     _check_n(args.n)
     params = _needle_params(mech)
     check_assembly(params)
     limit, rng = sb.DEFAULT_LIMIT_UM, sb.DEFAULT_RANGE_DEG
     as_flags(check_sampling, params, tolerances, args.n, args.seed, CHUNK)
-    started = now()
-    inputs = _inputs(args, "montecarlo", params, tolerances, limit_um=limit,
-                     beta_search_range_deg=list(rng), chunk_size=CHUNK,
-                     strategy="beta fixed at the nominal's beta* (fixed_beta=optimum) and beta "
-                     "re-optimised per machine", mechanism_file=str(args.file),
-                     fast_path="needle_208")
-    store = _store(args, inputs)
-    try:
-        runs = _history(store, started)
-        with _cluster(args) as client:
-            res = montecarlo(params, tolerances, args.n, args.seed, limit_um=limit,
-                             range_deg=rng, n_jobs=args.n_jobs, progress=args.progress,
-                             store=store, chunk_size=CHUNK, scheduler=client)
-        record = _montecarlo_record(args, params, tolerances, res)
-        _write_outputs(args, "montecarlo", inputs, started, record,
-                       {"machines": _deviation_columns(res.machines, res.params),
-                        "summary": res.summary_frame()}, runs)
-    finally:
-        if store is not None:
-            store.close()
+    res, record = run_montecarlo(args, params, tolerances, limit, rng,
+                                 mechanism_file=str(args.file), fast_path="needle_208")
     fmt = "table" if args.format == "text" else args.format
     emit(fmt, obj=record, frame=res.summary_frame())
     _print_notes(argparse.Namespace(format=fmt), _montecarlo_notes(res, record))
