@@ -118,10 +118,13 @@ def tighten_conclusions(out: Path, sets: list[str]) -> list[Conclusion]:
             s2 = s2[s2["case"] == "adjusted_beta"].sort_values("S2", ascending=False)
             top, rest = s2.iloc[0], s2.iloc[1:]
             link = f"[sobol_{name}_second_order.md](sobol_{name}_second_order.md)"
+            # the words follow the number: "most" only where the pair carries over half
+            share = ("carries most of the variance" if top.S2 > 0.5 else
+                     f"carries {top.S2:.0%} of the variance, the largest of any pair")
             items.append(Conclusion(
                 f"{name} tolerances, second-order Sobol (beta adjusted): S2({top.param_i}, "
                 f"{top.param_j}) = {top.S2:.3f} +/- {top.S2_conf:.3f}: the interaction of "
-                f"{top.param_i} and {top.param_j} carries most of the variance; every other "
+                f"{top.param_i} and {top.param_j} {share}; every other "
                 f"pair is below {rest['S2'].abs().max():.3f} ({link})."))
     path = out / "largest_tolerances.csv"
     if path.exists():
