@@ -152,6 +152,7 @@ def _solve(phi, a, b, c, e, f, g, alpha, branch, order: int = 3):
     return psi, d1, d2, d3, miss, transmission
 
 
+@np.errstate(invalid="ignore", divide="ignore", over="ignore")
 def spatial_rocker(phi: Angle, a, b, c, e, f, g, alpha_rad, branch) -> tuple[Angle, Closure]:
     """Rocker angle psi of the spatial crank-rocker for the crank angle phi.
 
