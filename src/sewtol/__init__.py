@@ -19,7 +19,7 @@ import os
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from .tolerances import ToleranceSet
+    from sewtol.tolerances import ToleranceSet
 
 __version__ = "0.1.0"
 
@@ -84,9 +84,9 @@ def tolerance_set(name_or_path: str | os.PathLike | ToleranceSet) -> ToleranceSe
     >>> sewtol.tolerance_set("recommended").params
     ['LF', 'LM', 'AM', 'AB', 'BC', 'BE', 'CD']
     """
-    from .mechanisms.needle_208 import Needle208
-    from .mechanisms.params import field_names
-    from .tolerances import NEEDLE_208_SETS, ToleranceSet, resolve
+    from sewtol.mechanisms.needle_208 import Needle208
+    from sewtol.mechanisms.params import field_names
+    from sewtol.tolerances import NEEDLE_208_SETS, ToleranceSet, resolve
 
     if isinstance(name_or_path, ToleranceSet):
         return name_or_path

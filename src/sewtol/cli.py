@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import AssemblyError, ParameterError
-from .io import strict, to_json  # noqa: F401  (strict is part of the CLI's API)
+from sewtol.errors import AssemblyError, ParameterError
+from sewtol.io import strict, to_json  # noqa: F401  (strict is part of the CLI's API)
 
 FORMATS = ("table", "json", "csv")
 MIN_STEP_DEG = 1e-3  # 360 000 angles per turn; finer steps only fill memory
@@ -40,7 +40,7 @@ class Parser(argparse.ArgumentParser):
 
 def parse_sets(items, cls) -> dict:
     """--set NAME=VALUE pairs checked against the parameter names of `cls`."""
-    from .mechanisms.params import field_names
+    from sewtol.mechanisms.params import field_names
 
     valid = field_names(cls)
     out = {}
@@ -65,7 +65,7 @@ def emit(fmt: str, *, obj=None, frame=None) -> None:
         data = obj if obj is not None else frame.to_dict(orient="records")
         sys.stdout.write(to_json(data))
     elif fmt == "csv":
-        from .reports.tables import to_csv
+        from sewtol.reports.tables import to_csv
 
         sys.stdout.write(to_csv(frame))
     else:
@@ -73,7 +73,7 @@ def emit(fmt: str, *, obj=None, frame=None) -> None:
 
 
 def _needle_params(args):
-    from .mechanisms.needle_208 import Needle208
+    from sewtol.mechanisms.needle_208 import Needle208
 
     sets = parse_sets(args.set, Needle208)
     shift = getattr(args, "guide_shift_um", None)
@@ -89,7 +89,7 @@ def _needle_params(args):
 
 
 def cmd_needle_frames(args):
-    from .frames import frames_table, list_frames
+    from sewtol.frames import frames_table, list_frames
 
     if args.format == "json":
         emit("json", obj=[f.to_dict() for f in list_frames()])
@@ -98,7 +98,7 @@ def cmd_needle_frames(args):
 
 
 def cmd_needle_nominal(args):
-    from .needle import nominal_figures
+    from sewtol.needle import nominal_figures
 
     _check_beta_range(args)
     params = _needle_params(args)
@@ -109,8 +109,8 @@ def cmd_needle_nominal(args):
     _print_notes(args, fig.notes())
 
     def draw(ax):
-        from .metrics import needle as nm
-        from .studies import beta as sb
+        from sewtol.metrics import needle as nm
+        from sewtol.studies import beta as sb
 
         betas = np.linspace(*args.beta_range, 201)
         totals = sb.totals_on_grid(nm.columns(params)[0], betas)[0]
@@ -152,7 +152,7 @@ def _check_plot(args) -> None:
     plot = getattr(args, "plot", None)
     if plot is None:
         return
-    from .reports.plots import PLOT_FORMATS
+    from sewtol.reports.plots import PLOT_FORMATS
 
     path = Path(plot)
     if path.suffix.lower() not in PLOT_FORMATS:
@@ -165,7 +165,7 @@ def _check_plot(args) -> None:
 
 
 def _plots():
-    from .reports import plots
+    from sewtol.reports import plots
 
     return plots
 
@@ -187,7 +187,7 @@ def _save_plot(args, draw) -> None:
 def _beta_star_figures(args, params, strategy=None):
     """The nominal figures at beta* in --beta-range (default 10 35; with a strategy that adjusts
     beta, beta's range), at --limit-um."""
-    from .needle import nominal_figures
+    from sewtol.needle import nominal_figures
 
     rng = getattr(args, "beta_range", None) or (10.0, 35.0)
     for c in getattr(strategy, "compensators", ()):
@@ -204,7 +204,7 @@ def _at_beta_star(args, params, strategy=None):
 
 def _fixed_record(args, params, strategy=None) -> dict:
     """The fixed case's beta, what it means, and whether that beta* lies on a range bound."""
-    from .studies.montecarlo import FIXED_BETA_MEANS
+    from sewtol.studies.montecarlo import FIXED_BETA_MEANS
 
     return {"fixed_beta_deg": float(params.beta), "fixed_beta_means": FIXED_BETA_MEANS["optimum"],
             "fixed_beta_at_bound": _beta_star_figures(args, params, strategy).beta_at_bound}
@@ -219,7 +219,7 @@ def _fixed_notes(record) -> list[str]:
 
 def _context(args, params, tolerances, strategy) -> dict:
     """What decides a study's numbers, carried by its JSON (its CSVs: run.json beside them)."""
-    from .frames import DEFAULT_FRAME
+    from sewtol.frames import DEFAULT_FRAME
 
     beta = list(getattr(args, "beta_range", None) or (10.0, 35.0))
     for c in getattr(strategy, "compensators", ()):
@@ -256,7 +256,7 @@ def _unit_of(param: str) -> str:
 
 
 def cmd_needle_deviation(args):
-    from .needle import deviation_table
+    from sewtol.needle import deviation_table
 
     _check_step(args.step_deg)
     p = _needle_params(args)
@@ -270,7 +270,7 @@ def cmd_needle_deviation(args):
 
 def _study_nominal(args):
     """The nominal machine of a study: it must assemble, or nothing is computed or written."""
-    from .mechanisms.needle_208 import check_assembly
+    from sewtol.mechanisms.needle_208 import check_assembly
 
     params = _needle_params(args)
     check_assembly(params)
@@ -278,9 +278,9 @@ def _study_nominal(args):
 
 
 def _tolerances(args):
-    from .mechanisms.needle_208 import Needle208
-    from .mechanisms.params import field_names
-    from .tolerances import NEEDLE_208_SETS, resolve
+    from sewtol.mechanisms.needle_208 import Needle208
+    from sewtol.mechanisms.params import field_names
+    from sewtol.tolerances import NEEDLE_208_SETS, resolve
 
     return resolve(args.tolerances, NEEDLE_208_SETS, field_names(Needle208))
 
@@ -380,7 +380,7 @@ def _cluster(args):
     if where is None:
         yield None
         return
-    from .studies.parallel import connect
+    from sewtol.studies.parallel import connect
 
     flag, address = where
     try:
@@ -393,7 +393,7 @@ def _cluster(args):
 
 def _check_beta_range(args):
     """--beta-range and --limit-um (defaults 10 35 and 10 um where a command takes them)."""
-    from .studies import beta as sb
+    from sewtol.studies import beta as sb
 
     if getattr(args, "beta_range", None) is None:
         args.beta_range = list(sb.DEFAULT_RANGE_DEG)
@@ -412,8 +412,8 @@ def _check_beta_range(args):
 
 def _inputs(args, kind, params, tolerances, **extra) -> dict:
     """Every input that decides a study's numbers (the manifest binds its chunks to these)."""
-    from .mechanisms.params import as_dict
-    from .provenance import version_record
+    from sewtol.mechanisms.params import as_dict
+    from sewtol.provenance import version_record
 
     return {"study": kind, "n": getattr(args, "n", None), "seed": args.seed,
             "params": as_dict(params),
@@ -425,7 +425,7 @@ def _store(args, inputs: dict):
     """The checkpoint folder of a study run with --out (None without); takes its lock."""
     if not args.out:
         return None
-    from .studies.checkpoint import ChunkStore
+    from sewtol.studies.checkpoint import ChunkStore
 
     return ChunkStore(Path(args.out) / "chunks", inputs, args.resume, label=str(args.out))
 
@@ -434,7 +434,7 @@ def _history(store, started: str) -> list:
     """Start times of every run into this folder (the first, then each --resume)."""
     if store is None:
         return [{"started_utc": started, "resumed": False}]
-    from .io import write_text_atomic
+    from sewtol.io import write_text_atomic
 
     path = store.folder / "runs.json"
     try:
@@ -453,9 +453,9 @@ def _write_outputs(args, kind, inputs, started, result_obj, frames, runs):
     means the folder is complete)."""
     if not args.out:
         return
-    from .io import write_text_atomic
-    from .provenance import run_record
-    from .reports.tables import to_csv
+    from sewtol.io import write_text_atomic
+    from sewtol.provenance import run_record
+    from sewtol.reports.tables import to_csv
 
     out = Path(args.out)
     try:
@@ -473,7 +473,7 @@ def _write_outputs(args, kind, inputs, started, result_obj, frames, runs):
 
 
 def cmd_needle_scan(args):
-    from .studies.scan import scan
+    from sewtol.studies.scan import scan
 
     strategy = _strategy(args)
     _check_beta_range(args)
@@ -484,7 +484,7 @@ def cmd_needle_scan(args):
     context = _context(args, params, tolerances, strategy)
     obj = {"context": context, "rows": rows.to_records()}
     if args.out:
-        from .provenance import now
+        from sewtol.provenance import now
 
         started = now()
         inputs = _inputs(args, "scan", params, tolerances, limit_um=args.limit_um,
@@ -512,7 +512,7 @@ def _scan_figure(frame, column, ax, ylabel, limit=None):
 
 
 def cmd_needle_montecarlo(args):
-    from .studies.montecarlo import CHUNK, check_sampling
+    from sewtol.studies.montecarlo import CHUNK, check_sampling
 
     _check_n(args.n)
     _check_study(args)
@@ -538,8 +538,8 @@ def run_montecarlo(args, params, tolerances, limit, rng, **inputs_extra):
     """The Monte-Carlo of `needle montecarlo` (beta fixed and adjusted), with its study folder
     (--out/--resume) and cluster: the result and its JSON record. `run FILE montecarlo` on the
     needle fast path calls it too (inputs_extra names the file), so both print the same bytes."""
-    from .provenance import now
-    from .studies.montecarlo import CHUNK, montecarlo
+    from sewtol.provenance import now
+    from sewtol.studies.montecarlo import CHUNK, montecarlo
 
     started = now()
     inputs = _inputs(args, "montecarlo", params, tolerances, limit_um=limit,
@@ -589,9 +589,9 @@ def _strategy(args):
     --beta-range means the range searched for beta everywhere: with --adjust naming beta it is
     beta's --range (giving both is refused); with --adjust not naming beta nothing searches beta,
     so it is refused."""
-    from .mechanisms.needle_208 import Needle208
-    from .mechanisms.params import field_names
-    from .studies.compensators import parse_cli
+    from sewtol.mechanisms.needle_208 import Needle208
+    from sewtol.mechanisms.params import field_names
+    from sewtol.studies.compensators import parse_cli
 
     adjust, ranges = getattr(args, "adjust", None), list(args.range or [])
     given = getattr(args, "beta_range", None)
@@ -616,9 +616,9 @@ def _strategy_record(strategy) -> dict:
 
 def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
     """needle montecarlo --adjust: the per-machine table of one strategy and its summary."""
-    from .provenance import now
-    from .studies.montecarlo import CHUNK, sample_machines
-    from .studies.strategies import adjusted_montecarlo_model, summarise_frame
+    from sewtol.provenance import now
+    from sewtol.studies.montecarlo import CHUNK, sample_machines
+    from sewtol.studies.strategies import adjusted_montecarlo_model, summarise_frame
 
     params = _at_beta_star(args, params, strategy)
     started = now()
@@ -649,9 +649,9 @@ def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
 
 
 def cmd_needle_strategies(args):
-    from .provenance import now
-    from .studies.compensators import Strategy
-    from .studies.strategies import default_strategies, strategies_table
+    from sewtol.provenance import now
+    from sewtol.studies.compensators import Strategy
+    from sewtol.studies.strategies import default_strategies, strategies_table
 
     _check_n(args.n)
     _check_study(args)
@@ -699,9 +699,9 @@ def _adjust_options(p):
 
 
 def cmd_needle_sobol(args):
-    from .provenance import now
-    from .studies.sobol import CHUNK, check_sobol, needle_sobol
-    from .studies.sobol import _check_n as check_power_of_two
+    from sewtol.provenance import now
+    from sewtol.studies.sobol import CHUNK, check_sobol, needle_sobol
+    from sewtol.studies.sobol import _check_n as check_power_of_two
 
     try:
         check_power_of_two(args.n)
@@ -780,7 +780,7 @@ def _small_study(args):
 
 
 def cmd_needle_guides(args):
-    from .studies.guides import compare_guides
+    from sewtol.studies.guides import compare_guides
 
     strategy, params, tolerances = _small_study(args)
     _check_beta_range(args)
@@ -803,8 +803,8 @@ def cmd_needle_guides(args):
 
 
 def cmd_needle_allocation(args):
-    from .studies.allocation import allocate
-    from .studies.strategies import allocate_for_strategy
+    from sewtol.studies.allocation import allocate
+    from sewtol.studies.strategies import allocate_for_strategy
 
     if not (np.isfinite(args.target) and 0 < args.target < 1):
         raise ParameterError("--target", "must be a yield strictly between 0 and 1",
@@ -832,7 +832,7 @@ def cmd_needle_allocation(args):
 
 
 def cmd_needle_worst_case(args):
-    from .studies.worst_case import worst_case_table
+    from sewtol.studies.worst_case import worst_case_table
 
     strategy = _strategy(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
@@ -900,10 +900,10 @@ def add_needle_guides_allocation(nsub, needle_common, study) -> None:
 # --- needle largest-tolerances: the largest single deviation of each part ----------------------
 
 def cmd_needle_largest_tolerances(args):
-    from .mechanisms.needle_208 import LENGTHS, Needle208
-    from .mechanisms.params import field_names
-    from .studies.scan import largest_tolerances
-    from .tolerances import is_branch
+    from sewtol.mechanisms.needle_208 import LENGTHS, Needle208
+    from sewtol.mechanisms.params import field_names
+    from sewtol.studies.scan import largest_tolerances
+    from sewtol.tolerances import is_branch
 
     _check_beta_range(args)
     params = _study_nominal(args)
@@ -944,8 +944,8 @@ def add_needle_largest_tolerances(nsub, needle_common) -> None:
 # --- needle ppm (rare-event probability of failure after adjustment; issue 15) ---------------
 
 def cmd_needle_ppm(args):
-    from .provenance import now
-    from .studies import rare_event as R
+    from sewtol.provenance import now
+    from sewtol.studies import rare_event as R
 
     _check_study(args)
     _check_beta_range(args)
@@ -966,9 +966,9 @@ def cmd_needle_ppm(args):
            "seed": args.seed, "target": args.target, "budget": args.budget,
            "context": _context(args, params, tolerances, None)}
     if args.out:
-        from .io import write_text_atomic
-        from .provenance import run_record
-        from .reports.tables import to_csv
+        from sewtol.io import write_text_atomic
+        from sewtol.provenance import run_record
+        from sewtol.reports.tables import to_csv
 
         out = Path(args.out)
         inputs = _inputs(args, "ppm", params, tolerances, method=args.method,
@@ -1004,13 +1004,13 @@ def add_needle_ppm(nsub, common, study) -> None:
 
 
 def _feed_params(args):
-    from .mechanisms.feed_131 import Feed131
+    from sewtol.mechanisms.feed_131 import Feed131
 
     return Feed131().override(**parse_sets(args.set, Feed131))
 
 
 def cmd_feed_trajectory(args):
-    from .feed import trajectory
+    from sewtol.feed import trajectory
 
     _check_step(args.step_deg)
     params = _feed_params(args)
@@ -1021,7 +1021,7 @@ def cmd_feed_trajectory(args):
 
 
 def cmd_feed_metrics(args):
-    from .feed import metrics
+    from sewtol.feed import metrics
 
     m = metrics(_feed_params(args))
     if args.format == "csv":
@@ -1031,7 +1031,7 @@ def cmd_feed_metrics(args):
 
 
 def cmd_feed_regulator(args):
-    from .feed import regulator_sweep
+    from sewtol.feed import regulator_sweep
 
     lo, hi, step = args.b_range
     if not (np.isfinite([lo, hi, step]).all() and lo < hi and step > 0):
@@ -1047,8 +1047,8 @@ def cmd_feed_regulator(args):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from . import __version__
-    from .provenance import git_revision
+    from sewtol import __version__
+    from sewtol.provenance import git_revision
 
     ap = Parser(prog="sewtol", description=__doc__.splitlines()[0])
     ap.add_argument("--version", action="version",
@@ -1063,7 +1063,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--format", choices=formats, default="table")
 
     def needle_common(p, **kwargs):
-        from .frames import DEFAULT_FRAME
+        from sewtol.frames import DEFAULT_FRAME
 
         common(p, **kwargs)
         p.add_argument("--frame", default=None, metavar="NAME",
@@ -1167,11 +1167,11 @@ def build_parser() -> argparse.ArgumentParser:
                    metavar=("LOW", "HIGH", "STEP"), help="b values swept (deg)")
     _plot_option(p, "the feed steps against b")
     p.set_defaults(func=cmd_feed_regulator)
-    from .cli_feed import add_feed_studies  # `sewtol feed scan | montecarlo | sobol`
+    from sewtol.cli_feed import add_feed_studies  # `sewtol feed scan | montecarlo | sobol`
 
     add_feed_studies(fsub, common)
 
-    from .cli_run import add_run  # `sewtol run FILE.toml STUDY` (mechanism files)
+    from sewtol.cli_run import add_run  # `sewtol run FILE.toml STUDY` (mechanism files)
 
     add_run(sub, Parser)
     return ap

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import sys
 
-from .cli import (
+from sewtol.cli import (
     _as_flags,
     _check_n,
     _check_study,
@@ -23,7 +23,7 @@ from .cli import (
     _write_outputs,
     emit,
 )
-from .errors import ParameterError
+from sewtol.errors import ParameterError
 
 FEED_SCREEN_N = 1000  # machines of the Monte-Carlo that picks each output's parameters
 # the quantile bins of studies.montecarlo.contributors: its bias correction divides by n - bins,
@@ -33,10 +33,10 @@ CONTRIBUTOR_BINS = 20
 
 
 def _feed_tolerances(args, params):
-    from .feed import default_tolerances
-    from .mechanisms.feed_131 import Feed131
-    from .mechanisms.params import field_names
-    from .tolerances import resolve
+    from sewtol.feed import default_tolerances
+    from sewtol.mechanisms.feed_131 import Feed131
+    from sewtol.mechanisms.params import field_names
+    from sewtol.tolerances import resolve
 
     builtin = {"assumed": default_tolerances(params)}
     tolerances = resolve(args.tolerances, builtin, field_names(Feed131))
@@ -48,7 +48,7 @@ def _feed_tolerances(args, params):
 
 def _feed_study(args):
     """The feed's nominal (it must assemble) and tolerance set, every flag checked first."""
-    from .feed import metrics
+    from sewtol.feed import metrics
 
     _check_study(args)
     params = _feed_params(args)
@@ -76,8 +76,8 @@ def _feed_write(args, kind, params, tolerances, started, obj, frames, **extra):
 
 
 def cmd_feed_scan(args):
-    from .feed import scan
-    from .provenance import now
+    from sewtol.feed import scan
+    from sewtol.provenance import now
 
     params, tolerances = _feed_study(args)
     started = now()
@@ -91,9 +91,9 @@ def cmd_feed_scan(args):
 
 
 def cmd_feed_montecarlo(args):
-    from . import feed
-    from .provenance import now
-    from .studies.montecarlo import check_sampling
+    from sewtol import feed
+    from sewtol.provenance import now
+    from sewtol.studies.montecarlo import check_sampling
 
     _check_n(args.n, minimum=CONTRIBUTOR_BINS + 1)
     params, tolerances = _feed_study(args)
@@ -135,9 +135,9 @@ def _contributor_figure(contrib, ax):
 
 
 def cmd_feed_sobol(args):
-    from . import feed
-    from .provenance import now
-    from .studies.sobol import _check_n as check_power_of_two
+    from sewtol import feed
+    from sewtol.provenance import now
+    from sewtol.studies.sobol import _check_n as check_power_of_two
 
     try:
         check_power_of_two(args.n)

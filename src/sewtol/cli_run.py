@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 
-from .errors import ParameterError
+from sewtol.errors import ParameterError
 
 STUDIES = ("nominal", "scan", "montecarlo", "sobol", "worst-case", "ppm", "allocation", "report")
 RUN_FORMATS = ("text", "table", "json", "csv")
@@ -85,7 +85,7 @@ def parse_sets(items) -> dict:
 
 def resolve_tolerances(mech, spec):
     """A set of the file by name (default its first), or FILE.toml / FILE.toml:SET."""
-    from .tolerances import resolve
+    from sewtol.tolerances import resolve
 
     sets = mech.tolerance_sets
     if spec is None:
@@ -152,9 +152,9 @@ def _check_yield_flags(args) -> None:
 
 
 def cmd_run(args) -> None:
-    from .cli import _check_study
-    from .mechanism import load
-    from .studies import generic as G
+    from sewtol.cli import _check_study
+    from sewtol.mechanism import load
+    from sewtol.studies import generic as G
 
     _check_flags(args)
     _check_study(args)
@@ -199,7 +199,7 @@ def cmd_run(args) -> None:
 
 
 def _as_flags(fn, *a):
-    from .cli import FLAGS
+    from sewtol.cli import FLAGS
 
     flags = {**FLAGS, "adjust": "--adjust", "limit": "--limit", "lower_limit": "--lower-limit",
              "target": "--target", "weights": "--weight"}
@@ -223,8 +223,8 @@ def _run_context(args, mech, tolerances) -> dict:
 
 
 def _finish(args, fmt, mech, tolerances, obj, frames, frame) -> None:
-    from .cli import _write_outputs, emit
-    from .provenance import now, version_record
+    from sewtol.cli import _write_outputs, emit
+    from sewtol.provenance import now, version_record
 
     obj = {**obj, "context": _run_context(args, mech, tolerances)}
 
@@ -245,12 +245,12 @@ def _finish(args, fmt, mech, tolerances, obj, frames, frame) -> None:
 def _needle_montecarlo(args, mech, tolerances) -> None:
     """The needle_208 fast path: exactly `sewtol needle montecarlo` (beta fixed at the nominal's
     beta* and re-optimised per machine), on the file's nominal machine and tolerance set."""
-    from .cli import _as_flags as as_flags
-    from .cli import _check_n, _montecarlo_notes, _print_notes, emit, run_montecarlo
-    from .mechanism.fast_paths import _needle_params
-    from .mechanisms.needle_208 import check_assembly
-    from .studies import beta as sb
-    from .studies.montecarlo import CHUNK, check_sampling
+    from sewtol.cli import _as_flags as as_flags
+    from sewtol.cli import _check_n, _montecarlo_notes, _print_notes, emit, run_montecarlo
+    from sewtol.mechanism.fast_paths import _needle_params
+    from sewtol.mechanisms.needle_208 import check_assembly
+    from sewtol.studies import beta as sb
+    from sewtol.studies.montecarlo import CHUNK, check_sampling
 
     _check_n(args.n)
     params = _needle_params(mech)
@@ -268,13 +268,13 @@ def _yield_study(args, fmt, mech, tolerances) -> None:
     """ppm, allocation and report (sewtol.studies.generic_yield, sewtol.reports.generic_report)."""
     import numpy as np
 
-    from .studies import generic_yield as GY
-    from .studies import rare_event as R
+    from sewtol.studies import generic_yield as GY
+    from sewtol.studies import rare_event as R
 
     output = args.output or mech.output_names[0]
     if args.study == "report":
-        from .cli import _check_out
-        from .reports import generic_report as GR
+        from sewtol.cli import _check_out
+        from sewtol.reports import generic_report as GR
 
         _check_out(args)
         rep = _as_flags(GR.build, mech, tolerances, args.n, args.seed,

@@ -8,14 +8,14 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .errors import AssemblyError, ParameterError
-from .mechanisms import feed_131 as fd
-from .mechanisms import params as P
-from .mechanisms.feed_131 import Feed131
-from .metrics.feed import dog_figures, pair_figures
-from .optimize import bisect_root
-from .studies.montecarlo import contributors, sample_machines, with_remainder
-from .tolerances import Tolerance, ToleranceSet
+from sewtol.errors import AssemblyError, ParameterError
+from sewtol.mechanisms import feed_131 as fd
+from sewtol.mechanisms import params as P
+from sewtol.mechanisms.feed_131 import Feed131
+from sewtol.metrics.feed import dog_figures, pair_figures
+from sewtol.optimize import bisect_root
+from sewtol.studies.montecarlo import contributors, sample_machines, with_remainder
+from sewtol.tolerances import Tolerance, ToleranceSet
 
 OUTPUTS = ("lower_step_mm", "upper_step_mm", "differential_ratio", "mismatch_mm")
 
@@ -240,7 +240,7 @@ def _phase_misfit(figs, dog: str) -> np.ndarray:
 def _rise_level(params: Feed131, values: dict) -> np.ndarray:
     """Per machine, the plate level at which the lower dog's highest rise is the read 1.1 mm
     (the highest point from a 1 deg grid, Newton-polished on the analytic velocity)."""
-    from .metrics.feed import _polish
+    from sewtol.metrics.feed import _polish
 
     c, _ = columns(params.override(**values))
     y = fd.chains(c, np.radians(np.arange(0.0, 360.0, 1.0)).reshape(1, -1))["Q1"].p.imag
@@ -253,7 +253,7 @@ def _grid_fit(params: Feed131, name: str, lo: float, hi: float, step: float, dog
               plate_from_rise: bool, fixed: dict | None = None) -> float:
     """The value of `name` in [lo, hi] with the smallest largest phase residual of `dog`: a grid
     search at `step`, then a grid of step / 20 around the best point (first of ties)."""
-    from .metrics.feed import dog_figures
+    from sewtol.metrics.feed import dog_figures
 
     def misfit(grid):
         values = {name: grid, **(fixed or {})}
@@ -356,7 +356,7 @@ def readoff_residuals(params: Feed131 | None = None,
     wrapped to (-180, 180]; the feed step keeps its sign (the source's T is positive forward).
     The step is compared as a length (|T|) and its sense as feed_direction (+1 forward). A
     figure the variant cannot produce (its tooth never crosses the level) is NaN."""
-    from .metrics.feed import dog_figures
+    from sewtol.metrics.feed import dog_figures
 
     params = params or Feed131()
     explanations = explanations or readoff_explanations(params)
@@ -420,8 +420,8 @@ def sobol(params: Feed131, tolerances: ToleranceSet, n: int, seed: int, machines
     from `machines`, a Monte-Carlo of the same set; `select` goes to important_parameters),
     at n and n / 2 base samples (the convergence table). Chunks run like every study
     (n_jobs, progress, scheduler)."""
-    from .studies.parallel import chunk_bounds, run_chunks
-    from .studies.sobol import SobolResult, _indices_from, problem_of, sample
+    from sewtol.studies.parallel import chunk_bounds, run_chunks
+    from sewtol.studies.sobol import SobolResult, _indices_from, problem_of, sample
 
     frames, convs, chosen = [], [], {}
     for output in which:

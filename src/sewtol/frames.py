@@ -19,7 +19,7 @@ from importlib import resources
 
 import pandas as pd
 
-from .errors import ParameterError
+from sewtol.errors import ParameterError
 
 # the frame Needle208.nominal() and every needle command use unless told otherwise
 # (docs/needle_208.md, "Which frame is the default")
@@ -57,7 +57,7 @@ class Frame:
     published: tuple = ()  # rows of the residual table against the study's figures
 
     def machine(self):
-        from .mechanisms.needle_208 import Needle208
+        from sewtol.mechanisms.needle_208 import Needle208
 
         return Needle208(**self.params)
 

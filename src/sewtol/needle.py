@@ -7,10 +7,10 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .errors import AssemblyError
-from .mechanisms.needle_208 import Needle208, check_assembly
-from .metrics import needle as nm
-from .studies import beta as sb
+from sewtol.errors import AssemblyError
+from sewtol.mechanisms.needle_208 import Needle208, check_assembly
+from sewtol.metrics import needle as nm
+from sewtol.studies import beta as sb
 
 
 @dataclass(frozen=True)

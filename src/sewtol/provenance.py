@@ -6,7 +6,7 @@ import datetime as dt
 import platform
 import sys
 
-from . import __version__
+from sewtol import __version__
 
 
 def git_revision() -> str:
@@ -15,7 +15,7 @@ def git_revision() -> str:
     repository's hooks or fsmonitor would run with it), and a checkout made while a study runs
     does not change what it records."""
     try:
-        from ._revision import REVISION
+        from sewtol._revision import REVISION
     except ImportError:
         return "unknown (not recorded at install)"
     return str(REVISION)

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from .errors import ParameterError
+from sewtol.errors import ParameterError
 
 DISTRIBUTIONS = ("uniform", "normal", "truncnorm")
 # a limit beyond this (mm, deg or um) is a typo, not a tolerance
@@ -155,7 +155,7 @@ class ToleranceSet:
     def check_against(self, nominal) -> ToleranceSet:
         """Refuse a set that can draw a machine the parameter rules reject (a length <= 0, a
         branch sign other than +/-1, a non-finite value) before anything runs."""
-        from .mechanisms import params as P
+        from sewtol.mechanisms import params as P
 
         valid = P.field_names(type(nominal))
         self.check_names(valid)
@@ -411,8 +411,8 @@ def needle_set(tolerances: ToleranceSet | str) -> ToleranceSet:
     if isinstance(tolerances, ToleranceSet):
         return tolerances
     if isinstance(tolerances, str):
-        from .mechanisms.needle_208 import Needle208
-        from .mechanisms.params import field_names
+        from sewtol.mechanisms.needle_208 import Needle208
+        from sewtol.mechanisms.params import field_names
 
         return resolve(tolerances, NEEDLE_208_SETS, field_names(Needle208))
     raise ParameterError("tolerances", "must be a ToleranceSet, a set name (base, recommended) "

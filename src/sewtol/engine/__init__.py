@@ -6,11 +6,11 @@ a Closure with the miss distance, and the mechanism decides whether that is an e
 run) or a counted failure (a study).
 """
 
-from .crank import crank
-from .dyad import Closure, rrr
-from .motion import Angle, Motion, direction, driving_angle, fixed, on_body, polar
-from .slider import rpr, rrp
-from .spatial import (
+from sewtol.engine.crank import crank
+from sewtol.engine.dyad import Closure, rrr
+from sewtol.engine.motion import Angle, Motion, direction, driving_angle, fixed, on_body, polar
+from sewtol.engine.slider import rpr, rrp
+from sewtol.engine.spatial import (
     RockerExtremes,
     position_function,
     rocker_extremes,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .motion import Motion, driving_angle, fixed, polar
+from sewtol.engine.motion import Motion, driving_angle, fixed, polar
 
 
 def crank(center_x, center_y, radius, q, phase_rad=0.0, sense: float = 1.0) -> Motion:

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .motion import Motion
+from sewtol.engine.motion import Motion
 
 
 @dataclass(frozen=True)

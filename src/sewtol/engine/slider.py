@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .dyad import Closure
-from .motion import Angle, Motion, direction
+from sewtol.engine.dyad import Closure
+from sewtol.engine.motion import Angle, Motion, direction
 
 
 @np.errstate(invalid="ignore", divide="ignore", over="ignore")

@@ -68,8 +68,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .dyad import Closure
-from .motion import Angle
+from sewtol.engine.dyad import Closure
+from sewtol.engine.motion import Angle
 
 
 @dataclass(frozen=True)

@@ -40,7 +40,7 @@ import math
 import numba as nb
 import numpy as np
 
-from .needle_numba import _point
+from sewtol.kernels.needle_numba import _point
 
 _INVPHI = (math.sqrt(5.0) - 1.0) / 2.0
 DEAD_POINT_DEG = 1.0  # mechanisms.needle_208.DEAD_POINT_DEG (kept equal by a test)

@@ -10,12 +10,12 @@ New group types and output kinds register themselves here (register_group, regis
 studies over a FileMechanism live in sewtol.studies.generic.
 """
 
-from .expressions import ExpressionError
-from .expressions import parse as parse_expression
-from .groups import GROUPS, register_group
-from .loader import load, loads
-from .model import DEAD_POINT_DEG, Evaluation, FileMechanism, State
-from .outputs import OUTPUT_TYPES, OUTPUTS, register_output
+from sewtol.mechanism.expressions import ExpressionError
+from sewtol.mechanism.expressions import parse as parse_expression
+from sewtol.mechanism.groups import GROUPS, register_group
+from sewtol.mechanism.loader import load, loads
+from sewtol.mechanism.model import DEAD_POINT_DEG, Evaluation, FileMechanism, State
+from sewtol.mechanism.outputs import OUTPUT_TYPES, OUTPUTS, register_output
 
 __all__ = [
     "DEAD_POINT_DEG", "Evaluation", "ExpressionError", "FileMechanism", "GROUPS", "OUTPUTS",

@@ -29,8 +29,8 @@ class FastPath:
 
 
 def _needle_params(mech, values=None):
-    from ..mechanisms import params as P
-    from ..mechanisms.needle_208 import Needle208
+    from sewtol.mechanisms import params as P
+    from sewtol.mechanisms.needle_208 import Needle208
 
     vals = mech.nominal_values()
     vals.update(values or {})
@@ -39,8 +39,8 @@ def _needle_params(mech, values=None):
 
 def needle_perturbations(mech) -> dict[str, np.ndarray]:
     """Nominal plus PERTURBED machines: lengths +-0.05 mm, angles +-0.2 deg, frame +-0.05 mm."""
-    from ..mechanisms import params as P
-    from ..mechanisms.needle_208 import Needle208
+    from sewtol.mechanisms import params as P
+    from sewtol.mechanisms.needle_208 import Needle208
 
     rng = np.random.default_rng(CHECK_SEED)
     nominal = mech.nominal_values()
@@ -55,8 +55,8 @@ def needle_perturbations(mech) -> dict[str, np.ndarray]:
 
 def needle_positions_residual(mech, values: dict[str, np.ndarray]) -> tuple[float, str]:
     """Largest |file - built-in| (mm) over L, M, B, C, E at the file's samples, and where."""
-    from ..mechanisms import needle_208 as nd
-    from ..mechanisms import params as P
+    from sewtol.mechanisms import needle_208 as nd
+    from sewtol.mechanisms import params as P
 
     q = mech.angles_rad()
     state = mech.state(values, q)
@@ -76,8 +76,8 @@ def needle_positions_residual(mech, values: dict[str, np.ndarray]) -> tuple[floa
 
 
 def check_needle_208(mech) -> str:
-    from ..mechanisms import params as P
-    from ..mechanisms.needle_208 import Needle208
+    from sewtol.mechanisms import params as P
+    from sewtol.mechanisms.needle_208 import Needle208
 
     missing = [k for k in P.field_names(Needle208) if k not in mech.parameter_names]
     if missing:
@@ -100,9 +100,9 @@ def check_needle_208(mech) -> str:
 def _needle_sumdelta_problem(mech, values) -> str:
     """The file's SumDelta (a line_deviation of E, sum_extremes) must be the built-in one: same
     guide, same figure (to SUMDELTA_TOL_UM), since the fast path computes the built-in's."""
-    from ..mechanisms import params as P
-    from ..mechanisms.needle_208 import Needle208
-    from ..metrics import needle as nm
+    from sewtol.mechanisms import params as P
+    from sewtol.mechanisms.needle_208 import Needle208
+    from sewtol.metrics import needle as nm
 
     outs = [o for o in mech.outputs if o.type == "line_deviation" and o.fields["point"] == "E"
             and o.fields["measure"] == "sum_extremes"]

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import engine
+from sewtol import engine
 
 DEG = np.pi / 180.0
 
@@ -90,7 +90,7 @@ def _rrp(q, p1, r, x, y, angle_deg, branch):
 def _spatial_rocker(q, a, b, c, e, f, g, alpha_deg, branch):
     # the spatial crank-rocker lives in engine/spatial.py (another module); imported here so
     # the table can name it before that module exists in a build
-    from ..engine import spatial  # type: ignore[attr-defined]
+    from sewtol.engine import spatial  # type: ignore[attr-defined]
 
     return spatial.spatial_rocker(q, a, b, c, e, f, g, alpha_deg * DEG, branch)
 

@@ -14,13 +14,13 @@ import stat
 import tomllib
 from pathlib import Path
 
-from ..errors import ParameterError
-from ..tolerances import Tolerance, ToleranceSet, _parse_item
-from . import expressions as X
-from .groups import GROUPS
-from .lines import Locator
-from .outputs import OUTPUT_TYPES, OUTPUTS, PROVIDERS, provide
-from .spec import FORMAT, RULES, UNITS, Compensator, Group, Header, Output, Parameter
+from sewtol.errors import ParameterError
+from sewtol.tolerances import Tolerance, ToleranceSet, _parse_item
+from sewtol.mechanism import expressions as X
+from sewtol.mechanism.groups import GROUPS
+from sewtol.mechanism.lines import Locator
+from sewtol.mechanism.outputs import OUTPUT_TYPES, OUTPUTS, PROVIDERS, provide
+from sewtol.mechanism.spec import FORMAT, RULES, UNITS, Compensator, Group, Header, Output, Parameter
 
 MAX_BYTES = 1 << 20
 NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -68,7 +68,7 @@ def load(path, overrides: dict | None = None):
 
 
 def loads(text: str, path: str = "<text>", overrides: dict | None = None):
-    from .model import FileMechanism
+    from sewtol.mechanism.model import FileMechanism
 
     ctx = _Ctx(path, text)
     try:
@@ -97,7 +97,7 @@ def loads(text: str, path: str = "<text>", overrides: dict | None = None):
                          groups=tuple(groups), outputs=tuple(outputs), compensators=comps,
                          tolerance_sets=sets)
     if header.fast_path is not None:
-        from .fast_paths import FAST_PATHS
+        from sewtol.mechanism.fast_paths import FAST_PATHS
 
         if header.fast_path not in FAST_PATHS:
             ctx.fail(("mechanism", "fast_path"), "[mechanism] fast_path",
@@ -164,7 +164,7 @@ def check_rule(name: str, rule: str, value) -> None:
     """Raise ParameterError if value (a number or an array) breaks the parameter's rule."""
     import numpy as np
 
-    from ..mechanisms import params as P
+    from sewtol.mechanisms import params as P
 
     if rule == "positive":
         P.positive(name, value)

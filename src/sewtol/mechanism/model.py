@@ -17,12 +17,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from .. import engine
-from ..errors import ParameterError
-from ..tolerances import ToleranceSet
-from .groups import GROUPS
-from .outputs import OUTPUT_TYPES, OUTPUTS
-from .spec import Compensator, Group, Header, Output, Parameter
+from sewtol import engine
+from sewtol.errors import ParameterError
+from sewtol.tolerances import ToleranceSet
+from sewtol.mechanism.groups import GROUPS
+from sewtol.mechanism.outputs import OUTPUT_TYPES, OUTPUTS
+from sewtol.mechanism.spec import Compensator, Group, Header, Output, Parameter
 
 DEAD_POINT_DEG = 1.0
 # machines evaluated together: a (block, samples) complex array of a joint stays near
@@ -95,7 +95,7 @@ class FileMechanism:
 
     def override(self, **changes) -> FileMechanism:
         """A copy with new nominal values (checked by each parameter's rule)."""
-        from .loader import check_rule
+        from sewtol.mechanism.loader import check_rule
 
         names = self.parameter_names
         for k in changes:
@@ -129,7 +129,7 @@ class FileMechanism:
 
     def columns(self, values: dict | None = None) -> tuple[dict, int]:
         """Every parameter as an (m, 1) column: the given values, nominal for the rest."""
-        from .loader import check_rule
+        from sewtol.mechanism.loader import check_rule
 
         values = dict(values or {})
         names = self.parameter_names
@@ -259,8 +259,8 @@ def parameter_class(mech: FileMechanism):
     key = (mech.name, tuple((p.name, p.rule) for p in mech.parameters))
     if key in _CLASSES:
         return _CLASSES[key]
-    from ..mechanisms import params as P
-    from .loader import check_rule
+    from sewtol.mechanisms import params as P
+    from sewtol.mechanism.loader import check_rule
 
     rules = {p.name: p.rule for p in mech.parameters}
 

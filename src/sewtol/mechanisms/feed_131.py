@@ -12,9 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import engine
-from ..errors import AssemblyError
-from . import params as P
+from sewtol import engine
+from sewtol.errors import AssemblyError
+from sewtol.mechanisms import params as P
 
 DEG = np.pi / 180.0
 

@@ -25,9 +25,9 @@ import numpy as np
 import pandas as pd
 from scipy import optimize
 
-from .. import engine
-from ..errors import ParameterError
-from . import params as P
+from sewtol import engine
+from sewtol.errors import ParameterError
+from sewtol.mechanisms import params as P
 
 DEG = np.pi / 180.0
 G_M_S2 = 9.81

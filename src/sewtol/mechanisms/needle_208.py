@@ -24,9 +24,9 @@ from importlib import resources
 
 import numpy as np
 
-from .. import engine
-from ..errors import AssemblyError
-from . import params as P
+from sewtol import engine
+from sewtol.errors import AssemblyError
+from sewtol.mechanisms import params as P
 
 LENGTHS = ("LF", "LM", "AM", "AB", "BC", "BE", "CD")
 DEG = np.pi / 180.0
@@ -129,7 +129,7 @@ class Needle208:
         Needle208
             The nominal machine: the source's link lengths on that frame's pivots and guide.
         """
-        from ..frames import resolve
+        from sewtol.frames import resolve
 
         return cls(**resolve(frame).params)
 

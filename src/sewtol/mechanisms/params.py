@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ParameterError
+from sewtol.errors import ParameterError
 
 
 def freeze(params) -> None:

@@ -35,9 +35,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from ..errors import ParameterError
-from ..kernels import presser_foot as K
-from . import params as P
+from sewtol.errors import ParameterError
+from sewtol.kernels import presser_foot as K
+from sewtol.mechanisms import params as P
 
 GRAVITY_M_S2 = 9.81
 STATUS = ("ok", "never_lost", "never_held", "not_regained", "cannot_assemble")
@@ -391,7 +391,7 @@ def presser_contact_output(state, measure: str = "separation_mm", **fields) -> n
 
 
 def _register() -> None:
-    from ..mechanism.outputs import register_output
+    from sewtol.mechanism.outputs import register_output
 
     register_output("presser_contact", presser_contact_output, fields=PRESSER_CONTACT_FIELDS)
 

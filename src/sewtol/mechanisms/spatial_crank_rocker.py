@@ -16,9 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import engine
-from ..errors import ParameterError
-from . import params as P
+from sewtol import engine
+from sewtol.errors import ParameterError
+from sewtol.mechanisms import params as P
 
 # name: (unit, nominal, rule, doc), in the file's order
 PARAMETERS = {

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ParameterError
-from ..mechanisms import feed_131 as fd
+from sewtol.errors import ParameterError
+from sewtol.mechanisms import feed_131 as fd
 
 N_GRID = 720
 

@@ -10,11 +10,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import engine
-from ..mechanisms import needle_208 as nd
-from ..mechanisms import params as P
-from ..optimize import golden_min
-from .extremes import Extremes, interval_extremes
+from sewtol import engine
+from sewtol.mechanisms import needle_208 as nd
+from sewtol.mechanisms import params as P
+from sewtol.optimize import golden_min
+from sewtol.metrics.extremes import Extremes, interval_extremes
 
 
 def columns(params) -> tuple[dict, int]:

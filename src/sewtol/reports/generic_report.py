@@ -21,11 +21,11 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from ..errors import ParameterError
-from ..io import write_bytes_atomic, write_text_atomic
-from ..studies import generic as G
-from ..studies.generic_yield import check_limits, excess, limits_text
-from .tables import to_csv, to_markdown
+from sewtol.errors import ParameterError
+from sewtol.io import write_bytes_atomic, write_text_atomic
+from sewtol.studies import generic as G
+from sewtol.studies.generic_yield import check_limits, excess, limits_text
+from sewtol.reports.tables import to_csv, to_markdown
 
 # the histogram's range: these quantiles of the machines that run, widened to show the limits;
 # machines outside are counted as "beyond the plot" in the legend

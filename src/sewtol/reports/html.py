@@ -43,7 +43,7 @@ class Figure:
 
     def __post_init__(self):
         if self.fmt not in ("png", "svg"):
-            from ..errors import ParameterError
+            from sewtol.errors import ParameterError
             raise ParameterError("figure format", "must be png or svg to embed in HTML", self.fmt)
 
 

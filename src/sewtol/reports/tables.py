@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from ..io import write_text_atomic
+from sewtol.io import write_text_atomic
 
 
 def to_markdown(frame: pd.DataFrame, title: str, settings: dict | None = None,

@@ -24,9 +24,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from ..errors import ParameterError
-from ..mechanisms import needle_208 as nd
-from ..metrics import needle as nm
+from sewtol.errors import ParameterError
+from sewtol.mechanisms import needle_208 as nd
+from sewtol.metrics import needle as nm
 
 COMPENSATORS = ("beta", "guide_shift_um", "guide_angle", "CD")
 DEFAULT_BOXES = {"beta": (10.0, 35.0), "guide_shift_um": (-100.0, 100.0),
@@ -172,8 +172,8 @@ def _inner(c, boxes, r_lo, r_hi, engine, h_deg, tol_um):
     slo, shi = boxes.get("guide_shift_um", (0.0, 0.0))
     if engine == "numpy":
         return _reference(c, r_lo, r_hi, blo, bhi, slo, shi, shift, tol_um)
-    from ..kernels import needle_numba as KB
-    from ..kernels import needle_window as KW
+    from sewtol.kernels import needle_numba as KB
+    from sewtol.kernels import needle_window as KW
 
     return KW.optimise_batch(KB.pack(c), np.ascontiguousarray(r_lo, float),
                              np.ascontiguousarray(r_hi, float), blo, bhi, slo, shi, shift,
@@ -276,7 +276,7 @@ def _with_outer(name, c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um, angle_g
 
 def _d_of_psi(c, psi):
     """d (mm, guide shift removed), d', d'' at psi (n, k) through the engine (beta = 0)."""
-    from .. import engine
+    from sewtol import engine
 
     cz = nm.with_values(c, beta=np.zeros(len(psi)))
     E = nd.chain_from_rocker(cz, engine.driving_angle(psi))["E"]
@@ -333,7 +333,7 @@ def _reference(c, r_lo, r_hi, blo, bhi, slo, shi, shift, tol_um, n_psi=1441, n_u
     ext_t[ii, slot] = t
     ext_f[ii, slot] = ext_v
     # feasible windows: every psi of the window passes the dead-point test
-    from ..kernels import needle_window as KW
+    from sewtol.kernels import needle_window as KW
 
     def S(u):
         """SumDelta (mm), F, G for windows starting at u (n, k); inf where infeasible."""
@@ -517,8 +517,8 @@ def optimise_discrete(c: dict, active: dict, steps: dict[str, float]) -> Discret
     discrete every allowed beta's window extremes F, G are computed exactly (and the shift is
     the closed form or the best of its steps); with only the shift discrete, each allowed shift
     is a fixed guide for the exact beta optimum."""
-    from ..kernels import needle_numba as KB
-    from ..kernels import needle_window as KW
+    from sewtol.kernels import needle_numba as KB
+    from sewtol.kernels import needle_window as KW
 
     boxes = check_boxes(active)
     for name in steps:
@@ -604,8 +604,8 @@ def worst_within_resolution(c: dict, result: AdjustResult, resolution_deg: float
     only to +/- resolution_deg / 2 (the other compensators as reported): the worst of `samples`
     exact evaluations across that interval (sampled: between samples SumDelta can exceed the
     worst sample by at most its slope times half the spacing). NaN where not ok."""
-    from ..kernels import needle_numba as KB
-    from ..kernels import needle_window as KW
+    from sewtol.kernels import needle_numba as KB
+    from sewtol.kernels import needle_window as KW
 
     r = float(resolution_deg)
     if not (np.isfinite(r) and r >= 0):

@@ -35,12 +35,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from ..errors import ParameterError
-from ..kernels.needle_path import band_kernel, pack
-from ..metrics import needle as nm
-from ..optimize import bisect_root, golden_min
-from . import adjust as exact
-from .compensators import Compensator, Strategy
+from sewtol.errors import ParameterError
+from sewtol.kernels.needle_path import band_kernel, pack
+from sewtol.metrics import needle as nm
+from sewtol.optimize import bisect_root, golden_min
+from sewtol.studies import adjust as exact
+from sewtol.studies.compensators import Compensator, Strategy
 
 N_DENSE = 129
 PLATEAU_TOL_UM = 1e-3  # settings within this of the optimum form its plateau (centre chosen)

@@ -17,14 +17,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from ..errors import ParameterError
-from ..tolerances import Tolerance, ToleranceSet, needle_set
-from . import beta as sb
-from .needle_eval import evaluate
-from .scan import scan
+from sewtol.errors import ParameterError
+from sewtol.tolerances import Tolerance, ToleranceSet, needle_set
+from sewtol.studies import beta as sb
+from sewtol.studies.needle_eval import evaluate
+from sewtol.studies.scan import scan
 
 if TYPE_CHECKING:
-    from ..mechanisms.needle_208 import Needle208
+    from sewtol.mechanisms.needle_208 import Needle208
 
 
 @dataclass(frozen=True)

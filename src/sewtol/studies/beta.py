@@ -13,9 +13,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from ..errors import ParameterError
-from ..metrics import needle as nm
-from ..optimize import bisect_root, golden_min
+from sewtol.errors import ParameterError
+from sewtol.metrics import needle as nm
+from sewtol.optimize import bisect_root, golden_min
 
 DEFAULT_RANGE_DEG = (10.0, 35.0)
 DEFAULT_LIMIT_UM = 10.0
@@ -83,7 +83,7 @@ def optimise_beta_columns(c: dict, range_deg=DEFAULT_RANGE_DEG, limit_um=DEFAULT
                           grid_step_deg: float = 0.5, window: bool = True,
                           engine: str = "numba") -> BetaOptimum:
     """beta* per machine; with window=False the window is left NaN (half the work)."""
-    from .adjust import optimise
+    from sewtol.studies.adjust import optimise
 
     check_range(range_deg, limit_um)
     lo, hi = map(float, range_deg)

@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ParameterError
-from ..io import write_bytes_atomic, write_text_atomic
+from sewtol.errors import ParameterError
+from sewtol.io import write_bytes_atomic, write_text_atomic
 
 FORMAT = "sewtol-chunk-1"
 MAX_CHUNK_BYTES = 512 * 2**20  # a chunk larger than this is not one of ours

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ParameterError
+from sewtol.errors import ParameterError
 
 MODES = ("absolute", "offset")
 

@@ -27,10 +27,10 @@ import pandas as pd
 from scipy import stats
 from scipy.optimize import minimize
 
-from ..errors import AssemblyError, ParameterError
-from ..tolerances import ToleranceSet
-from . import montecarlo as mc
-from . import sobol as so
+from sewtol.errors import AssemblyError, ParameterError
+from sewtol.tolerances import ToleranceSet
+from sewtol.studies import montecarlo as mc
+from sewtol.studies import sobol as so
 
 MAX_CORNER_PARAMS = 12
 # central-difference step of the local search, as a fraction of each tolerance width

@@ -28,10 +28,10 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from ..errors import ParameterError
-from ..tolerances import Tolerance, ToleranceSet
-from . import generic as G
-from .rare_event import LimitState, StandardNormalMap
+from sewtol.errors import ParameterError
+from sewtol.tolerances import Tolerance, ToleranceSet
+from sewtol.studies import generic as G
+from sewtol.studies.rare_event import LimitState, StandardNormalMap
 
 FAILURE_STATUSES = ("cannot_close", "dead_point")
 # bisection on the scale stops when the bracket is this small relative to the scale

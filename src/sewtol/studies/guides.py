@@ -16,16 +16,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from ..needle import nominal_figures
-from ..tolerances import ToleranceSet, needle_set
-from . import beta as sb
-from .montecarlo import check_sampling, draw_deviations, montecarlo
+from sewtol.needle import nominal_figures
+from sewtol.tolerances import ToleranceSet, needle_set
+from sewtol.studies import beta as sb
+from sewtol.studies.montecarlo import check_sampling, draw_deviations, montecarlo
 
 if TYPE_CHECKING:
     from distributed import Client
 
-    from ..mechanisms.needle_208 import Needle208
-    from .compensators import Strategy
+    from sewtol.mechanisms.needle_208 import Needle208
+    from sewtol.studies.compensators import Strategy
 
 DEFAULT_VARIANTS = (
     ("nominal", 0.0, 0.0),
@@ -112,9 +112,9 @@ def _variant(nominal, variant, range_deg, limit_um=sb.DEFAULT_LIMIT_UM):
 
 
 def _compare_adjusted(nominal, tolerances, n, seed, variants, range_deg, strategy, limit_um):
-    from .adjustment import adjust
-    from .compensators import Strategy
-    from .strategies import columns_of
+    from sewtol.studies.adjustment import adjust
+    from sewtol.studies.compensators import Strategy
+    from sewtol.studies.strategies import columns_of
 
     check_sampling(nominal, tolerances, n, seed)  # as montecarlo checks the same machines
     dev = draw_deviations(tolerances, n, seed)  # montecarlo's machines for this seed

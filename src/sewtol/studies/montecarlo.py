@@ -17,18 +17,18 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from ..errors import ParameterError
-from ..tolerances import ToleranceSet, needle_set
-from . import beta as sb
-from . import needle_status as ns
-from .needle_eval import evaluate
-from .parallel import child_generators, chunk_bounds, run_chunks
+from sewtol.errors import ParameterError
+from sewtol.tolerances import ToleranceSet, needle_set
+from sewtol.studies import beta as sb
+from sewtol.studies import needle_status as ns
+from sewtol.studies.needle_eval import evaluate
+from sewtol.studies.parallel import child_generators, chunk_bounds, run_chunks
 
 if TYPE_CHECKING:
     from distributed import Client
 
-    from ..mechanisms.needle_208 import Needle208
-    from .checkpoint import ChunkStore
+    from sewtol.mechanisms.needle_208 import Needle208
+    from sewtol.studies.checkpoint import ChunkStore
 
 CHUNK = 500
 # bytes per machine and column of a study table (float64) plus pandas' working copies
@@ -410,7 +410,7 @@ def fixed_beta_of(nominal, fixed_beta: str, range_deg, limit_um) -> float:
         return float(nominal.beta)
     if fixed_beta != "optimum":
         raise ParameterError("fixed_beta", f"must be one of {', '.join(FIXED_BETA)}", fixed_beta)
-    from ..needle import nominal_figures
+    from sewtol.needle import nominal_figures
 
     return float(nominal_figures(nominal, tuple(range_deg), limit_um).beta_opt_deg)
 

@@ -33,11 +33,11 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import least_squares
 
-from .. import engine
-from ..mechanisms import needle_208 as nd
-from ..mechanisms.needle_208 import Needle208
-from ..metrics import needle as nm
-from . import beta as sb
+from sewtol import engine
+from sewtol.mechanisms import needle_208 as nd
+from sewtol.mechanisms.needle_208 import Needle208
+from sewtol.metrics import needle as nm
+from sewtol.studies import beta as sb
 
 N1 = (38.5, 79.729)
 SOURCE_LINKS = dict(LF=6.75, LM=58.0, AM=17.0, AB=10.0, BC=20.0, BE=40.0, CD=30.0, CBE=180.0)
@@ -398,7 +398,7 @@ def table41_residuals(nominal: Needle208, guide_sign: float | None = None) -> tu
         guide_sign = min(scores, key=scores.get)
     variants = _variants(nominal, guide_sign)
     batch = [m for _, _, m in variants]
-    from ..mechanisms import params as P
+    from sewtol.mechanisms import params as P
 
     cols = {k: np.array([getattr(m, k) for m in batch]) for k in P.field_names(Needle208)}
     c = {k: v.reshape(-1, 1) for k, v in cols.items()}
@@ -435,7 +435,7 @@ def table41_residuals(nominal: Needle208, guide_sign: float | None = None) -> tu
 
 def nominal_statements(nominal: Needle208) -> list:
     """Rows for the study's nominal statements: beta*, the window ends, the guide."""
-    from ..needle import nominal_figures
+    from sewtol.needle import nominal_figures
 
     fig = nominal_figures(nominal)
     c, _ = nm.columns(nominal)
@@ -538,7 +538,7 @@ def frame_record(name: str, summary: str, m: Needle208, family: Family, targets:
                  kind: str = "window", x=None, guide_sign: float | None = None) -> dict:
     """A frame's record: the machine, its family, targets, achieved values, residuals, cost,
     conditioning, the global-search table and the residual table against the published figures."""
-    from ..mechanisms import params as P
+    from sewtol.mechanisms import params as P
 
     x = tuple(map(float, x)) if x is not None else frame_x(m)
     names = X_NAMES + (("tilt_deg",) if kind == "table41" else ())
@@ -627,7 +627,7 @@ def table41_achieved(x5, family: Family, guide_sign: float, rows=TABLE41_FIT_ROW
               "guide_offset_from_N1_um": float(nd.project(n, complex(*N1) - G).ravel()[0] * 1e3),
               "guide_angle_from_vertical_deg": float(m.guide_angle)}
     variants = [v for v in _variants(m, guide_sign) if v[0] in rows]
-    from ..mechanisms import params as P
+    from sewtol.mechanisms import params as P
 
     c = {k: np.array([getattr(v[2], k) for v in variants], float).reshape(-1, 1)
          for k in P.field_names(Needle208)}

@@ -13,12 +13,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ParameterError
-from ..mechanisms import needle_208 as nd
-from ..mechanisms import params as P
-from ..metrics import needle as nm
-from . import adjust as ad
-from . import beta as sb
+from sewtol.errors import ParameterError
+from sewtol.mechanisms import needle_208 as nd
+from sewtol.mechanisms import params as P
+from sewtol.metrics import needle as nm
+from sewtol.studies import adjust as ad
+from sewtol.studies import beta as sb
 
 
 @dataclass(frozen=True)
@@ -69,8 +69,8 @@ def evaluate(nominal, deviations: dict[str, np.ndarray], adjust: bool = True,
 
 
 def _fixed_numba(c, rocker):
-    from ..kernels import needle_numba as K
-    from ..kernels import needle_window as KW
+    from sewtol.kernels import needle_numba as K
+    from sewtol.kernels import needle_window as KW
 
     packed = K.pack(c)
     # the rocker interval depends on the first four-bar only (not on beta)

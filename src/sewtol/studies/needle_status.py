@@ -17,9 +17,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ..mechanisms import needle_208 as nd
-from ..mechanisms import params as P
-from ..metrics import needle as nm
+from sewtol.mechanisms import needle_208 as nd
+from sewtol.mechanisms import params as P
+from sewtol.metrics import needle as nm
 
 STATUSES = ("ok", "out_of_spec", "cannot_close", "dead_point", "unexplained")
 FAILURES = ("cannot_close", "dead_point", "unexplained")

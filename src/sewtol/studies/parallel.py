@@ -22,7 +22,7 @@ import joblib
 import numpy as np
 from tqdm.auto import tqdm
 
-from ..errors import ParameterError
+from sewtol.errors import ParameterError
 
 # how long to wait for a scheduler to answer (s); a wrong address fails after this
 CONNECT_TIMEOUT_S = 10

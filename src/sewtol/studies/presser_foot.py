@@ -16,11 +16,11 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from ..errors import ParameterError
-from ..mechanisms import params as P
-from ..mechanisms import presser_foot as PF
-from ..tolerances import Tolerance, ToleranceSet
-from .montecarlo import CHUNK, check_sampling, draw_deviations
+from sewtol.errors import ParameterError
+from sewtol.mechanisms import params as P
+from sewtol.mechanisms import presser_foot as PF
+from sewtol.tolerances import Tolerance, ToleranceSet
+from sewtol.studies.montecarlo import CHUNK, check_sampling, draw_deviations
 
 OUTPUTS = ("loss_deg", "regain_deg", "lost_deg", "separation_mm")
 ANGLE_OUTPUTS = ("loss_deg", "regain_deg")

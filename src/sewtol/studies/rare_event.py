@@ -32,11 +32,11 @@ import numpy as np
 import pandas as pd
 from scipy import special, stats
 
-from ..errors import ParameterError
-from ..tolerances import ToleranceSet, needle_set
+from sewtol.errors import ParameterError
+from sewtol.tolerances import ToleranceSet, needle_set
 
 if TYPE_CHECKING:
-    from ..mechanisms.needle_208 import Needle208
+    from sewtol.mechanisms.needle_208 import Needle208
 
 METHODS = ("auto", "montecarlo", "subset", "nais")
 PASS = "pass"
@@ -332,7 +332,7 @@ def monte_carlo(ls: LimitState, n: int, rng: np.random.Generator, chunk_size: in
     """Plain Monte-Carlo: p = k/n, Clopper-Pearson 95 % interval, c.o.v. sqrt((1-p)/(n p)).
 
     Chunk i draws from rng.spawn child i, so any n_jobs gives the same numbers."""
-    from .parallel import chunk_bounds, run_chunks
+    from sewtol.studies.parallel import chunk_bounds, run_chunks
 
     _check_common(rng, n)
     bounds = chunk_bounds(int(n), int(chunk_size))
@@ -759,7 +759,7 @@ def needle_limit_state(nominal: Needle208, tolerances: ToleranceSet | str, limit
         For an unknown adjustment, a non-positive limit, or a set without any tolerance.
     """
     tolerances = needle_set(tolerances)
-    from . import beta as sb
+    from sewtol.studies import beta as sb
 
     if adjust not in ADJUSTMENTS:
         raise ParameterError("adjust", f"must be one of {', '.join(ADJUSTMENTS)}", adjust)
@@ -788,9 +788,9 @@ class _NeedleResponse:
     engine: str
 
     def __call__(self, z):
-        from ..mechanisms import params as P
-        from ..metrics import needle as nm
-        from .needle_eval import evaluate
+        from sewtol.mechanisms import params as P
+        from sewtol.metrics import needle as nm
+        from sewtol.studies.needle_eval import evaluate
 
         dev = self.zmap.to_physical(z)
         out = evaluate(self.nominal, dev, adjust=self.adjust == "beta",

@@ -18,15 +18,15 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from ..mechanisms import params as P
-from ..metrics import needle as nm
-from ..optimize import bisect_root
-from ..tolerances import ToleranceSet, needle_set
-from . import beta as sb
+from sewtol.mechanisms import params as P
+from sewtol.metrics import needle as nm
+from sewtol.optimize import bisect_root
+from sewtol.tolerances import ToleranceSet, needle_set
+from sewtol.studies import beta as sb
 
 if TYPE_CHECKING:
-    from ..mechanisms.needle_208 import Needle208
-    from .compensators import Strategy
+    from sewtol.mechanisms.needle_208 import Needle208
+    from sewtol.studies.compensators import Strategy
 
 
 @dataclass(frozen=True)
@@ -121,8 +121,8 @@ def scan(nominal: Needle208, tolerances: ToleranceSet | str, guide_shift_um: flo
 def _scan_adjusted(base, tolerances, params, sides, deltas, dev, batch, strategy,
                    guide_shift_um, limit_um) -> ScanResult:
     """The scan's rows adjusted by `strategy` (studies.adjustment.adjust, exact joint optimum)."""
-    from .adjustment import adjust
-    from .strategies import columns_of
+    from sewtol.studies.adjustment import adjust
+    from sewtol.studies.strategies import columns_of
 
     values = [float(np.asarray(getattr(batch, p))[i]) for i, p in enumerate(params)]
     zero = {p: np.zeros(1) for p in tolerances.params}

@@ -22,18 +22,18 @@ import pandas as pd
 from SALib.analyze import sobol as sobol_analyze
 from SALib.sample import sobol as sobol_sample
 
-from ..errors import ParameterError
-from ..tolerances import ToleranceSet, needle_set
-from . import beta as sb
-from .needle_eval import evaluate
-from .parallel import chunk_bounds, run_chunks
+from sewtol.errors import ParameterError
+from sewtol.tolerances import ToleranceSet, needle_set
+from sewtol.studies import beta as sb
+from sewtol.studies.needle_eval import evaluate
+from sewtol.studies.parallel import chunk_bounds, run_chunks
 
 if TYPE_CHECKING:
     from distributed import Client
 
-    from ..mechanisms.needle_208 import Needle208
-    from .checkpoint import ChunkStore
-    from .compensators import Strategy
+    from sewtol.mechanisms.needle_208 import Needle208
+    from sewtol.studies.checkpoint import ChunkStore
+    from sewtol.studies.compensators import Strategy
 
 CHUNK = 1000
 
@@ -66,7 +66,7 @@ def rows_per_sample(d: int, second_order: bool = False) -> int:
 
 def check_sobol(nominal, tolerances: ToleranceSet, n, seed, second_order: bool = False) -> None:
     """Every input of a Sobol study that can be checked before it runs (nothing is written)."""
-    from .montecarlo import check_memory, check_seed
+    from sewtol.studies.montecarlo import check_memory, check_seed
 
     _check_n(n)
     check_seed(seed)
@@ -238,8 +238,8 @@ def _needle_chunk(nominal, names, X, range_deg, strategy=None, limit_um=sb.DEFAU
     if strategy is None:
         out = evaluate(nominal, dev, adjust=True, range_deg=range_deg)
         return out.total_fixed_um, out.total_adjusted_um
-    from .adjustment import adjust
-    from .strategies import columns_of
+    from sewtol.studies.adjustment import adjust
+    from sewtol.studies.strategies import columns_of
 
     fixed = evaluate(nominal, dev, adjust=False, range_deg=range_deg).total_fixed_um
     return fixed, adjust(columns_of(nominal, dev), strategy, limit_um, plateaus=False).total_um
@@ -317,7 +317,7 @@ def needle_sobol(nominal: Needle208, tolerances: ToleranceSet | str, n: int, see
         (with second_order, the S2 pairs and max |dS2|).
     """
     tolerances = needle_set(tolerances)
-    from .montecarlo import fixed_beta_of
+    from sewtol.studies.montecarlo import fixed_beta_of
 
     check_sobol(nominal, tolerances, n, seed, second_order)
     sb.check_range(range_deg, limit_um)

@@ -19,16 +19,16 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from ..errors import ParameterError
-from ..mechanisms import params as P
-from ..metrics import needle as nm
-from ..tolerances import ToleranceSet, needle_set
-from .adjustment import STATUSES, Adjustment, adjust
-from .compensators import Strategy, strategy_of
-from .montecarlo import contributors
+from sewtol.errors import ParameterError
+from sewtol.mechanisms import params as P
+from sewtol.metrics import needle as nm
+from sewtol.tolerances import ToleranceSet, needle_set
+from sewtol.studies.adjustment import STATUSES, Adjustment, adjust
+from sewtol.studies.compensators import Strategy, strategy_of
+from sewtol.studies.montecarlo import contributors
 
 if TYPE_CHECKING:
-    from ..mechanisms.needle_208 import Needle208
+    from sewtol.mechanisms.needle_208 import Needle208
 
 # the rows of the default strategies table, in order
 STRATEGY_ROWS = {
@@ -271,7 +271,7 @@ def strategies_table(nominal: Needle208, tolerances: ToleranceSet | str, n: int,
         valid = list(c)
         adjs = tuple(adjust(c, s.check_names(valid), limit_um) for s in strategies)
     else:
-        from .parallel import chunk_bounds, run_chunks
+        from sewtol.studies.parallel import chunk_bounds, run_chunks
 
         for s in strategies:  # unknown compensator names fail here, before any worker starts
             s.check_names(list(columns_of(nominal, {k: v[:1] for k, v in dev.items()})))
@@ -310,7 +310,7 @@ class StrategyAllocation:
         return self.table.copy()
 
     def as_tolerance_set(self, name: str = "allocated") -> ToleranceSet:
-        from ..tolerances import Tolerance
+        from sewtol.tolerances import Tolerance
 
         return ToleranceSet(name, tuple(Tolerance(r.param, r.lower_mm, r.upper_mm)
                                         for r in self.table.itertuples()),

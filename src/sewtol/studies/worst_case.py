@@ -20,14 +20,14 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import minimize
 
-from ..errors import ParameterError
-from ..tolerances import ToleranceSet, needle_set
-from . import beta as sb
-from .needle_eval import evaluate
+from sewtol.errors import ParameterError
+from sewtol.tolerances import ToleranceSet, needle_set
+from sewtol.studies import beta as sb
+from sewtol.studies.needle_eval import evaluate
 
 if TYPE_CHECKING:
-    from ..mechanisms.needle_208 import Needle208
-    from .compensators import Strategy
+    from sewtol.mechanisms.needle_208 import Needle208
+    from sewtol.studies.compensators import Strategy
 
 
 @dataclass(frozen=True)
@@ -54,8 +54,8 @@ def _objective(nominal, names, adjust, range_deg, strategy=None):
         X = np.atleast_2d(X)
         dev = {k: X[:, i] for i, k in enumerate(names)}
         if adjust and strategy is not None:
-            from .adjustment import adjust as adjust_machines
-            from .strategies import columns_of
+            from sewtol.studies.adjustment import adjust as adjust_machines
+            from sewtol.studies.strategies import columns_of
 
             out = adjust_machines(columns_of(nominal, dev), strategy, plateaus=False)
             return np.where(np.isnan(out.total_um), np.inf, out.total_um), out
