@@ -51,9 +51,9 @@ ifeq ($(strip $(TOLERANCES)),)
 		--figure-format $(FIGURE_FORMAT)
 	$(BIN)/python studies/m6_needle_report.py --out $(REPORTS)
 	$(BIN)/python studies/presser_foot_report.py --out $(REPORTS)
-	$(BIN)/python -m sewtol run examples/spatial_crank_rocker.toml report --seed 2026 \
+	$(BIN)/python -m sewtol run spatial_crank_rocker report --seed 2026 \
 		--out $(REPORTS)/spatial_crank_rocker
-	$(BIN)/python -m sewtol run examples/khujand_feed.toml report --seed 2026 --out $(REPORTS)/khujand_feed
+	$(BIN)/python -m sewtol run khujand_feed report --seed 2026 --out $(REPORTS)/khujand_feed
 else
 	$(BIN)/python studies/needle_208_nominal.py --out $(REPORTS) --figure-format $(FIGURE_FORMAT)
 	$(BIN)/python studies/needle_208_tolerances.py --out $(REPORTS) --n-jobs 2 --progress \

@@ -8,14 +8,14 @@
     seven link lengths with per-sample beta. The numba kernels use all cores; times are medians
     over --repeats runs after one warm-up (compilation is cached, not timed).
 
-Issue 11 targets (exact per-machine optimum, studies/adjust.py), each printed with its figure
+Issue 11 targets (exact per-machine optimum, mechanisms/needle_208/adjust.py), each printed with its figure
 and the ratio to the old path measured in this same process:
 (d) 10^6 machines, beta exact per machine, evaluate() end to end in chunks of 100,000 (<= 10 s);
 (e) the same with beta + guide shift (<= 20 s); peak RSS right after (d) and (e) (< 2 GB);
 (f) Sobol with per-sample beta at N = 2^14 over the 7 tolerances (<= 10 s).
 The old path is the grid + warm-started golden kernel (kernels/needle_numba.optimise_beta_batch)
 timed on 50,000 machines and scaled to 10^6 (it is linear in machines); the numpy reference
-(studies/adjust.py, engine="numpy") on 1,000 machines, scaled the same way. The machine is
+(mechanisms/needle_208/adjust.py, engine="numpy") on 1,000 machines, scaled the same way. The machine is
 shared: the load average at start and end is printed with the figures.
 """
 
@@ -31,15 +31,16 @@ import time
 
 import numpy as np
 
-from sewtol.kernels import needle_numba as KB
-from sewtol.kernels import needle_positions as K
 from sewtol.mechanisms import params as P
-from sewtol.mechanisms.needle_208 import Needle208
-from sewtol.metrics import needle as nm
-from sewtol.studies import adjust as ad
-from sewtol.studies.montecarlo import montecarlo
-from sewtol.studies.needle_eval import evaluate
-from sewtol.studies.sobol import needle_sobol, problem_of, sample
+from sewtol.mechanisms.needle_208 import adjust as ad
+from sewtol.mechanisms.needle_208 import metrics as nm
+from sewtol.mechanisms.needle_208.evaluate import evaluate
+from sewtol.mechanisms.needle_208.kernels import fused as KB
+from sewtol.mechanisms.needle_208.kernels import positions as K
+from sewtol.mechanisms.needle_208.model import Needle208
+from sewtol.mechanisms.needle_208.montecarlo import montecarlo
+from sewtol.mechanisms.needle_208.sobol import needle_sobol
+from sewtol.studies.sobol import problem_of, sample
 from sewtol.tolerances import NEEDLE_208_SETS
 
 TARGETS = {"million_beta_s": 10.0, "million_beta_shift_s": 20.0, "sobol_2e14_s": 10.0,

@@ -32,8 +32,8 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numba as nb  # noqa: E402
 import numpy as np  # noqa: E402
 
-from sewtol.kernels import needle_positions as K  # noqa: E402
-from sewtol.mechanisms.needle_208 import Needle208  # noqa: E402
+from sewtol.mechanisms.needle_208.kernels import positions as K  # noqa: E402
+from sewtol.mechanisms.needle_208.model import Needle208  # noqa: E402
 
 
 def median_rate(fn, positions: int, repeats: int) -> float:
@@ -52,8 +52,8 @@ def build_pylinkage(p: Needle208, steps: int):
     import pylinkage as pl
 
     E0 = K.positions_loop(K.pack(p), np.array([0.0]))  # initial guesses on sewtol's branches
-    from sewtol.mechanisms import needle_208 as nd
-    from sewtol.metrics import needle as nm
+    from sewtol.mechanisms.needle_208 import metrics as nm
+    from sewtol.mechanisms.needle_208 import model as nd
 
     o = nd.chain_from_crank(nm.columns(p)[0], np.array([[0.0]]))
     F = pl.Ground(0.0, 0.0, name="F")

@@ -1,7 +1,7 @@
 """Validate the exact per-machine beta* on the 10,000-machine recommended-set Monte-Carlo.
 
 Machines as `sewtol needle montecarlo --n 10000 --seed 2026 --tolerances recommended` draws them
-(chunk i of 500 from child i of the seed). Each machine's adjusted SumDelta (studies/adjust.py,
+(chunk i of 500 from child i of the seed). Each machine's adjusted SumDelta (mechanisms/needle_208/adjust.py,
 the numba kernel) is compared with a dense brute force over beta in 10..35 at a 0.001-deg step:
 d sampled at the same step along psi = theta + s beta, so every grid window lies on samples
 (plus its exact far end), window extremes by a monotone deque, a window counted infeasible where
@@ -20,11 +20,11 @@ import time
 import numba as nb
 import numpy as np
 
-from sewtol.kernels import needle_numba as KB
 from sewtol.mechanisms import params as P
-from sewtol.mechanisms.needle_208 import Needle208
-from sewtol.metrics import needle as nm
-from sewtol.studies import adjust as ad
+from sewtol.mechanisms.needle_208 import adjust as ad
+from sewtol.mechanisms.needle_208 import metrics as nm
+from sewtol.mechanisms.needle_208.kernels import fused as KB
+from sewtol.mechanisms.needle_208.model import Needle208
 from sewtol.studies.parallel import child_generators, chunk_bounds
 from sewtol.tolerances import NEEDLE_208_SETS
 

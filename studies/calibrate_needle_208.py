@@ -8,7 +8,7 @@ data (src/sewtol/data/frames/) and writes DIR/needle_208/calibration.md, so the 
 same geometry as every other table. Without --stored the named frame is rebuilt: `window` by the
 global search over all 16 families (studies.needle_calibration.search) and a converged least
 squares; `table41` from the stored window frame, fitted to Table 4.1; `sewtol-0.1` from the
-frozen 0.1 geometry (src/sewtol/data/needle_208.json). The
+frozen 0.1 geometry (src/sewtol/mechanisms/needle_208/data/needle_208.json). The
 rebuilt record goes to DIR/needle_208/frame_<NAME>.json and its report to
 DIR/needle_208/calibration_<NAME>.md; package data is only written with --write-package-data.
 (sewtol 0.1's `--data FILE` still works: a stored report, FILE gets the default frame's record.)
@@ -23,12 +23,13 @@ from pathlib import Path
 import numpy as np
 
 from sewtol.errors import ParameterError
-from sewtol.frames import DEFAULT_FRAME, frame_from_record, frame_names, load_frame
 from sewtol.io import to_json, write_text_atomic
-from sewtol.mechanisms.needle_208 import Needle208, load_nominal_record
-from sewtol.studies import needle_calibration as cal
+from sewtol.mechanisms.needle_208 import calibration as cal
+from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME, frame_from_record, frame_names, load_frame
+from sewtol.mechanisms.needle_208.model import Needle208, load_nominal_record
 
-PACKAGE_FRAMES = Path(__file__).resolve().parents[1] / "src" / "sewtol" / "data" / "frames"
+PACKAGE_FRAMES = (Path(__file__).resolve().parents[1] / "src" / "sewtol" / "mechanisms" / "needle_208"
+                  / "data" / "frames")
 BUILDABLE = ("window", "table41", "sewtol-0.1")
 
 SUMMARIES = {
@@ -90,8 +91,8 @@ def build_sewtol01(progress) -> dict:
     progress(f"sewtol-0.1: converged refit cost {conv.cost:.6g}, x {np.round(conv.x, 6).tolist()}")
     rec = cal.frame_record(
         "sewtol-0.1", SUMMARIES["sewtol-0.1"], m, fam, cal.window_targets(fam.lean),
-        "frozen: the geometry of sewtol 0.1 (src/sewtol/data/needle_208.json, a least-squares "
-        "fit whose finite-difference Jacobian stopped short of the optimum); re-evaluated here",
+        "frozen: the geometry of sewtol 0.1 (mechanisms/needle_208/data/needle_208.json, a "
+        "least-squares fit whose finite-difference Jacobian stopped short of the optimum); re-evaluated here",
         [{"family": conv.family.label, "lm_direction": fam.lm_direction,
           "x": dict(zip(cal.X_NAMES, conv.x, strict=True)), "cost": conv.cost,
           "note": "converged refit of the same family from the 0.1 frame (not shipped)"}])

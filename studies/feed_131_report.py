@@ -15,9 +15,9 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 
-from sewtol import feed
 from sewtol.io import to_json, write_text_atomic
-from sewtol.mechanisms.feed_131 import Feed131
+from sewtol.mechanisms.feed_131 import studies as feed
+from sewtol.mechanisms.feed_131.model import Feed131
 from sewtol.mechanisms.params import as_dict
 from sewtol.provenance import now, run_record
 from sewtol.reports import plots

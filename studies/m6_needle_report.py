@@ -20,7 +20,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from sewtol.io import to_json, write_text_atomic  # noqa: E402
-from sewtol.mechanisms import m6_needle as m6  # noqa: E402
+from sewtol.mechanisms.m6_needle import model as m6  # noqa: E402
 from sewtol.mechanisms.params import as_dict  # noqa: E402
 from sewtol.provenance import now, run_record  # noqa: E402
 from sewtol.reports import plots  # noqa: E402
@@ -187,7 +187,7 @@ def main(argv=None) -> None:
 
     # tolerances of the travel (illustrative set of the example file)
     tol = tomllib.loads(EXAMPLE.read_text())["tolerances"]["illustrative"]
-    tset = {**settings, "tolerance set": "illustrative (examples/m6_needle.toml; the source "
+    tset = {**settings, "tolerance set": "illustrative (mechanisms/m6_needle/mechanism.toml; the source "
             "gives none): " + ", ".join(f"{k} +/-{v:g}" for k, v in tol.items())}
     write_table(m6.scan_travel(p, tol), out, "scan_travel",
                 "Needle travel with each parameter at its limits (sorted by effect)", tset,

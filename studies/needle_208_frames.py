@@ -16,13 +16,13 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
-from sewtol.frames import DEFAULT_FRAME, frame_names, load_frame
 from sewtol.io import write_text_atomic
-from sewtol.needle import nominal_figures
+from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME, frame_names, load_frame
+from sewtol.mechanisms.needle_208.montecarlo import montecarlo
+from sewtol.mechanisms.needle_208.scan import largest_tolerances, scan
+from sewtol.mechanisms.needle_208.single import nominal_figures
+from sewtol.mechanisms.needle_208.sobol import needle_sobol
 from sewtol.reports import plots
-from sewtol.studies.montecarlo import montecarlo
-from sewtol.studies.scan import largest_tolerances, scan
-from sewtol.studies.sobol import needle_sobol
 from sewtol.tolerances import NEEDLE_208_SETS
 
 LINKS = ["LF", "LM", "AM", "AB", "BC", "BE", "CD"]

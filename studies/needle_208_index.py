@@ -15,8 +15,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from sewtol.frames import DEFAULT_FRAME
 from sewtol.io import write_text_atomic
+from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME
 from sewtol.reports.html import Conclusion, Figure, Report, Section, markdown_index, render
 
 FIGURE_SUFFIXES = ("svg", "png")  # what the HTML embeds (a pdf run writes a png beside it)

@@ -15,12 +15,12 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
-from sewtol.mechanisms.needle_208 import Needle208
-from sewtol.metrics import needle as nm
-from sewtol.needle import deviation_table, nominal_figures
+from sewtol.mechanisms.needle_208 import beta as sb
+from sewtol.mechanisms.needle_208 import metrics as nm
+from sewtol.mechanisms.needle_208.model import Needle208
+from sewtol.mechanisms.needle_208.single import deviation_table, nominal_figures
 from sewtol.reports import plots
 from sewtol.reports.tables import write_table
-from sewtol.studies import beta as sb
 
 
 def main(argv=None) -> None:

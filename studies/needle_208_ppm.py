@@ -31,13 +31,14 @@ import pandas as pd  # noqa: E402
 
 from sewtol.errors import ParameterError  # noqa: E402
 from sewtol.io import write_text_atomic  # noqa: E402
-from sewtol.mechanisms.needle_208 import Needle208  # noqa: E402
+from sewtol.mechanisms.needle_208 import ppm as NR
+from sewtol.mechanisms.needle_208.allocation import allocate  # noqa: E402
+from sewtol.mechanisms.needle_208.model import Needle208  # noqa: E402
 from sewtol.mechanisms.params import as_dict  # noqa: E402
 from sewtol.provenance import now, run_record  # noqa: E402
 from sewtol.reports import plots  # noqa: E402
 from sewtol.reports.tables import write_table  # noqa: E402
 from sewtol.studies import rare_event as R  # noqa: E402
-from sewtol.studies.allocation import allocate  # noqa: E402
 from sewtol.tolerances import NEEDLE_208_SETS, Tolerance, ToleranceSet  # noqa: E402
 
 LIMIT_UM = 10.0
@@ -111,7 +112,7 @@ def main(argv=None) -> int:
     child = iter(seeds.spawn(len(sets) * len(STRATEGIES) + 4))
     for name, ts in sets.items():
         for strategy, label in STRATEGIES.items():
-            ls = R.needle_limit_state(p, ts, LIMIT_UM, strategy)
+            ls = NR.needle_limit_state(p, ts, LIMIT_UM, strategy)
             res = R.estimate(ls, np.random.default_rng(next(child)), "auto", TARGET,
                              args.budget, n_jobs=args.n_jobs)
             results[(name, strategy)] = res
@@ -145,7 +146,7 @@ def main(argv=None) -> int:
     brute_rows, curves = [], {}
     x = np.linspace(0.0, 25.0, 251)
     for strategy, label in STRATEGIES.items():
-        ls = R.needle_limit_state(p, allocated, LIMIT_UM, strategy)
+        ls = NR.needle_limit_state(p, allocated, LIMIT_UM, strategy)
         mc = R.monte_carlo(ls, args.n_brute, np.random.default_rng(next(child)),
                            n_jobs=args.n_jobs, progress=args.progress)
         sus = results[("allocated", strategy)]

@@ -19,18 +19,18 @@ import matplotlib.pyplot as plt
 
 from sewtol.errors import ParameterError
 from sewtol.io import to_json, write_text_atomic
-from sewtol.mechanisms.needle_208 import Needle208
+from sewtol.mechanisms.needle_208.allocation import allocate
+from sewtol.mechanisms.needle_208.guides import compare_guides
+from sewtol.mechanisms.needle_208.model import Needle208
+from sewtol.mechanisms.needle_208.montecarlo import montecarlo
+from sewtol.mechanisms.needle_208.scan import largest_tolerances, scan
+from sewtol.mechanisms.needle_208.single import deviation_table
+from sewtol.mechanisms.needle_208.sobol import needle_sobol
+from sewtol.mechanisms.needle_208.worst_case import worst_case_table
 from sewtol.mechanisms.params import as_dict, field_names
-from sewtol.needle import deviation_table
 from sewtol.provenance import now, run_record
 from sewtol.reports import plots
 from sewtol.reports.tables import write_table
-from sewtol.studies.allocation import allocate
-from sewtol.studies.guides import compare_guides
-from sewtol.studies.montecarlo import montecarlo
-from sewtol.studies.scan import largest_tolerances, scan
-from sewtol.studies.sobol import needle_sobol
-from sewtol.studies.worst_case import worst_case_table
 from sewtol.tolerances import NEEDLE_208_SETS, resolve_all
 
 SCAN_COLUMNS = {"param": "parameter", "side": "limit", "delta_mm": "deviation (mm)",

@@ -9,8 +9,8 @@ from contextlib import redirect_stderr, redirect_stdout
 import numpy as np
 
 from sewtol.cli import main
-from sewtol.mechanisms import needle_208 as nd
-from sewtol.mechanisms.needle_208 import Needle208
+from sewtol.mechanisms.needle_208 import model as nd
+from sewtol.mechanisms.needle_208.model import Needle208
 
 
 def run(*argv):

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from sewtol.mechanisms.needle_208 import Needle208
+from sewtol.mechanisms.needle_208.model import Needle208
 
 
 @pytest.fixture(scope="session")

@@ -1,4 +1,4 @@
-"""The exact compensator optimum (studies/adjust.py, kernels/needle_window.py) against an
+"""The exact compensator optimum (needle_208/adjust.py, needle_208/kernels/window.py) against an
 independent dense brute-force search, and the numba kernel against the numpy reference.
 
 The brute force shares only the model (the engine's E(psi)): d is sampled on a psi grid of the
@@ -12,14 +12,14 @@ import pytest
 
 from sewtol import engine
 from sewtol.errors import ParameterError
-from sewtol.kernels import needle_numba as KB
-from sewtol.kernels import needle_window as KW
-from sewtol.mechanisms import needle_208 as nd
 from sewtol.mechanisms import params as P
-from sewtol.metrics import needle as nm
-from sewtol.studies import adjust as ad
-from sewtol.studies import beta as sb
-from sewtol.studies.needle_eval import evaluate
+from sewtol.mechanisms.needle_208 import adjust as ad
+from sewtol.mechanisms.needle_208 import beta as sb
+from sewtol.mechanisms.needle_208 import metrics as nm
+from sewtol.mechanisms.needle_208 import model as nd
+from sewtol.mechanisms.needle_208.evaluate import evaluate
+from sewtol.mechanisms.needle_208.kernels import fused as KB
+from sewtol.mechanisms.needle_208.kernels import window as KW
 from sewtol.studies.parallel import child_generators, chunk_bounds
 from sewtol.tolerances import NEEDLE_208_SETS
 
@@ -276,7 +276,7 @@ def test_evaluate_uses_the_exact_optimum(chunk, nominal):
 def test_fixed_beta_figures_are_exact(nominal, tset):
     """The fixed-beta kernel (Hermite surrogate to locate, Newton on the exact d to polish)
     equals the engine's exact extremes (metrics.needle.deviation_figures)."""
-    from sewtol.kernels import needle_window as KW
+    from sewtol.mechanisms.needle_208.kernels import window as KW
 
     dev = NEEDLE_208_SETS[tset].sample(np.random.default_rng(36), 400)
     c = _columns(nominal, dev)

@@ -7,10 +7,10 @@ import pytest
 
 from cli_helpers import run
 from cli_helpers import strict_loads as strict
-from sewtol.mechanisms.needle_208 import Needle208
-from sewtol.studies.adjustment import adjust
-from sewtol.studies.compensators import strategy_of
-from sewtol.studies.strategies import columns_of
+from sewtol.mechanisms.needle_208.adjustment import adjust
+from sewtol.mechanisms.needle_208.compensators import strategy_of
+from sewtol.mechanisms.needle_208.model import Needle208
+from sewtol.mechanisms.needle_208.strategies import columns_of
 from sewtol.tolerances import NEEDLE_208_SETS
 
 NUM = ["delta_mm", "value_mm", "beta_deg", "plus_um", "minus_um", "total_um"]
@@ -91,9 +91,10 @@ def test_sobol_adjust_beta_matches_todays_adjusted_case():
 
 
 def test_sobol_model_chunk_calls_adjust():
-    from sewtol.studies.montecarlo import fixed_beta_of
-    from sewtol.studies.needle_eval import evaluate
-    from sewtol.studies.sobol import _needle_chunk, problem_of, sample
+    from sewtol.mechanisms.needle_208.evaluate import evaluate
+    from sewtol.mechanisms.needle_208.montecarlo import fixed_beta_of
+    from sewtol.mechanisms.needle_208.sobol import _needle_chunk
+    from sewtol.studies.sobol import problem_of, sample
 
     tol = NEEDLE_208_SETS["base"]
     nom = Needle208.nominal()
@@ -140,7 +141,7 @@ def test_guides_cli_adjust_beta_equals_montecarlo_yields():
 
 
 def test_guides_with_guide_shift_beats_beta_alone():
-    from sewtol.studies.guides import compare_guides
+    from sewtol.mechanisms.needle_208.guides import compare_guides
 
     nom, tol = Needle208.nominal(), NEEDLE_208_SETS["base"]
     beta = compare_guides(nom, tol, 200, 1, strategy=strategy_of(("beta",)))
@@ -177,7 +178,7 @@ def test_allocation_cli_beta_and_shift_widens_ab_be():
 
 def test_allocation_yield_is_what_it_reports():
     """Recompute the strategy allocation's yield on its common random numbers with adjust()."""
-    from sewtol.studies.strategies import allocate_for_strategy
+    from sewtol.mechanisms.needle_208.strategies import allocate_for_strategy
 
     nom, tol = Needle208.nominal(), NEEDLE_208_SETS["base"]
     st = strategy_of(("beta", "guide_shift_um"))
@@ -211,9 +212,9 @@ def test_guides_allocation_refusals(argv, flag):
 def test_worst_case_with_a_strategy():
     """More compensators never raise any machine's SumDelta, so over the same corners the worst
     one cannot rise either; the strategy 'beta' agrees with the beta-only path at the corners."""
-    from sewtol.mechanisms.needle_208 import Needle208
-    from sewtol.studies.compensators import strategy_of
-    from sewtol.studies.worst_case import worst_case_table
+    from sewtol.mechanisms.needle_208.compensators import strategy_of
+    from sewtol.mechanisms.needle_208.model import Needle208
+    from sewtol.mechanisms.needle_208.worst_case import worst_case_table
     from sewtol.tolerances import NEEDLE_208_SETS
 
     p, ts = Needle208.nominal(), NEEDLE_208_SETS["base"]

@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 
 from cli_helpers import run, strict_loads
-from sewtol.needle import deviation_table
+from sewtol.mechanisms.needle_208.single import deviation_table
 
 
 def test_nominal_json_keys_and_values():

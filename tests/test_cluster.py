@@ -15,10 +15,11 @@ import numpy as np
 import pytest
 
 from sewtol.cli import main
+from sewtol.mechanisms.needle_208.montecarlo import _needle_model, montecarlo
+from sewtol.mechanisms.needle_208.sobol import needle_sobol
 from sewtol.studies import parallel
 from sewtol.studies.checkpoint import ChunkStore
-from sewtol.studies.montecarlo import _needle_model, montecarlo, sample_machines
-from sewtol.studies.sobol import needle_sobol
+from sewtol.studies.montecarlo import sample_machines
 from sewtol.tolerances import NEEDLE_208_SETS
 
 distributed = pytest.importorskip("distributed")

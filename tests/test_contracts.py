@@ -13,9 +13,9 @@ import pytest
 import sewtol
 from cli_helpers import run, stretched_CD, strict_loads
 from sewtol.errors import AssemblyError, ParameterError
-from sewtol.mechanisms import needle_208 as nd
-from sewtol.mechanisms.needle_208 import Needle208
-from sewtol.studies.montecarlo import montecarlo
+from sewtol.mechanisms.needle_208 import model as nd
+from sewtol.mechanisms.needle_208.model import Needle208
+from sewtol.mechanisms.needle_208.montecarlo import montecarlo
 from sewtol.tolerances import NEEDLE_208_SETS, Tolerance, ToleranceSet
 
 
@@ -290,7 +290,7 @@ def test_fixed_beta_is_the_nominal_optimum_everywhere(nominal):
     given = montecarlo(shifted, NEEDLE_208_SETS["base"], 200, seed=0, fixed_beta="as_given")
     assert given.nominal_beta_deg == nominal.beta
     # the fixed case is a machine at beta*: its nominal-deviation machine gives the nominal total
-    from sewtol.studies.needle_eval import evaluate
+    from sewtol.mechanisms.needle_208.evaluate import evaluate
 
     zero = evaluate(shifted.override(beta=beta_star), {"LF": np.zeros(1)})
     assert abs(zero.total_fixed_um[0] - strict_loads(run(

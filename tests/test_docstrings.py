@@ -106,7 +106,7 @@ def test_public_values_have_docstrings():
     lf = next(t for t in sets["recommended"].items if t.param == "LF")
     assert (lf.lower, lf.upper) == (-0.8, 0.25)
     assert "CD" not in sets["base"].params
-    assert _attribute_docstring("sewtol.frames", "DEFAULT_FRAME") is not None
+    assert _attribute_docstring("sewtol.mechanisms.needle_208.frames", "DEFAULT_FRAME") is not None
 
 
 def test_every_public_name_has_an_api_page_entry():

@@ -5,11 +5,11 @@ import math
 import numpy as np
 import pytest
 
-from sewtol import feed
 from sewtol.errors import AssemblyError, ParameterError
-from sewtol.mechanisms import feed_131 as fd
 from sewtol.mechanisms import params as P
-from sewtol.mechanisms.feed_131 import Feed131
+from sewtol.mechanisms.feed_131 import model as fd
+from sewtol.mechanisms.feed_131 import studies as feed
+from sewtol.mechanisms.feed_131.model import Feed131
 
 
 @pytest.fixture(scope="module")
@@ -264,7 +264,7 @@ def test_readoff_explanations(readoffs):
 
 def test_fitted_upper_phase_is_the_brute_force_optimum(readoffs):
     """The fitted phase of 'upper phi + c' against an independent 0.5 deg scan."""
-    from sewtol.metrics.feed import dog_figures
+    from sewtol.mechanisms.feed_131.metrics import dog_figures
 
     name = next(e for e in readoffs.explanations if e.name.startswith("upper phi +")
                 and e.changes.get("upper_phase") is not None)

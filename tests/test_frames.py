@@ -7,11 +7,11 @@ import pytest
 
 from sewtol.cli import main
 from sewtol.errors import ParameterError
-from sewtol.frames import DEFAULT_FRAME, frame_names, list_frames, load_frame, resolve
-from sewtol.mechanisms.needle_208 import Needle208, load_nominal_record
-from sewtol.metrics import needle as nm
-from sewtol.studies import beta as sb
-from sewtol.studies import needle_calibration as cal
+from sewtol.mechanisms.needle_208 import beta as sb
+from sewtol.mechanisms.needle_208 import calibration as cal
+from sewtol.mechanisms.needle_208 import metrics as nm
+from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME, frame_names, list_frames, load_frame, resolve
+from sewtol.mechanisms.needle_208.model import Needle208, load_nominal_record
 
 
 def test_at_least_the_named_frames_ship():
@@ -173,6 +173,6 @@ def test_frame_files_are_strict_json():
     def refuse(c):
         raise ValueError(f"non-standard JSON constant {c}")
 
-    folder = resources.files("sewtol.data").joinpath("frames")
+    folder = resources.files("sewtol.mechanisms.needle_208").joinpath("data", "frames")
     for name in frame_names():
         json.loads(folder.joinpath(f"{name}.json").read_text(), parse_constant=refuse)

@@ -230,7 +230,7 @@ def test_saved_figures_print_resolution_and_formats(tmp_path):
 
 def test_report_tolerances_from_a_file(tmp_path, capsys):
     from sewtol.errors import ParameterError
-    from sewtol.mechanisms.needle_208 import Needle208
+    from sewtol.mechanisms.needle_208.model import Needle208
     from sewtol.mechanisms.params import field_names
     from sewtol.tolerances import NEEDLE_208_SETS, resolve_all
 
@@ -258,8 +258,8 @@ def test_report_tolerances_from_a_file(tmp_path, capsys):
 def test_strategies_in_chunks_are_the_strategies_in_one_piece():
     """The parallel path of the strategies report adjusts chunks of machines and concatenates
     them: machine by machine the same numbers as one piece (compared exactly)."""
-    from sewtol.mechanisms.needle_208 import Needle208
-    from sewtol.studies import strategies as S
+    from sewtol.mechanisms.needle_208 import strategies as S
+    from sewtol.mechanisms.needle_208.model import Needle208
     from sewtol.tolerances import NEEDLE_208_SETS
 
     p = Needle208.nominal()
@@ -278,8 +278,8 @@ def test_strategies_in_chunks_are_the_strategies_in_one_piece():
 def test_feed_output_of_is_outputs_for_each_output():
     """The feed Sobol study evaluates only the dogs an output needs: the same numbers, exactly,
     as the full evaluation (including the machines that fail)."""
-    from sewtol import feed
-    from sewtol.mechanisms.feed_131 import Feed131
+    from sewtol.mechanisms.feed_131 import studies as feed
+    from sewtol.mechanisms.feed_131.model import Feed131
 
     p = Feed131()
     dev = feed.default_tolerances().sample(np.random.default_rng(11), 40)

@@ -15,10 +15,10 @@ import numpy as np
 import pandas as pd
 
 from sewtol.mechanisms import params as P
-from sewtol.mechanisms.needle_208 import Needle208
-from sewtol.metrics import needle as nm
-from sewtol.studies import adjust
-from sewtol.studies.needle_eval import evaluate
+from sewtol.mechanisms.needle_208 import adjust
+from sewtol.mechanisms.needle_208 import metrics as nm
+from sewtol.mechanisms.needle_208.evaluate import evaluate
+from sewtol.mechanisms.needle_208.model import Needle208
 
 DATA = Path(__file__).parent / "data"
 LINKS = ("LF", "LM", "AM", "AB", "BC", "BE", "CD")

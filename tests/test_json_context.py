@@ -67,7 +67,7 @@ def test_every_needle_study_json_carries_its_context(argv, expected):
     obj, ctx = _context_of(("needle", *argv, "--frame", "window", "--guide-shift-um", "5"))
     _check(ctx, expected)
     assert ctx["frame"] == "window" and ctx["guide_shift_um"] == 5.0
-    from sewtol.mechanisms.needle_208 import Needle208
+    from sewtol.mechanisms.needle_208.model import Needle208
 
     # the guide's angle parameter of that frame (about 20 deg off vertical)
     assert ctx["guide_angle_deg"] == float(Needle208.nominal("window").guide_angle)

@@ -4,13 +4,13 @@ import dataclasses
 
 import numpy as np
 
-from sewtol.kernels import needle_numba as KB
-from sewtol.kernels import needle_positions as KP
-from sewtol.mechanisms import needle_208 as nd
 from sewtol.mechanisms import params as P
-from sewtol.metrics import needle as nm
-from sewtol.studies import beta as sb
-from sewtol.studies.needle_eval import evaluate
+from sewtol.mechanisms.needle_208 import beta as sb
+from sewtol.mechanisms.needle_208 import metrics as nm
+from sewtol.mechanisms.needle_208 import model as nd
+from sewtol.mechanisms.needle_208.evaluate import evaluate
+from sewtol.mechanisms.needle_208.kernels import fused as KB
+from sewtol.mechanisms.needle_208.kernels import positions as KP
 from sewtol.tolerances import NEEDLE_208_SETS
 
 

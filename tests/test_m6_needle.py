@@ -11,9 +11,9 @@ import pytest
 
 from sewtol import engine
 from sewtol.errors import ParameterError
-from sewtol.mechanisms import m6_needle as m6
 from sewtol.mechanisms import params as P
-from sewtol.mechanisms.m6_needle import M6Needle
+from sewtol.mechanisms.m6_needle import model as m6
+from sewtol.mechanisms.m6_needle.model import M6Needle
 
 TOML = Path(__file__).resolve().parents[1] / "examples" / "m6_needle.toml"
 

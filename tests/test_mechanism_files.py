@@ -11,9 +11,9 @@ import pytest
 from cli_helpers import run
 from sewtol.errors import ParameterError
 from sewtol.mechanism import ExpressionError, load, loads, parse_expression
-from sewtol.mechanism.fast_paths import needle_perturbations, needle_positions_residual
 from sewtol.mechanisms import params as P
-from sewtol.mechanisms.feed_131 import Feed131, chains
+from sewtol.mechanisms.feed_131.model import Feed131, chains
+from sewtol.mechanisms.needle_208.fast_path import needle_perturbations, needle_positions_residual
 from sewtol.studies import generic as G
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -190,8 +190,8 @@ def test_feed_file_equals_builtin_chain_positions():
 
 def test_needle_sumdelta_matches_exact_figure():
     """The file samples 720 crank angles; the built-in finds the extremes exactly."""
-    from sewtol.mechanisms.needle_208 import Needle208
-    from sewtol.metrics import needle as nm
+    from sewtol.mechanisms.needle_208 import metrics as nm
+    from sewtol.mechanisms.needle_208.model import Needle208
 
     exact = float(nm.deviation_figures(nm.columns(Needle208.nominal())[0]).total_um[0])
     generic = float(load(NEEDLE).evaluate(outputs=["SumDelta_um"]).outputs["SumDelta_um"][0])
@@ -328,7 +328,7 @@ def test_worst_case_bounds_the_monte_carlo_sample():
 # --- the generic studies against the built-in needle model --------------------------------------
 
 def test_transmission_outputs_match_the_exact_extremes():
-    from sewtol.mechanisms import needle_208 as nd
+    from sewtol.mechanisms.needle_208 import model as nd
 
     c = P.column(nd.Needle208.nominal(), None)
     lo, hi, _, _ = nd.rocker_interval(c)
@@ -340,7 +340,7 @@ def test_transmission_outputs_match_the_exact_extremes():
 
 
 def test_generic_worst_case_equals_builtin_fixed_beta_worst_case(nominal):
-    from sewtol.studies.worst_case import worst_case
+    from sewtol.mechanisms.needle_208.worst_case import worst_case
     from sewtol.tolerances import NEEDLE_208_SETS
 
     built = worst_case(nominal, NEEDLE_208_SETS["base"], adjust=False)
@@ -416,7 +416,7 @@ def test_run_flags_tolerance_files_and_out(tmp_path):
 # --- adjustment over a compensator ---------------------------------------------------------------
 
 def test_adjusted_case_matches_the_builtin_beta_optimum(nominal):
-    from sewtol.studies.needle_eval import evaluate
+    from sewtol.mechanisms.needle_208.evaluate import evaluate
     from sewtol.tolerances import NEEDLE_208_SETS
 
     mech = load(NEEDLE)
@@ -434,7 +434,7 @@ def test_adjusted_case_matches_the_builtin_beta_optimum(nominal):
 
 
 def test_adjusted_scan_equals_the_builtin_scan(nominal):
-    from sewtol.studies.scan import scan
+    from sewtol.mechanisms.needle_208.scan import scan
     from sewtol.tolerances import NEEDLE_208_SETS
 
     mech = load(NEEDLE)

@@ -10,11 +10,11 @@ from scipy.optimize import root
 
 from sewtol import engine
 from sewtol.errors import AssemblyError, ParameterError
-from sewtol.mechanisms import needle_208 as nd
-from sewtol.mechanisms.needle_208 import Needle208
-from sewtol.metrics import needle as nm
-from sewtol.needle import nominal_figures
-from sewtol.studies import beta as sb
+from sewtol.mechanisms.needle_208 import beta as sb
+from sewtol.mechanisms.needle_208 import metrics as nm
+from sewtol.mechanisms.needle_208 import model as nd
+from sewtol.mechanisms.needle_208.model import Needle208
+from sewtol.mechanisms.needle_208.single import nominal_figures
 
 
 def perturbed(base: Needle208, rng, scale=0.3) -> Needle208:
@@ -207,8 +207,8 @@ def test_unassemblable_machine_says_which_dyad_and_angle(nominal):
 
 
 def _problems():
-    from sewtol.frames import list_frames
-    from sewtol.studies import needle_calibration as cal
+    from sewtol.mechanisms.needle_208 import calibration as cal
+    from sewtol.mechanisms.needle_208.frames import list_frames
 
     for f in list_frames():
         yield f, cal.frame_problem(f.provenance)
@@ -235,7 +235,7 @@ def test_stored_frames_are_optima_of_their_targets():
     step 1e-3 instead of 1e-4): the Gauss-Newton step from the stored frame would lower the
     cost by < 1e-5 (cost is printed to 4 decimals). sewtol-0.1 is frozen from a fit that stopped
     early; its cost is within 1e-5 of its family's optimum (0.194018 against 0.194014)."""
-    from sewtol.studies import needle_calibration as cal
+    from sewtol.mechanisms.needle_208 import calibration as cal
 
     for f, prob in _problems():
         r = prob.fun(prob.x)

@@ -12,9 +12,9 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
 from sewtol.errors import ParameterError
-from sewtol.kernels import presser_foot as K
-from sewtol.mechanisms import presser_foot as PF
-from sewtol.studies import presser_foot as S
+from sewtol.mechanisms.presser_foot import kernel as K
+from sewtol.mechanisms.presser_foot import model as PF
+from sewtol.mechanisms.presser_foot import studies as S
 
 R, L, A = 17.5, 42.0, 8.0
 
@@ -255,7 +255,7 @@ def test_bad_parameters_name_the_field_the_rule_and_the_value(field, value, rule
 
 
 def test_the_mechanism_file_is_the_model():
-    """examples/presser_foot.toml: its chain (built here with the engine as the file's groups
+    """mechanisms/presser_foot/mechanism.toml: its chain (built here with the engine as the file's groups
     say) moves the seat as the published formula, with the same transfer functions; its
     nominal values and tolerances are the module's."""
     import tomllib

@@ -12,6 +12,7 @@ from scipy import special, stats
 
 from cli_helpers import run, strict_loads
 from sewtol.errors import ParameterError
+from sewtol.mechanisms.needle_208 import ppm as NR
 from sewtol.studies import rare_event as R
 from sewtol.tolerances import Tolerance, ToleranceSet
 
@@ -178,7 +179,7 @@ def test_choice_of_method_and_refusals():
 
 def test_needle_fixed_beta_subset_agrees_with_brute_force(nominal):
     # allocated tolerances at 0.7: p about 1.4e-3 with beta fixed (brute force 5e4 in ~3 s)
-    ls = R.needle_limit_state(nominal, allocated(0.7), 10.0, "none")
+    ls = NR.needle_limit_state(nominal, allocated(0.7), 10.0, "none")
     mc = R.monte_carlo(ls, 50000, np.random.default_rng(11))
     sus = R.subset_simulation(ls, 1000, np.random.default_rng(12))
     assert 30 <= mc.failures <= 200
@@ -187,7 +188,7 @@ def test_needle_fixed_beta_subset_agrees_with_brute_force(nominal):
         within_band(sus.probability, mc.probability, math.hypot(sus.cov, mc.cov))
     assert sus.model_calls < 0.1 * mc.model_calls
     # the failing machines found really exceed the limit when evaluated directly
-    from sewtol.studies.needle_eval import evaluate
+    from sewtol.mechanisms.needle_208.evaluate import evaluate
     ex = sus.examples
     dev = {k: ex[k].to_numpy() for k in ALLOCATED}
     np.testing.assert_allclose(evaluate(nominal, dev, adjust=False).total_fixed_um,
@@ -197,7 +198,7 @@ def test_needle_fixed_beta_subset_agrees_with_brute_force(nominal):
 
 def test_needle_beta_adjusted_subset_agrees_with_brute_force(nominal):
     # the allocated set itself: about 2.5e-3 after beta adjustment
-    ls = R.needle_limit_state(nominal, allocated(1.0), 10.0, "beta")
+    ls = NR.needle_limit_state(nominal, allocated(1.0), 10.0, "beta")
     mc = R.monte_carlo(ls, 3000, np.random.default_rng(13))
     sus = R.subset_simulation(ls, 300, np.random.default_rng(14))
     assert mc.failures > 0
@@ -210,7 +211,7 @@ def test_needle_beta_adjusted_subset_agrees_with_brute_force(nominal):
 def test_needle_modes_are_named_and_counted(nominal):
     # CD far off: many machines cannot assemble; every machine is counted in one class
     ts = ToleranceSet("wild", (Tolerance("CD", -8.0, 8.0), Tolerance("LF", -0.05, 0.05)))
-    ls = R.needle_limit_state(nominal, ts, 10.0, "none")
+    ls = NR.needle_limit_state(nominal, ts, 10.0, "none")
     z = np.random.default_rng(0).standard_normal((400, 2))
     value, _, label = ls.evaluate(z)
     assert np.sum(label == 2) > 0  # cannot assemble

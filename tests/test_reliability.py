@@ -12,13 +12,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cli_helpers import run, stretched_CD, strict_loads
-from sewtol import feed
 from sewtol.errors import AssemblyError
-from sewtol.mechanisms import needle_208 as nd
-from sewtol.mechanisms.feed_131 import Feed131
-from sewtol.mechanisms.needle_208 import Needle208
+from sewtol.mechanisms.feed_131 import studies as feed
+from sewtol.mechanisms.feed_131.model import Feed131
+from sewtol.mechanisms.needle_208 import model as nd
+from sewtol.mechanisms.needle_208.model import Needle208
+from sewtol.mechanisms.needle_208.montecarlo import montecarlo
 from sewtol.mechanisms.params import field_names
-from sewtol.studies.montecarlo import montecarlo
 from sewtol.tolerances import Tolerance, ToleranceSet
 
 
@@ -51,7 +51,7 @@ def test_dead_points_count_as_failures_in_studies(nominal):
 
 def test_feed_dead_point_is_refused():
     """Move O6 towards C until O6-R-C just still closes: its links are then folded flat."""
-    from sewtol.mechanisms import feed_131 as fd
+    from sewtol.mechanisms.feed_131 import model as fd
 
     p = Feed131()
     phi = np.radians(np.arange(0.0, 360.0, 0.5))
@@ -81,7 +81,7 @@ def test_transmission_angle_of_a_dyad():
 
 
 def test_kernel_dead_point_threshold_matches_model():
-    from sewtol.kernels import needle_numba as K
+    from sewtol.mechanisms.needle_208.kernels import fused as K
 
     assert abs(K.SIN_DEAD_POINT - np.sin(np.radians(nd.DEAD_POINT_DEG))) < 1e-15
 

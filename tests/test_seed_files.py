@@ -14,8 +14,8 @@ import pytest
 
 from sewtol import engine
 from sewtol.mechanism import load
-from sewtol.mechanisms import m6_needle as m6
-from sewtol.mechanisms import spatial_crank_rocker as scr
+from sewtol.mechanisms.m6_needle import model as m6
+from sewtol.mechanisms.spatial_crank_rocker import model as scr
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
@@ -83,7 +83,7 @@ FOOT_NAMES = {"r": "crank_mm", "L": "rod_mm", "a": "offset_mm", "omega_rad_s": "
 
 
 def test_presser_file_equals_the_module_and_counts_machines_that_never_lose_contact():
-    from sewtol.mechanisms import presser_foot as pf
+    from sewtol.mechanisms.presser_foot import model as pf
     from sewtol.studies import generic
 
     mech = load(EXAMPLES / "presser_foot.toml")

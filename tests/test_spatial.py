@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from sewtol import engine
 from sewtol.errors import ParameterError
-from sewtol.mechanisms import spatial_crank_rocker as scr
+from sewtol.mechanisms.spatial_crank_rocker import model as scr
 
 ROOT = Path(__file__).resolve().parents[1]
 # illustrative perpendicular-axes machine (the example file's nominal)

@@ -6,13 +6,13 @@ import pytest
 
 from cli_helpers import run as _run
 from sewtol.errors import ParameterError
-from sewtol.kernels import needle_positions as KP
-from sewtol.kernels.needle_path import band_kernel, pack
-from sewtol.mechanisms import needle_208 as nd
-from sewtol.metrics import needle as nm
-from sewtol.studies import compensators as C
-from sewtol.studies.adjustment import adjust, shift_optimum
-from sewtol.studies.strategies import columns_of, strategies_table, summarise
+from sewtol.mechanisms.needle_208 import compensators as C
+from sewtol.mechanisms.needle_208 import metrics as nm
+from sewtol.mechanisms.needle_208 import model as nd
+from sewtol.mechanisms.needle_208.adjustment import adjust, shift_optimum
+from sewtol.mechanisms.needle_208.kernels import positions as KP
+from sewtol.mechanisms.needle_208.kernels.path import band_kernel, pack
+from sewtol.mechanisms.needle_208.strategies import columns_of, strategies_table, summarise
 from sewtol.tolerances import NEEDLE_208_SETS
 
 PHI = np.linspace(0.0, 2 * np.pi, 8001)
@@ -358,7 +358,7 @@ def test_cli_strategies_takes_a_frame_and_prints_strict_json(tmp_path):
 
 
 def test_allocation_takes_a_strategy(nominal):
-    from sewtol.studies.strategies import allocate_for_strategy
+    from sewtol.mechanisms.needle_208.strategies import allocate_for_strategy
 
     ref = NEEDLE_208_SETS["recommended"]
     shift = C.strategy_of(("beta", "guide_shift_um"))

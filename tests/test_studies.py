@@ -5,12 +5,12 @@ import numpy as np
 import pytest
 
 from sewtol.errors import ParameterError
+from sewtol.mechanisms.needle_208 import beta as sb
+from sewtol.mechanisms.needle_208.montecarlo import montecarlo
+from sewtol.mechanisms.needle_208.scan import scan
+from sewtol.mechanisms.needle_208.worst_case import worst_case
 from sewtol.optimize import bisect_root
-from sewtol.studies import beta as sb
-from sewtol.studies.montecarlo import montecarlo
-from sewtol.studies.scan import scan
 from sewtol.studies.sobol import sobol_indices
-from sewtol.studies.worst_case import worst_case
 from sewtol.tolerances import NEEDLE_208_SETS, Tolerance, ToleranceSet
 
 
@@ -41,7 +41,7 @@ def cd_only(width=0.01):
 def test_montecarlo_yield_matches_exactly_computable_case(nominal):
     """Only CD scatters, uniform +/-0.01: the exact yield is the share of [-0.01, 0.01] where
     SumDelta <= 10 um, found by root finding on the deterministic model."""
-    from sewtol.metrics import needle as nm
+    from sewtol.mechanisms.needle_208 import metrics as nm
 
     c, _ = nm.columns(nominal)
 
@@ -101,7 +101,7 @@ def test_scan_rows_equal_direct_model_calls(nominal):
 
 def test_guide_shift_moves_a_one_sided_path_by_the_shift(nominal):
     """Shifting the guide by s along its normal changes d by -s everywhere."""
-    from sewtol.metrics import needle as nm
+    from sewtol.mechanisms.needle_208 import metrics as nm
 
     c, _ = nm.columns(nominal)
     a = nm.deviation_figures(c)

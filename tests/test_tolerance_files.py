@@ -3,7 +3,7 @@
 import pytest
 
 from sewtol.errors import ParameterError
-from sewtol.mechanisms.needle_208 import Needle208
+from sewtol.mechanisms.needle_208.model import Needle208
 from sewtol.mechanisms.params import field_names
 from sewtol.tolerances import NEEDLE_208_SETS, load_toml, resolve
 

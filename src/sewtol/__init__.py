@@ -25,29 +25,29 @@ __version__ = "0.1.0"
 
 # public name -> (module, attribute)
 _PUBLIC = {
-    "Needle208": ("sewtol.mechanisms.needle_208", "Needle208"),
-    "Feed131": ("sewtol.mechanisms.feed_131", "Feed131"),
-    "load_frame": ("sewtol.frames", "load_frame"),
-    "list_frames": ("sewtol.frames", "list_frames"),
+    "Needle208": ("sewtol.mechanisms.needle_208.model", "Needle208"),
+    "Feed131": ("sewtol.mechanisms.feed_131.model", "Feed131"),
+    "load_frame": ("sewtol.mechanisms.needle_208.frames", "load_frame"),
+    "list_frames": ("sewtol.mechanisms.needle_208.frames", "list_frames"),
     "Tolerance": ("sewtol.tolerances", "Tolerance"),
     "ToleranceSet": ("sewtol.tolerances", "ToleranceSet"),
     "NEEDLE_208_SETS": ("sewtol.tolerances", "NEEDLE_208_SETS"),
-    "nominal_figures": ("sewtol.needle", "nominal_figures"),
-    "deviation_table": ("sewtol.needle", "deviation_table"),
-    "scan": ("sewtol.studies.scan", "scan"),
-    "largest_tolerances": ("sewtol.studies.scan", "largest_tolerances"),
-    "worst_case_table": ("sewtol.studies.worst_case", "worst_case_table"),
-    "montecarlo": ("sewtol.studies.montecarlo", "montecarlo"),
-    "needle_sobol": ("sewtol.studies.sobol", "needle_sobol"),
-    "allocate": ("sewtol.studies.allocation", "allocate"),
-    "compare_guides": ("sewtol.studies.guides", "compare_guides"),
-    "strategies_table": ("sewtol.studies.strategies", "strategies_table"),
-    "optimise": ("sewtol.studies.adjust", "optimise"),
-    "adjust": ("sewtol.studies.adjustment", "adjust"),
-    "Compensator": ("sewtol.studies.compensators", "Compensator"),
-    "Strategy": ("sewtol.studies.compensators", "Strategy"),
+    "nominal_figures": ("sewtol.mechanisms.needle_208.single", "nominal_figures"),
+    "deviation_table": ("sewtol.mechanisms.needle_208.single", "deviation_table"),
+    "scan": ("sewtol.mechanisms.needle_208.scan", "scan"),
+    "largest_tolerances": ("sewtol.mechanisms.needle_208.scan", "largest_tolerances"),
+    "worst_case_table": ("sewtol.mechanisms.needle_208.worst_case", "worst_case_table"),
+    "montecarlo": ("sewtol.mechanisms.needle_208.montecarlo", "montecarlo"),
+    "needle_sobol": ("sewtol.mechanisms.needle_208.sobol", "needle_sobol"),
+    "allocate": ("sewtol.mechanisms.needle_208.allocation", "allocate"),
+    "compare_guides": ("sewtol.mechanisms.needle_208.guides", "compare_guides"),
+    "strategies_table": ("sewtol.mechanisms.needle_208.strategies", "strategies_table"),
+    "optimise": ("sewtol.mechanisms.needle_208.adjust", "optimise"),
+    "adjust": ("sewtol.mechanisms.needle_208.adjustment", "adjust"),
+    "Compensator": ("sewtol.mechanisms.needle_208.compensators", "Compensator"),
+    "Strategy": ("sewtol.mechanisms.needle_208.compensators", "Strategy"),
     "estimate": ("sewtol.studies.rare_event", "estimate"),
-    "needle_limit_state": ("sewtol.studies.rare_event", "needle_limit_state"),
+    "needle_limit_state": ("sewtol.mechanisms.needle_208.ppm", "needle_limit_state"),
     "ParameterError": ("sewtol.errors", "ParameterError"),
     "AssemblyError": ("sewtol.errors", "AssemblyError"),
 }
@@ -84,7 +84,7 @@ def tolerance_set(name_or_path: str | os.PathLike | ToleranceSet) -> ToleranceSe
     >>> sewtol.tolerance_set("recommended").params
     ['LF', 'LM', 'AM', 'AB', 'BC', 'BE', 'CD']
     """
-    from sewtol.mechanisms.needle_208 import Needle208
+    from sewtol.mechanisms.needle_208.model import Needle208
     from sewtol.mechanisms.params import field_names
     from sewtol.tolerances import NEEDLE_208_SETS, ToleranceSet, resolve
 

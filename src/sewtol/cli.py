@@ -73,7 +73,7 @@ def emit(fmt: str, *, obj=None, frame=None) -> None:
 
 
 def _needle_params(args):
-    from sewtol.mechanisms.needle_208 import Needle208
+    from sewtol.mechanisms.needle_208.model import Needle208
 
     sets = parse_sets(args.set, Needle208)
     shift = getattr(args, "guide_shift_um", None)
@@ -89,7 +89,7 @@ def _needle_params(args):
 
 
 def cmd_needle_frames(args):
-    from sewtol.frames import frames_table, list_frames
+    from sewtol.mechanisms.needle_208.frames import frames_table, list_frames
 
     if args.format == "json":
         emit("json", obj=[f.to_dict() for f in list_frames()])
@@ -98,7 +98,7 @@ def cmd_needle_frames(args):
 
 
 def cmd_needle_nominal(args):
-    from sewtol.needle import nominal_figures
+    from sewtol.mechanisms.needle_208.single import nominal_figures
 
     _check_beta_range(args)
     params = _needle_params(args)
@@ -109,8 +109,8 @@ def cmd_needle_nominal(args):
     _print_notes(args, fig.notes())
 
     def draw(ax):
-        from sewtol.metrics import needle as nm
-        from sewtol.studies import beta as sb
+        from sewtol.mechanisms.needle_208 import beta as sb
+        from sewtol.mechanisms.needle_208 import metrics as nm
 
         betas = np.linspace(*args.beta_range, 201)
         totals = sb.totals_on_grid(nm.columns(params)[0], betas)[0]
@@ -187,7 +187,7 @@ def _save_plot(args, draw) -> None:
 def _beta_star_figures(args, params, strategy=None):
     """The nominal figures at beta* in --beta-range (default 10 35; with a strategy that adjusts
     beta, beta's range), at --limit-um."""
-    from sewtol.needle import nominal_figures
+    from sewtol.mechanisms.needle_208.single import nominal_figures
 
     rng = getattr(args, "beta_range", None) or (10.0, 35.0)
     for c in getattr(strategy, "compensators", ()):
@@ -204,7 +204,7 @@ def _at_beta_star(args, params, strategy=None):
 
 def _fixed_record(args, params, strategy=None) -> dict:
     """The fixed case's beta, what it means, and whether that beta* lies on a range bound."""
-    from sewtol.studies.montecarlo import FIXED_BETA_MEANS
+    from sewtol.mechanisms.needle_208.montecarlo import FIXED_BETA_MEANS
 
     return {"fixed_beta_deg": float(params.beta), "fixed_beta_means": FIXED_BETA_MEANS["optimum"],
             "fixed_beta_at_bound": _beta_star_figures(args, params, strategy).beta_at_bound}
@@ -219,7 +219,7 @@ def _fixed_notes(record) -> list[str]:
 
 def _context(args, params, tolerances, strategy) -> dict:
     """What decides a study's numbers, carried by its JSON (its CSVs: run.json beside them)."""
-    from sewtol.frames import DEFAULT_FRAME
+    from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME
 
     beta = list(getattr(args, "beta_range", None) or (10.0, 35.0))
     for c in getattr(strategy, "compensators", ()):
@@ -256,7 +256,7 @@ def _unit_of(param: str) -> str:
 
 
 def cmd_needle_deviation(args):
-    from sewtol.needle import deviation_table
+    from sewtol.mechanisms.needle_208.single import deviation_table
 
     _check_step(args.step_deg)
     p = _needle_params(args)
@@ -270,7 +270,7 @@ def cmd_needle_deviation(args):
 
 def _study_nominal(args):
     """The nominal machine of a study: it must assemble, or nothing is computed or written."""
-    from sewtol.mechanisms.needle_208 import check_assembly
+    from sewtol.mechanisms.needle_208.model import check_assembly
 
     params = _needle_params(args)
     check_assembly(params)
@@ -278,7 +278,7 @@ def _study_nominal(args):
 
 
 def _tolerances(args):
-    from sewtol.mechanisms.needle_208 import Needle208
+    from sewtol.mechanisms.needle_208.model import Needle208
     from sewtol.mechanisms.params import field_names
     from sewtol.tolerances import NEEDLE_208_SETS, resolve
 
@@ -393,7 +393,7 @@ def _cluster(args):
 
 def _check_beta_range(args):
     """--beta-range and --limit-um (defaults 10 35 and 10 um where a command takes them)."""
-    from sewtol.studies import beta as sb
+    from sewtol.mechanisms.needle_208 import beta as sb
 
     if getattr(args, "beta_range", None) is None:
         args.beta_range = list(sb.DEFAULT_RANGE_DEG)
@@ -473,7 +473,7 @@ def _write_outputs(args, kind, inputs, started, result_obj, frames, runs):
 
 
 def cmd_needle_scan(args):
-    from sewtol.studies.scan import scan
+    from sewtol.mechanisms.needle_208.scan import scan
 
     strategy = _strategy(args)
     _check_beta_range(args)
@@ -538,8 +538,9 @@ def run_montecarlo(args, params, tolerances, limit, rng, **inputs_extra):
     """The Monte-Carlo of `needle montecarlo` (beta fixed and adjusted), with its study folder
     (--out/--resume) and cluster: the result and its JSON record. `run FILE montecarlo` on the
     needle fast path calls it too (inputs_extra names the file), so both print the same bytes."""
+    from sewtol.mechanisms.needle_208.montecarlo import montecarlo
     from sewtol.provenance import now
-    from sewtol.studies.montecarlo import CHUNK, montecarlo
+    from sewtol.studies.montecarlo import CHUNK
 
     started = now()
     inputs = _inputs(args, "montecarlo", params, tolerances, limit_um=limit,
@@ -589,9 +590,9 @@ def _strategy(args):
     --beta-range means the range searched for beta everywhere: with --adjust naming beta it is
     beta's --range (giving both is refused); with --adjust not naming beta nothing searches beta,
     so it is refused."""
-    from sewtol.mechanisms.needle_208 import Needle208
+    from sewtol.mechanisms.needle_208.compensators import parse_cli
+    from sewtol.mechanisms.needle_208.model import Needle208
     from sewtol.mechanisms.params import field_names
-    from sewtol.studies.compensators import parse_cli
 
     adjust, ranges = getattr(args, "adjust", None), list(args.range or [])
     given = getattr(args, "beta_range", None)
@@ -616,9 +617,9 @@ def _strategy_record(strategy) -> dict:
 
 def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
     """needle montecarlo --adjust: the per-machine table of one strategy and its summary."""
+    from sewtol.mechanisms.needle_208.strategies import adjusted_montecarlo_model, summarise_frame
     from sewtol.provenance import now
     from sewtol.studies.montecarlo import CHUNK, sample_machines
-    from sewtol.studies.strategies import adjusted_montecarlo_model, summarise_frame
 
     params = _at_beta_star(args, params, strategy)
     started = now()
@@ -649,9 +650,9 @@ def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
 
 
 def cmd_needle_strategies(args):
+    from sewtol.mechanisms.needle_208.compensators import Strategy
+    from sewtol.mechanisms.needle_208.strategies import default_strategies, strategies_table
     from sewtol.provenance import now
-    from sewtol.studies.compensators import Strategy
-    from sewtol.studies.strategies import default_strategies, strategies_table
 
     _check_n(args.n)
     _check_study(args)
@@ -699,8 +700,9 @@ def _adjust_options(p):
 
 
 def cmd_needle_sobol(args):
+    from sewtol.mechanisms.needle_208.sobol import needle_sobol
     from sewtol.provenance import now
-    from sewtol.studies.sobol import CHUNK, check_sobol, needle_sobol
+    from sewtol.studies.sobol import CHUNK, check_sobol
     from sewtol.studies.sobol import _check_n as check_power_of_two
 
     try:
@@ -780,7 +782,7 @@ def _small_study(args):
 
 
 def cmd_needle_guides(args):
-    from sewtol.studies.guides import compare_guides
+    from sewtol.mechanisms.needle_208.guides import compare_guides
 
     strategy, params, tolerances = _small_study(args)
     _check_beta_range(args)
@@ -803,8 +805,8 @@ def cmd_needle_guides(args):
 
 
 def cmd_needle_allocation(args):
-    from sewtol.studies.allocation import allocate
-    from sewtol.studies.strategies import allocate_for_strategy
+    from sewtol.mechanisms.needle_208.allocation import allocate
+    from sewtol.mechanisms.needle_208.strategies import allocate_for_strategy
 
     if not (np.isfinite(args.target) and 0 < args.target < 1):
         raise ParameterError("--target", "must be a yield strictly between 0 and 1",
@@ -832,7 +834,7 @@ def cmd_needle_allocation(args):
 
 
 def cmd_needle_worst_case(args):
-    from sewtol.studies.worst_case import worst_case_table
+    from sewtol.mechanisms.needle_208.worst_case import worst_case_table
 
     strategy = _strategy(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
@@ -900,9 +902,9 @@ def add_needle_guides_allocation(nsub, needle_common, study) -> None:
 # --- needle largest-tolerances: the largest single deviation of each part ----------------------
 
 def cmd_needle_largest_tolerances(args):
-    from sewtol.mechanisms.needle_208 import LENGTHS, Needle208
+    from sewtol.mechanisms.needle_208.model import LENGTHS, Needle208
+    from sewtol.mechanisms.needle_208.scan import largest_tolerances
     from sewtol.mechanisms.params import field_names
-    from sewtol.studies.scan import largest_tolerances
     from sewtol.tolerances import is_branch
 
     _check_beta_range(args)
@@ -944,6 +946,7 @@ def add_needle_largest_tolerances(nsub, needle_common) -> None:
 # --- needle ppm (rare-event probability of failure after adjustment; issue 15) ---------------
 
 def cmd_needle_ppm(args):
+    from sewtol.mechanisms.needle_208 import ppm as NR
     from sewtol.provenance import now
     from sewtol.studies import rare_event as R
 
@@ -957,7 +960,7 @@ def cmd_needle_ppm(args):
         raise ParameterError("--budget", "must be a whole number of model calls >= 100",
                              args.budget)
     params, tolerances = _study_nominal(args), _tolerances(args)
-    ls = R.needle_limit_state(params, tolerances, args.limit_um, args.adjust,
+    ls = NR.needle_limit_state(params, tolerances, args.limit_um, args.adjust,
                               tuple(args.beta_range))
     started = now()
     res = R.estimate(ls, np.random.default_rng(args.seed), args.method, args.target,
@@ -1004,13 +1007,13 @@ def add_needle_ppm(nsub, common, study) -> None:
 
 
 def _feed_params(args):
-    from sewtol.mechanisms.feed_131 import Feed131
+    from sewtol.mechanisms.feed_131.model import Feed131
 
     return Feed131().override(**parse_sets(args.set, Feed131))
 
 
 def cmd_feed_trajectory(args):
-    from sewtol.feed import trajectory
+    from sewtol.mechanisms.feed_131.studies import trajectory
 
     _check_step(args.step_deg)
     params = _feed_params(args)
@@ -1021,7 +1024,7 @@ def cmd_feed_trajectory(args):
 
 
 def cmd_feed_metrics(args):
-    from sewtol.feed import metrics
+    from sewtol.mechanisms.feed_131.studies import metrics
 
     m = metrics(_feed_params(args))
     if args.format == "csv":
@@ -1031,7 +1034,7 @@ def cmd_feed_metrics(args):
 
 
 def cmd_feed_regulator(args):
-    from sewtol.feed import regulator_sweep
+    from sewtol.mechanisms.feed_131.studies import regulator_sweep
 
     lo, hi, step = args.b_range
     if not (np.isfinite([lo, hi, step]).all() and lo < hi and step > 0):
@@ -1063,7 +1066,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--format", choices=formats, default="table")
 
     def needle_common(p, **kwargs):
-        from sewtol.frames import DEFAULT_FRAME
+        from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME
 
         common(p, **kwargs)
         p.add_argument("--frame", default=None, metavar="NAME",
@@ -1171,9 +1174,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_feed_studies(fsub, common)
 
-    from sewtol.cli_run import add_run  # `sewtol run FILE.toml STUDY` (mechanism files)
+    from sewtol.cli_run import add_mechanisms, add_run  # `sewtol run FILE.toml STUDY`
 
     add_run(sub, Parser)
+    add_mechanisms(sub)
     return ap
 
 

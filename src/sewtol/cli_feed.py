@@ -33,8 +33,8 @@ CONTRIBUTOR_BINS = 20
 
 
 def _feed_tolerances(args, params):
-    from sewtol.feed import default_tolerances
-    from sewtol.mechanisms.feed_131 import Feed131
+    from sewtol.mechanisms.feed_131.model import Feed131
+    from sewtol.mechanisms.feed_131.studies import default_tolerances
     from sewtol.mechanisms.params import field_names
     from sewtol.tolerances import resolve
 
@@ -48,7 +48,7 @@ def _feed_tolerances(args, params):
 
 def _feed_study(args):
     """The feed's nominal (it must assemble) and tolerance set, every flag checked first."""
-    from sewtol.feed import metrics
+    from sewtol.mechanisms.feed_131.studies import metrics
 
     _check_study(args)
     params = _feed_params(args)
@@ -76,7 +76,7 @@ def _feed_write(args, kind, params, tolerances, started, obj, frames, **extra):
 
 
 def cmd_feed_scan(args):
-    from sewtol.feed import scan
+    from sewtol.mechanisms.feed_131.studies import scan
     from sewtol.provenance import now
 
     params, tolerances = _feed_study(args)
@@ -91,7 +91,7 @@ def cmd_feed_scan(args):
 
 
 def cmd_feed_montecarlo(args):
-    from sewtol import feed
+    from sewtol.mechanisms.feed_131 import studies as feed
     from sewtol.provenance import now
     from sewtol.studies.montecarlo import check_sampling
 
@@ -135,7 +135,7 @@ def _contributor_figure(contrib, ax):
 
 
 def cmd_feed_sobol(args):
-    from sewtol import feed
+    from sewtol.mechanisms.feed_131 import studies as feed
     from sewtol.provenance import now
     from sewtol.studies.sobol import _check_n as check_power_of_two
 

@@ -8,6 +8,7 @@ the built-in needle drive) runs `montecarlo` without --output/--limit through th
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from sewtol.errors import ParameterError
 
@@ -30,7 +31,9 @@ USES = {"nominal": (), "scan": ("output", "tolerances", "adjust"),
 
 def add_run(sub, parser_class=None) -> None:
     p = sub.add_parser("run", help="a study of a mechanism file (docs/mechanism_files.md)")
-    p.add_argument("file", metavar="FILE.toml", help="mechanism file (format sewtol-mechanism/1)")
+    p.add_argument("file", metavar="FILE.toml",
+                   help="mechanism file (format sewtol-mechanism/1), or the name of a built-in "
+                        "mechanism (sewtol mechanisms)")
     p.add_argument("study", choices=STUDIES)
     p.add_argument("--output", default=None, metavar="NAME",
                    help="the output studied (default: all for nominal/scan/montecarlo, the "
@@ -151,14 +154,69 @@ def _check_yield_flags(args) -> None:
         raise ParameterError("--out", "`run report` needs --out DIR, the report's folder", None)
 
 
+def load_mechanism(text: str, overrides: dict | None = None):
+    """The FileMechanism of FILE.toml as given, or of the built-in mechanism of that name: a
+    path that exists, or has a suffix or a folder, is a path; anything else must be a built-in
+    name. A built-in file is named by its place in the package (the same on every machine)."""
+    from sewtol import mechanisms as M
+    from sewtol.mechanism import load
+    from sewtol.mechanism.loader import loads
+
+    p = Path(text)
+    if p.exists() or p.suffix or len(p.parts) > 1:
+        return load(p, overrides)
+    if text in M.names():
+        return loads(M.mechanism_file(text).read_text(),
+                     f"sewtol/mechanisms/{text}/{M.FILE}", overrides)
+    raise ParameterError("FILE.toml", "is neither a file nor a built-in mechanism ("
+                         + ", ".join(M.names()) + ")", text)
+
+
+def add_mechanisms(sub) -> None:
+    p = sub.add_parser("mechanisms", help="the built-in mechanisms: name, file, docs, fast path")
+    p.add_argument("--format", choices=("text", "csv", "json"), default="text")
+    p.set_defaults(func=cmd_mechanisms)
+
+
+def mechanisms_table():
+    """One row per built-in mechanism: its name, title, file, docs page, fast path and custom
+    output kinds (what `sewtol mechanisms` prints)."""
+    import tomllib
+
+    import pandas as pd
+
+    from sewtol import mechanisms as M
+
+    root = Path(M.__file__).parent
+    fast, kinds = M.declared("FAST_PATHS"), M.declared("OUTPUT_KINDS")
+    rows = []
+    for name in M.names():
+        head = tomllib.loads(M.mechanism_file(name).read_text())["mechanism"]
+        own = f"sewtol.mechanisms.{name}."
+        rows.append({"name": name, "title": head.get("title", ""),
+                     "file": str(M.mechanism_file(name).relative_to(root.parent.parent)),
+                     "docs": str((M.folder(name) / M.DOCS).relative_to(root.parent.parent)),
+                     "fast_path": ", ".join(k for k, v in fast.items() if v.startswith(own)),
+                     "output_kinds": ", ".join(k for k, v in kinds.items()
+                                               if v.startswith(own))})
+    return pd.DataFrame(rows)
+
+
+def cmd_mechanisms(args) -> None:
+    from sewtol.cli import emit
+
+    frame = mechanisms_table()
+    fmt = "table" if args.format == "text" else args.format
+    emit(fmt, obj={"mechanisms": frame.to_dict("records")}, frame=frame)
+
+
 def cmd_run(args) -> None:
     from sewtol.cli import _check_study
-    from sewtol.mechanism import load
     from sewtol.studies import generic as G
 
     _check_flags(args)
     _check_study(args)
-    mech = load(args.file, parse_sets(args.set))
+    mech = load_mechanism(args.file, parse_sets(args.set))
     fmt = "table" if args.format == "text" else args.format
     if args.output is not None:
         mech.output(args.output)
@@ -247,9 +305,9 @@ def _needle_montecarlo(args, mech, tolerances) -> None:
     beta* and re-optimised per machine), on the file's nominal machine and tolerance set."""
     from sewtol.cli import _as_flags as as_flags
     from sewtol.cli import _check_n, _montecarlo_notes, _print_notes, emit, run_montecarlo
-    from sewtol.mechanism.fast_paths import _needle_params
-    from sewtol.mechanisms.needle_208 import check_assembly
-    from sewtol.studies import beta as sb
+    from sewtol.mechanisms.needle_208 import beta as sb
+    from sewtol.mechanisms.needle_208.fast_path import _needle_params
+    from sewtol.mechanisms.needle_208.model import check_assembly
     from sewtol.studies.montecarlo import CHUNK, check_sampling
 
     _check_n(args.n)

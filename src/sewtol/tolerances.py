@@ -411,7 +411,7 @@ def needle_set(tolerances: ToleranceSet | str) -> ToleranceSet:
     if isinstance(tolerances, ToleranceSet):
         return tolerances
     if isinstance(tolerances, str):
-        from sewtol.mechanisms.needle_208 import Needle208
+        from sewtol.mechanisms.needle_208.model import Needle208
         from sewtol.mechanisms.params import field_names
 
         return resolve(tolerances, NEEDLE_208_SETS, field_names(Needle208))

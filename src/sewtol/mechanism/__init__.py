@@ -2,7 +2,7 @@
 generic engine (docs/mechanism_files.md).
 
     from sewtol.mechanism import load
-    mech = load("examples/needle_208.toml")
+    mech = load("src/sewtol/mechanisms/needle_208/mechanism.toml")
     ev = mech.evaluate({"LF": [6.70, 6.75, 6.80]})
     ev.outputs["SumDelta_um"], ev.status
 

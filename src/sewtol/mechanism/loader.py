@@ -15,12 +15,12 @@ import tomllib
 from pathlib import Path
 
 from sewtol.errors import ParameterError
-from sewtol.tolerances import Tolerance, ToleranceSet, _parse_item
 from sewtol.mechanism import expressions as X
 from sewtol.mechanism.groups import GROUPS
 from sewtol.mechanism.lines import Locator
-from sewtol.mechanism.outputs import OUTPUT_TYPES, OUTPUTS, PROVIDERS, provide
+from sewtol.mechanism.outputs import OUTPUT_TYPES, OUTPUTS, provide, providers
 from sewtol.mechanism.spec import FORMAT, RULES, UNITS, Compensator, Group, Header, Output, Parameter
+from sewtol.tolerances import Tolerance, ToleranceSet, _parse_item
 
 MAX_BYTES = 1 << 20
 NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -97,12 +97,13 @@ def loads(text: str, path: str = "<text>", overrides: dict | None = None):
                          groups=tuple(groups), outputs=tuple(outputs), compensators=comps,
                          tolerance_sets=sets)
     if header.fast_path is not None:
-        from sewtol.mechanism.fast_paths import FAST_PATHS
+        from sewtol.mechanism.fast_paths import fast_paths
 
-        if header.fast_path not in FAST_PATHS:
+        known = fast_paths()
+        if header.fast_path not in known:
             ctx.fail(("mechanism", "fast_path"), "[mechanism] fast_path",
-                     f"must name a built-in kernel: {', '.join(FAST_PATHS)}", header.fast_path)
-        problem = FAST_PATHS[header.fast_path].check(mech)
+                     f"must name a built-in kernel: {', '.join(known)}", header.fast_path)
+        problem = known[header.fast_path].check(mech)
         if problem:
             ctx.fail(("mechanism", "fast_path"), "[mechanism] fast_path",
                      f"the file does not reproduce the built-in {header.fast_path} model "
@@ -343,7 +344,7 @@ def _outputs(ctx, table, pnames, groups, header) -> list[Output]:
             ot = provide(kind) if isinstance(kind, str) else None
             if ot is None:
                 ctx.fail(path + ("kind",), f"{where}.kind", "must name a registered output kind ("
-                         + (", ".join(sorted(set(OUTPUTS) | set(PROVIDERS)))
+                         + (", ".join(sorted(set(OUTPUTS) | set(providers())))
                             or "none registered") + ")", kind)
         elif otype in OUTPUT_TYPES:
             kind = ""

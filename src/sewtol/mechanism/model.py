@@ -19,10 +19,10 @@ import pandas as pd
 
 from sewtol import engine
 from sewtol.errors import ParameterError
-from sewtol.tolerances import ToleranceSet
 from sewtol.mechanism.groups import GROUPS
 from sewtol.mechanism.outputs import OUTPUT_TYPES, OUTPUTS
 from sewtol.mechanism.spec import Compensator, Group, Header, Output, Parameter
+from sewtol.tolerances import ToleranceSet
 
 DEAD_POINT_DEG = 1.0
 # machines evaluated together: a (block, samples) complex array of a joint stays near
@@ -259,8 +259,8 @@ def parameter_class(mech: FileMechanism):
     key = (mech.name, tuple((p.name, p.rule) for p in mech.parameters))
     if key in _CLASSES:
         return _CLASSES[key]
-    from sewtol.mechanisms import params as P
     from sewtol.mechanism.loader import check_rule
+    from sewtol.mechanisms import params as P
 
     rules = {p.name: p.rule for p in mech.parameters}
 

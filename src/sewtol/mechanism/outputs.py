@@ -116,20 +116,22 @@ OUTPUT_TYPES: dict[str, OutputType] = {
 # custom kinds (type = "custom", kind = NAME): e.g. "presser_contact" from the presser-foot
 # module registers itself here
 OUTPUTS: dict[str, OutputType] = {}
-# kind -> the module that registers it when imported: the loader imports it the first time a
-# file names the kind, so a file works without the caller importing that module first
-# built-in custom kinds: the module that registers each, imported on first use (a file can only
-# name a kind that is registered or listed here; nothing a file holds names a module)
-PROVIDERS: dict[str, str] = {"presser_contact": "sewtol.mechanisms.presser_foot"}
+def providers() -> dict[str, str]:
+    """Built-in custom kinds and the module that registers each, imported on first use: the
+    OUTPUT_KINDS of the mechanism folders (sewtol.mechanisms). A file can only name a kind that
+    is registered or declared there; nothing a file holds names a module."""
+    from sewtol.mechanisms import declared
+
+    return declared("OUTPUT_KINDS")
 
 
 def provide(kind: str) -> OutputType | None:
     """The registered output kind, importing its provider module first if need be."""
-    if kind not in OUTPUTS and kind in PROVIDERS:
+    if kind not in OUTPUTS and kind in (known := providers()):
         import importlib
 
         try:
-            importlib.import_module(PROVIDERS[kind])
+            importlib.import_module(known[kind])
         except ImportError:
             return None
     return OUTPUTS.get(kind)

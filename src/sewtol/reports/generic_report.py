@@ -23,9 +23,9 @@ from scipy import stats
 
 from sewtol.errors import ParameterError
 from sewtol.io import write_bytes_atomic, write_text_atomic
+from sewtol.reports.tables import to_csv, to_markdown
 from sewtol.studies import generic as G
 from sewtol.studies.generic_yield import check_limits, excess, limits_text
-from sewtol.reports.tables import to_csv, to_markdown
 
 # the histogram's range: these quantiles of the machines that run, widened to show the limits;
 # machines outside are counted as "beyond the plot" in the legend

@@ -28,9 +28,9 @@ from scipy import stats
 from scipy.optimize import minimize
 
 from sewtol.errors import AssemblyError, ParameterError
-from sewtol.tolerances import ToleranceSet
 from sewtol.studies import montecarlo as mc
 from sewtol.studies import sobol as so
+from sewtol.tolerances import ToleranceSet
 
 MAX_CORNER_PARAMS = 12
 # central-difference step of the local search, as a fraction of each tolerance width

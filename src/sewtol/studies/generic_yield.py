@@ -29,9 +29,9 @@ import pandas as pd
 from scipy import stats
 
 from sewtol.errors import ParameterError
-from sewtol.tolerances import Tolerance, ToleranceSet
 from sewtol.studies import generic as G
 from sewtol.studies.rare_event import LimitState, StandardNormalMap
+from sewtol.tolerances import Tolerance, ToleranceSet
 
 FAILURE_STATUSES = ("cannot_close", "dead_point")
 # bisection on the scale stops when the bracket is this small relative to the scale

@@ -1,0 +1,13 @@
+"""The feed chains of the 131-42+3 class: lower and upper feed dogs (docs: README.md in this
+folder, the site's "131-42+3 feed").
+
+Data and topology: ``mechanism.toml`` (the file `sewtol run feed_131 ...` runs; its q is the
+main-shaft angle) and ``model.py`` (`Feed131`, the chains in the source's order). Outputs:
+``metrics.py`` (working figures of the dogs: feed step, dog rise, phases, the differential
+ratio). The feed's own studies (trajectories, the stitch regulator, tolerance studies of the
+working figures): ``studies.py``.
+"""
+
+from sewtol.mechanisms.feed_131.model import Feed131
+
+__all__ = ["Feed131"]

@@ -1,0 +1,153 @@
+"""Working figures of the feed dogs, batched over machines.
+
+Lower dog: it works while its tooth is above the plate (y > H). Upper dog: while its tooth is
+below the plate plus material thickness (y < H + t). The working stroke runs from entry (the
+tooth reaches the working side) to exit. Feed step T = x(entry) - x(exit): positive when the
+tooth moves towards -x while it works, which is forward feed with the note's frame (the lower
+tooth path then runs counter-clockwise); negative for reverse. Rise: for the lower dog the
+height above the plate, for the upper dog the depth below plate + material (how far it presses
+in). Crossings and the extreme rise are polished by Newton steps on the analytic velocities.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sewtol.errors import ParameterError
+from sewtol.mechanisms.feed_131 import model as fd
+
+N_GRID = 720
+
+
+@dataclass(frozen=True)
+class DogFigures:
+    feed_step_mm: np.ndarray
+    max_rise_mm: np.ndarray
+    max_rise_phi_deg: np.ndarray
+    entry_phi_deg: np.ndarray
+    exit_phi_deg: np.ndarray
+    vertical_travel_mm: np.ndarray
+    ok: np.ndarray  # one working stroke per turn and every dyad closes
+
+    def to_dict(self, i: int = 0) -> dict:
+        return {k: float(np.ravel(getattr(self, k))[i]) for k in
+                ("feed_step_mm", "max_rise_mm", "max_rise_phi_deg", "entry_phi_deg",
+                 "exit_phi_deg", "vertical_travel_mm")}
+
+
+def _tooth(c, phi, key):
+    """The tooth, and per point how far the chain is from running: the largest dyad gap (mm),
+    or inf at a dead point (a dyad within DEAD_POINT_DEG of collinear)."""
+    out = fd.chains(c, phi)
+    miss = np.zeros(np.shape(out[key].p))
+    for m in out["closure"].values():
+        miss = np.maximum(miss, m)
+    for g in out["transmission"].values():
+        miss = np.where(g < fd.DEAD_POINT_DEG, np.inf, miss)
+    return out[key], miss
+
+
+def _refine_crossing(c, key, phi, level, iters=6):
+    for _ in range(iters):
+        q, _ = _tooth(c, phi, key)
+        phi = phi - (q.p.imag - level) / q.dp.imag
+    q, _ = _tooth(c, phi, key)
+    return phi, q.p.real
+
+
+def _polish(c, key, t, iters=6):
+    """Newton steps on dy/dphi = 0 from grid extremes t; returns (phi, y) there."""
+    for _ in range(iters):
+        qq, _ = _tooth(c, t, key)
+        t = t - qq.dp.imag / qq.ddp.imag
+    qq, _ = _tooth(c, t, key)
+    return t, qq.p.imag
+
+
+def dog_figures(c: dict, which: str, n_grid: int = N_GRID, side: str | None = None) -> DogFigures:
+    """Figures of the 'lower' or 'upper' dog for machines in c (columns of shape (n, 1)).
+
+    side: the working side, "above" or "below" the level; default the dog's own (lower above,
+    upper below). The other side reads the figures of the return stroke (used to test how the
+    source read its plots, feed.readoff_residuals).
+    """
+    if side not in (None, "above", "below"):
+        raise ParameterError("side", "must be 'above' or 'below'", side)
+    key = {"lower": "Q1", "upper": "Q2"}[which]
+    # np.broadcast takes at most 64 arrays; the machine count is the longest first axis
+    n = max((np.shape(v)[0] for v in c.values() if np.ndim(v) > 0), default=1)
+    phi = np.linspace(0.0, 2 * np.pi, n_grid, endpoint=False).reshape(1, -1)
+    q, miss = _tooth(c, phi, key)
+    y = np.broadcast_to(q.p.imag, (n, n_grid))
+    level = np.broadcast_to(
+        np.asarray(c["plate_mm"], float) + (np.asarray(c["material_mm"], float)
+                                            if which == "upper" else 0.0), (n, 1))
+    side = side or ("above" if which == "lower" else "below")
+    sign = 1.0 if side == "above" else -1.0
+    depth = sign * (y - level)  # > 0 on the working side
+    work = depth > 0
+    nxt = np.roll(work, -1, axis=1)
+    entries = ~work & nxt
+    exits = work & ~nxt
+    ok = (entries.sum(1) == 1) & (exits.sum(1) == 1) & np.all(np.broadcast_to(miss, (n, n_grid)) == 0,
+                                                               axis=1)
+    h = 2 * np.pi / n_grid
+    i_in = np.argmax(entries, axis=1)
+    i_out = np.argmax(exits, axis=1)
+    phi_in, x_in = _refine_crossing(c, key, (i_in[:, None] + 0.5) * h, level)
+    phi_out, x_out = _refine_crossing(c, key, (i_out[:, None] + 0.5) * h, level)
+    # extreme rise on the working side and the travel, polished by Newton on y' = 0
+    t, y_work = _polish(c, key, np.argmax(depth, axis=1)[:, None] * h)
+    _, y_other = _polish(c, key, np.argmin(depth, axis=1)[:, None] * h)
+    rise = np.maximum(sign * (y_work - level), depth.max(axis=1, keepdims=True))
+    travel = np.maximum(np.abs(y_work - y_other).ravel(), y.max(axis=1) - y.min(axis=1))
+    nan = np.where(ok, 1.0, np.nan)
+
+    def deg(a):
+        return np.mod(np.degrees(a.ravel()), 360.0) * nan
+
+    return DogFigures(
+        feed_step_mm=(x_in - x_out).ravel() * nan,
+        max_rise_mm=rise.ravel() * nan,
+        max_rise_phi_deg=deg(t),
+        entry_phi_deg=deg(phi_in),
+        exit_phi_deg=deg(phi_out),
+        vertical_travel_mm=travel * nan,
+        ok=ok,
+    )
+
+
+@dataclass(frozen=True)
+class PairFigures:
+    lower: DogFigures
+    upper: DogFigures
+    differential_ratio: np.ndarray
+    mismatch_mm: np.ndarray  # largest |relative horizontal travel| while both grip
+    overlap_deg: np.ndarray
+
+
+def pair_figures(c: dict, n_grid: int = N_GRID) -> PairFigures:
+    lo = dog_figures(c, "lower", n_grid)
+    up = dog_figures(c, "upper", n_grid)
+    # from the later entry, both dogs grip until the first exit
+    start = np.radians(np.where(
+        np.mod(up.entry_phi_deg - lo.entry_phi_deg, 360) < 180, up.entry_phi_deg,
+        lo.entry_phi_deg))
+    span = np.linspace(0, 2 * np.pi, n_grid, endpoint=False).reshape(1, -1)
+    phi = np.nan_to_num(start).reshape(-1, 1) + span
+    out = fd.chains(c, phi)
+    x1, y1 = out["Q1"].p.real, out["Q1"].p.imag
+    x2, y2 = out["Q2"].p.real, out["Q2"].p.imag
+    level = np.asarray(c["plate_mm"], float).reshape(-1, 1) if np.ndim(c["plate_mm"]) else \
+        c["plate_mm"]
+    both = (y1 > level) & (y2 < level + np.asarray(c["material_mm"], float))
+    both[:, 0] = True  # the start is the later entry, on the crossing itself
+    grip = np.cumprod(both, axis=1).astype(bool)
+    rel = (x2 - x2[:, :1]) - (x1 - x1[:, :1])
+    mismatch = np.where(grip, np.abs(rel), 0.0).max(axis=1)
+    overlap = grip.sum(axis=1) * 360.0 / n_grid
+    ok = lo.ok & up.ok
+    return PairFigures(lo, up, np.where(ok, up.feed_step_mm / lo.feed_step_mm, np.nan),
+                       np.where(ok, mismatch, np.nan), np.where(ok, overlap, np.nan))

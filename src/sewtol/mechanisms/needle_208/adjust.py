@@ -1,0 +1,625 @@
+"""The exact joint optimum of the needle's compensators per machine.
+
+Compensators and their boxes (low, high): `beta` (deg), `guide_shift_um` (um, the setting of
+the guide's lateral shift; it replaces the machine's own value) and `guide_angle` (deg, the
+guide turned about its point N1; the box is around the machine's own angle: own + low .. own +
+high). The minimum is the global one in the box:
+
+- beta slides a window of fixed width along one coupler curve d(psi): mechanisms/needle_208/kernels/window.py
+  (numba) and `_reference_beta` here (numpy) solve that sliding-window problem exactly;
+- the guide shift t turns SumDelta into max(F - G, F - T1, T0 - G), so it is solved inside the
+  same search, and t's optimal range at beta* is [max(G, T0), min(F, T1)];
+- the guide angle and CD change d(psi) itself; each is an outer search (a grid over its box,
+  then golden section around each machine's best grid point) around the exact inner optimum:
+  checked against a dense grid in the tests, not proven global. One outer compensator at a time.
+
+Where the optimum is a plateau (SumDelta within `tol_um` of the minimum over an interval) the
+range is reported and its centre is the setting.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from sewtol.errors import ParameterError
+from sewtol.mechanisms.needle_208 import metrics as nm
+from sewtol.mechanisms.needle_208 import model as nd
+
+COMPENSATORS = ("beta", "guide_shift_um", "guide_angle", "CD")
+DEFAULT_BOXES = {"beta": (10.0, 35.0), "guide_shift_um": (-100.0, 100.0),
+                 "guide_angle": (-0.1, 0.1), "CD": (-0.3, 0.3)}
+# compensators that change d(psi) itself: an outer search around the exact inner optimum; their
+# box and setting are relative to the machine's own value (deg, mm)
+OUTER = ("guide_angle", "CD")
+OUTER_GRID = {"guide_angle": 21, "CD": 61}  # default grid points of the outer search
+STATUS = ("ok", "cannot assemble", "dead point")
+PLATEAU_TOL_UM = 1e-3
+
+
+@dataclass(frozen=True)
+class AdjustResult:
+    """Per machine: the optimum SumDelta (um) and Delta+/Delta- at the chosen settings, each
+    compensator's setting (the centre of its plateau range), the range, at-bound flags and a
+    status ("ok", "cannot assemble", "dead point"; the figures are NaN unless ok).
+
+    `min_total_um` is the minimum itself; `total_um` is SumDelta at the reported settings (the
+    plateau centre), within `tol_um` of it.
+    """
+
+    total_um: np.ndarray
+    plus_um: np.ndarray
+    minus_um: np.ndarray
+    min_total_um: np.ndarray
+    settings: dict[str, np.ndarray]
+    low: dict[str, np.ndarray]
+    high: dict[str, np.ndarray]
+    at_bound: dict[str, np.ndarray]
+    status: np.ndarray
+    boxes: dict[str, tuple[float, float]]
+    tol_um: float
+
+    def to_dataframe(self) -> pd.DataFrame:
+        cols = {"status": self.status, "total_um": self.total_um, "plus_um": self.plus_um,
+                "minus_um": self.minus_um, "min_total_um": self.min_total_um}
+        for k in self.settings:
+            cols[k] = self.settings[k]
+            cols[f"{k}_low"] = self.low[k]
+            cols[f"{k}_high"] = self.high[k]
+            cols[f"{k}_at_bound"] = self.at_bound[k]
+        return pd.DataFrame(cols)
+
+
+def check_boxes(active: dict) -> dict[str, tuple[float, float]]:
+    boxes = {}
+    for name, box in active.items():
+        if name not in COMPENSATORS:
+            raise ParameterError(name, "unknown compensator; valid names are "
+                                 + ", ".join(COMPENSATORS), name)
+        if box is None:
+            box = DEFAULT_BOXES[name]
+        try:
+            lo, hi = (float(v) for v in box)
+        except (TypeError, ValueError):
+            raise ParameterError(name, "box must be (low, high)", box) from None
+        if not (np.isfinite(lo) and np.isfinite(hi) and lo <= hi):
+            raise ParameterError(name, "box must be finite with low <= high", box)
+        if name == "beta" and not lo < hi:
+            raise ParameterError(name, "box must have low < high", box)
+        boxes[name] = (lo, hi)
+    if "beta" not in boxes:
+        raise ParameterError("compensators", "must include beta (the per-machine adjustment)",
+                             sorted(active))
+    return boxes
+
+
+def _rocker(c, feas=None):
+    """Rocker interval (rad) where L-M-A runs (NaN elsewhere) and its status code."""
+    f = feas if feas is not None else nm.feasibility(c)
+    miss_ok = f.miss_LMA_mm == 0
+    lma_ok = miss_ok & (f.transmission_LMA_deg >= nd.DEAD_POINT_DEG)
+    r_lo = np.where(lma_ok, f.lo, np.nan)
+    r_hi = np.where(lma_ok, f.hi, np.nan)
+    code = np.where(lma_ok, 0, np.where(miss_ok, 2, 1))
+    return r_lo, r_hi, code
+
+
+def optimise(c: dict[str, np.ndarray], active: dict[str, tuple[float, float] | None],
+             engine: str = "numba", h_deg: float = 2.0, tol_um: float = PLATEAU_TOL_UM,
+             angle_grid: int | None = None, feas: nm.Feasibility | None = None) -> AdjustResult:
+    """Joint optimum of the active compensators for machines given as parameter columns
+    (c from metrics.needle.columns, each (n, 1)); `active` maps compensator names to their
+    (low, high) box (None: DEFAULT_BOXES). feas: metrics.needle.feasibility(c) if known (the
+    rocker interval does not depend on any compensator).
+
+    The minimum is global in the box for beta and the guide shift (an exact sliding-window
+    solution); the guide angle or CD, at most one of them, is an outer search around it.
+
+    Parameters
+    ----------
+    c : dict of numpy.ndarray
+        The machines as parameter columns of shape (n, 1), by `Needle208` field name: e.g.
+        ``c, n = sewtol.mechanisms.needle_208.metrics.columns(machine)`` (mm, deg, um).
+    active : dict
+        Compensator name (``"beta"``, ``"guide_shift_um"``, ``"guide_angle"``, ``"CD"``) to
+        its box ``(low, high)``, or None for the default box: beta 10 ... 35 deg (absolute),
+        the shift -100 ... 100 um (absolute), the angle +/-0.1 deg and CD +/-0.3 mm (relative
+        to the machine's own value).
+    engine : str
+        ``"numba"`` (the kernel) or ``"numpy"`` (the reference implementation).
+    h_deg : float
+        The node spacing of the kernel's Hermite surrogate of d along the rocker (deg); 2 deg
+        keeps its error near 4e-4 um.
+    tol_um : float
+        Settings within this much (um) of the minimum form the plateau reported.
+    angle_grid : int or None
+        Grid points of the outer search (None: 21 for the guide angle, 61 for CD).
+    feas : Feasibility or None
+        ``metrics.needle.feasibility(c)`` if already known.
+
+    Returns
+    -------
+    AdjustResult
+        Per machine: the minimum SumDelta (um), SumDelta, Delta+ and Delta- at the settings,
+        each compensator's setting (its plateau's centre), plateau range and at-bound flag,
+        and the status (``"ok"``, ``"cannot assemble"``, ``"dead point"``).
+
+    Raises
+    ------
+    ParameterError
+        For an unknown compensator, a bad box, an unknown engine, or both outer compensators.
+    """
+    if engine not in ("numba", "numpy"):
+        raise ParameterError("engine", "must be 'numba' or 'numpy'", engine)
+    boxes = check_boxes(active)
+    r_lo, r_hi, code = _rocker(c, feas)
+    outer = [k for k in OUTER if k in boxes]
+    if len(outer) > 1:
+        raise ParameterError("compensators", "at most one of guide_angle, CD at a time",
+                             sorted(boxes))
+    if outer:
+        return _with_outer(outer[0], c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um,
+                           angle_grid)
+    out = _inner(c, boxes, r_lo, r_hi, engine, h_deg, tol_um)
+    return _result(out, boxes, code, tol_um)
+
+
+def _inner(c, boxes, r_lo, r_hi, engine, h_deg, tol_um):
+    blo, bhi = boxes["beta"]
+    shift = "guide_shift_um" in boxes
+    slo, shi = boxes.get("guide_shift_um", (0.0, 0.0))
+    if engine == "numpy":
+        return _reference(c, r_lo, r_hi, blo, bhi, slo, shi, shift, tol_um)
+    from sewtol.mechanisms.needle_208.kernels import fused as KB
+    from sewtol.mechanisms.needle_208.kernels import window as KW
+
+    return KW.optimise_batch(KB.pack(c), np.ascontiguousarray(r_lo, float),
+                             np.ascontiguousarray(r_hi, float), blo, bhi, slo, shi, shift,
+                             h_deg, tol_um)
+
+
+def _result(out, boxes, code, tol_um, outer=None) -> AdjustResult:
+    status_code = np.where(code > 0, code, out[:, 9]).astype(int)
+    ok = status_code == 0
+    nan = np.full(len(out), np.nan)
+
+    def col(j):
+        return np.where(ok, out[:, j], nan)
+
+    settings = {"beta": col(0)}
+    low = {"beta": col(4)}
+    high = {"beta": col(5)}
+    if "guide_shift_um" in boxes:
+        settings["guide_shift_um"], low["guide_shift_um"], high["guide_shift_um"] = (
+            col(6), col(7), col(8))
+    if outer is not None:
+        name, vals = outer
+        settings[name], low[name], high[name] = (np.where(ok, v, nan) for v in vals)
+    at_bound = {}
+    for k, (blo, bhi) in boxes.items():
+        eps = 1e-9 * max(1.0, abs(blo), abs(bhi))
+        at_bound[k] = ok & ((low[k] <= blo + eps) | (high[k] >= bhi - eps))
+    return AdjustResult(total_um=col(1), plus_um=col(2), minus_um=col(3), min_total_um=col(11),
+                        settings=settings, low=low, high=high, at_bound=at_bound,
+                        status=np.array(STATUS, dtype=object)[status_code], boxes=boxes,
+                        tol_um=float(tol_um))
+
+
+# --- the guide angle or CD: an outer search around the exact inner optimum ---------------------
+
+def _with_outer(name, c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um, angle_grid):
+    """Outer search over `name` (relative to each machine's own value): a grid over the box,
+    then golden section around the best grid point of each machine."""
+    alo, ahi = boxes[name]
+    inner_boxes = {k: v for k, v in boxes.items() if k != name}
+    own = np.broadcast_to(np.asarray(c[name], float).reshape(-1), r_lo.shape).copy()
+    n = own.size
+
+    def run(rel):
+        cc = dict(c)
+        cc[name] = (own + rel).reshape(-1, 1)
+        return _inner(cc, inner_boxes, r_lo, r_hi, engine, h_deg, tol_um)
+
+    if ahi == alo:
+        out = run(np.full(n, alo))
+        return _result(out, boxes, code, tol_um, (name, (np.full(n, alo),) * 3))
+    n_grid = int(angle_grid) if angle_grid else OUTER_GRID[name]
+    grid = np.linspace(alo, ahi, max(n_grid, 3))
+    vals = np.stack([run(np.full(n, g))[:, 11] for g in grid], axis=1)
+    vals = np.where(np.isnan(vals), np.inf, vals)
+    # golden section around each of the best three local minima of the grid
+    left_n = np.concatenate([np.full((n, 1), np.inf), vals[:, :-1]], axis=1)
+    right_n = np.concatenate([vals[:, 1:], np.full((n, 1), np.inf)], axis=1)
+    score = np.where((vals <= left_n) & (vals <= right_n), vals, np.inf)
+    rows = np.arange(n)
+    i0 = np.argmin(vals, axis=1)
+    best_rel = grid[i0]
+    best_val = vals[rows, i0]
+    invphi = (np.sqrt(5.0) - 1.0) / 2.0
+    for _ in range(3):
+        i = np.argmin(score, axis=1)
+        has = np.isfinite(score[rows, i])
+        score[rows, i] = np.inf
+        if not has.any():
+            break
+        a = grid[np.maximum(i - 1, 0)]
+        b = grid[np.minimum(i + 1, grid.size - 1)]
+        x1 = b - invphi * (b - a)
+        x2 = a + invphi * (b - a)
+        f1 = run(x1)[:, 11]
+        f2 = run(x2)[:, 11]
+        for _ in range(40):
+            if np.all(b - a < 1e-9):
+                break
+            left = ~(f1 >= f2)  # NaN counts as worse
+            b = np.where(left, x2, b)
+            a = np.where(left, a, x1)
+            nx1 = np.where(left, b - invphi * (b - a), x2)
+            nx2 = np.where(left, x1, a + invphi * (b - a))
+            nf1 = np.where(left, np.nan, f2)
+            nf2 = np.where(left, f1, np.nan)
+            x1, x2 = nx1, nx2
+            fresh = run(np.where(left, x1, x2))[:, 11]
+            f1 = np.where(left, fresh, nf1)
+            f2 = np.where(left, nf2, fresh)
+        for xx, ff in ((x1, f1), (x2, f2)):
+            better = has & (ff < best_val)  # never worse than the grid itself
+            best_val = np.where(better, ff, best_val)
+            best_rel = np.where(better, xx, best_rel)
+    out = run(best_rel)
+    return _result(out, boxes, code, tol_um, (name, (best_rel, best_rel, best_rel)))
+
+
+# --- the numpy reference: exact local extrema of d(psi), a fine window grid, golden polish -----
+
+def _d_of_psi(c, psi):
+    """d (mm, guide shift removed), d', d'' at psi (n, k) through the engine (beta = 0)."""
+    from sewtol import engine
+
+    cz = nm.with_values(c, beta=np.zeros(len(psi)))
+    E = nd.chain_from_rocker(cz, engine.driving_angle(psi))["E"]
+    cz = nm.with_values(cz, guide_shift_um=np.zeros(len(psi)))
+    _, n, G = nd.guide_frame(cz)
+    return nd.project(n, E.p - G), nd.project(n, E.dp), nd.project(n, E.ddp)
+
+
+def _reference(c, r_lo, r_hi, blo, bhi, slo, shi, shift, tol_um, n_psi=1441, n_u=1001):
+    """numpy reference (slow, independent of the kernel's surrogate): the local extrema of the
+    true d over the reachable psi range, located by bisection on d'; F(u), G(u) exactly as the ends and
+    the extrema inside the window; SumDelta on a grid of n_u windows; golden section around
+    every grid descent. Windows that pass a dead point are scored infinite (feasibility as
+    metrics.needle.feasibility, evaluated for each window)."""
+    n = r_lo.size
+    out = np.full((n, 12), np.nan)
+    s = np.asarray(c["beta_sense"], float).reshape(-1)
+    s = np.broadcast_to(s, (n,))
+    deg = np.pi / 180
+    lo = r_lo.reshape(-1)
+    w = (r_hi - r_lo).reshape(-1)
+    u0 = lo + np.minimum(s * blo, s * bhi) * deg
+    u1 = lo + np.maximum(s * blo, s * bhi) * deg
+    good = np.isfinite(lo)
+    gshift = np.broadcast_to(np.asarray(c["guide_shift_um"], float).reshape(-1), (n,)) * 1e-3
+    T0 = np.where(shift, slo * 1e-3, gshift)
+    T1 = np.where(shift, shi * 1e-3, gshift)
+    u0g, u1g, wg = (np.where(good, v, 0.0) for v in (u0, u1, w))
+    psi = u0g[:, None] + (u1g + wg - u0g)[:, None] * np.linspace(0, 1, n_psi)[None, :]
+    f, f1, f2 = _d_of_psi(c, psi)
+    # every local extremum: a sign change of d' between nodes (0.05 deg apart over the ~72-deg
+    # reachable range), located by bisection on the exact d'
+    sc = np.sign(f1[:, :-1]) != np.sign(f1[:, 1:])
+    ii, jj = np.nonzero(sc & np.isfinite(f1[:, :-1]) & np.isfinite(f1[:, 1:]))
+    a = psi[ii, jj]
+    b = psi[ii, jj + 1]
+    t = 0.5 * (a + b)
+    for _ in range(60):  # bisection on d' (robust), then the value
+        _, g1, _ = _d_of_psi({k: np.asarray(v)[ii] if np.ndim(v) and np.shape(v)[0] == n
+                              else v for k, v in c.items()}, t[:, None])
+        g1 = g1[:, 0]
+        same = np.sign(g1) == np.sign(f1[ii, jj])
+        a = np.where(same, t, a)
+        b = np.where(same, b, t)
+        t = 0.5 * (a + b)
+    sub = {k: np.asarray(v)[ii] if np.ndim(v) and np.shape(v)[0] == n else v
+           for k, v in c.items()}
+    ext_v = _d_of_psi(sub, t[:, None])[0][:, 0] if ii.size else np.zeros(0)
+    counts = np.bincount(ii, minlength=n)
+    kmax = max(int(counts.max()) if n else 0, 1)
+    ext_t = np.full((n, kmax), np.nan)
+    ext_f = np.full((n, kmax), np.nan)
+    slot = np.arange(ii.size) - np.concatenate([[0], np.cumsum(counts)[:-1]])[ii]
+    ext_t[ii, slot] = t
+    ext_f[ii, slot] = ext_v
+    # feasible windows: every psi of the window passes the dead-point test
+    from sewtol.mechanisms.needle_208.kernels import window as KW
+
+    def S(u):
+        """SumDelta (mm), F, G for windows starting at u (n, k); inf where infeasible."""
+        fa, _, _ = _d_of_psi(c, u)
+        fb, _, _ = _d_of_psi(c, u + wg[:, None])
+        inside = (ext_t[:, None, :] > u[..., None]) & (ext_t[:, None, :] < (u + wg[:, None])[..., None])
+        emax = np.where(inside, ext_f[:, None, :], -np.inf).max(axis=-1)
+        emin = np.where(inside, ext_f[:, None, :], np.inf).min(axis=-1)
+        F = np.maximum(np.maximum(fa, fb), emax)
+        G = np.minimum(np.minimum(fa, fb), emin)
+        val = np.maximum(F - G, np.maximum(F - T1[:, None], T0[:, None] - G))
+        feas = _window_feasible(c, u, wg)
+        return np.where(feas & np.isfinite(val), val, np.inf), F, G
+
+    ug = u0g[:, None] + (u1g - u0g)[:, None] * np.linspace(0, 1, n_u)[None, :]
+    sg, _, _ = S(ug)
+    du = (u1g - u0g) / (n_u - 1)
+    best = sg.min(axis=1)
+    ubest = ug[np.arange(n), sg.argmin(axis=1)]
+    # golden section around every grid descent (all of them, in rounds of one per machine)
+    left = np.concatenate([np.full((n, 1), np.inf), sg[:, :-1]], axis=1)
+    right = np.concatenate([sg[:, 1:], np.full((n, 1), np.inf)], axis=1)
+    desc = (sg <= left) & (sg <= right) & ((sg < left) | (sg < right)) & np.isfinite(sg)
+    invphi = (np.sqrt(5.0) - 1.0) / 2.0
+    while desc.any():
+        j = np.argmax(desc, axis=1)
+        has = desc[np.arange(n), j]
+        desc[np.arange(n), j] = False
+        a = np.clip(ug[np.arange(n), j] - du, u0g, u1g)[:, None]
+        b = np.clip(ug[np.arange(n), j] + du, u0g, u1g)[:, None]
+        x1 = b - invphi * (b - a)
+        x2 = a + invphi * (b - a)
+        g1 = S(x1)[0]
+        g2 = S(x2)[0]
+        for _ in range(45):
+            lft = g1 < g2
+            b = np.where(lft, x2, b)
+            a = np.where(lft, a, x1)
+            nx1 = np.where(lft, b - invphi * (b - a), x2)
+            nx2 = np.where(lft, x1, a + invphi * (b - a))
+            ng1 = np.where(lft, 0.0, g2)
+            ng2 = np.where(lft, g1, 0.0)
+            x1, x2 = nx1, nx2
+            fresh = S(np.where(lft, x1, x2))[0]
+            g1 = np.where(lft, fresh, ng1)
+            g2 = np.where(lft, ng2, fresh)
+        for xx, gg in ((x1, g1), (x2, g2)):
+            better = has & (gg[:, 0] < best)
+            best = np.where(better, gg[:, 0], best)
+            ubest = np.where(better, xx[:, 0], ubest)
+    # the plateau around the optimum: the nearest grid window above the level on each side,
+    # then bisection between it and the next window inwards (or the optimum itself)
+    level = best + tol_um * 1e-3
+    above = sg > level[:, None]
+    rows = np.arange(n)
+    idx = np.arange(n_u)[None, :]
+    lims = []
+    for side in (-1, 1):
+        if side < 0:
+            cand = np.where(above & (ug < ubest[:, None]), idx, -1).max(axis=1)
+            has = cand >= 0
+            nxt = np.minimum(cand + 1, n_u - 1)
+            inner = np.where(has & (ug[rows, nxt] < ubest), ug[rows, nxt], ubest)
+            edge = u0g
+        else:
+            cand = np.where(above & (ug > ubest[:, None]), idx, n_u).min(axis=1)
+            has = cand < n_u
+            nxt = np.maximum(cand - 1, 0)
+            inner = np.where(has & (ug[rows, nxt] > ubest), ug[rows, nxt], ubest)
+            edge = u1g
+        outer = np.where(has, ug[rows, np.clip(cand, 0, n_u - 1)], edge)
+        for _ in range(50):
+            mid = 0.5 * (inner + outer)
+            up = S(mid[:, None])[0][:, 0] > level
+            outer = np.where(up, mid, outer)
+            inner = np.where(up, inner, mid)
+        lims.append(np.where(has, inner, edge))
+    uc = 0.5 * (lims[0] + lims[1])
+    sc, F, G = S(uc[:, None])
+    F, G = F[:, 0], G[:, 0]
+    tl = np.maximum(G, T0)
+    th = np.minimum(F, T1)
+    outside = tl > th
+    near = np.where(G > T1, T1, T0)
+    tl = np.where(outside, near, tl)
+    th = np.where(outside, near, th)
+    tc = 0.5 * (tl + th)
+    plus = np.maximum(F - tc, 0) * 1e3
+    minus = np.maximum(tc - G, 0) * 1e3
+    ba = (lims[0] - lo) / (s * deg)
+    bb = (lims[1] - lo) / (s * deg)
+    ok = good & np.isfinite(best)
+    out[:, 0] = (uc - lo) / (s * deg)
+    out[:, 1] = plus + minus
+    out[:, 2] = plus
+    out[:, 3] = minus
+    out[:, 4] = np.minimum(ba, bb)
+    out[:, 5] = np.maximum(ba, bb)
+    out[:, 6] = tc * 1e3
+    out[:, 7] = tl * 1e3
+    out[:, 8] = th * 1e3
+    out[:, 10] = 0.0
+    out[:, 11] = best * 1e3
+    out[~ok, :] = np.nan
+    # status of machines with no feasible window: closes somewhere (dead point) or nowhere
+    st = np.zeros(n)
+    bad = good & ~np.isfinite(best)
+    if bad.any():
+        KBP = __import__("sewtol.mechanisms.needle_208.kernels.fused", fromlist=["pack"]).pack(c)
+        for i in np.nonzero(bad)[0]:
+            seg = np.empty((12, 2))
+            k = KW._segments(KBP[i], u0[i], u1[i] + w[i], 0.0, seg)
+            closes = any(seg[r, 1] - seg[r, 0] >= w[i] for r in range(k))
+            st[i] = 2 if closes else 1
+    out[:, 9] = np.where(good, st, 1)
+    return out
+
+
+def _window_feasible(c, u, w):
+    """True where the window [u, u + w] keeps B-C-D closed and >= 1 deg from a dead point:
+    |D - B| is extreme at the window ends or where B points at or away from D (the same
+    closed form as mechanisms.needle_208.transmission_extremes)."""
+    v = (c["Dx"] - c["Ax"]) + 1j * (c["Dy"] - c["Ay"])
+    v = np.broadcast_to(np.asarray(v).reshape(-1, 1), (u.shape[0], 1))
+    g = np.angle(v)
+    AB = np.broadcast_to(np.asarray(c["AB"], float).reshape(-1, 1), (u.shape[0], 1))
+    BC = np.broadcast_to(np.asarray(c["BC"], float).reshape(-1, 1), (u.shape[0], 1))
+    CD = np.broadcast_to(np.asarray(c["CD"], float).reshape(-1, 1), (u.shape[0], 1))
+    hi = u + w[:, None]
+    ok = np.ones(u.shape, bool)
+    cands = [u, hi]
+    for off in (0.0, np.pi):
+        tt = u + np.mod(g + off - u, 2 * np.pi)
+        cands.append(np.where(tt <= hi, tt, u))
+    for t in cands:
+        dist = np.abs(v - AB * np.exp(1j * t))
+        cos_g = (BC * BC + CD * CD - dist * dist) / (2 * BC * CD)
+        closes = np.abs(cos_g) <= 1.0
+        gam = np.degrees(np.arccos(np.clip(cos_g, -1, 1)))
+        ok &= closes & (np.minimum(gam, 180 - gam) >= nd.DEAD_POINT_DEG)
+    return ok
+
+
+# --- discrete compensators: settings on a grid of steps -------------------------------------------
+
+@dataclass(frozen=True)
+class DiscreteResult:
+    """What the assembler achieves when a compensator can only take the values low + k * step
+    of its box (a shim set, a graduated clamp): per machine the minimum SumDelta over those
+    settings (joint with the continuous compensators), the settings and Delta+/-."""
+
+    total_um: np.ndarray
+    plus_um: np.ndarray
+    minus_um: np.ndarray
+    settings: dict[str, np.ndarray]
+    status: np.ndarray
+    steps: dict[str, float]
+    boxes: dict[str, tuple[float, float]]
+
+    def to_dataframe(self) -> pd.DataFrame:
+        cols = {"status": self.status, "total_um": self.total_um, "plus_um": self.plus_um,
+                "minus_um": self.minus_um}
+        cols.update(self.settings)
+        return pd.DataFrame(cols)
+
+
+def step_grid(name, box, step) -> np.ndarray:
+    step = float(step)
+    if not (np.isfinite(step) and step > 0):
+        raise ParameterError(f"{name} step", "must be a positive number", step)
+    lo, hi = box
+    k = int(np.floor((hi - lo) / step + 1e-9))
+    if k > 100_000:
+        raise ParameterError(f"{name} step", "gives more than 100,000 settings in the box", step)
+    return lo + step * np.arange(k + 1)
+
+
+def optimise_discrete(c: dict, active: dict, steps: dict[str, float]) -> DiscreteResult:
+    """Joint optimum when the compensators named in `steps` take only the values low + k * step
+    (beta and guide_shift_um; the others stay continuous, solved exactly). Exact: with beta
+    discrete every allowed beta's window extremes F, G are computed exactly (and the shift is
+    the closed form or the best of its steps); with only the shift discrete, each allowed shift
+    is a fixed guide for the exact beta optimum."""
+    from sewtol.mechanisms.needle_208.kernels import fused as KB
+    from sewtol.mechanisms.needle_208.kernels import window as KW
+
+    boxes = check_boxes(active)
+    for name in steps:
+        if name not in boxes:
+            raise ParameterError(name, "has a step but is not an active compensator", name)
+        if name in OUTER:
+            raise ParameterError(name, "discrete steps are supported for beta and "
+                                 "guide_shift_um", name)
+    for name in OUTER:
+        if name in boxes:
+            raise ParameterError(name, "is not supported with discrete steps", name)
+    n = len(c["LF"])
+    r_lo, r_hi, code = _rocker(c)
+    own = np.broadcast_to(np.asarray(c["guide_shift_um"], float).reshape(-1), (n,))
+    shift_box = boxes.get("guide_shift_um")
+    shifts = step_grid("guide_shift_um", shift_box, steps["guide_shift_um"]) \
+        if "guide_shift_um" in steps else None
+    settings = {}
+    if "beta" in steps:
+        betas = step_grid("beta", boxes["beta"], steps["beta"])
+        fg = KW.window_extremes_batch(KB.pack(c), r_lo, r_hi,
+                                      np.ascontiguousarray(np.broadcast_to(betas, (n, betas.size))))
+        F, G = fg[..., 0] * 1e3, fg[..., 1] * 1e3  # um, (n, k)
+        if shifts is not None:  # best allowed shift for every beta
+            tot_t = (np.maximum(0, F[..., None] - shifts) + np.maximum(0, shifts - G[..., None]))
+            jt = np.nanargmin(np.where(np.isnan(tot_t), np.inf, tot_t), axis=-1)
+            t = shifts[jt]
+        elif shift_box is not None:  # continuous shift: the closed form, the centre of its range
+            tl = np.maximum(G, shift_box[0])
+            th = np.minimum(F, shift_box[1])
+            near = np.where(G > shift_box[1], shift_box[1], shift_box[0])
+            t = np.where(tl > th, near, 0.5 * (tl + th))
+        else:
+            t = np.broadcast_to(own[:, None], F.shape)
+        tot = np.maximum(0, F - t) + np.maximum(0, t - G)
+        score = np.where(np.isnan(tot), np.inf, tot)
+        k = np.argmin(score, axis=1)
+        rows = np.arange(n)
+        ok = np.isfinite(score[rows, k]) & (code == 0)
+        nan = np.full(n, np.nan)
+        tk = t[rows, k]
+        plus = np.where(ok, np.maximum(0, F[rows, k] - tk), nan)
+        minus = np.where(ok, np.maximum(0, tk - G[rows, k]), nan)
+        settings["beta"] = np.where(ok, betas[k], nan)
+        if shift_box is not None:
+            settings["guide_shift_um"] = np.where(ok, tk, nan)
+        status_code = np.where(code > 0, code, np.where(ok, 0, _no_window_status(c, r_lo, r_hi,
+                                                                                 boxes)))
+    else:  # beta continuous, the shift on its steps: each step is a fixed guide
+        best_min = np.full(n, np.inf)
+        plus = np.full(n, np.nan)
+        minus = np.full(n, np.nan)
+        settings = {"beta": np.full(n, np.nan), "guide_shift_um": np.full(n, np.nan)}
+        status = None
+        for t in shifts:
+            cc = dict(c)
+            cc["guide_shift_um"] = np.full((n, 1), t)
+            r = optimise(cc, {"beta": boxes["beta"]})
+            status = r.status if status is None else status
+            better = r.min_total_um < best_min  # NaN (cannot run) is never better
+            best_min[better] = r.min_total_um[better]
+            plus[better] = r.plus_um[better]
+            minus[better] = r.minus_um[better]
+            settings["beta"][better] = r.settings["beta"][better]
+            settings["guide_shift_um"][better] = t
+        status_code = np.array([STATUS.index(s) for s in status])
+    status_code = np.asarray(status_code, int)
+    return DiscreteResult(total_um=plus + minus, plus_um=plus, minus_um=minus, settings=settings,
+                          status=np.array(STATUS, dtype=object)[status_code],
+                          steps={k: float(v) for k, v in steps.items()}, boxes=boxes)
+
+
+def _no_window_status(c, r_lo, r_hi, boxes):
+    """Status code of machines with no feasible allowed setting (from the continuous solver)."""
+    r = optimise(c, {"beta": boxes["beta"]})
+    codes = np.array([STATUS.index(s) for s in r.status])
+    return np.where(codes == 0, 2, codes)  # feasible only between the steps: a dead point
+
+
+def worst_within_resolution(c: dict, result: AdjustResult, resolution_deg: float,
+                            samples: int = 41) -> np.ndarray:
+    """SumDelta (um) the assembler can end up with when beta is set to the reported setting
+    only to +/- resolution_deg / 2 (the other compensators as reported): the worst of `samples`
+    exact evaluations across that interval (sampled: between samples SumDelta can exceed the
+    worst sample by at most its slope times half the spacing). NaN where not ok."""
+    from sewtol.mechanisms.needle_208.kernels import fused as KB
+    from sewtol.mechanisms.needle_208.kernels import window as KW
+
+    r = float(resolution_deg)
+    if not (np.isfinite(r) and r >= 0):
+        raise ParameterError("beta resolution", "must be a number of degrees >= 0", r)
+    n = len(c["LF"])
+    r_lo, r_hi, _ = _rocker(c)
+    b0 = result.settings["beta"]
+    ok = np.isfinite(b0)
+    offs = np.linspace(-0.5 * r, 0.5 * r, samples)
+    betas = np.where(ok, b0, 0.0)[:, None] + offs[None, :]
+    fg = KW.window_extremes_batch(KB.pack(c), np.where(ok, r_lo, np.nan), r_hi,
+                                  np.ascontiguousarray(betas))
+    own = np.broadcast_to(np.asarray(c["guide_shift_um"], float).reshape(-1), (n,))
+    t = result.settings.get("guide_shift_um", own)[:, None]
+    tot = np.maximum(0, fg[..., 0] * 1e3 - t) + np.maximum(0, t - fg[..., 1] * 1e3)
+    worst = np.max(np.where(np.isnan(tot), np.inf, tot), axis=1)  # infeasible: unbounded
+    return np.where(ok, worst, np.nan)

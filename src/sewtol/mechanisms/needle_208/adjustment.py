@@ -1,0 +1,511 @@
+"""Adjustment at assembly: the joint optimum of the needle's SumDelta over a strategy's
+compensators, per machine, batched.
+
+Structure used, innermost first:
+- guide_shift_um: with the band of n.(E - G) over the cycle [m, M] (um), a guide shift t gives
+  SumDelta(t) = max(0, M - t) + max(0, t - m), so over t in [T0, T1] the minimum is
+  max(M - m, M - T1, T0 - m) in closed form, a plateau [max(m, T0), min(M, T1)] when the band
+  can be centred (the setting is the plateau's centre). A discrete shift takes the better of the
+  two allowed settings around that centre (SumDelta is convex in t, so that is exact).
+- guide_angle (turned about the guide point): SumDelta with the shift optimised is a maximum of
+  support functions of the path, convex in the guide normal; over +/-0.1 deg the normal's arc
+  is almost straight, so a 5-point grid and golden section find it. The path is sampled
+  at N_DENSE rocker angles and its extremes refined by parabolic interpolation (measured error
+  below 2e-4 um against the exact extremes, tests/test_strategies.py).
+- every other compensator (beta, CD, any parameter declared one): an outer 1-D search, nested,
+  beta innermost: a grid over the range, then golden section on the best grid cell. A discrete
+  compensator is searched over all its allowed settings (exact given the inner optimum).
+
+Every reported SumDelta is recomputed at the chosen settings with the exact extremes
+(metrics.needle.deviation_figures), so it is the machine's true SumDelta at those settings.
+
+Resolution model: the assembler aims at the chosen setting but lands anywhere within +/- r/2
+(clipped to the range). `achieved_um` is the worst SumDelta over the 3^k points (each resolved
+compensator at -r/2, 0, +r/2, the others at their settings); exact wherever SumDelta is convex
+in the settings over that small box (it is piecewise linear and convex in the shift).
+
+The exact beta (and beta + shift) optimum is in mechanisms/needle_208/adjust.py; `_joint_optimum` is
+the one function to switch to it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from sewtol.errors import ParameterError
+from sewtol.mechanisms.needle_208 import adjust as exact
+from sewtol.mechanisms.needle_208 import metrics as nm
+from sewtol.mechanisms.needle_208.compensators import Compensator, Strategy
+from sewtol.mechanisms.needle_208.kernels.path import band_kernel, pack
+from sewtol.optimize import bisect_root, golden_min
+
+N_DENSE = 129
+PLATEAU_TOL_UM = 1e-3  # settings within this of the optimum form its plateau (centre chosen)
+ANGLE_GRID = 5
+STATUSES = ("ok", "out of spec", "cannot assemble", "dead point")
+# grid spacing of the outer search per compensator (default: 12 cells over the range)
+OUTER_GRID_STEP = {"beta": 1.0}
+MAX_DISCRETE = 2001
+WARM_SPAN = 2  # grid cells each side of the inner optimum searched while the outer is polished
+
+
+def _grid(comp: Compensator) -> np.ndarray:
+    if comp.discrete:
+        s = comp.settings()
+        if s.size > MAX_DISCRETE:
+            raise ParameterError(f"{comp.name}.step", f"gives more than {MAX_DISCRETE} settings",
+                                 comp.step)
+        return s
+    step = OUTER_GRID_STEP.get(comp.name, (comp.high - comp.low) / 12)
+    g = max(int(np.ceil((comp.high - comp.low) / step)) + 1, 3)
+    return np.linspace(comp.low, comp.high, g)
+
+
+def _xtol(comp: Compensator) -> float:
+    return 5e-6 * (comp.high - comp.low)
+
+
+def _apply(c: dict, comp: Compensator, setting) -> dict:
+    out = dict(c)
+    s = np.asarray(setting, float).reshape(-1, 1)
+    out[comp.name] = np.broadcast_to(comp.value(c[comp.name], s), c[comp.name].shape).copy()
+    return out
+
+
+# --- innermost: guide shift (closed form) and guide angle (dense path) ---------------------
+
+
+def shift_optimum(M, m, s0, comp: Compensator | None):
+    """SumDelta (um) minimised over the guide shift, the shift setting and its plateau.
+
+    M, m: band of n.(E - G) in um with no shift; s0: the machine's own shift (um). Returns
+    (total, setting, plateau_low, plateau_high); the setting is an offset from s0.
+    """
+    M, m, s0 = (np.asarray(x, float) for x in (M, m, s0))
+    if comp is None:
+        total = np.maximum(0.0, M - s0) + np.maximum(0.0, s0 - m)
+        nan = np.full(total.shape, np.nan)
+        return total, nan, nan, nan
+    t0, t1 = s0 + comp.low, s0 + comp.high
+    p_lo, p_hi = np.maximum(m, t0), np.minimum(M, t1)
+    inside = p_lo <= p_hi
+    # band out of reach: the nearer end of the range is the only optimum
+    end = np.where(t1 < m, t1, t0)
+    p_lo, p_hi = np.where(inside, p_lo, end), np.where(inside, p_hi, end)
+    centre = 0.5 * (p_lo + p_hi)
+    if not comp.discrete:
+        total = np.maximum.reduce([M - m, M - t1, t0 - m])
+        return total, centre - s0, p_lo - s0, p_hi - s0
+    step, kmax = comp.step, comp.settings().size - 1
+
+    def f(t):
+        return np.maximum(0.0, M - t) + np.maximum(0.0, t - m)
+
+    kf = np.clip(np.floor((centre - t0) / step), 0, kmax)
+    kc = np.minimum(kf + 1, kmax)
+    tf, tc = t0 + kf * step, t0 + kc * step
+    ff, fc = f(tf), f(tc)
+    take_c = (fc < ff) | ((fc == ff) & (np.abs(tc - centre) < np.abs(tf - centre)))
+    t = np.where(take_c, tc, tf)
+    total = np.where(take_c, fc, ff)
+    # the allowed settings inside the band form the discrete plateau when the band is reachable
+    k_lo = np.clip(np.ceil((m - t0) / step - 1e-9), 0, kmax)
+    k_hi = np.clip(np.floor((M - t0) / step + 1e-9), 0, kmax)
+    flat = inside & (k_lo <= k_hi) & (total <= M - m + 1e-12)
+    pl = np.where(flat, t0 + k_lo * step, t)
+    ph = np.where(flat, t0 + k_hi * step, t)
+    return np.where(np.isnan(M), np.nan, total), t - s0, pl - s0, ph - s0
+
+
+class _Path:
+    """One machine batch at fixed outer settings: its rocker interval and the projection band of
+    its needle path on any trial guide (kernels.needle_path.band_kernel, N_DENSE samples refined
+    by parabolic interpolation; measured error below 2e-4 um against the exact extremes)."""
+
+    def __init__(self, c: dict):
+        self.c = c
+        feas = nm.feasibility(c)
+        self.ok = feas.ok
+        self.lo = np.where(feas.ok, feas.lo, 0.0)
+        self.hi = np.where(feas.ok, feas.hi, 0.0)
+        self.P = pack(c)
+
+    def band(self, angle_setting=None, angle_comp=None):
+        """max and min of n.(E - G) (um, G without shift) for the guide turned by the setting."""
+        c = self.c
+        a = c["guide_angle"][:, 0]
+        if angle_comp is not None:
+            a = angle_comp.value(a, angle_setting)
+        a = np.radians(a)
+        nx, ny = np.cos(a), -np.sin(a)
+        b = band_kernel(self.P, self.lo, self.hi, N_DENSE, nx, ny)
+        g = nx * c["guide_x"][:, 0] + ny * c["guide_y"][:, 0]
+        M = np.where(self.ok, (b[:, 0] - g) * 1e3, np.nan)
+        m = np.where(self.ok, (b[:, 1] - g) * 1e3, np.nan)
+        return M, m
+
+
+@dataclass
+class _Inner:
+    total: np.ndarray
+    settings: dict = field(default_factory=dict)
+    plateaus: dict = field(default_factory=dict)
+
+
+def _inner(c: dict, angle: Compensator | None, shift: Compensator | None,
+           plateaus: bool = False) -> _Inner:
+    """Optimum over the guide angle and shift for fixed outer settings (dense path)."""
+    path = _Path(c)
+    s0 = c["guide_shift_um"][:, 0]
+
+    def total_at(a):
+        M, m = path.band(a, angle)
+        return shift_optimum(M, m, s0, shift)[0]
+
+    out = _Inner(total=None)
+    if angle is None:
+        M, m = path.band()
+    else:
+        n = s0.size
+        grid = angle.settings() if angle.discrete else np.linspace(angle.low, angle.high,
+                                                                    ANGLE_GRID)
+        vals = np.stack([total_at(np.full(n, g)) for g in grid], axis=1)
+        score = np.where(np.isnan(vals), np.inf, vals)
+        i = np.argmin(score, axis=1)
+        if angle.discrete:
+            a_opt = grid[i]
+        else:
+            a_opt, _ = golden_min(total_at, grid[np.maximum(i - 1, 0)],
+                                  grid[np.minimum(i + 1, grid.size - 1)], xtol=_xtol(angle))
+            if plateaus:
+                # the plateau of the angle: where SumDelta stays within PLATEAU_TOL_UM
+                best = total_at(a_opt)
+                lo_p, hi_p = _plateau(total_at, a_opt, best, angle)
+                out.plateaus[angle.name] = (lo_p, hi_p)
+                a_mid = 0.5 * (lo_p + hi_p)
+                a_opt = np.where(total_at(a_mid) <= best + PLATEAU_TOL_UM, a_mid, a_opt)
+        out.settings[angle.name] = a_opt
+        M, m = path.band(a_opt, angle)
+    total, t, pl, ph = shift_optimum(M, m, s0, shift)
+    if shift is not None:
+        out.settings[shift.name] = t
+        out.plateaus[shift.name] = (pl, ph)
+    out.total = total
+    return out
+
+
+def _plateau(fun, x_opt, best, comp: Compensator, xtol=None):
+    """[low, high] around x_opt where fun <= best + PLATEAU_TOL_UM (bisection to each side)."""
+    xtol = xtol or 1e-5 * (comp.high - comp.low)
+    n = np.shape(x_opt)[0]
+
+    def excess(x):
+        v = fun(x)
+        return np.where(np.isnan(v), np.inf, v) - (best + PLATEAU_TOL_UM)
+
+    ends = []
+    for end in (comp.low, comp.high):
+        e = np.full(n, float(end))
+        inside = excess(e) <= 0
+        root = bisect_root(lambda x: np.minimum(excess(x), 1e300), np.where(inside, x_opt, e),
+                           x_opt, xtol=xtol)
+        ends.append(np.where(inside, e, root))
+    return ends[0], ends[1]
+
+
+# --- outer 1-D searches -------------------------------------------------------------------
+
+
+def _search(c: dict, outer: list[Compensator], angle, shift, plateaus: bool,
+            bracket=None, leaf=None, held=()) -> _Inner:
+    """Nested 1-D searches over `outer` (outermost first). `bracket` (lo, hi arrays) replaces
+    the grid of outer[0] by a golden section on that bracket (warm start, see below). `leaf`
+    (columns, plateaus) -> _Inner replaces the innermost optimum over angle and shift; `held`
+    are the compensators it sets (held at its settings when an outer plateau is measured)."""
+    if not outer:
+        return leaf(c, plateaus) if leaf is not None else _inner(c, angle, shift, plateaus)
+    comp, rest = outer[0], outer[1:]
+    n = next(iter(c.values())).shape[0]
+    warm = None
+    if bracket is None and rest and not rest[0].discrete:
+        # While this setting is polished inside its best grid cell, the next inner setting is
+        # searched by golden section within WARM_SPAN grid cells of its optimum at the grid
+        # point instead of by its whole grid again (the inner optimum moves continuously).
+        warm = rest[0]
+
+    def sub(cc, plat=False, inner_bracket=None):
+        return _search(cc, rest, angle, shift, plat, inner_bracket, leaf, held)
+
+    def score(x, inner_bracket=None):
+        v = sub(_apply(c, comp, x), False, inner_bracket).total
+        return np.where(np.isnan(v), np.inf, v)
+
+    if bracket is not None:
+        x, _ = golden_min(score, bracket[0], bracket[1], xtol=_xtol(comp))
+        res = sub(_apply(c, comp, x))
+        res.settings[comp.name] = x
+        return res
+    grid = _grid(comp)
+    vals = np.stack([score(np.full(n, g)) for g in grid], axis=1)
+    i = np.argmin(vals, axis=1)
+    if comp.discrete:
+        x = grid[i]
+    else:
+        a, b = grid[np.maximum(i - 1, 0)], grid[np.minimum(i + 1, grid.size - 1)]
+        inner_bracket = None
+        if warm is not None:
+            at_grid = sub(_apply(c, comp, grid[i]))
+            y = at_grid.settings[warm.name]
+            span = WARM_SPAN * (_grid(warm)[1] - _grid(warm)[0])
+            y = np.where(np.isfinite(y), y, 0.5 * (warm.low + warm.high))
+            inner_bracket = (np.clip(y - span, warm.low, warm.high),
+                             np.clip(y + span, warm.low, warm.high))
+        x, _ = golden_min(lambda z: score(z, inner_bracket), a, b, xtol=_xtol(comp))
+        # never worse than the grid (golden section can stall on an infinite bracket end)
+        better_grid = vals[np.arange(n), i] < score(x)
+        x = np.where(better_grid, grid[i], x)
+    res = sub(_apply(c, comp, x), plateaus)
+    if plateaus and not comp.discrete:
+        # the range of this setting (the inner ones held) within PLATEAU_TOL_UM of the optimum
+        inner_settings = res.settings
+
+        def at(y):
+            cc = _apply(c, comp, y)
+            for r in rest:
+                cc = _apply(cc, r, inner_settings[r.name])
+            cc = _held(cc, angle, shift, inner_settings)
+            for k in held:
+                cc = _apply(cc, k, inner_settings[k.name])
+            return nm.deviation_figures(cc).total_um
+
+        best = at(x)
+        lo_p, hi_p = _plateau(at, x, best, comp)
+        mid = 0.5 * (lo_p + hi_p)
+        use_mid = at(mid) <= best + PLATEAU_TOL_UM
+        res.plateaus[comp.name] = (lo_p, hi_p)
+        x = np.where(use_mid & np.isfinite(best), mid, x)
+    res.settings[comp.name] = x
+    return res
+
+
+def _held(c, angle, shift, settings):
+    for comp in (angle, shift):
+        if comp is not None:
+            c = _apply(c, comp, settings[comp.name])
+    return c
+
+
+def _exact_boxes(c: dict, comps) -> dict | None:
+    """The boxes of studies.adjust.optimise (the exact sliding-window optimum) for these
+    continuous compensators, or None where it does not apply: beta must be among them and
+    absolute, the guide shift the same offset for every machine (its box there is absolute),
+    the guide angle and CD offsets (as there), at most one of those two."""
+    names = [k.name for k in comps]
+    if ("beta" not in names or any(k.discrete for k in comps)
+            or not set(names) <= set(exact.COMPENSATORS)
+            or sum(n in exact.OUTER for n in names) > 1):
+        return None
+    boxes = {}
+    for k in comps:
+        if k.name == "beta":
+            if k.mode != "absolute":
+                return None
+            boxes["beta"] = (k.low, k.high)
+        elif k.name == "guide_shift_um":
+            s0 = np.unique(c["guide_shift_um"])
+            if k.mode == "absolute":
+                boxes[k.name] = (k.low, k.high)
+            elif s0.size == 1:
+                boxes[k.name] = (float(s0[0]) + k.low, float(s0[0]) + k.high)
+            else:
+                return None
+        else:
+            if k.mode != "offset":
+                return None
+            boxes[k.name] = (k.low, k.high)
+    return boxes
+
+
+def _exact(c: dict, comps, boxes: dict) -> _Inner:
+    """studies.adjust.optimise, its settings and plateau ranges in this module's terms."""
+    r = exact.optimise(c, boxes)
+    out = _Inner(total=np.asarray(r.min_total_um, float))
+    for k in comps:
+        x, lo, hi = (np.asarray(v[k.name], float) for v in (r.settings, r.low, r.high))
+        if k.name == "guide_shift_um" and k.mode == "offset":
+            s0 = c["guide_shift_um"][:, 0]
+            x, lo, hi = x - s0, lo - s0, hi - s0
+        out.settings[k.name] = x
+        out.plateaus[k.name] = (lo, hi)
+    return out
+
+
+def _joint_optimum(c: dict, strategy: Strategy, plateaus: bool = True) -> _Inner:
+    """Settings (offsets or absolute values as each compensator's mode says) of the joint
+    optimum of SumDelta over the strategy's box, per machine, and the plateau ranges.
+
+    Where it applies (beta with the guide shift and one of guide angle or CD, continuous), the
+    exact sliding-window optimum of studies.adjust does it all (tests/test_adjust.py,
+    tests/test_independent_reference.py). With more outer compensators (e.g. guide angle and
+    CD together) the extra ones are nested 1-D searches around that exact inner optimum; discrete
+    or non-standard compensators go through this module's nested searches alone.
+    """
+    comps = list(strategy.compensators)
+    boxes = _exact_boxes(c, comps)
+    if boxes is not None:
+        return _exact(c, comps, boxes)
+    angle = next((k for k in comps if k.name == "guide_angle"), None)
+    shift = next((k for k in comps if k.name == "guide_shift_um"), None)
+    # the exact optimum as the innermost step of the nested search: beta, the shift and the
+    # angle when they qualify, every other compensator an outer search around it
+    inner = [k for k in comps if k.name in ("beta", "guide_shift_um", "guide_angle")]
+    inner_boxes = _exact_boxes(c, inner)
+    if inner_boxes is not None:
+        outer = [k for k in comps if k not in inner]
+
+        def leaf(cc, _plateaus):
+            return _exact(cc, inner, _exact_boxes(cc, inner))
+
+        return _search(c, outer, None, None, plateaus, leaf=leaf, held=inner)
+    outer = [k for k in comps if k.name not in ("guide_angle", "guide_shift_um", "beta")]
+    outer += [k for k in comps if k.name == "beta"]
+    return _search(c, outer, angle, shift, plateaus)
+
+
+# --- the result ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Adjustment:
+    """Per machine: SumDelta before (as built, no adjustment) and after, each compensator's
+    setting, plateau, at-limit flag, what the assembler achieves, and the status."""
+
+    strategy: Strategy
+    limit_um: float
+    total_before_um: np.ndarray
+    total_um: np.ndarray
+    plus_um: np.ndarray
+    minus_um: np.ndarray
+    achieved_um: np.ndarray
+    status: np.ndarray
+    settings: dict
+    plateau_low: dict
+    plateau_high: dict
+    at_limit: dict
+
+    @property
+    def n(self) -> int:
+        return int(self.total_um.size)
+
+    def counts(self) -> dict:
+        return {s: int(np.sum(self.status == s)) for s in STATUSES}
+
+    def to_dataframe(self) -> pd.DataFrame:
+        f = pd.DataFrame({"total_before_um": self.total_before_um,
+                          "total_after_um": self.total_um, "plus_after_um": self.plus_um,
+                          "minus_after_um": self.minus_um, "achieved_um": self.achieved_um})
+        for comp in self.strategy.compensators:
+            u = f"_{comp.unit}" if comp.unit and not comp.name.endswith(comp.unit) else ""
+            f[f"{comp.name}_setting{u}"] = self.settings[comp.name]
+            f[f"{comp.name}_plateau_low{u}"] = self.plateau_low[comp.name]
+            f[f"{comp.name}_plateau_high{u}"] = self.plateau_high[comp.name]
+            f[f"{comp.name}_at_limit"] = self.at_limit[comp.name]
+        f["status"] = self.status
+        return f
+
+
+def _status(feas: nm.Feasibility, total, limit_um) -> np.ndarray:
+    return np.where(np.isfinite(total), np.where(total <= limit_um, "ok", "out of spec"),
+                    np.where(feas.dead_point, "dead point", "cannot assemble")).astype(object)
+
+
+def adjust(c: dict[str, np.ndarray], strategy: Strategy, limit_um: float = 10.0,
+           plateaus: bool = True) -> Adjustment:
+    """The assembler's adjustment of each machine (parameter columns c, shape (n, 1)).
+
+    Every machine gets the strategy's joint optimum: the settings of its compensators, within
+    their ranges and steps, that minimise SumDelta with the guide fixed.
+
+    Parameters
+    ----------
+    c : dict of numpy.ndarray
+        The machines as parameter columns of shape (n, 1), by `Needle208` field name: e.g.
+        ``c, n = sewtol.mechanisms.needle_208.metrics.columns(machine)`` (mm, deg, um).
+    strategy : Strategy
+        The compensators the assembler may set; an empty strategy leaves every machine as
+        built.
+    limit_um : float
+        The SumDelta limit (um) that makes a machine ok or out of spec.
+    plateaus : bool
+        Also find each setting's plateau (the range within 1e-3 um of the optimum).
+
+    Returns
+    -------
+    Adjustment
+        Per machine: SumDelta before (as built) and after (um), Delta+/Delta- after, each
+        setting with its plateau and at-limit flag, what the assembler achieves within the
+        setting resolution, and the status (``"ok"``, ``"out of spec"``,
+        ``"cannot assemble"``, ``"dead point"``).
+    """
+    if not (np.isfinite(limit_um) and limit_um > 0):
+        raise ParameterError("limit_um", "must be a positive number of um", limit_um)
+    strategy.check_names(list(c))
+    before_feas = nm.feasibility(c)
+    before = nm.deviation_figures(c, before_feas).total_um
+    if not strategy.compensators:
+        figs = nm.deviation_figures(c, before_feas)
+        return Adjustment(strategy, float(limit_um), before, figs.total_um, figs.plus_um,
+                          figs.minus_um, figs.total_um, _status(before_feas, before, limit_um),
+                          {}, {}, {}, {})
+    res = _joint_optimum(c, strategy, plateaus)
+    final = c
+    for comp in strategy.compensators:
+        final = _apply(final, comp, res.settings[comp.name])
+    feas = nm.feasibility(final)
+    figs = nm.deviation_figures(final, feas)
+    dead_everywhere = ~np.isfinite(figs.total_um)
+    settings, p_lo, p_hi, at_limit = {}, {}, {}, {}
+    for comp in strategy.compensators:
+        x = np.where(dead_everywhere, np.nan, res.settings[comp.name])
+        settings[comp.name] = x
+        pl, ph = res.plateaus.get(comp.name, (x, x))
+        p_lo[comp.name] = np.where(dead_everywhere, np.nan, pl)
+        p_hi[comp.name] = np.where(dead_everywhere, np.nan, ph)
+        if comp.discrete:
+            top = comp.settings()[-1]
+            eps = 1e-9 * comp.step
+        else:
+            top, eps = comp.high, 1e-6 * (comp.high - comp.low)
+        at_limit[comp.name] = (x <= comp.low + eps) | (x >= top - eps)
+    # a machine no setting can run: classify it at its as-built settings
+    status_feas = nm.Feasibility(*(np.where(dead_everywhere, getattr(before_feas, f),
+                                            getattr(feas, f))
+                                   for f in ("ok", "miss_LMA_mm", "miss_BCD_mm", "lo", "hi",
+                                             "transmission_LMA_deg", "transmission_BCD_deg")))
+    achieved = _achieved(c, strategy, settings, figs.total_um)
+    return Adjustment(strategy, float(limit_um), before, figs.total_um, figs.plus_um,
+                      figs.minus_um, achieved, _status(status_feas, figs.total_um, limit_um),
+                      settings, p_lo, p_hi, at_limit)
+
+
+def _achieved(c, strategy: Strategy, settings: dict, total) -> np.ndarray:
+    resolved = [k for k in strategy.compensators if k.resolution > 0]
+    if not resolved:
+        return total
+    worst = np.array(total, float)
+    top = {k.name: (k.settings()[-1] if k.discrete else k.high) for k in resolved}
+    for offs in np.array(np.meshgrid(*[[-0.5, 0.0, 0.5]] * len(resolved))).reshape(
+            len(resolved), -1).T:
+        cc = c
+        for comp in strategy.compensators:
+            x = settings[comp.name]
+            if comp.resolution > 0:
+                j = resolved.index(comp)
+                x = np.clip(x + offs[j] * comp.resolution, comp.low, top[comp.name])
+            cc = _apply(cc, comp, x)
+        v = nm.deviation_figures(cc).total_um
+        worst = np.fmax(worst, np.where(np.isnan(v), np.inf, v))
+    return np.where(np.isfinite(total), worst, np.nan)

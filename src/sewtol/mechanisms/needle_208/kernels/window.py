@@ -1,0 +1,564 @@
+"""Exact per-machine optimum of beta (and the guide shift) as a sliding-window problem.
+
+Structure: B = A + AB e(theta + s beta) with the rocker angle theta swinging
+over [lo, hi] independently of beta (mechanisms/needle_208.rocker_interval). With
+psi = theta + s beta the needle point E(psi) and d(psi) = n.(E(psi) - G) are ONE function of psi
+per machine, and beta only slides the window W(u) = [u, u + w], u = lo + s beta, w = hi - lo,
+along it. With F(u) = max_W d, G(u) = min_W d and the guide shift t (mm) in [T0, T1]
+
+    SumDelta(u) = min_t max(0, F - t) + max(0, t - G) = max(F - G, F - T1, T0 - G)
+
+(T0 = T1 = the machine's own shift when the shift is not a compensator).
+
+Algorithm, per machine:
+1. The feasible windows in closed form: dyad B-C-D closes with a transmission angle >= 1 deg
+   exactly where |D - B|(psi) lies in an interval, i.e. cos(psi - ang(A->D)) lies in an
+   interval: up to two arcs of psi. A window is feasible iff it lies inside one arc (the
+   feasibility semantics of metrics.needle.feasibility).
+2. d, d', d'' (analytic) at nodes of spacing h = w / m (m = ceil(w / h_target)), aligned so that
+   both window ends of every grid window fall on nodes; d is replaced by its cubic Hermite
+   interpolant p, whose error is |d''''| h^4 / 384 (estimated per cell from the jump between
+   p'' and the exact d'' at the nodes: err = h^2 |p'' - d''| / 32; h is halved until the
+   estimate is below 1e-3 um). With the measured |d''''| <= ~120 mm/rad^4 (recommended and base
+   sets) and h = 2 deg that is ~4e-4 um (3e-5 um at 1 deg).
+3. Every cell's exact extremes (nodes and the roots of p'), hence F and G at any u in O(1) from
+   the cells inside the window and the two partial end cells. SumDelta at every grid u.
+4. A lower bound per u-cell from the cells inside every window of that cell; cells whose bound
+   is not below the best grid value cannot hold the optimum. In the others SumDelta is sampled
+   at spacing delta with K delta^2 / 8 <= 2e-3 um, where K = max|p''| at both window ends bounds
+   the concavity of every piece of SumDelta (an upper envelope of A - B, A - c, c - B, ... with
+   A, B the cubics at the window ends), and each sampled descent is polished by golden section.
+5. The plateau: the connected range of u around the optimum where SumDelta <= min + tol; beta*
+   is its centre. The shift's range at beta* is [max(G, T0), min(F, T1)] (its centre is used).
+tests/test_adjust.py holds it to a dense brute-force search and to the numpy reference.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from sewtol.mechanisms.needle_208.kernels.fused import _point
+
+_INVPHI = (math.sqrt(5.0) - 1.0) / 2.0
+DEAD_POINT_DEG = 1.0  # mechanisms.needle_208.DEAD_POINT_DEG (kept equal by a test)
+# output columns of optimise_batch
+COLUMNS = ("beta_deg", "total_um", "plus_um", "minus_um", "beta_low_deg", "beta_high_deg",
+           "shift_um", "shift_low_um", "shift_high_um", "status", "surrogate_err_um",
+           "min_total_um")
+STATUS = ("ok", "cannot assemble", "dead point")
+SURROGATE_TOL_MM = 1e-6   # 1e-3 um: the Hermite interpolant's estimated error
+SAMPLE_TOL_MM = 2e-6      # 2e-3 um: K delta^2 / 8 for the sampling inside a candidate u-cell
+
+
+@nb.njit(cache=True)
+def _wrap(x):
+    """x into (-pi, pi]."""
+    return math.atan2(math.sin(x), math.cos(x))
+
+
+@nb.njit(cache=True)
+def _arc_limits(p, gamma_min_deg):
+    """(a1, a2): B-C-D closes with transmission >= gamma_min iff a1 <= |wrap(psi - g)| <= a2,
+    g = ang(A->D); returns a1 > a2 when no psi qualifies."""
+    AB, BC, CD = p[0], p[1], p[3]
+    vx, vy = p[7] - p[5], p[8] - p[6]
+    AD = math.sqrt(vx * vx + vy * vy)
+    cg = math.cos(gamma_min_deg * math.pi / 180.0)
+    dlo2 = BC * BC + CD * CD - 2.0 * BC * CD * cg
+    dhi2 = BC * BC + CD * CD + 2.0 * BC * CD * cg
+    # |D-B|^2 = AD^2 + AB^2 - 2 AB AD cos(psi - g)
+    ca = (AD * AD + AB * AB - dhi2) / (2.0 * AB * AD)
+    cb = (AD * AD + AB * AB - dlo2) / (2.0 * AB * AD)
+    if ca > 1.0 or cb < -1.0 or ca > cb:
+        return 1.0, 0.0
+    a1 = math.acos(min(cb, 1.0))
+    a2 = math.acos(max(ca, -1.0))
+    return a1, a2
+
+
+@nb.njit(cache=True)
+def _segments(p, P0, P1, gamma_min_deg, seg):
+    """Feasible sub-intervals of [P0, P1] (rows of seg); returns their count."""
+    a1, a2 = _arc_limits(p, gamma_min_deg)
+    if a1 > a2:
+        return 0
+    g = math.atan2(p[8] - p[6], p[7] - p[5])
+    bps = np.empty(20)
+    nb_ = 0
+    bps[nb_] = P0
+    nb_ += 1
+    bps[nb_] = P1
+    nb_ += 1
+    for tgt in (a1, -a1, a2, -a2):
+        base = g + tgt
+        k0 = int(math.floor((P0 - base) / (2.0 * math.pi)))
+        for kk in range(k0, k0 + 3):
+            x = base + 2.0 * math.pi * kk
+            if P0 < x < P1 and nb_ < 20:
+                bps[nb_] = x
+                nb_ += 1
+    b = np.sort(bps[:nb_])
+    n = 0
+    for i in range(nb_ - 1):
+        if b[i + 1] <= b[i]:
+            continue
+        mid = 0.5 * (b[i] + b[i + 1])
+        dl = abs(_wrap(mid - g))
+        if a1 <= dl <= a2:
+            if n > 0 and seg[n - 1, 1] >= b[i]:
+                seg[n - 1, 1] = b[i + 1]
+            else:
+                seg[n, 0] = b[i]
+                seg[n, 1] = b[i + 1]
+                n += 1
+    return n
+
+
+@nb.njit(cache=True)
+def _cubic(c, j, x):
+    return c[j, 0] + x * (c[j, 1] + x * (c[j, 2] + x * c[j, 3]))
+
+
+@nb.njit(cache=True)
+def _s_at(c, crit, ncrit, imax, imin, m, k, tau, T0, T1, out3):
+    """SumDelta (mm), F, G for the window starting at node k + tau."""
+    A = _cubic(c, k, tau)
+    B = _cubic(c, k + m, tau)
+    F = max(imax[k], A, B)
+    G = min(imin[k], A, B)
+    for r in range(ncrit[k]):
+        if crit[k, r, 0] > tau:
+            v = crit[k, r, 1]
+            F = max(F, v)
+            G = min(G, v)
+    j = k + m
+    for r in range(ncrit[j]):
+        if crit[j, r, 0] < tau:
+            v = crit[j, r, 1]
+            F = max(F, v)
+            G = min(G, v)
+    out3[1] = F
+    out3[2] = G
+    s = max(F - G, max(F - T1, T0 - G))
+    out3[0] = s
+    return s
+
+
+@nb.njit(cache=True)
+def _locate(u, ua, h, K, tlast):
+    k = int(math.floor((u - ua) / h))
+    if k < 0:
+        k = 0
+    if k > K - 1:
+        k = K - 1
+    tau = u - ua - k * h
+    lim = h if k < K - 1 else tlast
+    if tau < 0.0:
+        tau = 0.0
+    if tau > lim:
+        tau = lim
+    return k, tau
+
+
+@nb.njit(cache=True)
+def _solve_interval(p, ua, ub, w, h_target, T0, T1, tol_mm, res):
+    """Minimise SumDelta over u in [ua, ub] (every window feasible). res receives
+    (S*, u_centre, F, G at the centre, range_lo, range_hi, S at the centre, err estimate)."""
+    m = max(1, int(math.ceil(w / h_target - 1e-9)))
+    h = w / m
+    R = ub - ua
+    K = max(1, int(math.ceil(R / h - 1e-9)))
+    tlast = R - (K - 1) * h
+    if tlast < 0.0:
+        tlast = 0.0
+    nn = K + m + 1  # nodes
+    nc = nn - 1     # cells
+    x = np.empty(nn)
+    for j in range(nn - 1):
+        x[j] = ua + j * h
+    x[nn - 1] = ub + w
+    f = np.empty(nn)
+    f1 = np.empty(nn)
+    f2 = np.empty(nn)
+    shift = p[14] * 1e-3
+    for j in range(nn):
+        a, b, cc = _point(p, 0.0, x[j])
+        f[j] = a + shift  # d without the machine's own guide shift
+        f1[j] = b
+        f2[j] = cc
+        if math.isnan(a):
+            return False
+    c = np.zeros((nc, 4))
+    crit = np.zeros((nc, 2, 2))
+    ncrit = np.zeros(nc, np.int64)
+    cmax = np.empty(nc)
+    cmin = np.empty(nc)
+    ddmax = np.empty(nc)  # max |p''| on the cell
+    err = 0.0
+    for j in range(nc):
+        L = x[j + 1] - x[j]
+        c[j, 0] = f[j]
+        c[j, 1] = f1[j]
+        if L > 1e-14:
+            dl = (f[j + 1] - f[j]) / L
+            c[j, 2] = (3.0 * dl - 2.0 * f1[j] - f1[j + 1]) / L
+            c[j, 3] = (f1[j] + f1[j + 1] - 2.0 * dl) / (L * L)
+        pa = 2.0 * c[j, 2]
+        pb = 2.0 * c[j, 2] + 6.0 * c[j, 3] * L
+        ddmax[j] = max(abs(pa), abs(pb))
+        e = L * L / 32.0 * max(abs(pa - f2[j]), abs(pb - f2[j + 1]))
+        if L > 1e-14 and e > err:
+            err = e
+        hi_ = max(f[j], f[j + 1])
+        lo_ = min(f[j], f[j + 1])
+        # roots of p' = c1 + 2 c2 x + 3 c3 x^2 inside (0, L)
+        qa, qb, qc = 3.0 * c[j, 3], 2.0 * c[j, 2], c[j, 1]
+        nr = 0
+        roots = (np.nan, np.nan)
+        if abs(qa) > 1e-300:
+            disc = qb * qb - 4.0 * qa * qc
+            if disc >= 0.0:
+                sq = math.sqrt(disc)
+                qq = -0.5 * (qb + (sq if qb >= 0 else -sq))
+                r1 = qq / qa
+                r2 = qc / qq if qq != 0.0 else r1
+                roots = (r1, r2)
+        elif abs(qb) > 1e-300:
+            roots = (-qc / qb, np.nan)
+        for r in roots:
+            if r == r and 0.0 < r < L:
+                v = _cubic(c, j, r)
+                crit[j, nr, 0] = r
+                crit[j, nr, 1] = v
+                nr += 1
+                hi_ = max(hi_, v)
+                lo_ = min(lo_, v)
+        ncrit[j] = nr
+        cmax[j] = hi_
+        cmin[j] = lo_
+    res[7] = err
+    # cells and nodes inside every window of u-cell k: nodes k+1..k+m, cells k+1..k+m-1
+    imax = np.empty(K)
+    imin = np.empty(K)
+    for k in range(K):
+        hi_ = max(f[k + 1], f[k + m])
+        lo_ = min(f[k + 1], f[k + m])
+        for j in range(k + 1, k + m):
+            hi_ = max(hi_, cmax[j])
+            lo_ = min(lo_, cmin[j])
+        imax[k] = hi_
+        imin[k] = lo_
+    out3 = np.empty(3)
+    best = np.inf
+    bk = 0
+    bt = 0.0
+    for k in range(K):
+        s = _s_at(c, crit, ncrit, imax, imin, m, k, 0.0, T0, T1, out3)
+        if s < best:
+            best, bk, bt = s, k, 0.0
+    s = _s_at(c, crit, ncrit, imax, imin, m, K - 1, tlast, T0, T1, out3)
+    if s < best:
+        best, bk, bt = s, K - 1, tlast
+    sv = np.empty(65)
+    for k in range(K):
+        lb = max(imax[k] - imin[k], max(imax[k] - T1, T0 - imin[k]))
+        if lb >= best:
+            continue
+        Lu = h if k < K - 1 else tlast
+        if Lu <= 0.0:
+            continue
+        kc = ddmax[k] + ddmax[k + m]
+        q = int(math.ceil(Lu * math.sqrt(kc / (8.0 * SAMPLE_TOL_MM))))
+        q = min(max(q, 2), 64)
+        dt = Lu / q
+        for i in range(q + 1):
+            sv[i] = _s_at(c, crit, ncrit, imax, imin, m, k, i * dt, T0, T1, out3)
+        for i in range(q + 1):
+            left = sv[i - 1] if i > 0 else np.inf
+            right = sv[i + 1] if i < q else np.inf
+            if not (sv[i] <= left and sv[i] <= right and (sv[i] < left or sv[i] < right)):
+                continue
+            if sv[i] < best:
+                best, bk, bt = sv[i], k, i * dt
+            a = max(i - 1, 0) * dt
+            b = min(i + 1, q) * dt
+            cg = b - _INVPHI * (b - a)
+            dg = a + _INVPHI * (b - a)
+            fc = _s_at(c, crit, ncrit, imax, imin, m, k, cg, T0, T1, out3)
+            fd = _s_at(c, crit, ncrit, imax, imin, m, k, dg, T0, T1, out3)
+            while b - a > 1e-10:
+                if fc < fd:
+                    b, dg, fd = dg, cg, fc
+                    cg = b - _INVPHI * (b - a)
+                    fc = _s_at(c, crit, ncrit, imax, imin, m, k, cg, T0, T1, out3)
+                else:
+                    a, cg, fc = cg, dg, fd
+                    dg = a + _INVPHI * (b - a)
+                    fd = _s_at(c, crit, ncrit, imax, imin, m, k, dg, T0, T1, out3)
+            if fc < best:
+                best, bk, bt = fc, k, cg
+            if fd < best:
+                best, bk, bt = fd, k, dg
+    # the plateau: connected range around the optimum where SumDelta <= best + tol
+    ustar = ua + bk * h + bt
+    level = best + tol_mm
+    step = h / 8.0
+    lims = np.empty(2)
+    for side in range(2):
+        sg = -1.0 if side == 0 else 1.0
+        edge = ua if side == 0 else ub
+        u = ustar
+        lim = edge
+        while (u - edge) * sg < 0.0:
+            un = u + sg * step
+            if (un - edge) * sg > 0.0:
+                un = edge
+            kk, tt = _locate(un, ua, h, K, tlast)
+            if _s_at(c, crit, ncrit, imax, imin, m, kk, tt, T0, T1, out3) > level:
+                inner, outer = u, un
+                for _ in range(50):
+                    mid = 0.5 * (inner + outer)
+                    kk, tt = _locate(mid, ua, h, K, tlast)
+                    if _s_at(c, crit, ncrit, imax, imin, m, kk, tt, T0, T1, out3) > level:
+                        outer = mid
+                    else:
+                        inner = mid
+                lim = inner
+                break
+            u = un
+        lims[side] = lim
+    uc = 0.5 * (lims[0] + lims[1])
+    kk, tt = _locate(uc, ua, h, K, tlast)
+    sc = _s_at(c, crit, ncrit, imax, imin, m, kk, tt, T0, T1, out3)
+    res[0] = best
+    res[1] = uc
+    res[2] = out3[1]
+    res[3] = out3[2]
+    res[4] = lims[0]
+    res[5] = lims[1]
+    res[6] = sc
+    return True
+
+
+@nb.njit(cache=True)
+def _optimise_one(p, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, out):
+    for i in range(out.size):
+        out[i] = np.nan
+    if math.isnan(lo) or math.isnan(hi):
+        out[9] = 1.0
+        return
+    s = p[10]
+    deg = math.pi / 180.0
+    u0 = lo + min(s * blo, s * bhi) * deg
+    u1 = lo + max(s * blo, s * bhi) * deg
+    w = hi - lo
+    seg = np.empty((12, 2))
+    n = _segments(p, u0, u1 + w, DEAD_POINT_DEG, seg)
+    res = np.empty(8)
+    best = np.empty(8)
+    best[0] = np.inf
+    found = False
+    for i in range(n):
+        if seg[i, 1] - seg[i, 0] < w:
+            continue
+        # a hair inside the arcs, so no node sits exactly on the 1-deg limit
+        ua = max(seg[i, 0] + 1e-10, u0)
+        ub = min(seg[i, 1] - 1e-10 - w, u1)
+        if ub < ua:
+            continue
+        ht = h_deg * deg
+        ok = False
+        for _ in range(4):
+            ok = _solve_interval(p, ua, ub, w, ht, T0, T1, tol_mm, res)
+            if not ok or res[7] <= SURROGATE_TOL_MM:
+                break
+            ht *= 0.5
+        if ok and res[0] < best[0]:
+            best[:] = res
+            found = True
+    if not found:
+        # no feasible window: does B-C-D fail to close everywhere, or only pass a dead point?
+        closes = False
+        seg2 = np.empty((12, 2))
+        n_closed = _segments(p, u0, u1 + w, 0.0, seg2)
+        for i in range(n_closed):
+            if seg2[i, 1] - seg2[i, 0] >= w:
+                closes = True
+        out[9] = 2.0 if closes else 1.0
+        return
+    F, G = best[2], best[3]
+    tl = max(G, T0)
+    th = min(F, T1)
+    if tl > th:  # the band lies outside the shift's box: the nearer limit
+        tl = th = (T1 if G > T1 else T0)
+    t = 0.5 * (tl + th)
+    b_c = (best[1] - lo) / (s * deg)
+    b_a = (best[4] - lo) / (s * deg)
+    b_b = (best[5] - lo) / (s * deg)
+    out[0] = b_c
+    out[2] = max(F - t, 0.0) * 1e3
+    out[3] = max(t - G, 0.0) * 1e3
+    out[1] = out[2] + out[3]
+    out[4] = min(b_a, b_b)
+    out[5] = max(b_a, b_b)
+    out[6] = t * 1e3
+    out[7] = tl * 1e3
+    out[8] = th * 1e3
+    out[9] = 0.0
+    out[10] = best[7] * 1e3
+    out[11] = best[0] * 1e3
+
+
+@nb.njit(cache=True, parallel=True)
+def optimise_batch(P, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active, h_deg=2.0,
+                   tol_um=1e-3):
+    """Per machine (rows of P follow needle_numba.FIELDS; lo, hi the rocker interval in rad,
+    NaN where L-M-A fails): the columns of COLUMNS. With shift_active False the guide shift is
+    the machine's own (P[:, 14]), else free in [shift_lo_um, shift_hi_um]."""
+    n = P.shape[0]
+    out = np.empty((n, len(COLUMNS)))
+    for i in nb.prange(n):
+        if shift_active:
+            T0, T1 = shift_lo_um * 1e-3, shift_hi_um * 1e-3
+        else:
+            T0 = T1 = P[i, 14] * 1e-3
+        _optimise_one(P[i], lo[i], hi[i], blo, bhi, T0, T1, h_deg, tol_um * 1e-3, out[i])
+    return out
+
+
+@nb.njit(cache=True)
+def _fixed_one(p, beta, lo, hi, h_target):
+    """(max d, min d) in mm over the window of a fixed beta: the Hermite surrogate on nodes
+    <= h_target apart locates every extremum, and each candidate whose surrogate value is within
+    1e-5 mm of the best (10x the surrogate's error bound) is polished by Newton on the exact d
+    inside its cell, so the figures are exact, not the surrogate's."""
+    u = lo + p[10] * beta * math.pi / 180.0
+    w = hi - lo
+    m = max(2, int(math.ceil(w / h_target - 1e-9)))
+    h = w / m
+    f = np.empty(m + 1)
+    f1 = np.empty(m + 1)
+    for j in range(m + 1):
+        a, b, _ = _point(p, 0.0, u + j * h)
+        if math.isnan(a):
+            return np.nan, np.nan
+        f[j] = a
+        f1[j] = b
+    # candidates: (location, surrogate value, cell) for interior roots of p'
+    cx = np.empty(2 * m)
+    cv = np.empty(2 * m)
+    cj = np.empty(2 * m, np.int64)
+    nc = 0
+    fmax = -np.inf
+    fmin = np.inf
+    for j in range(m + 1):
+        fmax = max(fmax, f[j])
+        fmin = min(fmin, f[j])
+    for j in range(m):
+        dl = (f[j + 1] - f[j]) / h
+        c2 = (3.0 * dl - 2.0 * f1[j] - f1[j + 1]) / h
+        c3 = (f1[j] + f1[j + 1] - 2.0 * dl) / (h * h)
+        qa, qb, qc = 3.0 * c3, 2.0 * c2, f1[j]
+        r1 = np.nan
+        r2 = np.nan
+        if abs(qa) > 1e-300:
+            disc = qb * qb - 4.0 * qa * qc
+            if disc >= 0.0:
+                sq = math.sqrt(disc)
+                qq = -0.5 * (qb + (sq if qb >= 0 else -sq))
+                r1 = qq / qa
+                r2 = qc / qq if qq != 0.0 else r1
+        elif abs(qb) > 1e-300:
+            r1 = -qc / qb
+        for r in (r1, r2):
+            if r == r and 0.0 < r < h:
+                cx[nc] = r
+                cv[nc] = f[j] + r * (f1[j] + r * (c2 + r * c3))
+                cj[nc] = j
+                nc += 1
+    smax = fmax
+    smin = fmin
+    for k in range(nc):
+        smax = max(smax, cv[k])
+        smin = min(smin, cv[k])
+    for k in range(nc):
+        near_max = cv[k] >= smax - 1e-5
+        near_min = cv[k] <= smin + 1e-5
+        if not (near_max or near_min):
+            continue
+        a0 = u + cj[k] * h
+        b0 = a0 + h
+        t = u + cj[k] * h + cx[k]
+        for _ in range(6):
+            _, d1, d2 = _point(p, 0.0, t)
+            if d2 == 0.0 or math.isnan(d2):
+                break
+            tn = t - d1 / d2
+            tn = min(max(tn, a0), b0)
+            if abs(tn - t) < 1e-13:
+                t = tn
+                break
+            t = tn
+        v, _, _ = _point(p, 0.0, t)
+        if near_max:
+            fmax = max(fmax, v)
+        if near_min:
+            fmin = min(fmin, v)
+    return fmax, fmin
+
+
+@nb.njit(cache=True, parallel=True)
+def fixed_batch(P, beta, lo, hi, h_deg=2.0):
+    """Delta+, Delta- (um) per machine at its own beta (lo, hi NaN where it cannot run)."""
+    n = P.shape[0]
+    out = np.empty((n, 2))
+    for i in nb.prange(n):
+        if math.isnan(lo[i]) or math.isnan(hi[i]):
+            out[i, 0] = out[i, 1] = np.nan
+            continue
+        fmax, fmin = _fixed_one(P[i], beta[i], lo[i], hi[i], h_deg * math.pi / 180.0)
+        if math.isnan(fmax):
+            out[i, 0] = out[i, 1] = np.nan
+            continue
+        out[i, 0] = max(fmax, 0.0) * 1e3
+        out[i, 1] = max(-fmin, 0.0) * 1e3
+    return out
+
+
+@nb.njit(cache=True, parallel=True)
+def window_extremes_batch(P, lo, hi, betas, h_deg=2.0):
+    """(F, G) in mm of d with the guide shift removed over the window of each beta in row i of
+    `betas` (n, k): exact (_fixed_one: surrogate to locate, Newton to polish); NaN where the
+    window is not feasible (B-C-D open or within 1 deg of a dead point, closed form)."""
+    n = P.shape[0]
+    nb_ = betas.shape[1]
+    out = np.full((n, nb_, 2), np.nan)
+    deg = math.pi / 180.0
+    for i in nb.prange(n):
+        if math.isnan(lo[i]) or math.isnan(hi[i]):
+            continue
+        p = P[i]
+        s = p[10]
+        w = hi[i] - lo[i]
+        bmin = betas[i].min()
+        bmax = betas[i].max()
+        u0 = lo[i] + min(s * bmin, s * bmax) * deg
+        u1 = lo[i] + max(s * bmin, s * bmax) * deg
+        seg = np.empty((12, 2))
+        ns = _segments(p, u0 - 1e-9, u1 + w + 1e-9, DEAD_POINT_DEG, seg)
+        shift = p[14] * 1e-3
+        for k in range(nb_):
+            u = lo[i] + s * betas[i, k] * deg
+            inside = False
+            for r in range(ns):
+                if seg[r, 0] - 1e-12 <= u and u + w <= seg[r, 1] + 1e-12:
+                    inside = True
+            if not inside:
+                continue
+            fmax, fmin = _fixed_one(p, betas[i, k], lo[i], hi[i], h_deg * deg)
+            out[i, k, 0] = fmax + shift
+            out[i, k, 1] = fmin + shift
+    return out
