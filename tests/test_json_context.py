@@ -168,3 +168,24 @@ def test_feed_montecarlo_needs_more_machines_than_contributor_bins():
     code, out, err = run("feed", "montecarlo", "--n", "21", "--format", "json")
     assert code == 0, err
     assert strict_loads(out)["context"]["n"] == 21
+
+
+def test_feed_sobol_plot_has_a_panel_per_output_with_the_printed_indices():
+    import matplotlib.pyplot as plt
+    import pandas as pd
+
+    from sewtol.cli_feed import sobol_panels
+
+    code, out, err = run("feed", "sobol", "--n", "16", "--n-screen", "100", "--format", "json")
+    assert code == 0, err
+    table = pd.DataFrame(strict_loads(out)["indices"])
+    fig = sobol_panels(table)
+    outputs = list(dict.fromkeys(table["output"]))
+    assert len(fig.axes) == len(outputs) > 1
+    for ax, name in zip(fig.axes, outputs, strict=True):
+        rows = table[table["output"] == name]
+        heights = [p.get_height() for p in ax.patches]
+        assert heights == pytest.approx(list(rows["S1"]) + list(rows["ST"]), abs=1e-12)
+        assert [t.get_text() for t in ax.get_xticklabels()] == list(rows["param"])
+    plt.close(fig)
+

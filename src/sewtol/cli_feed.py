@@ -6,6 +6,7 @@ what it means there. The helpers they share (flag checks, outputs, context) live
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 from sewtol.cli import (
     _as_flags,
@@ -159,9 +160,30 @@ def cmd_feed_sobol(args):
                 {"indices": table, "convergence": res.convergence},
                 screening_machines=args.n_screen)
     emit(args.format, obj=obj, frame=table)
-    first = table["output"].iloc[0]
-    _save_plot(args, lambda ax: _plots().sobol_bars(
-        table[table["output"] == first], ax=ax, title=f"Sobol indices of {first}"))
+    _save_sobol_panels(args, table)
+
+
+def sobol_panels(table):
+    """One panel per output of a feed Sobol table (column `output`): S1 and ST of the
+    tolerances that output's indices were computed over, with their intervals."""
+    import matplotlib.pyplot as plt
+
+    outputs = list(dict.fromkeys(table["output"]))
+    fig, axes = plt.subplots(len(outputs), 1, figsize=(7, 2.6 * len(outputs)), squeeze=False)
+    for ax, name in zip(axes[:, 0], outputs, strict=True):
+        _plots().sobol_bars(table[table["output"] == name], ax=ax,
+                            title=f"Sobol indices of {name}")
+    fig.tight_layout()
+    return fig
+
+
+def _save_sobol_panels(args, table) -> None:
+    if getattr(args, "plot", None) is None:
+        return
+    try:
+        _plots().save_as(sobol_panels(table), Path(args.plot))
+    except OSError as exc:
+        raise ParameterError("--plot", f"cannot be written ({exc.strerror})", args.plot) from None
 
 
 def add_feed_studies(fsub, common) -> None:
@@ -197,7 +219,7 @@ def add_feed_studies(fsub, common) -> None:
     p.add_argument("--n-screen", type=int, default=FEED_SCREEN_N,
                    help="machines of the Monte-Carlo (same seed) that picks the tolerances "
                         f"each output's indices are computed over (default {FEED_SCREEN_N})")
-    _plot_option(p, "S1 and ST of the first output with their intervals")
+    _plot_option(p, "S1 and ST of each output with their intervals, a panel per output")
     p.set_defaults(func=cmd_feed_sobol)
 
 
