@@ -4,9 +4,9 @@
     python studies/calibrate_needle_208.py --frame NAME [--out DIR] [--write-package-data]
 
 --stored (what `make report` runs) refits nothing: it evaluates the frames shipped as package
-data (src/sewtol/data/frames/) and writes DIR/needle_208/calibration.md, so the report shows the
+data (mechanisms/needle_208/data/frames/) and writes DIR/needle_208/calibration.md, so the report shows the
 same geometry as every other table. Without --stored the named frame is rebuilt: `window` by the
-global search over all 16 families (studies.needle_calibration.search) and a converged least
+global search over all 16 families (needle_208.calibration.search) and a converged least
 squares; `table41` from the stored window frame, fitted to Table 4.1; `sewtol-0.1` from the
 frozen 0.1 geometry (src/sewtol/mechanisms/needle_208/data/needle_208.json). The
 rebuilt record goes to DIR/needle_208/frame_<NAME>.json and its report to
@@ -57,7 +57,7 @@ def build_window(progress, searched=None) -> dict:
               "|AD| 43.25) and polished on a proxy; the best distinct starts fitted by least "
               "squares of (Ax, Ay, |AD|, ang AD) with a central-difference Jacobian (step 1e-4) "
               "to a vanishing gradient; the lowest cost among families with branch_M * "
-              "beta_sense = +1 kept (studies.needle_calibration.search)")
+              "beta_sense = +1 kept (needle_208.calibration.search)")
     rows = cal.search_rows(fits)
     rec = cal.frame_record("window", SUMMARIES["window"], best.machine, best.family,
                            best.targets, method, rows, best.conditioning)
@@ -77,7 +77,7 @@ def build_table41(progress) -> dict:
     return cal.frame_record(
         "table41", SUMMARIES["table41"], m, fam, cal.table41_targets(fam.lean),
         "least squares of (Ax, Ay, |AD|, ang AD, guide tilt) on the targets above, central-"
-        "difference Jacobian (step 1e-4), from the window frame (studies.needle_calibration."
+        "difference Jacobian (step 1e-4), from the window frame (needle_208.calibration."
         "calibrate_table41); beta* in 19..25 for the table rows, 10..35 for the nominal",
         cond=cond, kind="table41", x=sol.x, guide_sign=sign)
 
@@ -233,7 +233,7 @@ def main(argv=None) -> int:
                     help="report the frames shipped as package data (no fit)")
     ap.add_argument("--out", default="reports", help="report folder (default: reports)")
     ap.add_argument("--write-package-data", action="store_true",
-                    help="also write the rebuilt frame to src/sewtol/data/frames/NAME.json")
+                    help="also write the rebuilt frame to mechanisms/needle_208/data/frames/NAME.json")
     ap.add_argument("--reevaluate", action="store_true",
                     help="recompute the stored frame's record with the current model, no refit")
     ap.add_argument("--data", default=None, help=argparse.SUPPRESS)  # sewtol 0.1's flag

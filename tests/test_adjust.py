@@ -4,7 +4,7 @@ independent dense brute-force search, and the numba kernel against the numpy ref
 The brute force shares only the model (the engine's E(psi)): d is sampled on a psi grid of the
 beta step, so every beta of the grid has its window on grid points (plus its exact far end);
 window extremes come from a sparse table over the samples (sampling error |d''| h^2 / 8 < 1e-9
-um at 0.002 deg) and feasibility from metrics.needle.feasibility at each beta.
+um at 0.002 deg) and feasibility from needle_208.metrics.feasibility at each beta.
 """
 
 import numpy as np
@@ -51,7 +51,7 @@ def _window_extreme(a, L, op):
 
 def brute_force(c1, step_deg=0.002, blo=10.0, bhi=35.0, shift_box=None):
     """min SumDelta over the beta grid (and the shift, exactly: max(F-G, F-T1, T0-G)), with
-    the beta where it occurs; feasibility per beta as metrics.needle.feasibility."""
+    the beta where it occurs; feasibility per beta as needle_208.metrics.feasibility."""
     betas = np.arange(blo, bhi + 0.5 * step_deg, step_deg)
     feas = nm.feasibility(nm.with_values(nm.repeat(c1, betas.size), beta=betas))
     lo, hi = float(feas.lo[0]), float(feas.hi[0])
@@ -200,7 +200,7 @@ def test_infeasible_and_dead_machines_keep_their_status(nominal):
 
 def test_feasible_windows_follow_the_closed_form(nominal):
     """A range that reaches a dead point of B-C-D: the optimum stays inside the feasible part,
-    and feasibility at the reported beta agrees with metrics.needle.feasibility."""
+    and feasibility at the reported beta agrees with needle_208.metrics.feasibility."""
     rng = np.random.default_rng(6)
     dev = {"CD": rng.uniform(-9.5, -8.0, 30), "BC": rng.uniform(-0.5, 0.5, 30)}
     c = _columns(nominal, dev)
@@ -275,7 +275,7 @@ def test_evaluate_uses_the_exact_optimum(chunk, nominal):
 @pytest.mark.parametrize("tset", ["recommended", "base"])
 def test_fixed_beta_figures_are_exact(nominal, tset):
     """The fixed-beta kernel (Hermite surrogate to locate, Newton on the exact d to polish)
-    equals the engine's exact extremes (metrics.needle.deviation_figures)."""
+    equals the engine's exact extremes (needle_208.metrics.deviation_figures)."""
     from sewtol.mechanisms.needle_208.kernels import window as KW
 
     dev = NEEDLE_208_SETS[tset].sample(np.random.default_rng(36), 400)

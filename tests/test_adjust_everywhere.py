@@ -71,7 +71,7 @@ def test_scan_adjust_refusals():
 
 
 def test_sobol_adjust_beta_matches_todays_adjusted_case():
-    """The adjusted case with --adjust beta runs studies.adjustment.adjust(); today's runs the
+    """The adjusted case with --adjust beta runs needle_208.adjustment.adjust(); today's runs the
     numba window kernel of needle_eval.evaluate. Both find the same beta to the bit; the
     kernel's SumDelta (parabolic refinement of sampled extremes) differs from adjust()'s exact
     re-evaluation by < 2e-4 um (measured 1.35e-4 um at N=16), which moves S1/ST by < 1e-6

@@ -110,8 +110,8 @@ def optimise(c: dict[str, np.ndarray], active: dict[str, tuple[float, float] | N
              engine: str = "numba", h_deg: float = 2.0, tol_um: float = PLATEAU_TOL_UM,
              angle_grid: int | None = None, feas: nm.Feasibility | None = None) -> AdjustResult:
     """Joint optimum of the active compensators for machines given as parameter columns
-    (c from metrics.needle.columns, each (n, 1)); `active` maps compensator names to their
-    (low, high) box (None: DEFAULT_BOXES). feas: metrics.needle.feasibility(c) if known (the
+    (c from needle_208.metrics.columns, each (n, 1)); `active` maps compensator names to their
+    (low, high) box (None: DEFAULT_BOXES). feas: needle_208.metrics.feasibility(c) if known (the
     rocker interval does not depend on any compensator).
 
     The minimum is global in the box for beta and the guide shift (an exact sliding-window
@@ -137,7 +137,7 @@ def optimise(c: dict[str, np.ndarray], active: dict[str, tuple[float, float] | N
     angle_grid : int or None
         Grid points of the outer search (None: 21 for the guide angle, 61 for CD).
     feas : Feasibility or None
-        ``metrics.needle.feasibility(c)`` if already known.
+        ``needle_208.metrics.feasibility(c)`` if already known.
 
     Returns
     -------
@@ -290,7 +290,7 @@ def _reference(c, r_lo, r_hi, blo, bhi, slo, shi, shift, tol_um, n_psi=1441, n_u
     true d over the reachable psi range, located by bisection on d'; F(u), G(u) exactly as the ends and
     the extrema inside the window; SumDelta on a grid of n_u windows; golden section around
     every grid descent. Windows that pass a dead point are scored infinite (feasibility as
-    metrics.needle.feasibility, evaluated for each window)."""
+    needle_208.metrics.feasibility, evaluated for each window)."""
     n = r_lo.size
     out = np.full((n, 12), np.nan)
     s = np.asarray(c["beta_sense"], float).reshape(-1)

@@ -17,7 +17,7 @@ Structure used, innermost first:
   compensator is searched over all its allowed settings (exact given the inner optimum).
 
 Every reported SumDelta is recomputed at the chosen settings with the exact extremes
-(metrics.needle.deviation_figures), so it is the machine's true SumDelta at those settings.
+(needle_208.metrics.deviation_figures), so it is the machine's true SumDelta at those settings.
 
 Resolution model: the assembler aims at the chosen setting but lands anywhere within +/- r/2
 (clipped to the range). `achieved_um` is the worst SumDelta over the 3^k points (each resolved
@@ -122,7 +122,7 @@ def shift_optimum(M, m, s0, comp: Compensator | None):
 
 class _Path:
     """One machine batch at fixed outer settings: its rocker interval and the projection band of
-    its needle path on any trial guide (kernels.needle_path.band_kernel, N_DENSE samples refined
+    its needle path on any trial guide (needle_208.kernels.path.band_kernel, N_DENSE samples refined
     by parabolic interpolation; measured error below 2e-4 um against the exact extremes)."""
 
     def __init__(self, c: dict):
@@ -299,7 +299,7 @@ def _held(c, angle, shift, settings):
 
 
 def _exact_boxes(c: dict, comps) -> dict | None:
-    """The boxes of studies.adjust.optimise (the exact sliding-window optimum) for these
+    """The boxes of needle_208.adjust.optimise (the exact sliding-window optimum) for these
     continuous compensators, or None where it does not apply: beta must be among them and
     absolute, the guide shift the same offset for every machine (its box there is absolute),
     the guide angle and CD offsets (as there), at most one of those two."""
@@ -330,7 +330,7 @@ def _exact_boxes(c: dict, comps) -> dict | None:
 
 
 def _exact(c: dict, comps, boxes: dict) -> _Inner:
-    """studies.adjust.optimise, its settings and plateau ranges in this module's terms."""
+    """needle_208.adjust.optimise, its settings and plateau ranges in this module's terms."""
     r = exact.optimise(c, boxes)
     out = _Inner(total=np.asarray(r.min_total_um, float))
     for k in comps:
@@ -348,7 +348,7 @@ def _joint_optimum(c: dict, strategy: Strategy, plateaus: bool = True) -> _Inner
     optimum of SumDelta over the strategy's box, per machine, and the plateau ranges.
 
     Where it applies (beta with the guide shift and one of guide angle or CD, continuous), the
-    exact sliding-window optimum of studies.adjust does it all (tests/test_adjust.py,
+    exact sliding-window optimum of needle_208.adjust does it all (tests/test_adjust.py,
     tests/test_independent_reference.py). With more outer compensators (e.g. guide angle and
     CD together) the extra ones are nested 1-D searches around that exact inner optimum; discrete
     or non-standard compensators go through this module's nested searches alone.

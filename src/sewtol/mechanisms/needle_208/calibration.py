@@ -477,7 +477,7 @@ def contradiction(nominal: Needle208, table_rows: list) -> dict:
     return out
 
 
-# --- frame records (what src/sewtol/data/frames/<name>.json holds) -----------------------------------
+# --- frame records (what needle_208/data/frames/<name>.json holds) ---------------------------
 
 FRAME_VERSION = 1
 

@@ -2,7 +2,7 @@
 
 The frame of the 208 (A, D, the dyad branches, the sense of beta, the side the guide leans to)
 is not published; every reconstruction is a reading of the study's statements. Each one ships
-as src/sewtol/data/frames/<name>.json with the targets it was fitted to, the family, the fitted
+as needle_208/data/frames/<name>.json with the targets it was fitted to, the family, the fitted
 values, the residual per target and the conditioning of the fit (studies/calibrate_needle_208.py
 rebuilds any of them). docs/needle_208.md says why each exists and why the default is the
 default.

@@ -2,7 +2,7 @@
 
 With `strategy=` every variant's machines (the same n machines for every variant, and the
 same ones `montecarlo` draws from the seed: common random numbers) are adjusted by the strategy's exact joint
-optimum (studies.adjustment.adjust), its compensators acting on top of the variant's guide; the
+optimum (needle_208.adjustment.adjust), its compensators acting on top of the variant's guide; the
 row then gives the yield after the strategy with its counts (ok + out_of_spec +
 cannot_assemble + dead_point = n) and the yield with beta fixed at the variant's beta* on the
 same machines.

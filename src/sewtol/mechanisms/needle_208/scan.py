@@ -2,8 +2,8 @@
 
 Each parameter is set to its upper and then its lower limit with every other parameter nominal,
 the guide fixed (optionally shifted), and beta re-optimised. All 2k variants are one batch.
-With `strategy=` (a studies.compensators.Strategy) each row is instead adjusted by the
-strategy's exact joint optimum (studies.adjustment.adjust): its figures, and each compensator's
+With `strategy=` (a needle_208.compensators.Strategy) each row is instead adjusted by the
+strategy's exact joint optimum (needle_208.adjustment.adjust): its figures, and each compensator's
 setting in a `NAME_setting` column (beta_deg: the beta setting, or the nominal's when the
 strategy does not set beta). `strategy=None` is the beta-only scan, unchanged.
 The recommended-tolerance search finds, per parameter and side, the largest deviation that
@@ -120,7 +120,7 @@ def scan(nominal: Needle208, tolerances: ToleranceSet | str, guide_shift_um: flo
 
 def _scan_adjusted(base, tolerances, params, sides, deltas, dev, batch, strategy,
                    guide_shift_um, limit_um) -> ScanResult:
-    """The scan's rows adjusted by `strategy` (studies.adjustment.adjust, exact joint optimum)."""
+    """The scan's rows adjusted by `strategy` (needle_208.adjustment.adjust, exact joint optimum)."""
     from sewtol.mechanisms.needle_208.adjustment import adjust
     from sewtol.mechanisms.needle_208.strategies import columns_of
 

@@ -48,8 +48,8 @@ def needle_sobol(nominal: Needle208, tolerances: ToleranceSet | str, n: int, see
                  second_order: bool = False) -> SobolResult:
     """Sobol indices of SumDelta, beta fixed and beta adjusted, at n and n/2 base samples.
 
-    strategy (a studies.compensators.Strategy): the adjusted case is SumDelta after the
-    strategy's exact joint optimum (studies.adjustment.adjust), its case named
+    strategy (a needle_208.compensators.Strategy): the adjusted case is SumDelta after the
+    strategy's exact joint optimum (needle_208.adjustment.adjust), its case named
     "adjusted_" + strategy.name ("adjusted_beta" for beta alone, as without it); the fixed case
     is unchanged. None: beta re-optimised in range_deg.
 

@@ -4,8 +4,8 @@ Corners are not enough for a nonlinear path (a lateral shift and a shape change 
 inside the box), so every corner (up to 2^10) and the centre are evaluated as one batch, and the
 best starts are polished by L-BFGS-B inside the box. Two cases: beta fixed at the nominal
 machine's beta*, and beta re-optimised on each trial machine (the max over the box of the min
-over beta); with a strategy (studies.compensators) the adjusted case is the max over the box of
-the joint optimum over the strategy's compensators (studies.adjustment.adjust). The search is a
+over beta); with a strategy (needle_208.compensators) the adjusted case is the max over the box of
+the joint optimum over the strategy's compensators (needle_208.adjustment.adjust). The search is a
 heuristic over the box (corners, centre, L-BFGS-B from the best three): the reported worst case
 is never below any point it evaluated, but it is not proven global.
 """

@@ -1,6 +1,6 @@
 """Fused numba kernel for the needle drive's beta optimisation, one machine per thread.
 
-Same mathematics as the numpy path (engine groups + metrics.extremes + studies.beta), written as
+Same mathematics as the numpy path (engine groups + metrics.extremes + needle_208.beta), written as
 scalar code so nothing is allocated in the inner loops:
 - the second four-bar from the rocker angle in closed form, with analytic d/dtheta, d2/dtheta2;
 - extremes of d over the rocker interval: a grid, then safeguarded Newton on the best local

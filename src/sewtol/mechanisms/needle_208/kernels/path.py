@@ -3,7 +3,7 @@ projected, in one fused numba kernel.
 
 Same geometry as mechanisms.needle_208.chain_from_rocker (positions only, no derivatives):
 B = A + AB e(theta + beta_sense beta), dyad B-C-D on side branch_C, E = B + BE e(ang(B->C) + CBE).
-Used by studies.adjustment, which projects one sampled path on many trial guides;
+Used by needle_208.adjustment, which projects one sampled path on many trial guides;
 tests/test_strategies.py holds it to the engine.
 """
 

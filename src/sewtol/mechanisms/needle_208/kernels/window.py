@@ -14,7 +14,7 @@ Algorithm, per machine:
 1. The feasible windows in closed form: dyad B-C-D closes with a transmission angle >= 1 deg
    exactly where |D - B|(psi) lies in an interval, i.e. cos(psi - ang(A->D)) lies in an
    interval: up to two arcs of psi. A window is feasible iff it lies inside one arc (the
-   feasibility semantics of metrics.needle.feasibility).
+   feasibility semantics of needle_208.metrics.feasibility).
 2. d, d', d'' (analytic) at nodes of spacing h = w / m (m = ceil(w / h_target)), aligned so that
    both window ends of every grid window fall on nodes; d is replaced by its cubic Hermite
    interpolant p, whose error is |d''''| h^4 / 384 (estimated per cell from the jump between
