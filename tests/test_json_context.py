@@ -120,6 +120,7 @@ PLOTS = [
     ("needle", "strategies", "--n", "6"),
     ("needle", "guides", "--n", "20"),
     ("needle", "worst-case"),
+    ("needle", "allocation", "--n", "100"),
     ("feed", "scan"),
     ("feed", "montecarlo", "--n", "40"),
     ("feed", "sobol", "--n", "16", "--n-screen", "100"),
@@ -187,5 +188,24 @@ def test_feed_sobol_plot_has_a_panel_per_output_with_the_printed_indices():
         heights = [p.get_height() for p in ax.patches]
         assert heights == pytest.approx(list(rows["S1"]) + list(rows["ST"]), abs=1e-12)
         assert [t.get_text() for t in ax.get_xticklabels()] == list(rows["param"])
+    plt.close(fig)
+
+
+def test_allocation_plot_draws_the_printed_widths():
+    import matplotlib.pyplot as plt
+    import pandas as pd
+
+    from sewtol.cli import allocation_figure
+
+    code, out, err = run("needle", "allocation", "--n", "100", "--format", "json")
+    assert code == 0, err
+    obj = strict_loads(out)
+    table = pd.DataFrame(obj["rows"])
+    fig, ax = plt.subplots()
+    allocation_figure(table, obj["tolerances"], obj["target"], ax)
+    heights = [p.get_height() for p in ax.patches]
+    ref = [1000 * (r["reference_upper_mm"] - r["reference_lower_mm"]) for r in obj["rows"]]
+    got = [1000 * (r["upper_mm"] - r["lower_mm"]) for r in obj["rows"]]
+    assert heights == pytest.approx(ref + got, rel=1e-12)
     plt.close(fig)
 

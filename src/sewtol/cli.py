@@ -831,6 +831,18 @@ def cmd_needle_allocation(args):
            "context": _context(args, params, tolerances, strategy),
            "rows": table.to_dict(orient="records")}
     emit(args.format, obj=obj, frame=table)
+    _save_plot(args, lambda ax: allocation_figure(table, tolerances.name, res.target, ax))
+
+
+def allocation_figure(table, reference: str, target: float, ax):
+    """Each tolerance's width (upper - lower, um) in the reference set and as allocated."""
+    widths = {f"set {reference}": 1000 * (table["reference_upper_mm"] - table["reference_lower_mm"]),
+              f"allocated (yield {target:g})": 1000 * (table["upper_mm"] - table["lower_mm"])}
+    ax = _plots().grouped_bars(list(table["param"]), widths, ax=ax,
+                               ylabel="tolerance width (\u00b5m, log scale)",
+                               title="Tolerance allocation: widths before and after")
+    ax.set_yscale("log")  # the widths span two decades (LM about 1 mm, AB about 10 um)
+    return ax
 
 
 def cmd_needle_worst_case(args):
@@ -896,6 +908,7 @@ def add_needle_guides_allocation(nsub, needle_common, study) -> None:
     p.add_argument("--target", type=float, default=0.9973,
                    help="yield after adjustment to keep (default 0.9973)")
     _adjust_options(p)
+    _plot_option(p, "each tolerance's width in the reference set and allocated")
     p.set_defaults(func=cmd_needle_allocation)
 
 
