@@ -434,6 +434,7 @@ def _largest_guide_distance(a, e, f, alpha):
     A trigonometric polynomial of degree 2: its critical points are the roots on the unit circle
     of a quartic in z = e^{i phi} (companion matrix); 64 samples are added as candidates, which
     also covers r2 = 0 (alpha = 90 deg), where the quartic loses its leading term."""
+    a, e, f, alpha = (np.reshape(v, (-1, 1)) for v in (a, e, f, alpha))
     sa, ca = np.sin(alpha), np.cos(alpha)
     r0 = 0.5 * a * a + e * e + f * f * ca * ca + 0.5 * a * a * sa * sa
     r1, q1, r2 = -2.0 * a * e, -2.0 * a * f * sa * ca, 0.5 * a * a * ca * ca
@@ -445,12 +446,12 @@ def _largest_guide_distance(a, e, f, alpha):
     lead = -2.0 * r2
     ok = np.abs(lead) > 1e-12 * (np.abs(r1) + np.abs(q1) + np.abs(r2) + 1e-300)
     lead = np.where(ok, lead, 1.0)
-    n = lead.size
+    n = lead.shape[0]
     companion = np.zeros((n, 4, 4), complex)
     companion[:, 1:, :-1] = np.eye(3)
-    coef = np.stack([2.0 * r2 + 0j, r1 + 1j * q1, 0.0 * r1 + 0j, 1j * q1 - r1], -1)
-    companion[:, :, -1] = -(coef / lead[..., None]).reshape(n, 4)
-    roots = np.where(ok.reshape(n, 1), np.angle(np.linalg.eigvals(companion)), 0.0)
+    coef = np.concatenate([2.0 * r2 + 0j, r1 + 1j * q1, 0.0 * r1 + 0j, 1j * q1 - r1], -1)
+    companion[:, :, -1] = -coef / lead
+    roots = np.where(ok, np.angle(np.linalg.eigvals(companion)), 0.0)
     grid = 2.0 * np.pi * np.arange(64) / 64.0
     cand = np.concatenate([roots, np.broadcast_to(grid, (n, 64))], -1)
     for _ in range(3):  # Newton steps on d rho^2 / d phi = 0 (they keep a root a root)
@@ -458,7 +459,7 @@ def _largest_guide_distance(a, e, f, alpha):
         d2 = -r1 * np.cos(cand) - q1 * np.sin(cand) - 4.0 * r2 * np.cos(2.0 * cand)
         step = np.where(d2 < 0.0, d1 / np.where(d2 < 0.0, d2, 1.0), 0.0)
         cand = cand - np.clip(step, -0.1, 0.1)
-    return np.max(rho2(cand), axis=-1)
+    return np.max(rho2(cand), axis=-1)  # shape (n,)
 
 
 @np.errstate(invalid="ignore", divide="ignore", over="ignore")
