@@ -335,3 +335,46 @@ def test_example_file_nominal_and_scan_against_the_closed_form():
     x_up = engine.slider_extremes(v["a"] + 0.02, v["b"], v["e"], v["f"],
                                   np.radians(v["alpha"]), v["branch_s"])
     assert float(a_up[5]) == pytest.approx(float(x_up.stroke), abs=bound + 1e-4)
+
+
+def test_random_machines_close_with_their_coupler_length_or_report_the_miss(rng):
+    phi = np.linspace(0.0, 2.0 * np.pi, 64)
+    fine = np.linspace(0.0, 2.0 * np.pi, 4001)
+    closed = missed = 0
+    for _ in range(200):
+        a, b = rng.uniform(1, 40, 2)
+        e, f = rng.uniform(-40, 40, 2)
+        alpha = rng.uniform(-np.pi, np.pi)
+        branch = rng.choice([1.0, -1.0])
+        s, _, _, _, miss, t = engine.spatial_slider_displacement(phi, a, b, e, f, alpha, branch)
+        bp, cp = engine.slider_joints(phi, s, a, e, f, alpha)
+        # the miss is the brute-force gap: the pin's distance from the guide less b
+        rho = np.hypot(bp[:, 0] - e, bp[:, 2])
+        assert np.max(np.abs(miss - np.maximum(rho - b, 0.0))) < 1e-9
+        ok = miss == 0.0
+        assert np.array_equal(np.isfinite(s), ok) and np.array_equal(np.isfinite(t), ok)
+        if ok.any():
+            assert np.max(np.abs(np.linalg.norm(cp - bp, axis=-1)[ok] - b)) < 1e-9
+        closed += ok.all()
+        missed += (~ok).any()
+        # where the branch closes all round, its exact stroke bounds the sampled one
+        x = engine.slider_extremes(a, b, e, f, alpha, branch)
+        sf, _, _, _, mf, _ = engine.spatial_slider_displacement(fine, a, b, e, f, alpha, branch)
+        if np.all(mf == 0.0) and not (abs(np.cos(alpha)) < 1e-9 and e == 0.0):
+            assert float(x.s_max) >= np.max(sf) - 1e-9 and float(x.s_min) <= np.min(sf) + 1e-9
+            assert float(x.stroke) - np.ptp(sf) < 1e-3 * (1.0 + np.max(np.abs(sf)))
+        elif np.any(mf > 0.0):
+            assert np.isnan(x.stroke)
+    assert closed > 20 and missed > 20  # both outcomes were exercised
+
+
+def test_file_refuses_a_bad_slider_group_by_field(tmp_path):
+    text = EXAMPLE.read_text()
+    for old, new, words in (('branch = "branch_s"', "branch = 2", "C.branch"),
+                            ('alpha_deg = "alpha"', 'alpha_deg = "beta"', "C.alpha_deg"),
+                            ('group = "C"', 'group = "B"', "transmission_min_deg.group")):
+        bad = tmp_path / "bad.toml"
+        bad.write_text(text.replace(old, new))
+        code, out, err = run("run", str(bad), "nominal")
+        assert code == 2 and out == "" and len(err.strip().splitlines()) == 1
+        assert words in err, err

@@ -1,4 +1,6 @@
-"""Spatial crank-rocker RSSR (Polukhin): cylindrical pairs at A and D, ball joints at B and C.
+"""Spatial crank-rocker RSSR (Polukhin): cylindrical pairs at A and D, ball joints at B and C;
+and its crank-slider analogue RSSP (`spatial_slider`, frame and derivation in the comment block
+before it: the slider C = (e, s, 0) on a guide along Y inclined at alpha to the crank's plane).
 
 Geometry (lengths mm, angles radians). The crank axis and the rocker axis cross at the angle
 alpha; their common normal is OQ = e, O on the crank axis, Q on the rocker axis. Frame: X along
