@@ -18,7 +18,7 @@ from sewtol.mechanism import load
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src" / "sewtol"
 BUILT_IN = ("feed_131", "khujand_feed", "m6_needle", "needle_208", "presser_foot",
-            "spatial_crank_rocker")
+            "spatial_crank_rocker", "spatial_crank_slider")
 
 
 def _run(argv):

@@ -382,7 +382,7 @@ def test_refusals_in_every_section_point_at_their_line():
          "[[outputs]] B_y_range_mm.axis: must be one of x, y"),
         (FOUR_BAR.replace('group = "C"', 'group = "B"'), 'group = "B"',
          "[[outputs]] transmission_deg.group: must name a group with a transmission angle, "
-         "an rrr or spatial_rocker group (C)"),
+         "an rrr, spatial_rocker or spatial_slider group (C)"),
         (FOUR_BAR.replace("rpm = 600\n", ""), 'type = "speed"',
          "[[outputs]] B_speed_m_s.type: needs rpm in [mechanism]"),
         (FOUR_BAR + '\n[compensators.k]\nparameter = "kk"\nlow = 0\nhigh = 1\n',

@@ -12,12 +12,18 @@ from sewtol.engine.motion import Angle, Motion, direction, driving_angle, fixed,
 from sewtol.engine.slider import rpr, rrp
 from sewtol.engine.spatial import (
     RockerExtremes,
+    SliderExtremes,
     position_function,
     rocker_extremes,
     rocker_sensitivities,
+    slider_extremes,
+    slider_joints,
+    slider_position_function,
     spatial_joints,
     spatial_rocker,
     spatial_rocker_third,
+    spatial_slider,
+    spatial_slider_displacement,
 )
 
 __all__ = [
@@ -25,4 +31,6 @@ __all__ = [
     "polar", "rpr", "rrp", "rrr",
     "RockerExtremes", "position_function", "rocker_extremes", "rocker_sensitivities",
     "spatial_joints", "spatial_rocker", "spatial_rocker_third",
+    "SliderExtremes", "slider_extremes", "slider_joints", "slider_position_function",
+    "spatial_slider", "spatial_slider_displacement",
 ]

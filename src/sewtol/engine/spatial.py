@@ -1,4 +1,6 @@
-"""Spatial crank-rocker RSSR (Polukhin): cylindrical pairs at A and D, ball joints at B and C.
+"""Spatial crank-rocker RSSR (Polukhin): cylindrical pairs at A and D, ball joints at B and C;
+and its crank-slider analogue RSSP (`spatial_slider`, frame and derivation in the comment block
+before it: the slider C = (e, s, 0) on a guide along Y inclined at alpha to the crank's plane).
 
 Geometry (lengths mm, angles radians). The crank axis and the rocker axis cross at the angle
 alpha; their common normal is OQ = e, O on the crank axis, Q on the rocker axis. Frame: X along
@@ -69,7 +71,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sewtol.engine.dyad import Closure
-from sewtol.engine.motion import Angle
+from sewtol.engine.motion import Angle, Motion
 
 
 @dataclass(frozen=True)
@@ -303,3 +305,224 @@ def rocker_extremes(a, b, c, e, f, g, alpha_rad, branch) -> RockerExtremes:
 
     return RockerExtremes(pick(is_min, psi), pick(is_min, phi), pick(is_max, psi),
                           pick(is_max, phi))
+
+
+# --- the spatial crank-slider -------------------------------------------------------------------
+# Polukhin's crank-slider analogue (RSSP): the rocker CD is replaced by a slider C on a straight
+# guide. The crank is as above (axis k = (0, sin alpha, cos alpha) through O, plane at OA = f);
+# X runs along the common normal OQ = e of the crank axis and the guide, Z is the direction the
+# rocker's axis had (normal to the plane of OQ and the guide), Y = Z x X runs along the guide.
+# The guide is the line through Q = (e, 0, 0) along +Y, so
+#
+#     C(s) = (e, s, 0),   s = QC (mm, positive along +Y),
+#
+# and alpha is the angle between the guide and the crank's plane (the guide crosses the crank
+# axis at 90 deg - alpha): alpha = 0, f = 0 is the planar offset crank-slider with the crank
+# turning about O in the XY plane and the slider on the line x = e. There is no g: an offset
+# along the guide only moves the origin of s. From |B - C|^2 = b^2 with |B|^2 = a^2 + f^2,
+# |C|^2 = e^2 + s^2 and B.C = a e cos phi + s m:
+#
+#     F(phi, s) = s^2 - 2 s m(phi) + K(phi) = 0,
+#     m = B_y = f sin(alpha) + a cos(alpha) sin phi,   K = a^2 + f^2 + e^2 - b^2 - 2 a e cos phi,
+#
+# a quadratic in s: s = m + branch sqrt(D), D = m^2 - K = b^2 - rho^2, rho^2 = (B_x - e)^2 + B_z^2
+# the squared distance of B from the guide. branch +1 takes the root further along +Y (F_s > 0),
+# the convention of engine.rrp; the branches meet only where D = 0, a dead point (F_s = 0).
+# The transfer functions follow from F by the same implicit differentiation as psi's, with
+# F_s = 2 (s - m), F_ss = 2, F_sss = 0, F_phis = -2 m', F_phiphis = -2 m'', F_phiss = 0.
+
+
+def _slider_mk(phi, a, b, e, f, alpha):
+    """m, K of F = s^2 - 2 s m + K and their derivatives in phi (index = order, up to 3)."""
+    sa, ca = np.sin(alpha), np.cos(alpha)
+    s, co = np.sin(phi), np.cos(phi)
+    m = (f * sa + a * ca * s, a * ca * co, -a * ca * s, -a * ca * co)
+    k = (a * a + f * f + e * e - b * b - 2.0 * a * e * co, 2.0 * a * e * s, 2.0 * a * e * co,
+         -2.0 * a * e * s)
+    return m, k
+
+
+def slider_position_function(phi, s, a, b, e, f, alpha_rad):
+    """F(phi, s) (mm^2) of the spatial crank-slider: zero where the coupler BC has its length b."""
+    m, k = _slider_mk(np.asarray(phi, float), a, b, e, f, alpha_rad)
+    s = np.asarray(s, float)
+    return s * s - 2.0 * s * m[0] + k[0]
+
+
+@np.errstate(invalid="ignore", divide="ignore", over="ignore")
+def _solve_slider(phi, a, b, e, f, alpha, branch, order: int = 3):
+    """s, s', s'', s''' in phi (None above `order`), miss_mm, transmission_deg."""
+    a, b, e, f, alpha = (np.asarray(v, float) for v in (a, b, e, f, alpha))
+    m, k = _slider_mk(phi, a, b, e, f, alpha)
+    disc = m[0] * m[0] - k[0]  # b^2 - rho^2
+    rho = np.sqrt(np.maximum(b * b - disc, 0.0))
+    miss = np.maximum(rho - b, 0.0)
+    root = np.sqrt(np.where(miss > 0.0, np.nan, np.maximum(disc, 0.0)))
+    s = m[0] + np.asarray(branch, float) * root
+    f_s = 2.0 * (s - m[0])
+    # F_phi^(i) = -2 s m^(i) + K^(i); F_phi^(i) s = -2 m^(i)
+    f_p = [None] + [-2.0 * s * m[i] + k[i] for i in (1, 2, 3)]
+    d1 = -f_p[1] / f_s if order >= 1 else None
+    d2 = -(f_p[2] - 4.0 * m[1] * d1 + 2.0 * d1**2) / f_s if order >= 2 else None
+    d3 = None
+    if order >= 3:
+        d3 = -(f_p[3] - 6.0 * m[2] * d1 + 3.0 * (-2.0 * m[1] + 2.0 * d1) * d2) / f_s
+    # pressure angle theta: between the coupler force (along BC) and C's velocity (along the
+    # guide, Y); cos(theta) = |(C - B).Y| / b = |s - m| / b; transmission = 90 deg - theta
+    sin_mu = np.abs(s - m[0]) / b
+    transmission = np.degrees(np.arcsin(np.minimum(sin_mu, 1.0)))
+    return s, d1, d2, d3, miss, transmission
+
+
+@np.errstate(invalid="ignore", divide="ignore", over="ignore")
+def spatial_slider(phi: Angle, a, b, e, f, alpha_rad, branch) -> tuple[Motion, Closure]:
+    """The slider point C of the spatial crank-slider for the crank angle phi.
+
+    C = (e, s, 0) lies in the XY plane of the frame (see `slider_position_function`'s section of
+    the module), so it is returned as the planar point e + i s: its y coordinate is the slider's
+    displacement s = QC along the guide and its motion is C's true motion. `phi` carries the
+    crank angle and its transfer functions with respect to the chain's driving angle q; the
+    returned transfer functions are with respect to q. Where the coupler cannot reach the guide,
+    s is NaN and the Closure gives the miss (mm) and, elsewhere, the transmission angle.
+    """
+    s, d1, d2, _, miss, transmission = _solve_slider(np.asarray(phi.a, float), a, b, e, f,
+                                                     alpha_rad, branch, order=2)
+    dq = d1 * phi.da
+    ddq = d2 * phi.da**2 + d1 * phi.dda
+    e = np.asarray(e, float)
+    shape = np.broadcast(s, dq, ddq, e).shape
+    p = np.broadcast_to(e + 1j * s, shape)
+    return (Motion(p, np.broadcast_to(1j * dq, shape), np.broadcast_to(1j * ddq, shape)),
+            Closure(np.broadcast_to(miss, shape), np.broadcast_to(transmission, shape)))
+
+
+def spatial_slider_displacement(phi_rad, a, b, e, f, alpha_rad, branch) -> tuple[np.ndarray, ...]:
+    """s, ds/dphi, d2s/dphi2, d3s/dphi3 (mm, mm/rad, ...) with respect to the crank angle itself,
+    then miss_mm and transmission_deg (NaN where it cannot close)."""
+    return _solve_slider(np.asarray(phi_rad, float), a, b, e, f, alpha_rad, branch)
+
+
+def slider_joints(phi_rad, s, a, e, f, alpha_rad) -> tuple[np.ndarray, np.ndarray]:
+    """3-D positions (mm, last axis x, y, z) of the ball joints B(phi) and C(s) of the slider."""
+    sa, ca = np.sin(alpha_rad), np.cos(alpha_rad)
+    phi, s = np.asarray(phi_rad, float), np.asarray(s, float)
+    bx = a * np.cos(phi)
+    by = f * sa + a * ca * np.sin(phi)
+    bz = f * ca - a * sa * np.sin(phi)
+    z = 0.0 * s
+    return (np.stack(np.broadcast_arrays(bx, by, bz), -1),
+            np.stack(np.broadcast_arrays(e + z, s, z), -1))
+
+
+@dataclass(frozen=True)
+class SliderExtremes:
+    """Extreme slider positions on one branch (mm and radians; NaN where the crank does not turn
+    all round with the coupler on the guide)."""
+
+    s_min: np.ndarray
+    phi_at_min: np.ndarray
+    s_max: np.ndarray
+    phi_at_max: np.ndarray
+
+    @property
+    def stroke(self) -> np.ndarray:
+        """The slider's stroke s_max - s_min (mm)."""
+        return self.s_max - self.s_min
+
+
+def _largest_guide_distance(a, e, f, alpha):
+    """max over phi of rho^2 = (B_x - e)^2 + B_z^2 = r0 + r1 cos phi + q1 sin phi + r2 cos 2 phi.
+
+    A trigonometric polynomial of degree 2: its critical points are the roots on the unit circle
+    of a quartic in z = e^{i phi} (companion matrix); 64 samples are added as candidates, which
+    also covers r2 = 0 (alpha = 90 deg), where the quartic loses its leading term."""
+    a, e, f, alpha = (np.reshape(v, (-1, 1)) for v in (a, e, f, alpha))
+    sa, ca = np.sin(alpha), np.cos(alpha)
+    r0 = 0.5 * a * a + e * e + f * f * ca * ca + 0.5 * a * a * sa * sa
+    r1, q1, r2 = -2.0 * a * e, -2.0 * a * f * sa * ca, 0.5 * a * a * ca * ca
+
+    def rho2(p):
+        return r0 + r1 * np.cos(p) + q1 * np.sin(p) + r2 * np.cos(2.0 * p)
+
+    # d rho^2 / d phi times 2 i z^2: -2 r2 z^4 + (i q1 - r1) z^3 + (r1 + i q1) z + 2 r2
+    lead = -2.0 * r2
+    ok = np.abs(lead) > 1e-12 * (np.abs(r1) + np.abs(q1) + np.abs(r2) + 1e-300)
+    lead = np.where(ok, lead, 1.0)
+    n = lead.shape[0]
+    companion = np.zeros((n, 4, 4), complex)
+    companion[:, 1:, :-1] = np.eye(3)
+    coef = np.concatenate([2.0 * r2 + 0j, r1 + 1j * q1, 0.0 * r1 + 0j, 1j * q1 - r1], -1)
+    companion[:, :, -1] = -coef / lead
+    roots = np.where(ok, np.angle(np.linalg.eigvals(companion)), 0.0)
+    grid = 2.0 * np.pi * np.arange(64) / 64.0
+    cand = np.concatenate([roots, np.broadcast_to(grid, (n, 64))], -1)
+    for _ in range(3):  # Newton steps on d rho^2 / d phi = 0 (they keep a root a root)
+        d1 = -r1 * np.sin(cand) + q1 * np.cos(cand) - 2.0 * r2 * np.sin(2.0 * cand)
+        d2 = -r1 * np.cos(cand) - q1 * np.sin(cand) - 4.0 * r2 * np.cos(2.0 * cand)
+        step = np.where(d2 < 0.0, d1 / np.where(d2 < 0.0, d2, 1.0), 0.0)
+        cand = cand - np.clip(step, -0.1, 0.1)
+    return np.max(rho2(cand), axis=-1)  # shape (n,)
+
+
+@np.errstate(invalid="ignore", divide="ignore", over="ignore")
+def slider_extremes(a, b, e, f, alpha_rad, branch) -> SliderExtremes:
+    """The slider's extreme positions on `branch` from F = F_phi = 0.
+
+    s' = 0 means F_phi = 0: s cos(alpha) cos(phi) = e sin(phi) (the crank pin's velocity is
+    normal to the coupler). Writing F = U(s) sin phi + V(s) cos phi + W(s) with
+    U = -2 a s cos(alpha), V = -2 a e, W = s^2 - 2 s f sin(alpha) + a^2 + f^2 + e^2 - b^2,
+    F = F_phi = 0 forces W^2 = U^2 + V^2, a quartic in s:
+
+        s^4 - 4 p s^3 + (4 p^2 + 2 k - 4 a^2 cos^2 alpha) s^2 - 4 p k s + k^2 - 4 a^2 e^2 = 0,
+        p = f sin(alpha), k = a^2 + f^2 + e^2 - b^2.
+
+    Its real roots give (sin phi, cos phi) = -W (U, V) / (U^2 + V^2); those on `branch`
+    (sign(s - m) = branch) with s'' < 0 are maxima, with s'' > 0 minima; the largest maximum and
+    the smallest minimum are returned. NaN where the coupler does not reach the guide all round
+    (max rho > b, checked exactly) or no maximum and minimum are found. Parameters broadcast.
+    """
+    params = np.broadcast_arrays(*(np.asarray(v, float) for v in
+                                   (a, b, e, f, alpha_rad, branch)))
+    shape = params[0].shape
+    a, b, e, f, alpha, br = (p.reshape(-1, 1) for p in params)
+    sa, ca = np.sin(alpha), np.cos(alpha)
+    p = f * sa
+    k = a * a + f * f + e * e - b * b
+    coef = np.concatenate([-4.0 * p, 4.0 * p * p + 2.0 * k - 4.0 * a * a * ca * ca,
+                           -4.0 * p * k, k * k - 4.0 * a * a * e * e], -1)  # s^3 ... s^0
+    n = coef.shape[0]
+    companion = np.zeros((n, 4, 4))
+    companion[:, 1:, :-1] = np.eye(3)
+    companion[:, :, -1] = -coef[:, ::-1]
+    z = np.linalg.eigvals(companion)
+    scale = 1.0 + np.abs(z)
+    real = np.abs(z.imag) < 1e-6 * scale
+    s = z.real
+    for _ in range(3):  # Newton polish on the quartic
+        val = (((s + coef[:, :1]) * s + coef[:, 1:2]) * s + coef[:, 2:3]) * s + coef[:, 3:]
+        der = ((4.0 * s + 3.0 * coef[:, :1]) * s + 2.0 * coef[:, 1:2]) * s + coef[:, 2:3]
+        s = s - np.where(der != 0.0, val / np.where(der != 0.0, der, 1.0), 0.0)
+    u = -2.0 * a * s * ca
+    v = -2.0 * a * e + 0.0 * s
+    w = s * s - 2.0 * s * p + k
+    n2 = u * u + v * v
+    phi = np.arctan2(-w * u / n2, -w * v / n2)
+    m, kk = _slider_mk(phi, a, b, e, f, alpha)
+    side = np.sign(s - m[0])
+    f_s = 2.0 * (s - m[0])
+    curvature = -(-2.0 * s * m[2] + kk[2]) / f_s  # s'' where s' = 0
+    keep = real & (side == br) & (n2 > 0.0)
+    is_max = keep & (curvature < 0.0)
+    is_min = keep & (curvature > 0.0)
+    closes = _largest_guide_distance(a[:, 0], e[:, 0], f[:, 0], alpha[:, 0]) <= b[:, 0] ** 2
+    good = is_max.any(-1) & is_min.any(-1) & closes
+
+    def pick(mask, values, largest):
+        fill = -np.inf if largest else np.inf
+        v = np.where(mask, s, fill)
+        i = np.argmax(v, -1) if largest else np.argmin(v, -1)
+        out = np.take_along_axis(values, i[:, None], -1)[:, 0]
+        return np.where(good, out, np.nan).reshape(shape)
+
+    return SliderExtremes(pick(is_min, s, False), pick(is_min, phi, False),
+                          pick(is_max, s, True), pick(is_max, phi, True))

@@ -95,6 +95,12 @@ def _spatial_rocker(q, a, b, c, e, f, g, alpha_deg, branch):
     return spatial.spatial_rocker(q, a, b, c, e, f, g, alpha_deg * DEG, branch)
 
 
+def _spatial_slider(q, a, b, e, f, alpha_deg, branch):
+    from sewtol.engine import spatial  # type: ignore[attr-defined]
+
+    return spatial.spatial_slider(q, a, b, e, f, alpha_deg * DEG, branch)
+
+
 register_group("point", _point, fields={"x": ("expr", None), "y": ("expr", None)},
                doc="frame point (x, y) mm")
 register_group("crank", _crank, fields={
@@ -122,4 +128,10 @@ register_group("spatial_rocker", _spatial_rocker, produces="angle", fields={
     "f": ("expr", None), "g": ("expr", None), "alpha_deg": ("expr", None),
     "branch": ("branch", 1.0)},
     doc="spatial crank-rocker (engine.spatial): the rocker angle psi of the driving angle",
+    requires="sewtol.engine.spatial")
+register_group("spatial_slider", _spatial_slider, fields={
+    "a": ("expr", None), "b": ("expr", None), "e": ("expr", None), "f": ("expr", None),
+    "alpha_deg": ("expr", None), "branch": ("branch", 1.0)},
+    doc="spatial crank-slider (engine.spatial): the slider's ball joint C = (e, s), s along "
+        "the guide",
     requires="sewtol.engine.spatial")

@@ -26,7 +26,7 @@ MAX_BYTES = 1 << 20
 NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 MECH_NAME = re.compile(r"^[a-z0-9_]+$")
 # groups whose Closure carries a transmission angle (a transmission output may name them)
-TRANSMISSION_GROUPS = ("rrr", "spatial_rocker")
+TRANSMISSION_GROUPS = ("rrr", "spatial_rocker", "spatial_slider")
 TOP_KEYS = ("format", "mechanism", "parameters", "groups", "outputs", "compensators",
             "tolerances")
 MECH_KEYS = ("name", "title", "source", "assumptions", "samples", "rpm", "driver", "fast_path")
@@ -390,7 +390,7 @@ def _outputs(ctx, table, pnames, groups, header) -> list[Output]:
             elif fkind == "group":
                 if v not in closures:
                     ctx.fail(fpath, f"{where}.{k}", "must name a group with a transmission "
-                             "angle, an rrr or spatial_rocker group ("
+                             "angle, an rrr, spatial_rocker or spatial_slider group ("
                              f"{', '.join(sorted(closures))})", v)
                 fields[k] = v
             elif fkind == "choice":

@@ -3,8 +3,9 @@
 evaluate(values) builds the groups in assembly order with sewtol.engine, over m machines (the
 values given per parameter; the rest nominal) and the file's `samples` driving angles, then
 reduces each output to one number per machine. Every machine gets a status: "ok",
-"cannot_close" (some group misses at some sampled angle) or "dead_point" (an rrr dyad comes
-closer than DEAD_POINT_DEG to collinear, where the joint can flip to its other assembly), and
+"cannot_close" (some group misses at some sampled angle) or "dead_point" (a group's
+transmission angle -- an rrr dyad's, or a spatial group's 90 deg minus its pressure angle --
+falls below DEAD_POINT_DEG, where the joint can flip to its other assembly), and
 the name of the first group that failed (assembly order; cannot_close before dead_point).
 Outputs of a failed machine are NaN: counted, never dropped.
 """
