@@ -53,6 +53,8 @@ ifeq ($(strip $(TOLERANCES)),)
 	$(BIN)/python studies/presser_foot_report.py --out $(REPORTS)
 	$(BIN)/python -m sewtol run spatial_crank_rocker report --seed 2026 \
 		--out $(REPORTS)/spatial_crank_rocker
+	$(BIN)/python -m sewtol run spatial_crank_slider report --seed 2026 \
+		--out $(REPORTS)/spatial_crank_slider
 	$(BIN)/python -m sewtol run khujand_feed report --seed 2026 --out $(REPORTS)/khujand_feed
 else
 	$(BIN)/python studies/needle_208_nominal.py --out $(REPORTS) --figure-format $(FIGURE_FORMAT)

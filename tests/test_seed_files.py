@@ -109,16 +109,16 @@ def test_presser_file_equals_the_module_and_counts_machines_that_never_lose_cont
     assert row["undefined"] + defined + row["cannot_close"] + row["dead_point"] == 200
 
 
-@pytest.mark.parametrize("name", ["spatial_crank_rocker", "khujand_feed"])
+@pytest.mark.parametrize("name", ["spatial_crank_rocker", "spatial_crank_slider",
+                                  "khujand_feed"])
 def test_committed_file_reports_regenerate_at_their_printed_precision(tmp_path, name):
-    """`make report` writes these with `sewtol run FILE report --seed 2026`; every CSV comes
+    """`make report` writes these with `sewtol run NAME report --seed 2026`; every CSV comes
     back within one unit of its last printed place (on any CPU: CI repeats this narrowed)."""
     from cli_helpers import run
     from test_report_reproducible import compare_printed
 
     committed = EXAMPLES.parent / "reports" / name
-    code, _, err = run("run", str(EXAMPLES / f"{name}.toml"), "report", "--seed", "2026",
-                       "--out", str(tmp_path / name))
+    code, _, err = run("run", name, "report", "--seed", "2026", "--out", str(tmp_path / name))
     assert code == 0, err
     names = sorted(p.name for p in committed.glob("*.csv"))
     assert names and names == sorted(p.name for p in (tmp_path / name).glob("*.csv"))
