@@ -3,8 +3,8 @@
 A file that names `fast_path = "needle_208"` (and passed the loader's check that it reproduces
 the built-in needle drive) runs scan, worst-case, montecarlo, sobol, ppm and allocation through
 the very code of `sewtol needle STUDY` (same bytes for the same flags) unless `--path generic`
-is given or a flag asks what the needle command cannot answer (`needle_command` says which
-needle command line it is, `FAST_PATH_STUDIES` and `_fast_path_refusal` when it applies).
+is given or a flag asks what the needle command cannot answer (`_fast_path_refusal`; the flag
+mapping is `_needle_namespace`, documented in docs/mechanism_files.md).
 """
 
 from __future__ import annotations
@@ -170,12 +170,12 @@ def cmd_run(args) -> None:
     fmt = "table" if args.format == "text" else args.format
     if args.output is not None:
         mech.output(args.output)
+    args.path_reason = _fast_path_refusal(args, mech)  # None: the needle_208 fast path
     if args.study == "nominal":
         res = G.nominal(mech)
         return _finish(args, fmt, mech, None, res.to_dict(), {"nominal": res.to_dataframe()},
                        res.to_dataframe())
     tolerances = resolve_tolerances(mech, args.tolerances)
-    args.path_reason = _fast_path_refusal(args, mech)
     if args.path_reason is None:
         return _needle_study(args, mech, tolerances)
     if mech.header.fast_path == "needle_208" and args.path == "auto" \
@@ -307,23 +307,6 @@ def _fast_path_refusal(args, mech) -> str | None:
     if args.out and args.study in ("worst-case", "allocation"):
         return f"--out: `needle {args.study}` writes no study folder"
     return None
-
-
-def needle_command(args, mech) -> list[str]:
-    """The `sewtol needle ...` arguments whose output `run FILE STUDY` prints on the fast path
-    (without --set/--frame: the file's nominal machine; --tolerances: the file's set)."""
-    ns = _needle_namespace(args, mech)
-    argv = ["needle", args.study]
-    if ns.adjust is not None:
-        argv += ["--adjust", ns.adjust]
-    if ns.beta_range is not None:
-        argv += ["--beta-range", *(f"{v:g}" for v in ns.beta_range)]
-    if ns.limit_um is not None:
-        argv += ["--limit-um", f"{ns.limit_um:g}"]
-    for key in ("n", "seed", "budget", "method", "target"):
-        if getattr(ns, key, None) is not None:
-            argv += [f"--{key}", str(getattr(ns, key))]
-    return argv
 
 
 def _needle_namespace(args, mech, tolerances=None):
