@@ -188,3 +188,33 @@ def test_generic_worst_case_agrees_with_the_exact_worst_case(small):
     # the exact 103.77 um (adjusted; B 5.6e-4 um)
     _check_adjusted(nominal.override(**corner), float(adj.setting[0]), adjusted_row["total_um"],
                     ga["value"])
+
+
+def test_the_fast_path_writes_the_needle_study_folder_naming_the_file(tmp_path):
+    a, b = tmp_path / "run", tmp_path / "needle"
+    assert run("run", NEEDLE, "scan", "--out", str(a), "--format", "csv")[0] == 0
+    assert run("needle", "scan", "--adjust", "none", "--out", str(b), "--format", "csv")[0] == 0
+    for name in ("scan.json", "scan.csv"):
+        assert (a / name).read_bytes() == (b / name).read_bytes()
+    inputs = strict_loads((a / "run.json").read_text())["inputs"]
+    assert inputs["mechanism_file"] == NEEDLE and inputs["fast_path"] == "needle_208"
+    assert "mechanism_file" not in strict_loads((b / "run.json").read_text())["inputs"]
+
+
+def test_a_tolerance_on_a_parameter_the_needle_model_lacks_takes_the_generic_path(tmp_path):
+    text = Path(NEEDLE).read_text().replace(
+        "guide_shift_um = ", 'spare_mm = { nominal = 1.0, unit = "mm", rule = "positive", '
+        'doc = "not in the built-in model" }\nguide_shift_um = ', 1)
+    f, t = tmp_path / "n.toml", tmp_path / "t.toml"
+    f.write_text(text)
+    t.write_text("[sets.s]\nspare_mm = 0.1\nLF = 0.05\n")
+    code, out, err = run("run", str(f), "scan", "--tolerances", f"{t}:s", "--format", "json")
+    obj = strict_loads(out)
+    assert code == 0 and obj["context"]["path"] == "generic"
+    assert "varies spare_mm" in obj["context"]["path_reason"] and "varies spare_mm" in err
+    # the generic scan: spare_mm moves nothing, LF at +0.05 mm moves SumDelta (5.1067 um sampled)
+    rows = {(r["param"], r["side"]): r["value"] for r in obj["rows"]
+            if r["output"] == "SumDelta_um"}
+    assert rows[("spare_mm", "upper")] == rows[("spare_mm", "lower")] \
+        == pytest.approx(4.586981, abs=1e-6)
+    assert rows[("LF", "upper")] == pytest.approx(5.106662, abs=1e-6)

@@ -177,6 +177,8 @@ def cmd_run(args) -> None:
                        res.to_dataframe())
     tolerances = resolve_tolerances(mech, args.tolerances)
     if args.path_reason is None:
+        args.path_reason = _tolerances_refusal(tolerances)
+    if args.path_reason is None:
         return _needle_study(args, mech, tolerances)
     if mech.header.fast_path == "needle_208" and args.path == "auto" \
             and args.study in FAST_PATH_STUDIES:
@@ -306,6 +308,18 @@ def _fast_path_refusal(args, mech) -> str | None:
         return "--weight: `needle allocation` weighs every tolerance alike"
     if args.out and args.study in ("worst-case", "allocation"):
         return f"--out: `needle {args.study}` writes no study folder"
+    return None
+
+
+def _tolerances_refusal(tolerances) -> str | None:
+    """The needle commands vary only the built-in model's parameters."""
+    from .mechanisms.needle_208 import Needle208
+    from .mechanisms.params import field_names
+
+    other = [p for p in tolerances.active().params if p not in field_names(Needle208)]
+    if other:
+        return (f"--tolerances {tolerances.name} varies {', '.join(other)}, which the built-in "
+                "needle model does not have")
     return None
 
 
