@@ -543,7 +543,8 @@ def cmd_needle_montecarlo(args):
 def run_montecarlo(args, params, tolerances, limit, rng, **inputs_extra):
     """The Monte-Carlo of `needle montecarlo` (beta fixed and adjusted), with its study folder
     (--out/--resume) and cluster: the result and its JSON record. `run FILE montecarlo` on the
-    needle fast path calls it too (inputs_extra names the file), so both print the same bytes."""
+    needle fast path runs cmd_needle_montecarlo itself (args.file_inputs names the file in
+    run.json), so both print the same bytes."""
     from .provenance import now
     from .studies.montecarlo import CHUNK, montecarlo
 

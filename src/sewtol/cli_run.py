@@ -333,11 +333,12 @@ def _needle_namespace(args, mech, tolerances=None):
     if args.adjust is not None:
         comp = mech.compensators[args.adjust]
         beta_range = [float(comp.low), float(comp.high)]
-    adjust = None
-    if study not in BOTH_CASES:
-        adjust = "none" if args.adjust is None else None
-        if study == "ppm":
-            adjust = "none" if args.adjust is None else "beta"
+    if study in BOTH_CASES:
+        adjust = None  # the needle command's default: fixed and adjusted
+    elif args.adjust is None:
+        adjust = "none"
+    else:  # beta adjusted: the default of needle scan and allocation, --adjust beta of ppm
+        adjust = "beta" if study == "ppm" else None
     draws = study in ("montecarlo", "sobol", "ppm", "allocation")
     ns = argparse.Namespace(
         set=None, frame=None, guide_shift_um=None, tolerances=None,
