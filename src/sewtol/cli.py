@@ -231,7 +231,9 @@ def _context(args, params, tolerances, strategy) -> dict:
             "guide_shift_um": float(params.guide_shift_um),
             "guide_angle_deg": float(params.guide_angle),
             "strategy": "beta" if strategy is None else strategy.name,
-            "beta_search_range_deg": beta, "limit_um": getattr(args, "limit_um", None) or 10.0}
+            "beta_search_range_deg": beta, "limit_um": getattr(args, "limit_um", None) or 10.0,
+            # the model that computed the numbers (`run FILE` says "generic" on its sampled path)
+            "path": "needle_208"}
 
 
 def _deviation_columns(machines, params, units=None):
@@ -272,7 +274,9 @@ def _study_nominal(args):
     """The nominal machine of a study: it must assemble, or nothing is computed or written."""
     from sewtol.mechanisms.needle_208.model import check_assembly
 
-    params = _needle_params(args)
+    # `run FILE STUDY` on the needle fast path gives the file's nominal machine (nominal_params)
+    given = getattr(args, "nominal_params", None)
+    params = _needle_params(args) if given is None else given
     check_assembly(params)
     return params
 
@@ -282,6 +286,8 @@ def _tolerances(args):
     from sewtol.mechanisms.params import field_names
     from sewtol.tolerances import NEEDLE_208_SETS, resolve
 
+    if getattr(args, "tolerance_set", None) is not None:  # `run FILE`: the file's set, resolved
+        return args.tolerance_set
     return resolve(args.tolerances, NEEDLE_208_SETS, field_names(Needle208))
 
 
@@ -418,7 +424,7 @@ def _inputs(args, kind, params, tolerances, **extra) -> dict:
     return {"study": kind, "n": getattr(args, "n", None), "seed": args.seed,
             "params": as_dict(params),
             "tolerances": {"name": tolerances.name, "items": tolerances.as_dict()},
-            **version_record(), **extra}
+            **version_record(), **extra, **getattr(args, "file_inputs", {})}
 
 
 def _store(args, inputs: dict):
@@ -537,7 +543,8 @@ def cmd_needle_montecarlo(args):
 def run_montecarlo(args, params, tolerances, limit, rng, **inputs_extra):
     """The Monte-Carlo of `needle montecarlo` (beta fixed and adjusted), with its study folder
     (--out/--resume) and cluster: the result and its JSON record. `run FILE montecarlo` on the
-    needle fast path calls it too (inputs_extra names the file), so both print the same bytes."""
+    needle fast path runs cmd_needle_montecarlo itself (args.file_inputs names the file in
+    run.json), so both print the same bytes."""
     from sewtol.mechanisms.needle_208.montecarlo import montecarlo
     from sewtol.provenance import now
     from sewtol.studies.montecarlo import CHUNK

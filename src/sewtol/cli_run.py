@@ -1,13 +1,16 @@
 """`sewtol run FILE.toml STUDY`: the studies of sewtol.studies.generic on a mechanism file.
 
 A file that names `fast_path = "needle_208"` (and passed the loader's check that it reproduces
-the built-in needle drive) runs `montecarlo` without --output/--limit through the very code of
-`sewtol needle montecarlo`, so both commands print the same bytes for the same seed.
+the built-in needle drive) runs scan, worst-case, montecarlo, sobol, ppm and allocation through
+the very code of `sewtol needle STUDY` (same bytes for the same flags) unless `--path generic`
+is given or a flag asks what the needle command cannot answer (`_fast_path_refusal`; the flag
+mapping is `_needle_namespace`, documented in docs/mechanism_files.md).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from sewtol.errors import ParameterError
@@ -68,6 +71,11 @@ def add_run(sub, parser_class=None) -> None:
                    help="write the tables, the result and run.json here")
     p.add_argument("--set", action="append", metavar="NAME=VALUE",
                    help="override a nominal value of the file (repeatable)")
+    p.add_argument("--path", choices=("auto", "generic"), default="auto",
+                   help="auto: a file with fast_path = \"needle_208\" runs scan, worst-case, "
+                        "montecarlo, sobol, ppm and allocation as `sewtol needle STUDY` does "
+                        "(exact SumDelta, beta searched by the needle's optimiser) where its "
+                        "flags allow; generic: always the sampled studies of the file")
     p.set_defaults(func=cmd_run, resume=False, progress=False, scheduler=None)
 
 
@@ -220,11 +228,20 @@ def cmd_run(args) -> None:
     fmt = "table" if args.format == "text" else args.format
     if args.output is not None:
         mech.output(args.output)
+    args.path_reason = _fast_path_refusal(args, mech)  # None: the needle_208 fast path
     if args.study == "nominal":
         res = G.nominal(mech)
         return _finish(args, fmt, mech, None, res.to_dict(), {"nominal": res.to_dataframe()},
                        res.to_dataframe())
     tolerances = resolve_tolerances(mech, args.tolerances)
+    if args.path_reason is None:
+        args.path_reason = _tolerances_refusal(tolerances)
+    if args.path_reason is None:
+        return _needle_study(args, mech, tolerances)
+    if mech.header.fast_path == "needle_208" and args.path == "auto" \
+            and args.study in FAST_PATH_STUDIES:
+        print(f"sewtol: note: `run {args.study}` takes the generic sampled path, not the "
+              f"needle_208 fast path: {args.path_reason}", file=sys.stderr)
     outputs = None if args.output is None else [args.output]
     if args.study == "scan":
         res = _as_flags(G.scan, mech, tolerances, outputs, args.adjust)
@@ -245,10 +262,6 @@ def cmd_run(args) -> None:
                        res.to_dataframe())
     if args.study in ("ppm", "allocation", "report"):
         return _yield_study(args, fmt, mech, tolerances)
-    # montecarlo
-    if mech.header.fast_path == "needle_208" and args.output is None and args.limit is None \
-            and args.adjust is None:
-        return _needle_montecarlo(args, mech, tolerances)
     res = _as_flags(G.montecarlo, mech, tolerances, args.n, args.seed, outputs, args.limit,
                     args.output, args.n_jobs, False, G.CHUNK, args.adjust)
     return _finish(args, fmt, mech, tolerances, res.to_dict(),
@@ -277,7 +290,8 @@ def _run_context(args, mech, tolerances) -> dict:
             "tolerances": None if tolerances is None else tolerances.name,
             "seed": args.seed if draws else None, "n": args.n if draws else None,
             "strategy": args.adjust or "none", "output": args.output,
-            "limit": args.limit, "lower_limit": args.lower_limit}
+            "limit": args.limit, "lower_limit": args.lower_limit,
+            "path": "generic", "path_reason": getattr(args, "path_reason", None)}
 
 
 def _finish(args, fmt, mech, tolerances, obj, frames, frame) -> None:
@@ -300,26 +314,120 @@ def _finish(args, fmt, mech, tolerances, obj, frames, frame) -> None:
     emit(fmt, obj=obj, frame=frame)
 
 
-def _needle_montecarlo(args, mech, tolerances) -> None:
-    """The needle_208 fast path: exactly `sewtol needle montecarlo` (beta fixed at the nominal's
-    beta* and re-optimised per machine), on the file's nominal machine and tolerance set."""
-    from sewtol.cli import _as_flags as as_flags
-    from sewtol.cli import _check_n, _montecarlo_notes, _print_notes, emit, run_montecarlo
-    from sewtol.mechanisms.needle_208 import beta as sb
-    from sewtol.mechanisms.needle_208.fast_path import _needle_params
-    from sewtol.mechanisms.needle_208.model import check_assembly
-    from sewtol.studies.montecarlo import CHUNK, check_sampling
+# --- the needle_208 fast path ------------------------------------------------------------------
 
-    _check_n(args.n)
-    params = _needle_params(mech)
-    check_assembly(params)
-    limit, rng = sb.DEFAULT_LIMIT_UM, sb.DEFAULT_RANGE_DEG
-    as_flags(check_sampling, params, tolerances, args.n, args.seed, CHUNK)
-    res, record = run_montecarlo(args, params, tolerances, limit, rng,
-                                 mechanism_file=str(args.file), fast_path="needle_208")
-    fmt = "table" if args.format == "text" else args.format
-    emit(fmt, obj=record, frame=res.summary_frame())
-    _print_notes(argparse.Namespace(format=fmt), _montecarlo_notes(res, record))
+FAST_PATH_STUDIES = ("scan", "worst-case", "montecarlo", "sobol", "ppm", "allocation")
+# the needle commands that report the fixed and the adjusted case together (so with and without
+# --adjust beta); the others run `--adjust none` without --adjust and beta adjusted with it
+BOTH_CASES = ("worst-case", "montecarlo", "sobol")
+
+
+def sumdelta_outputs(mech) -> list[str]:
+    """The file's SumDelta outputs (a line_deviation of E, sum_extremes): the loader checked
+    each equals the built-in SumDelta, so the fast path answers --output NAME for these."""
+    return [o.name for o in mech.outputs if o.type == "line_deviation"
+            and o.fields["point"] == "E" and o.fields["measure"] == "sum_extremes"]
+
+
+def _fast_path_refusal(args, mech) -> str | None:
+    """None when `run FILE STUDY` runs on the needle_208 fast path, else why it does not."""
+    from sewtol.mechanisms.needle_208 import beta as sb
+
+    if args.path == "generic":
+        return "--path generic"
+    if mech.header.fast_path != "needle_208":
+        return "the file declares no fast path"
+    if args.study not in FAST_PATH_STUDIES:
+        return f"`run {args.study}` has no fast path"
+    if args.output is not None and args.output not in sumdelta_outputs(mech):
+        return (f"--output {args.output} is not the SumDelta output "
+                f"({', '.join(sumdelta_outputs(mech))}) the needle commands compute")
+    if args.adjust is not None:
+        if args.adjust not in mech.compensators:  # refused as the generic studies refuse it
+            raise ParameterError("--adjust", "must name a compensator of the file ("
+                                 + (", ".join(mech.compensators) or "it has none") + ")",
+                                 args.adjust)
+        comp = mech.compensators[args.adjust]
+        if comp.parameter != "beta":
+            return (f"--adjust {args.adjust} sets {comp.parameter}; the needle commands adjust "
+                    "beta")
+        if args.study == "allocation" and (comp.low, comp.high) != sb.DEFAULT_RANGE_DEG:
+            return (f"--adjust {args.adjust} searches beta in [{comp.low:g}, {comp.high:g}] deg; "
+                    "`needle allocation` searches 10 35")
+    if getattr(args, "lower_limit", None) is not None:
+        return "--lower-limit: the needle commands limit SumDelta from above only"
+    if args.limit is not None and not args.limit > 0:
+        return f"--limit {args.limit:g}: the needle's SumDelta limit is a positive number of um"
+    if args.study == "allocation" and args.limit is not None \
+            and args.limit != sb.DEFAULT_LIMIT_UM:
+        return (f"--limit {args.limit:g}: `needle allocation` keeps SumDelta within "
+                f"{sb.DEFAULT_LIMIT_UM:g} um")
+    if args.weight is not None:
+        return "--weight: `needle allocation` weighs every tolerance alike"
+    if args.out and args.study in ("worst-case", "allocation"):
+        return f"--out: `needle {args.study}` writes no study folder"
+    return None
+
+
+def _tolerances_refusal(tolerances) -> str | None:
+    """The needle commands vary only the built-in model's parameters."""
+    from sewtol.mechanisms.needle_208.model import Needle208
+    from sewtol.mechanisms.params import field_names
+
+    other = [p for p in tolerances.active().params if p not in field_names(Needle208)]
+    if other:
+        return (f"--tolerances {tolerances.name} varies {', '.join(other)}, which the built-in "
+                "needle model does not have")
+    return None
+
+
+def _needle_namespace(args, mech, tolerances=None):
+    """`run`'s flags as the arguments of `sewtol needle STUDY` (the file's nominal machine and
+    tolerance set ride along as nominal_params and tolerance_set)."""
+    from sewtol.mechanisms.needle_208.fast_path import _needle_params
+
+    study = args.study
+    beta_range = None
+    if args.adjust is not None:
+        comp = mech.compensators[args.adjust]
+        beta_range = [float(comp.low), float(comp.high)]
+    if study in BOTH_CASES:
+        adjust = None  # the needle command's default: fixed and adjusted
+    elif args.adjust is None:
+        adjust = "none"
+    else:  # beta adjusted: the default of needle scan and allocation, --adjust beta of ppm
+        adjust = "beta" if study == "ppm" else None
+    draws = study in ("montecarlo", "sobol", "ppm", "allocation")
+    ns = argparse.Namespace(
+        set=None, frame=None, guide_shift_um=None, tolerances=None,
+        format="table" if args.format == "text" else args.format,
+        seed=args.seed if draws else None,
+        n=args.n if study in ("montecarlo", "sobol", "allocation") else None,
+        n_jobs=args.n_jobs if study in ("montecarlo", "ppm") else 1,
+        scheduler=None, progress=args.progress, out=args.out, resume=False, plot=None,
+        beta_range=None if study == "allocation" else beta_range,
+        limit_um=args.limit if study in ("montecarlo", "ppm") else None,
+        adjust=adjust, range=None, step=None, resolution=None, second_order=False,
+        method=args.method, target=args.target, budget=args.n if study == "ppm" else None,
+        nominal_params=_needle_params(mech), tolerance_set=tolerances,
+        file_inputs={"mechanism_file": str(args.file), "fast_path": "needle_208"})
+    if study != "ppm":
+        ns.budget = ns.method = None
+        if study != "allocation":
+            ns.target = None
+    return ns
+
+
+def _needle_study(args, mech, tolerances) -> None:
+    """The needle_208 fast path: `sewtol needle STUDY` itself (cli.cmd_needle_*), on the file's
+    nominal machine and tolerance set; see docs/mechanism_files.md for the flag mapping."""
+    from sewtol import cli
+
+    ns = _needle_namespace(args, mech, tolerances)
+    cmd = {"scan": cli.cmd_needle_scan, "worst-case": cli.cmd_needle_worst_case,
+           "montecarlo": cli.cmd_needle_montecarlo, "sobol": cli.cmd_needle_sobol,
+           "ppm": cli.cmd_needle_ppm, "allocation": cli.cmd_needle_allocation}[args.study]
+    cmd(ns)
 
 
 def _yield_study(args, fmt, mech, tolerances) -> None:
