@@ -80,3 +80,25 @@ def test_csv_resolution_follows_the_unit_in_the_column_name():
     frame = pd.DataFrame({"total_um": [1.23456789012], "beta_deg": [22.58487993361],
                           "p_fail": [4.1666666667e-6]})
     assert to_csv(frame).splitlines()[1] == "1.234568,22.5848799,4.16666667e-06"
+
+
+def test_run_records_name_the_command_as_typed_on_any_machine(tmp_path, monkeypatch):
+    """run.json's command line holds no path of this machine's checkout."""
+    import sewtol
+    from sewtol.provenance import portable_command
+
+    main_py = str(Path(sewtol.__file__).with_name("__main__.py"))
+    assert portable_command([main_py, "run", "needle_208", "report"]) == [
+        "python", "-m", "sewtol", "run", "needle_208", "report"]
+    assert portable_command(["/opt/venv/bin/sewtol", "needle", "scan"]) == [
+        "sewtol", "needle", "scan"]
+    monkeypatch.chdir(tmp_path)
+    script = tmp_path / "studies" / "x.py"
+    assert portable_command([str(script), "--out", "r"]) == ["studies/x.py", "--out", "r"]
+    assert portable_command(["/elsewhere/y.py"]) == ["/elsewhere/y.py"]
+    committed = Path(__file__).resolve().parents[1] / "reports"
+    for run_json in committed.rglob("*run.json"):
+        import json
+
+        cmd = json.loads(run_json.read_text()).get("command_line", [])
+        assert not any(str(a).startswith("/") for a in cmd), run_json

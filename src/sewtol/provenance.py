@@ -5,6 +5,7 @@ from __future__ import annotations
 import datetime as dt
 import platform
 import sys
+from pathlib import Path
 
 from sewtol import __version__
 
@@ -30,6 +31,26 @@ def now() -> str:
     return dt.datetime.now(dt.UTC).isoformat(timespec="seconds")
 
 
+def portable_command(argv: list[str]) -> list[str]:
+    """The command line as a user would type it again on any machine: `python -m sewtol` for
+    sewtol's __main__.py, `sewtol` for its console script, a script under the working folder
+    relative to it (an absolute path of this machine's checkout would differ on every other)."""
+    argv = [str(a) for a in argv]
+    if not argv:
+        return argv
+    first = Path(argv[0])
+    if first.name == "__main__.py" and first.parent.name == "sewtol":
+        return ["python", "-m", "sewtol", *argv[1:]]
+    if first.name == "sewtol":
+        return ["sewtol", *argv[1:]]
+    if first.is_absolute():
+        try:
+            return [str(first.relative_to(Path.cwd())), *argv[1:]]
+        except ValueError:
+            pass
+    return argv
+
+
 def run_record(started: str, inputs: dict, argv: list[str] | None = None,
                runs: list | None = None) -> dict:
     """The run.json record; `inputs` holds every parameter, tolerance set and seed used."""
@@ -44,7 +65,7 @@ def run_record(started: str, inputs: dict, argv: list[str] | None = None,
     return {
         "sewtol_version": __version__,
         "git_revision": git_revision(),
-        "command_line": list(sys.argv if argv is None else argv),
+        "command_line": portable_command(sys.argv if argv is None else argv),
         "started_utc": started,
         "finished_utc": now(),
         "python": platform.python_version(),
