@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from cli_helpers import run, strict_loads
@@ -209,3 +210,39 @@ def test_allocation_plot_draws_the_printed_widths():
     assert heights == pytest.approx(ref + got, rel=1e-12)
     plt.close(fig)
 
+
+
+@pytest.mark.parametrize("argv, key", [
+    (("needle", "deviation", "--step-deg", "30", "--frame", "window", "--set", "AB=10.01",
+      "--guide-shift-um", "4"), "rows"),
+    (("feed", "trajectory", "--step-deg", "30", "--set", "b=20"), "rows"),
+    (("feed", "regulator", "--b-range", "0", "40", "20", "--set", "b=20"), "rows"),
+    (("feed", "metrics", "--set", "b=20"), None),
+], ids=["needle deviation", "feed trajectory", "feed regulator", "feed metrics"])
+def test_single_machine_json_names_its_machine_and_keeps_the_csv_rows(argv, key):
+    import io
+
+    import pandas as pd
+
+    code, out, err = run(*argv, "--format", "json")
+    assert code == 0, err
+    obj = strict_loads(out)
+    ctx = obj["context"]
+    if argv[0] == "needle":
+        assert ctx["frame"] == "window" and ctx["guide_shift_um"] == 4.0
+        assert ctx["set"] == {"AB": 10.01} and ctx["step_deg"] == 30.0
+        assert ctx["mechanism"] == "208 needle drive" and "beta_deg" in ctx
+    else:
+        assert ctx["set"] == {"b": 20.0} and ctx["b_deg"] == 20.0
+        assert ctx["mechanism"] == "131-42+3 feed"
+    if key is None:
+        return
+    code, text, _ = run(*argv, "--format", "csv")
+    frame = pd.read_csv(io.StringIO(text))
+    assert list(frame.columns) == list(obj[key][0])
+    np_rows = pd.DataFrame(obj[key])
+    assert len(np_rows) == len(frame)
+    # the CSV prints each unit at its resolution (mm to 1e-7, um to 1e-6, ...): half a unit of
+    # the coarsest printed place
+    assert np.allclose(np_rows.to_numpy(float), frame.to_numpy(float), rtol=0, atol=5.1e-7,
+                       equal_nan=True)

@@ -265,9 +265,29 @@ def cmd_needle_deviation(args):
     if args.beta is not None:
         p = p.override(beta=args.beta)
     frame = deviation_table(p, args.step_deg)
-    emit(args.format, frame=frame)
+    emit(args.format, obj={"context": _machine_context(args, p, beta_deg=float(p.beta)),
+                           "rows": frame.to_dict(orient="records")}, frame=frame)
     _save_plot(args, lambda ax: _plots().deviation_vs_crank(
         {f"beta = {float(p.beta):.4f} deg": frame}, ax=ax))
+
+
+def _machine_context(args, params, **extra) -> dict:
+    """What decides a single machine's numbers (its JSON's `context`): the frame or mechanism,
+    the values changed by --set, the sampling step and the guide, where there is one."""
+    from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME
+
+    out = {"set": parse_sets(getattr(args, "set", None) or [], type(params))}
+    if hasattr(params, "guide_shift_um"):
+        out.update({"mechanism": "208 needle drive",
+                    "frame": getattr(args, "frame", None) or DEFAULT_FRAME,
+                    "guide_shift_um": float(params.guide_shift_um),
+                    "guide_angle_deg": float(params.guide_angle)})
+    else:
+        out.update({"mechanism": "131-42+3 feed", "b_deg": float(params.b),
+                    "plate_mm": float(params.plate_mm), "material_mm": float(params.material_mm)})
+    if getattr(args, "step_deg", None) is not None:
+        out["step_deg"] = float(args.step_deg)
+    return {**out, **extra}
 
 
 def _study_nominal(args):
@@ -1038,7 +1058,8 @@ def cmd_feed_trajectory(args):
     _check_step(args.step_deg)
     params = _feed_params(args)
     traj = trajectory(params, args.step_deg)
-    emit(args.format, frame=traj)
+    emit(args.format, obj={"context": _machine_context(args, params),
+                           "rows": traj.to_dict(orient="records")}, frame=traj)
     _save_plot(args, lambda ax: _plots().tooth_paths(traj, params.plate_mm, params.material_mm,
                                                      ax=ax))
 
@@ -1046,11 +1067,13 @@ def cmd_feed_trajectory(args):
 def cmd_feed_metrics(args):
     from sewtol.mechanisms.feed_131.studies import metrics
 
-    m = metrics(_feed_params(args))
+    params = _feed_params(args)
+    m = metrics(params)
     if args.format == "csv":
         emit("csv", frame=m.to_dataframe())
     else:
-        emit(args.format, obj=m.to_dict(), frame=m.to_dataframe())
+        emit(args.format, obj={**m.to_dict(), "context": _machine_context(args, params)},
+             frame=m.to_dataframe())
 
 
 def cmd_feed_regulator(args):
@@ -1065,7 +1088,8 @@ def cmd_feed_regulator(args):
                              "larger STEP", args.b_range)
     params = _feed_params(args)
     sweep = regulator_sweep(params, np.arange(lo, hi + 1e-9, step))
-    emit(args.format, frame=sweep)
+    emit(args.format, obj={"context": _machine_context(args, params, b_range_deg=[lo, hi, step]),
+                           "rows": sweep.to_dict(orient="records")}, frame=sweep)
     _save_plot(args, lambda ax: _plots().regulator_curve(sweep, params.b, ax=ax))
 
 
