@@ -268,3 +268,16 @@ def test_cli_bad_inputs_one_line_exit_2(argv, flag):
     assert code == 2
     lines = err.strip().splitlines()
     assert len(lines) == 1 and flag in lines[0], err
+
+
+def test_histogram_axis_names_the_unit_once():
+    from sewtol.reports.generic_report import axis_label
+
+    assert axis_label("stroke_mm", "mm") == "stroke (mm)"
+    assert axis_label("slider_speed_max_m_s", "m/s") == "slider_speed_max (m/s)"
+    assert axis_label("acc_m_s2", "m/s^2") == "acc (m/s^2)"
+    assert axis_label("SumDelta_um", "um") == "SumDelta (\u00b5m)"
+    assert axis_label("loss", "deg") == "loss (deg)"
+    assert axis_label("mm", "mm") == "mm (mm)"
+    assert axis_label("count", "") == "count"
+

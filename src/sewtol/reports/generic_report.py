@@ -171,6 +171,18 @@ def build(mech, tolerances, n: int = 1000, seed: int = 0, limit_output: str | No
                          yield_row, notes)
 
 
+def axis_label(output: str, unit: str) -> str:
+    """`name (unit)`, without repeating a unit the name already ends with (stroke_mm ->
+    "stroke (mm)", speed_max_m_s -> "speed_max (m/s)")."""
+    if not unit:
+        return output
+    suffix = "_" + unit.replace("/", "_").replace("^", "")
+    stem = output[:-len(suffix)] if output.endswith(suffix) and len(output) > len(suffix) \
+        else output
+    shown = "\u00b5m" if unit == "um" else unit
+    return f"{stem} ({shown})"
+
+
 def histogram(report: GenericReport, output: str, ax):
     """Histogram of one output over the machines that run; the legend counts the machines
     beyond the plotted range and the machines that cannot run."""
@@ -179,7 +191,7 @@ def histogram(report: GenericReport, output: str, ax):
     ok = v[np.isfinite(v)]
     failed = int(v.size - ok.size)
     unit = _unit(m, output)
-    label = f"{output} ({unit})" if unit else output
+    label = axis_label(output, unit)
     lines = []
     if report.limit_output == output:
         lines = [x for x in (report.lower, report.upper) if x is not None]
