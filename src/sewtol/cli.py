@@ -178,6 +178,11 @@ def _save_plot(args, draw) -> None:
 
     fig, ax = plt.subplots(figsize=(7, 4))
     draw(ax)
+    save_figure(args, fig)
+
+
+def save_figure(args, fig) -> None:
+    """Save a drawn figure to --plot; a folder that cannot be written is one line naming it."""
     try:
         _plots().save_as(fig, Path(args.plot))
     except OSError as exc:

@@ -6,7 +6,6 @@ what it means there. The helpers they share (flag checks, outputs, context) live
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 from sewtol.cli import (
     _as_flags,
@@ -23,6 +22,7 @@ from sewtol.cli import (
     _scan_figure,
     _write_outputs,
     emit,
+    save_figure,
 )
 from sewtol.errors import ParameterError
 
@@ -180,10 +180,7 @@ def sobol_panels(table):
 def _save_sobol_panels(args, table) -> None:
     if getattr(args, "plot", None) is None:
         return
-    try:
-        _plots().save_as(sobol_panels(table), Path(args.plot))
-    except OSError as exc:
-        raise ParameterError("--plot", f"cannot be written ({exc.strerror})", args.plot) from None
+    save_figure(args, sobol_panels(table))
 
 
 def add_feed_studies(fsub, common) -> None:
