@@ -27,6 +27,7 @@ class FastPath:
     name: str
     points: tuple[str, ...]
     check: Callable  # check(mech) -> "" when it reproduces the model, else why not
+    plugins: object = None  # sewtol.protocol.Plugins: its fused kernel and exact adjuster
 
 
 def fast_paths() -> dict[str, FastPath]:

@@ -68,6 +68,12 @@ def evaluate(nominal, deviations: dict[str, np.ndarray], adjust: bool = True,
                          r.low["beta"], r.high["beta"], r.at_bound["beta"], r)
 
 
+def fixed_sumdelta_um(c: dict[str, np.ndarray]) -> np.ndarray:
+    """SumDelta (um) of machines given as parameter columns (n, 1), beta as it is: the exact
+    extremes on the rocker interval by the fused kernel; NaN where a machine does not run."""
+    return _fixed_numba(c, nm.feasibility(c))
+
+
 def _fixed_numba(c, rocker):
     from sewtol.mechanisms.needle_208.kernels import fused as K
     from sewtol.mechanisms.needle_208.kernels import window as KW

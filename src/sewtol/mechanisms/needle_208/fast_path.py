@@ -113,4 +113,86 @@ def _needle_sumdelta_problem(mech, values) -> str:
     return ""
 
 
-FAST_PATH = FastPath("needle_208", ("L", "M", "B", "C", "E"), check_needle_208)
+
+
+# --- the plug-ins of the mechanism protocol (sewtol.protocol.Plugins) --------------------------
+#
+# The kernel gives SumDelta exactly (its extremes on the exact rocker interval, the fused numba
+# kernel); the generic path takes them on the file's sampled crank angles, so it lies below by
+# at most max|d''| (h/2)^2 / 2 at each extreme (Taylor, h the sample step): kernel_bound derives
+# that per machine from the exact curve on a FINE grid, plus the 1e-9 mm the loader's check
+# allows between the two models' positions.
+FINE = 36000
+POSITIONS_UM = 1e-6
+
+
+def _batch(mech, values):
+    from sewtol.mechanisms import params as P
+    from sewtol.mechanisms.needle_208 import metrics as nm
+    from sewtol.mechanisms.needle_208.model import Needle208
+
+    full = {**mech.nominal_values(), **{k: np.asarray(v, float) for k, v in values.items()}}
+    n = max([np.size(v) for v in full.values()] + [1])
+    batch = Needle208(**{k: np.broadcast_to(np.asarray(full[k], float), (n,))
+                         for k in P.field_names(Needle208)})
+    c, _ = nm.columns(batch)
+    return {k: np.broadcast_to(v, (n, 1)).copy() for k, v in c.items()}, n
+
+
+def _sumdelta_names(mech) -> list[str]:
+    return [o.name for o in mech.outputs if o.type == "line_deviation"
+            and o.fields.get("point") == "E" and o.fields.get("measure") == "sum_extremes"]
+
+
+def needle_kernel(mech, values) -> dict[str, np.ndarray]:
+    """SumDelta (um) of machines `values` (parameter -> array; the rest nominal), exact, by the
+    fused kernel, for every SumDelta output of the file; NaN where a machine does not run."""
+    from sewtol.mechanisms.needle_208.evaluate import fixed_sumdelta_um
+
+    c, _ = _batch(mech, values)
+    total = fixed_sumdelta_um(c)
+    return {name: total for name in _sumdelta_names(mech)}
+
+
+def needle_kernel_bound(mech, values) -> dict[str, np.ndarray]:
+    """How far below the exact SumDelta the file's sampled one may lie, per machine (um)."""
+    from sewtol.mechanisms.needle_208 import metrics as nm
+
+    c, n = _batch(mech, values)
+    phi = np.arange(FINE) * 2 * np.pi / FINE
+    d = nm.deviation_curve(c, phi)["d_um"]
+    hf, h = 2 * np.pi / FINE, 2 * np.pi / mech.samples
+    d2 = np.abs(np.roll(d, -1, axis=1) - 2 * d + np.roll(d, 1, axis=1)) / hf**2
+    w = int(np.ceil(h / 2 / hf)) + 1
+    rows = np.arange(n)[:, None]
+    bound = np.zeros(n)
+    for k in (np.nanargmax(d, axis=1), np.nanargmin(d, axis=1)):
+        window = (k[:, None] + np.arange(-w, w + 1)[None, :]) % FINE
+        bound += np.max(d2[rows, window], axis=1)
+    bound = (h / 2) ** 2 / 2 * bound + POSITIONS_UM
+    return {name: bound for name in _sumdelta_names(mech)}
+
+
+def needle_adjuster(mech, values, boxes: dict) -> dict:
+    """The exact joint optimum of beta (and the guide shift) per machine: the sliding-window
+    solution of mechanisms/needle_208/adjust.py. boxes: parameter -> (low, high), absolute."""
+    from sewtol.mechanisms.needle_208 import adjust as ad
+
+    c, _ = _batch(mech, values)
+    r = ad.optimise(c, {k: tuple(map(float, v)) for k, v in boxes.items()})
+    return {"value": r.total_um, "minimum": r.min_total_um, "settings": dict(r.settings),
+            "low": dict(r.low), "high": dict(r.high), "status": r.status}
+
+
+def _plugins():
+    from sewtol.mechanisms.needle_208 import adjust as ad
+    from sewtol.protocol import Plugins
+
+    return Plugins(kernel=needle_kernel, kernel_outputs=("SumDelta_um",),
+                   kernel_bound=needle_kernel_bound, adjuster=needle_adjuster,
+                   adjuster_sets=(frozenset({"beta"}), frozenset({"beta", "guide_shift_um"})),
+                   adjusted_output="SumDelta_um", adjuster_tol=ad.PLATEAU_TOL_UM,
+                   name="needle_208")
+
+
+FAST_PATH = FastPath("needle_208", ("L", "M", "B", "C", "E"), check_needle_208, _plugins())

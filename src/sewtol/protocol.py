@@ -1,0 +1,152 @@
+"""The mechanism protocol: the one small interface every study takes.
+
+A mechanism, for a study, is five things and nothing else:
+
+1. **parameters** with nominal values, units and rules (`parameters`, `nominal_values()`),
+   and, from a tolerance set, the **input law** of their deviations (`input_law(mech, set)`,
+   a `sewtol.law.InputLaw`: a joint distribution, not independent columns);
+2. **outputs** (`outputs`: name, unit) and **evaluate(values, outputs) -> Evaluation**: one
+   number per output and machine, each machine's status ("ok", "cannot_close",
+   "dead_point") and the group that failed, over arrays of m machines;
+3. **specs**: limits on outputs, as data (`specs`; the needle's SumDelta_um <= 10 um);
+4. **compensators**: what a fitter sets on each machine, with a box (low, high) and, where
+   declared, steps, a resolution and a setting error (`compensators`);
+5. optional **plug-ins** (`plugins(mech)`): a fused kernel that gives some outputs faster
+   (or exactly where the generic path samples angles), with the bound within which it must
+   equal the generic evaluation, and an exact adjuster for some sets of compensators.
+
+`override(**nominals)` gives the same mechanism with other nominal values, so a study may vary
+the design itself (refinement); a pair's clearance will enter as parameters of the pair.
+
+`sewtol.mechanism.FileMechanism` (any mechanism file, every built-in) implements it; a
+mechanism folder adds plug-ins by declaring them in its fast path (``FAST_PATHS``). Every
+implementation passes the one suite `sewtol.checks.check_mechanism`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from sewtol.errors import ParameterError
+from sewtol.law import InputLaw
+from sewtol.tolerances import ToleranceSet
+
+
+@runtime_checkable
+class Mechanism(Protocol):
+    """What every study reads of a mechanism (see the module docstring)."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def parameters(self) -> tuple: ...
+
+    @property
+    def outputs(self) -> tuple: ...
+
+    @property
+    def compensators(self) -> Mapping: ...
+
+    @property
+    def tolerance_sets(self) -> Mapping[str, ToleranceSet]: ...
+
+    def nominal_values(self) -> dict[str, float]: ...
+
+    def evaluate(self, values: dict | None = None, outputs=None): ...
+
+    def override(self, **changes) -> Mechanism: ...
+
+
+@dataclass(frozen=True)
+class Plugins:
+    """A mechanism's optional fast parts.
+
+    Parameters
+    ----------
+    kernel : callable or None
+        ``kernel(mech, values) -> dict`` output name -> array (one number per machine, NaN
+        where the machine does not run): the outputs in `kernel_outputs`, computed by a fused
+        or exact model instead of the generic sampled one.
+    kernel_outputs : tuple of str
+        The outputs the kernel gives.
+    kernel_bound : callable or None
+        ``kernel_bound(mech, values) -> dict`` output -> array: how far the generic evaluation
+        may lie from the kernel's on each machine (the generic path samples the crank angle;
+        the bound is derived, not tuned). The suite holds the two within it.
+    adjuster : callable or None
+        ``adjuster(mech, values, boxes) -> dict`` with ``value`` (the optimum of the adjusted
+        output per machine) and ``settings`` (compensator parameter -> array): the exact
+        optimum over `boxes` (parameter -> (low, high), absolute settings).
+    adjuster_sets : tuple of frozenset
+        The sets of compensator parameters the adjuster solves exactly.
+    adjusted_output : str or None
+        The output the adjuster minimises.
+    adjuster_tol : float
+        How far above the true minimum the adjuster's value may lie (the output's unit): the
+        width of the plateau it takes the centre of, plus its own approximation error.
+    """
+
+    kernel: Callable | None = None
+    kernel_outputs: tuple[str, ...] = ()
+    kernel_bound: Callable | None = None
+    adjuster: Callable | None = None
+    adjuster_sets: tuple[frozenset, ...] = ()
+    adjusted_output: str | None = None
+    adjuster_tol: float = 0.0
+    name: str = ""
+    notes: tuple[str, ...] = field(default=())
+
+    def adjusts(self, parameters) -> bool:
+        """True when the exact adjuster solves exactly this set of compensator parameters."""
+        return self.adjuster is not None and frozenset(parameters) in self.adjuster_sets
+
+
+NO_PLUGINS = Plugins()
+
+
+def plugins(mech) -> Plugins:
+    """The plug-ins a mechanism earned: those of the fast path its file names (the loader has
+    already checked that the file reproduces the built-in model), else none."""
+    name = getattr(getattr(mech, "header", None), "fast_path", None)
+    if not name:
+        return NO_PLUGINS
+    from sewtol.mechanism.fast_paths import fast_paths
+
+    fp = fast_paths().get(name)
+    return getattr(fp, "plugins", None) or NO_PLUGINS
+
+
+def specs(mech) -> tuple:
+    """The mechanism's specs (limits on outputs), () where it declares none."""
+    return tuple(getattr(mech, "specs", ()) or ())
+
+
+def tolerance_set(mech, tolerances: ToleranceSet | str) -> ToleranceSet:
+    """A tolerance set of the mechanism, by name (one of its file's sets) or as given, its
+    parameters checked against the mechanism's."""
+    if isinstance(tolerances, str):
+        sets = mech.tolerance_sets
+        if tolerances not in sets:
+            raise ParameterError("tolerances", "must name a tolerance set of the mechanism ("
+                                 + (", ".join(sets) or "it has none") + ")", tolerances)
+        tolerances = sets[tolerances]
+    if not isinstance(tolerances, ToleranceSet):
+        raise ParameterError("tolerances", "must be a ToleranceSet or the name of one",
+                             type(tolerances).__name__)
+    return tolerances.check_names([p.name for p in mech.parameters])
+
+
+def input_law(mech, tolerances: ToleranceSet | str) -> InputLaw:
+    """The joint law of the mechanism's deviations under a tolerance set (by name or given)."""
+    return InputLaw.of(tolerance_set(mech, tolerances))
+
+
+def machines(mech, deviations: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Absolute parameter values of machines nominal + deviations (the rest nominal)."""
+    nominal = mech.nominal_values()
+    return {k: nominal[k] + np.asarray(v, float) for k, v in deviations.items()}

@@ -1,0 +1,81 @@
+"""Every built-in mechanism and example file passes the protocol suite (sewtol.checks), and the
+suite fails a mechanism that breaks the contract, naming the check."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sewtol import checks, protocol
+from sewtol.law import InputLaw
+from sewtol.mechanism import load
+from sewtol.mechanisms import mechanism_file, names
+
+EXAMPLES = sorted(p for p in (Path(__file__).parent.parent / "examples").glob("*.toml")
+                  if not p.is_symlink())
+MECHANISMS = [mechanism_file(n) for n in names()] + EXAMPLES
+
+
+@pytest.fixture(scope="module", params=MECHANISMS, ids=lambda p: p.stem if p.name != "mechanism.toml"
+                else p.parent.name)
+def mech(request):
+    return load(request.param)
+
+
+@pytest.mark.parametrize("check", checks.CHECKS, ids=lambda c: c.__name__)
+def test_every_mechanism_passes_the_protocol_suite(mech, check):
+    check(mech)
+
+
+def test_all_seven_built_ins_are_checked():
+    assert len(names()) == 7
+
+
+def test_the_needle_earns_its_kernel_and_exact_adjuster_and_the_others_none():
+    got = {n: protocol.plugins(load(mechanism_file(n))).name for n in names()}
+    assert got == {n: ("needle_208" if n == "needle_208" else "") for n in names()}
+
+
+def test_the_needle_kernel_is_exact_and_the_generic_path_lies_below_it_within_the_bound():
+    mech = load(mechanism_file("needle_208"))
+    pl = protocol.plugins(mech)
+    vals = protocol.machines(mech, protocol.input_law(mech, "base").sample(
+        np.random.default_rng(7), 6))
+    exact = pl.kernel(mech, vals)["SumDelta_um"]
+    sampled = mech.evaluate(vals, ["SumDelta_um"]).outputs["SumDelta_um"]
+    bound = pl.kernel_bound(mech, vals)["SumDelta_um"]
+    # sampled extremes never exceed the exact ones (to the 1e-6 um the positions agree to)
+    assert np.all(exact - sampled >= -1e-6)
+    assert np.all(exact - sampled <= bound)
+    # the bound is the sampling error's order at 720 samples: below 2e-3 um, not a loose catch-all
+    assert np.all(bound < 2e-3)
+
+
+def test_the_law_draws_what_the_tolerance_set_draws():
+    mech = load(mechanism_file("needle_208"))
+    ts = mech.tolerance_sets["recommended"]
+    law = InputLaw.of(ts)
+    a = law.sample(np.random.default_rng(3), 50)
+    b = ts.active().sample(np.random.default_rng(3), 50)
+    assert law.independent and law.params == ts.active().params
+    assert all(np.array_equal(a[k], b[k]) for k in b)
+
+
+def _broken(mech, **changes):
+    return dataclasses.replace(mech, **changes)
+
+
+def test_the_suite_names_what_a_broken_mechanism_breaks():
+    mech = load(mechanism_file("needle_208"))
+    beta = mech.compensators["beta"]
+    bad = _broken(mech, compensators={"beta": dataclasses.replace(beta, low=23.0, high=35.0)})
+    with pytest.raises(AssertionError, match="check_compensators: beta: box"):
+        checks.check_compensators(bad)
+    off = _broken(mech, compensators={"beta": dataclasses.replace(beta, parameter="gamma")})
+    with pytest.raises(AssertionError, match="sets 'gamma', not a parameter"):
+        checks.check_compensators(off)
+    with pytest.raises(AssertionError, match="check_protocol"):
+        checks.check_protocol(object())
