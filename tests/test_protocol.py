@@ -79,3 +79,18 @@ def test_the_suite_names_what_a_broken_mechanism_breaks():
         checks.check_compensators(off)
     with pytest.raises(AssertionError, match="check_protocol"):
         checks.check_protocol(object())
+
+
+def test_the_api_reference_worked_example_runs_and_prints_what_it_says(tmp_path, monkeypatch):
+    page = (Path(__file__).parent.parent / "docs" / "api" / "protocol.md").read_text()
+    toml = page.split("```toml\n", 1)[1].split("```", 1)[0]
+    code = page.split("```python\n", 1)[1].split("```", 1)[0]
+    (tmp_path / "four_bar.toml").write_text(toml)
+    monkeypatch.chdir(tmp_path)
+    scope: dict = {}
+    exec(compile(code, "protocol.md", "exec"), scope)  # the page's own code, as a reader runs it
+    line = next(ln for ln in code.splitlines() if ln.endswith("(deg)"))
+    said = [float(x) for x in line.split("#", 1)[1].split()[:-1]]
+    got = scope["mech"].evaluate(scope["vals"]).outputs["rocker_swing_deg"]
+    assert np.allclose(got, said, atol=5e-4)
+    assert scope["res"].counts("rocker_swing_deg")["n"] == 2000
