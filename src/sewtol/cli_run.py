@@ -296,7 +296,8 @@ def _run_context(args, mech, tolerances) -> dict:
             "seed": args.seed if draws else None, "n": args.n if draws else None,
             "strategy": args.adjust or "none", "output": args.output,
             "limit": args.limit, "lower_limit": args.lower_limit,
-            "spec_source": getattr(args, "spec_source", None), "path": "generic", "path_reason": getattr(args, "path_reason", None)}
+            "spec_source": getattr(args, "spec_source", None), "path": "generic",
+            "path_reason": getattr(args, "path_reason", None)}
 
 
 def _finish(args, fmt, mech, tolerances, obj, frames, frame) -> None:
@@ -425,7 +426,8 @@ def _needle_namespace(args, mech, tolerances=None):
         scheduler=None, progress=args.progress, out=args.out, resume=False, plot=None,
         beta_range=None if study == "allocation" else beta_range,
         limit_um=limit if study in ("montecarlo", "ppm") else None,
-        spec_source=None if limit is None else args.spec_source,
+        spec_source=args.spec_source if limit is not None and study in ("montecarlo", "ppm")
+        else None,
         adjust=adjust, range=None, step=None, resolution=None, second_order=False,
         method=args.method, target=args.target, budget=args.n if study == "ppm" else None,
         nominal_params=_needle_params(mech), tolerance_set=tolerances,

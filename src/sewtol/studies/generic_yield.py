@@ -198,9 +198,10 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
              adjust: str | None = None) -> FileAllocation:
     """The largest common scale k of `tolerances` (each limit times k times its weight, default
     weight 1) at which the fraction of n machines that run and keep `output` within the limits
-    is at least `target` (limits default to the file's [[specs]] entry; see the module doc: common random numbers, bisection on k to a
-    relative SCALE_RTOL). Machines that cannot run count against the yield. A scale at which the
-    set would draw machines the parameter rules reject (a length <= 0) counts as too wide."""
+    is at least `target` (limits default to the file's [[specs]] entry; see the module doc:
+    common random numbers, bisection on k to a relative SCALE_RTOL). Machines that cannot run
+    count against the yield. A scale at which the set would draw machines the parameter rules
+    reject (a length <= 0) counts as too wide."""
     mech.output(output)
     _check_adjust(mech, adjust)
     upper, lower = limits_of(mech, output, upper, lower)
