@@ -129,8 +129,6 @@ def _check_flags(args) -> None:
         args.n = DEFAULT_N[args.study]
     args.seed = 0 if args.seed is None else args.seed
     args.n_jobs = 1 if args.n_jobs is None else args.n_jobs
-    if args.study == "montecarlo" and args.n < 2:
-        raise ParameterError("--n", "must be >= 2", args.n)
     _check_yield_flags(args)
 
 
