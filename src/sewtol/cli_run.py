@@ -133,7 +133,7 @@ def _check_flags(args) -> None:
 
 
 def _check_yield_flags(args) -> None:
-    """The flags of ppm, allocation and report, before anything runs."""
+    """The flags of montecarlo, ppm, allocation and report, before anything runs."""
     import math
 
     if args.study not in SPEC_STUDIES:
@@ -229,8 +229,8 @@ def cmd_run(args) -> None:
         mech.output(args.output)
     args.spec = args.spec_source = None
     if args.study in SPEC_STUDIES:  # the limits in force: the flags', else the file's
-        _, args.spec, args.spec_source = mech.resolve_spec(args.output, args.limit,
-                                                           args.lower_limit)
+        args.spec_output, args.spec, args.spec_source = mech.resolve_spec(
+            args.output, args.limit, args.lower_limit)
     args.path_reason = _fast_path_refusal(args, mech)  # None: the needle_208 fast path
     if args.study == "nominal":
         res = G.nominal(mech)
@@ -456,7 +456,7 @@ def _yield_study(args, fmt, mech, tolerances) -> None:
     from sewtol.studies import generic_yield as GY
     from sewtol.studies import rare_event as R
 
-    output, spec, _ = mech.resolve_spec(args.output, args.limit, args.lower_limit)
+    output, spec = args.spec_output, args.spec
     upper, lower = (None, None) if spec is None else (spec.upper, spec.lower)
     if args.study == "report":
         from sewtol.cli import _check_out
