@@ -154,10 +154,13 @@ def adjustment_conclusions(out: Path, sets: list[str]) -> list[Conclusion]:
             continue
         s = mc[name]
         c = s["counts"]["adjusted_beta"]
+        # "yields" is the shared Monte-Carlo JSON; yield_*_beta the tables made before it
+        fixed, adjusted = (s["yields"]["fixed_beta"], s["yields"]["adjusted_beta"]) if "yields" \
+            in s else (s["yield_fixed_beta"], s["yield_adjusted_beta"])
         items.append(Conclusion(
             f"{name} tolerances, {s['n']} machines: adjusting beta per machine takes the yield "
-            f"from {s['yield_fixed_beta']:.1%} (beta fixed at the nominal beta*) to "
-            f"{s['yield_adjusted_beta']:.1%} (ok {c['ok']} + out of spec {c['out_of_spec']} + "
+            f"from {fixed:.1%} (beta fixed at the nominal beta*) to "
+            f"{adjusted:.1%} (ok {c['ok']} + out of spec {c['out_of_spec']} + "
             f"failed {c['failed']} = {c['n']}; [montecarlo_{name}.md](montecarlo_{name}.md))."))
     path = out / "strategies.csv"
     if path.exists():

@@ -92,26 +92,26 @@ def test_montecarlo_json_labels_every_interval_and_capability(mc_out):
     for case in ("fixed_beta", "adjusted_beta"):
         col = m[f"total_{case.split('_')[0]}_um"]
         k = int((col <= 20.0).sum())
-        assert d[f"yield_{case}"] == k / 300
+        assert d["yields"][case] == k / 300
         ci = stats.binomtest(k, 300).proportion_ci(0.95, method="exact")
         assert d["yield_ci"][case] == pytest.approx([ci.low, ci.high], abs=1e-12)
         x = col.dropna().to_numpy()
         cpu = (20.0 - x.mean()) / (3 * x.std(ddof=1))
-        assert d["capability"][case]["Cpu"] == pytest.approx(cpu, rel=1e-8)  # CSV digits
-    assert "one-sided" in d["capability"]["definition"]["Cpu"]
+        assert d["extra"]["capability"][case]["Cpu"] == pytest.approx(cpu, rel=1e-8)  # CSV digits
+    assert "one-sided" in d["extra"]["capability"]["definition"]["Cpu"]
     # the picks, not the searched range; and how many picks sit on its ends
     b = m["beta_opt_deg"]
-    assert d["beta_picks_deg"] == pytest.approx([b.min(), b.max()], abs=1e-6)  # CSV digits
-    assert d["beta_search_range_deg"] == [15.0, 30.0] and d["limit_um"] == 20.0
-    assert d["beta_at_bound"] == int(m["beta_at_bound"].sum()) > 0
+    assert d["extra"]["beta_picks_deg"] == pytest.approx([b.min(), b.max()], abs=1e-6)  # CSV digits
+    assert d["extra"]["beta_search_range_deg"] == [15.0, 30.0] and d["extra"]["limit_um"] == 20.0
+    assert d["extra"]["beta_at_bound"] == int(m["beta_at_bound"].sum()) > 0
     # flagged: the optimum's plateau touches a bound; pinned: and it is narrower than 0.1 deg
     low, high = m["beta_low_deg"], m["beta_high_deg"]
     touches = ((low - 15.0).abs() < 1e-6) | ((high - 30.0).abs() < 1e-6)
     assert (touches == (m["beta_at_bound"] == 1)).all()
     pinned = touches & (high - low < 0.1)
-    assert d["beta_pinned_at_bound"] == int(pinned.sum()) > 0
+    assert d["extra"]["beta_pinned_at_bound"] == int(pinned.sum()) > 0
     assert (np.minimum(b[pinned] - 15.0, 30.0 - b[pinned]) < 0.05).all()
-    assert "nominal machine's beta*" in d["fixed_beta_means"]
+    assert "nominal machine's beta*" in d["extra"]["fixed_beta_means"]
     ctx = d["context"]
     assert ctx["tolerances"] == "base" and ctx["seed"] == 4 and ctx["n"] == 300
     assert ctx["strategy"] == "beta" and ctx["guide_shift_um"] == 0.0 and ctx["frame"]
@@ -124,9 +124,9 @@ def test_flags_reach_the_library_with_the_same_numbers(mc_out, nominal):
     d, _ = mc_out
     res = montecarlo(nominal, NEEDLE_208_SETS["base"], 300, seed=4, limit_um=20.0,
                      range_deg=(15.0, 30.0))
-    assert res.to_dict()["yield_adjusted_beta"] == d["yield_adjusted_beta"]
+    assert res.to_dict()["yields"]["adjusted_beta"] == d["yields"]["adjusted_beta"]
     for name in ("fixed", "fixed_beta", "adjusted", "adjusted_beta"):
-        assert res.yield_of(name) == d[f"yield_{res.case_of(name)}_beta"]
+        assert res.yield_of(name) == d["yields"][f"{res.case_of(name)}_beta"]
     with pytest.raises(ParameterError, match="case: must be fixed, adjusted"):
         res.yield_of("fixed beta")
 
@@ -332,7 +332,7 @@ def test_fixed_beta_is_the_nominal_beta_star_in_every_needle_study():
     assert wc["fixed_beta_deg"] == star
     assert next(r for r in wc["rows"] if r["case"] == "fixed_beta")["beta_deg"] == star
     _, out, _ = run("needle", "montecarlo", "--n", "50", *shift)
-    assert strict_loads(out)["nominal_beta_deg"] == star
+    assert strict_loads(out)["extra"]["nominal_beta_deg"] == star
     _, out, _ = run("needle", "montecarlo", "--n", "50", "--adjust", "guide_shift_um", *shift)
     assert strict_loads(out)["fixed_beta_deg"] == star
     _, out, _ = run("needle", "guides", "--n", "20", *shift)
@@ -459,7 +459,8 @@ def test_a_fixed_beta_on_the_bound_is_flagged_in_every_study():
     assert adjusted["beta_at_bound"] is True and 23.5 <= adjusted["beta_deg"] <= 24.0
     _, out, _ = run("needle", "montecarlo", "--n", "50", *narrow)
     mc = strict_loads(out)
-    assert mc["fixed_beta_at_bound"] is True and abs(mc["nominal_beta_deg"] - 23.5) < 1e-3
+    assert mc["extra"]["fixed_beta_at_bound"] is True
+    assert abs(mc["extra"]["nominal_beta_deg"] - 23.5) < 1e-3
     _, out, _ = run("needle", "montecarlo", "--n", "50", "--adjust", "beta", *narrow)
     assert strict_loads(out)["fixed_beta_at_bound"] is True
     _, text, _ = run("needle", "worst-case", "--beta-range", "23.5", "24")

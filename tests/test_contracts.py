@@ -116,7 +116,7 @@ def test_all_failed_and_wide_sets_add_up(nominal):
     text = json.dumps(__import__("sewtol.cli", fromlist=["strict"]).strict(res.to_dict()),
                       allow_nan=False)
     d = strict_loads(text)
-    assert d["total_um_quantiles"]["fixed_beta"]["p50"] is None
+    assert d["quantiles"]["fixed_beta"]["p50"] is None
     wide = ToleranceSet("wide", tuple(Tolerance(p, -3.0, 3.0) for p in ("LM", "AM", "CD")))
     res = montecarlo(nominal, wide, 300, seed=0)
     for case in ("fixed", "adjusted"):
@@ -153,7 +153,7 @@ def test_every_json_output_is_strict_json(argv, tmp_path):
         assert data["window_deg"] == [None, None]
     if argv[1] == "montecarlo":  # > 1 % failures: p99 lies among them
         assert data["counts"]["fixed_beta"]["failed"] > 5  # more than 1 % of 500
-        assert data["total_um_quantiles"]["fixed_beta"]["p99"] is None
+        assert data["quantiles"]["fixed_beta"]["p99"] is None
 
 
 def test_output_failure_is_one_line_and_keeps_the_chunks(tmp_path, monkeypatch):
@@ -285,8 +285,8 @@ def test_fixed_beta_is_the_nominal_optimum_everywhere(nominal):
     code, out, _ = run("needle", "montecarlo", "--n", "200", "--set", "guide_shift_um=20",
                        "--format", "json")
     d = strict_loads(out)
-    assert d["nominal_beta_deg"] == beta_star and d["fixed_beta"] == "optimum"
-    assert d["yield_fixed_beta"] == res.yield_of("fixed_beta")  # the output names work too
+    assert d["extra"]["nominal_beta_deg"] == beta_star and d["extra"]["fixed_beta"] == "optimum"
+    assert d["yields"]["fixed_beta"] == res.yield_of("fixed_beta")  # the output names work too
     given = montecarlo(shifted, NEEDLE_208_SETS["base"], 200, seed=0, fixed_beta="as_given")
     assert given.nominal_beta_deg == nominal.beta
     # the fixed case is a machine at beta*: its nominal-deviation machine gives the nominal total
@@ -326,5 +326,5 @@ def test_issue_14_contract_fixes(nominal):
     code, out, _ = run("needle", "montecarlo", "--n", "200", "--format", "json")
     d = strict_loads(out)
     assert set(d["yield_ci"]) == {"method", "level", "fixed_beta", "adjusted_beta"}
-    assert set(d["capability"]["fixed_beta"]) == {"Cpu", "Cpu_percentile"}
-    assert d["beta_search_range_deg"] == [10.0, 35.0]
+    assert set(d["extra"]["capability"]["fixed_beta"]) == {"Cpu", "Cpu_percentile"}
+    assert d["extra"]["beta_search_range_deg"] == [10.0, 35.0]

@@ -237,6 +237,8 @@ def _context(args, params, tolerances, strategy) -> dict:
             "guide_angle_deg": float(params.guide_angle),
             "strategy": "beta" if strategy is None else strategy.name,
             "beta_search_range_deg": beta, "limit_um": getattr(args, "limit_um", None) or 10.0,
+            # where limit_um comes from: "default" (10 um), "command line" or "file" (`run FILE`)
+            "spec_source": getattr(args, "spec_source", None) or "default",
             # the model that computed the numbers (`run FILE` says "generic" on its sampled path)
             "path": "needle_208"}
 
@@ -428,6 +430,8 @@ def _check_beta_range(args):
 
     if getattr(args, "beta_range", None) is None:
         args.beta_range = list(sb.DEFAULT_RANGE_DEG)
+    if getattr(args, "spec_source", None) is None:  # `run FILE` sets "file" or "command line"
+        args.spec_source = "default" if getattr(args, "limit_um", None) is None else "command line"
     if getattr(args, "limit_um", None) is None:
         args.limit_um = sb.DEFAULT_LIMIT_UM
     lo, hi = args.beta_range
@@ -599,14 +603,15 @@ def run_montecarlo(args, params, tolerances, limit, rng, **inputs_extra):
 def _montecarlo_record(args, params, tolerances, res) -> dict:
     """The JSON of `needle montecarlo` (and of `run FILE montecarlo` on the needle fast path):
     the result, its context and whether the fixed case's beta* lies on a range bound."""
-    return {**res.to_dict(), "context": _context(args, params, tolerances, None),
-            "fixed_beta_at_bound": _beta_star_figures(args, params).beta_at_bound}
+    d = res.to_dict()
+    d["extra"]["fixed_beta_at_bound"] = _beta_star_figures(args, params).beta_at_bound
+    return {**d, "context": _context(args, params, tolerances, None)}
 
 
 def _montecarlo_notes(res, record) -> list[str]:
     k, pinned = res.beta_at_bound(), res.beta_at_bound(pinned=True)
     return ([f"yield intervals: {record['yield_ci']['method']}, 95 %"]
-            + _fixed_notes({**record, "fixed_beta_deg": res.nominal_beta_deg})
+            + _fixed_notes({**record["extra"], "fixed_beta_deg": res.nominal_beta_deg})
             + ([f"{k} of {res.n} machines have an adjusted beta* whose optimum reaches a bound "
                 f"of the searched range {list(res.range_deg)} deg; {pinned} of them are pinned "
                 "there (SumDelta still falling: the optimum lies outside the range), the others "

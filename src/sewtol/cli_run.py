@@ -20,10 +20,13 @@ RUN_FORMATS = ("text", "table", "json", "csv")
 DEFAULT_N = {"montecarlo": 2000, "sobol": 256, "ppm": 20000, "allocation": 2000, "report": 1000}
 # --target: the smallest probability ppm must resolve; the yield allocation must keep
 DEFAULT_TARGET = {"ppm": 1e-6, "allocation": 0.9973}
+# the studies whose limits default to the file's [[specs]] (--limit/--lower-limit override them)
+SPEC_STUDIES = ("montecarlo", "ppm", "allocation", "report")
 # which flags each study reads; any other given flag is refused in one line
 USES = {"nominal": (), "scan": ("output", "tolerances", "adjust"),
         "worst-case": ("output", "tolerances", "adjust"),
-        "montecarlo": ("output", "tolerances", "n", "seed", "limit", "n_jobs", "adjust"),
+        "montecarlo": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "n_jobs",
+                       "adjust"),
         "sobol": ("output", "tolerances", "n", "seed"),
         "ppm": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "method", "target",
                 "adjust", "n_jobs"),
@@ -48,14 +51,15 @@ def add_run(sub, parser_class=None) -> None:
                         "1000), base samples (sobol, 256) or model calls (ppm, 20000)")
     p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
     p.add_argument("--limit", type=float, default=None,
-                   help="upper limit of --output (default the first output) for the yield")
+                   help="upper limit of --output (default the first output) for the yield; "
+                        "replaces the file's [[specs]] entry of that output")
     p.add_argument("--n-jobs", type=int, default=None, help="parallel workers (montecarlo)")
     p.add_argument("--adjust", default=None, metavar="COMPENSATOR",
                    help="add the adjusted case: --output (default the first) minimised over "
                         "this [compensators.NAME] of the file on each machine")
     p.add_argument("--lower-limit", type=float, default=None,
-                   help="lower limit of --output (ppm, allocation, report; with or without "
-                        "--limit)")
+                   help="lower limit of --output (montecarlo, ppm, allocation, report; with or "
+                        "without --limit)")
     p.add_argument("--method", choices=("auto", "montecarlo", "mc", "subset", "nais"),
                    default=None,
                    help="ppm: auto (Monte-Carlo if n * target >= 10, else subset simulation), "
@@ -125,16 +129,14 @@ def _check_flags(args) -> None:
         args.n = DEFAULT_N[args.study]
     args.seed = 0 if args.seed is None else args.seed
     args.n_jobs = 1 if args.n_jobs is None else args.n_jobs
-    if args.study == "montecarlo" and args.n < 2:
-        raise ParameterError("--n", "must be >= 2", args.n)
     _check_yield_flags(args)
 
 
 def _check_yield_flags(args) -> None:
-    """The flags of ppm, allocation and report, before anything runs."""
+    """The flags of montecarlo, ppm, allocation and report, before anything runs."""
     import math
 
-    if args.study not in ("ppm", "allocation", "report"):
+    if args.study not in SPEC_STUDIES:
         return
     if args.study in DEFAULT_TARGET:
         if args.target is None:
@@ -143,9 +145,6 @@ def _check_yield_flags(args) -> None:
             what = "probability" if args.study == "ppm" else "yield"
             raise ParameterError("--target", f"must be a {what} strictly between 0 and 1",
                                  args.target)
-        if args.limit is None and args.lower_limit is None:
-            raise ParameterError("--limit", f"`run {args.study}` needs --limit and/or "
-                                 "--lower-limit", None)
     for flag, v in (("--limit", args.limit), ("--lower-limit", args.lower_limit)):
         if v is not None and not math.isfinite(v):
             raise ParameterError(flag, "must be a finite number", v)
@@ -153,7 +152,7 @@ def _check_yield_flags(args) -> None:
             and not args.lower_limit < args.limit:
         raise ParameterError("--lower-limit", f"must be below --limit {args.limit:g}",
                              args.lower_limit)
-    minimum = {"ppm": 100, "allocation": 10, "report": 2}[args.study]
+    minimum = {"montecarlo": 2, "ppm": 100, "allocation": 10, "report": 2}[args.study]
     if args.n < minimum:
         raise ParameterError("--n", f"must be >= {minimum} for `run {args.study}`", args.n)
     if args.study == "ppm":
@@ -228,6 +227,10 @@ def cmd_run(args) -> None:
     fmt = "table" if args.format == "text" else args.format
     if args.output is not None:
         mech.output(args.output)
+    args.spec = args.spec_source = None
+    if args.study in SPEC_STUDIES:  # the limits in force: the flags', else the file's
+        args.spec_output, args.spec, args.spec_source = mech.resolve_spec(
+            args.output, args.limit, args.lower_limit)
     args.path_reason = _fast_path_refusal(args, mech)  # None: the needle_208 fast path
     if args.study == "nominal":
         res = G.nominal(mech)
@@ -263,7 +266,7 @@ def cmd_run(args) -> None:
     if args.study in ("ppm", "allocation", "report"):
         return _yield_study(args, fmt, mech, tolerances)
     res = _as_flags(G.montecarlo, mech, tolerances, args.n, args.seed, outputs, args.limit,
-                    args.output, args.n_jobs, False, G.CHUNK, args.adjust)
+                    args.output, args.n_jobs, False, G.CHUNK, args.adjust, args.lower_limit)
     return _finish(args, fmt, mech, tolerances, res.to_dict(),
                    {"machines": res.machines, "summary": res.summary_frame()},
                    res.summary_frame())
@@ -291,7 +294,8 @@ def _run_context(args, mech, tolerances) -> dict:
             "seed": args.seed if draws else None, "n": args.n if draws else None,
             "strategy": args.adjust or "none", "output": args.output,
             "limit": args.limit, "lower_limit": args.lower_limit,
-            "path": "generic", "path_reason": getattr(args, "path_reason", None)}
+            "spec_source": getattr(args, "spec_source", None), "path": "generic",
+            "path_reason": getattr(args, "path_reason", None)}
 
 
 def _finish(args, fmt, mech, tolerances, obj, frames, frame) -> None:
@@ -356,11 +360,18 @@ def _fast_path_refusal(args, mech) -> str | None:
                     "`needle allocation` searches 10 35")
     if getattr(args, "lower_limit", None) is not None:
         return "--lower-limit: the needle commands limit SumDelta from above only"
-    if args.limit is not None and not args.limit > 0:
-        return f"--limit {args.limit:g}: the needle's SumDelta limit is a positive number of um"
-    if args.study == "allocation" and args.limit is not None \
-            and args.limit != sb.DEFAULT_LIMIT_UM:
-        return (f"--limit {args.limit:g}: `needle allocation` keeps SumDelta within "
+    spec, flag = getattr(args, "spec", None), ("--limit" if args.limit is not None
+                                                else "the file's [[specs]]")
+    if spec is not None and spec.output not in sumdelta_outputs(mech):
+        return f"the file's [[specs]] limits {spec.output}, not SumDelta"
+    if spec is not None and spec.lower is not None:
+        return "the file's [[specs]] gives SumDelta a lower limit: the needle commands limit it " \
+               "from above only"
+    upper = None if spec is None else spec.upper
+    if upper is not None and not upper > 0:
+        return f"{flag} {upper:g}: the needle's SumDelta limit is a positive number of um"
+    if args.study == "allocation" and upper is not None and upper != sb.DEFAULT_LIMIT_UM:
+        return (f"{flag} {upper:g}: `needle allocation` keeps SumDelta within "
                 f"{sb.DEFAULT_LIMIT_UM:g} um")
     if args.weight is not None:
         return "--weight: `needle allocation` weighs every tolerance alike"
@@ -384,6 +395,7 @@ def _tolerances_refusal(tolerances) -> str | None:
 def _needle_namespace(args, mech, tolerances=None):
     """`run`'s flags as the arguments of `sewtol needle STUDY` (the file's nominal machine and
     tolerance set ride along as nominal_params and tolerance_set)."""
+    from sewtol.mechanisms.needle_208 import beta as sb
     from sewtol.mechanisms.needle_208.fast_path import _needle_params
 
     study = args.study
@@ -398,6 +410,11 @@ def _needle_namespace(args, mech, tolerances=None):
     else:  # beta adjusted: the default of needle scan and allocation, --adjust beta of ppm
         adjust = "beta" if study == "ppm" else None
     draws = study in ("montecarlo", "sobol", "ppm", "allocation")
+    # the limit in force; the file's spec of the needle's own default 10 um is passed as the
+    # default, so `run` and `needle` print the same bytes
+    limit = None if args.spec is None or (args.limit is None
+                                          and args.spec.upper == sb.DEFAULT_LIMIT_UM) \
+        else args.spec.upper
     ns = argparse.Namespace(
         set=None, frame=None, guide_shift_um=None, tolerances=None,
         format="table" if args.format == "text" else args.format,
@@ -406,7 +423,9 @@ def _needle_namespace(args, mech, tolerances=None):
         n_jobs=args.n_jobs if study in ("montecarlo", "ppm") else 1,
         scheduler=None, progress=args.progress, out=args.out, resume=False, plot=None,
         beta_range=None if study == "allocation" else beta_range,
-        limit_um=args.limit if study in ("montecarlo", "ppm") else None,
+        limit_um=limit if study in ("montecarlo", "ppm") else None,
+        spec_source=args.spec_source if limit is not None and study in ("montecarlo", "ppm")
+        else None,
         adjust=adjust, range=None, step=None, resolution=None, second_order=False,
         method=args.method, target=args.target, budget=args.n if study == "ppm" else None,
         nominal_params=_needle_params(mech), tolerance_set=tolerances,
@@ -437,15 +456,15 @@ def _yield_study(args, fmt, mech, tolerances) -> None:
     from sewtol.studies import generic_yield as GY
     from sewtol.studies import rare_event as R
 
-    output = args.output or mech.output_names[0]
+    output, spec = args.spec_output, args.spec
+    upper, lower = (None, None) if spec is None else (spec.upper, spec.lower)
     if args.study == "report":
         from sewtol.cli import _check_out
         from sewtol.reports import generic_report as GR
 
         _check_out(args)
         rep = _as_flags(GR.build, mech, tolerances, args.n, args.seed,
-                        output if args.limit is not None or args.lower_limit is not None
-                        else None, args.limit, args.lower_limit)
+                        None if spec is None else output, upper, lower)
         try:
             GR.write(rep, args.out)
         except OSError as exc:
@@ -463,25 +482,24 @@ def _yield_study(args, fmt, mech, tolerances) -> None:
         return None
     if args.study == "allocation":
         weights = parse_sets(args.weight)
-        res = _as_flags(GY.allocate, mech, tolerances, output, args.target, args.limit,
-                        args.lower_limit, args.n, args.seed, weights, args.adjust)
+        res = _as_flags(GY.allocate, mech, tolerances, output, args.target, upper, lower,
+                        args.n, args.seed, weights, args.adjust)
         _finish(args, fmt, mech, tolerances, res.to_dict(),
                 {"allocation": res.table, "trials": res.trials}, res.table)
         if fmt == "table":
-            cond = GY.limits_text(output, args.limit, args.lower_limit, mech.output(output).unit)
+            cond = GY.limits_text(output, upper, lower, mech.output(output).unit)
             print(f"\nscale {res.scale:.6g} of set '{tolerances.name}': yield {res.yield_:.4f} "
                   f"(target {args.target:g}) of {res.n} machines passing {cond}"
                   + (" (capped: the yield stays above the target up to this scale)"
                      if res.capped else ""))
         return None
-    ls = _as_flags(GY.file_limit_state, mech, tolerances, output, args.limit, args.lower_limit,
-                   args.adjust)
+    ls = _as_flags(GY.file_limit_state, mech, tolerances, output, upper, lower, args.adjust)
     res = _as_flags(R.estimate, ls, np.random.default_rng(args.seed), args.method, args.target,
                     args.n, args.n_jobs)
-    cond = GY.limits_text(output if args.adjust is None else f"{output}_adjusted", args.limit,
-                          args.lower_limit, mech.output(output).unit)
+    cond = GY.limits_text(output if args.adjust is None else f"{output}_adjusted", upper,
+                          lower, mech.output(output).unit)
     obj = {**res.to_dict(), "mechanism": mech.name, "tolerances": tolerances.name,
-           "pass_condition": cond, "lower_limit": args.lower_limit, "upper_limit": args.limit,
+           "pass_condition": cond, "lower_limit": lower, "upper_limit": upper,
            "adjust": args.adjust, "seed": args.seed, "target": args.target, "budget": args.n}
     _finish(args, fmt, mech, tolerances, obj,
             {"levels": res.levels, "failing_examples": res.examples},

@@ -16,9 +16,10 @@ from sewtol.mechanism.groups import GROUPS, register_group
 from sewtol.mechanism.loader import load, loads
 from sewtol.mechanism.model import DEAD_POINT_DEG, Evaluation, FileMechanism, State
 from sewtol.mechanism.outputs import OUTPUT_TYPES, OUTPUTS, register_output
+from sewtol.mechanism.spec import Spec
 
 __all__ = [
     "DEAD_POINT_DEG", "Evaluation", "ExpressionError", "FileMechanism", "GROUPS", "OUTPUTS",
-    "OUTPUT_TYPES", "State", "load", "loads", "parse_expression", "register_group",
+    "OUTPUT_TYPES", "Spec", "State", "load", "loads", "parse_expression", "register_group",
     "register_output",
 ]

@@ -19,7 +19,17 @@ from sewtol.mechanism import expressions as X
 from sewtol.mechanism.groups import GROUPS
 from sewtol.mechanism.lines import Locator
 from sewtol.mechanism.outputs import OUTPUT_TYPES, OUTPUTS, provide, providers
-from sewtol.mechanism.spec import FORMAT, RULES, UNITS, Compensator, Group, Header, Output, Parameter
+from sewtol.mechanism.spec import (
+    FORMAT,
+    RULES,
+    UNITS,
+    Compensator,
+    Group,
+    Header,
+    Output,
+    Parameter,
+    Spec,
+)
 from sewtol.tolerances import Tolerance, ToleranceSet, _parse_item
 
 MAX_BYTES = 1 << 20
@@ -27,8 +37,9 @@ NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 MECH_NAME = re.compile(r"^[a-z0-9_]+$")
 # groups whose Closure carries a transmission angle (a transmission output may name them)
 TRANSMISSION_GROUPS = ("rrr", "spatial_rocker", "spatial_slider")
-TOP_KEYS = ("format", "mechanism", "parameters", "groups", "outputs", "compensators",
+TOP_KEYS = ("format", "mechanism", "parameters", "groups", "outputs", "specs", "compensators",
             "tolerances")
+SPEC_KEYS = ("output", "upper", "lower", "doc")
 MECH_KEYS = ("name", "title", "source", "assumptions", "samples", "rpm", "driver", "fast_path")
 PARAM_KEYS = ("nominal", "unit", "rule", "doc")
 MIN_SAMPLES, MAX_SAMPLES = 8, 100_000
@@ -91,11 +102,12 @@ def loads(text: str, path: str = "<text>", overrides: dict | None = None):
         ctx.fail(("mechanism", "driver"), "[mechanism] driver", "must name a crank group",
                  header.driver)
     outputs = _outputs(ctx, data.get("outputs"), pnames, groups, header)
+    specs = _specs(ctx, data.get("specs", []), outputs)
     comps = _compensators(ctx, data.get("compensators", {}), pnames)
     sets = _tolerance_sets(ctx, data.get("tolerances", {}), pnames)
     mech = FileMechanism(path=path, header=header, parameters=tuple(params),
                          groups=tuple(groups), outputs=tuple(outputs), compensators=comps,
-                         tolerance_sets=sets)
+                         tolerance_sets=sets, specs=specs)
     if header.fast_path is not None:
         from sewtol.mechanism.fast_paths import fast_paths
 
@@ -401,6 +413,36 @@ def _outputs(ctx, table, pnames, groups, header) -> list[Output]:
                 fields[k] = _expr(ctx, fpath, f"{where}.{k}", v, pnames)
         out.append(Output(name, unit, otype, doc, fields, kind, ctx.loc.line(*path)))
     return out
+
+
+def _specs(ctx, table, outputs) -> tuple[Spec, ...]:
+    if not isinstance(table, list):
+        ctx.fail(("specs",), "[[specs]]", "must be an array of tables", table)
+    names = [o.name for o in outputs]
+    out = []
+    for i, s in enumerate(table):
+        path = ("specs", i)
+        if not isinstance(s, dict):
+            ctx.fail(path, f"[[specs]] #{i + 1}", "must be a table", s)
+        for k in s:
+            if k not in SPEC_KEYS:
+                ctx.fail(path + (k,), f"[[specs]] #{i + 1}.{k}",
+                         f"unknown key; allowed: {', '.join(SPEC_KEYS)}", k)
+        output = s.get("output")
+        if output not in names:
+            ctx.fail(path + ("output",), f"[[specs]] #{i + 1}.output", "must name an output of "
+                     "the file (" + (", ".join(names) or "it has none") + ")", output)
+        where = f"[[specs]] {output}"
+        if any(x.output == output for x in out):
+            ctx.fail(path + ("output",), f"{where}.output", "has a spec already (one [[specs]] "
+                     "per output)", output)
+        doc = _str(ctx, path + ("doc",), f"{where}.doc", s.get("doc", ""))
+        try:
+            out.append(Spec(output, s.get("upper"), s.get("lower"), doc, ctx.loc.line(*path)))
+        except ParameterError as exc:
+            key = exc.field if exc.field in s else None
+            ctx.fail(path + ((key,) if key else ()), f"{where}.{exc.field}", exc.rule, exc.value)
+    return tuple(out)
 
 
 def _compensators(ctx, table, pnames) -> dict[str, Compensator]:

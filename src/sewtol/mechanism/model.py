@@ -22,7 +22,7 @@ from sewtol import engine
 from sewtol.errors import ParameterError
 from sewtol.mechanism.groups import GROUPS
 from sewtol.mechanism.outputs import OUTPUT_TYPES, OUTPUTS
-from sewtol.mechanism.spec import Compensator, Group, Header, Output, Parameter
+from sewtol.mechanism.spec import Compensator, Group, Header, Output, Parameter, Spec
 from sewtol.tolerances import ToleranceSet
 
 DEAD_POINT_DEG = 1.0
@@ -74,6 +74,7 @@ class FileMechanism:
     outputs: tuple[Output, ...]
     compensators: dict[str, Compensator] = field(default_factory=dict)
     tolerance_sets: dict[str, ToleranceSet] = field(default_factory=dict)
+    specs: tuple[Spec, ...] = ()
 
     @property
     def name(self) -> str:
@@ -122,6 +123,26 @@ class FileMechanism:
                 return o
         raise ParameterError("--output", "must name an output of the file: "
                              + ", ".join(self.output_names), name)
+
+    def spec_of(self, output: str) -> Spec | None:
+        """The file's [[specs]] entry of an output, None when the file gives it no limits."""
+        return next((s for s in self.specs if s.output == output), None)
+
+    def resolve_spec(self, output: str | None = None, upper: float | None = None,
+                     lower: float | None = None) -> tuple[str, Spec | None, str | None]:
+        """(output, spec, source) of a yield study: limits given here (the command line's
+        --limit/--lower-limit) replace the file's spec of that output (source "command line");
+        else the file's spec (source "file"), else none. The output defaults to the first
+        output with limits given, else the first output of the file's [[specs]], else the first
+        output."""
+        given = upper is not None or lower is not None
+        if output is None:
+            output = self.specs[0].output if self.specs and not given else self.output_names[0]
+        self.output(output)
+        if given:
+            return output, Spec(output, upper, lower), "command line"
+        spec = self.spec_of(output)
+        return output, spec, None if spec is None else "file"
 
     def angles_rad(self) -> np.ndarray:
         return 2.0 * np.pi * np.arange(self.samples) / self.samples

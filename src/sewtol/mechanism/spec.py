@@ -1,10 +1,14 @@
-"""The parts of a mechanism file once checked: parameters, groups, outputs, compensators.
+"""The parts of a mechanism file once checked: parameters, groups, outputs, compensators, specs.
 
 Every part keeps the line of the file it came from, so later errors can point at it."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+
+import numpy as np
+
+from sewtol.errors import ParameterError
 
 FORMAT = "sewtol-mechanism/1"
 UNITS = ("mm", "deg", "um", "1")
@@ -50,6 +54,47 @@ class Compensator:
     low: float
     high: float
     line: int = 0
+
+
+@dataclass(frozen=True)
+class Spec:
+    """The limits one output must keep (a [[specs]] entry, or --limit/--lower-limit): an upper
+    limit, a lower limit or both, in the output's unit. Checked at construction: at least one
+    limit, each finite, lower below upper."""
+
+    output: str
+    upper: float | None = None
+    lower: float | None = None
+    doc: str = ""
+    line: int = 0
+
+    def __post_init__(self):
+        if self.upper is None and self.lower is None:
+            raise ParameterError("upper", "give an upper and/or a lower limit", None)
+        for name in ("upper", "lower"):
+            v = getattr(self, name)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
+                                  or not np.isfinite(v)):
+                raise ParameterError(name, "must be a finite number", v)
+            if v is not None:
+                object.__setattr__(self, name, float(v))
+        if self.upper is not None and self.lower is not None and not self.lower < self.upper:
+            raise ParameterError("lower", f"must be below the upper limit {self.upper:g}",
+                                 self.lower)
+
+    def excess(self, y) -> np.ndarray:
+        """How far each value lies beyond the limits (output units; <= 0 inside, NaN stays)."""
+        y = np.asarray(y, float)
+        up = y - self.upper if self.upper is not None else np.full_like(y, -np.inf)
+        return up if self.lower is None else np.maximum(up, self.lower - y)
+
+    def passes(self, y) -> np.ndarray:
+        """Per value: True inside the limits (NaN, a machine that gives no value, fails)."""
+        with np.errstate(invalid="ignore"):
+            return np.asarray(self.excess(y) <= 0)
+
+    def to_dict(self) -> dict:
+        return {"output": self.output, "upper": self.upper, "lower": self.lower, "doc": self.doc}
 
 
 @dataclass(frozen=True)

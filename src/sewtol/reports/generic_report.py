@@ -25,7 +25,7 @@ from sewtol.errors import ParameterError
 from sewtol.io import write_bytes_atomic, write_text_atomic
 from sewtol.reports.tables import to_csv, to_markdown
 from sewtol.studies import generic as G
-from sewtol.studies.generic_yield import check_limits, excess, limits_text
+from sewtol.studies.generic_yield import check_limits, limits_text
 
 # the histogram's range: these quantiles of the machines that run, widened to show the limits;
 # machines outside are counted as "beyond the plot" in the legend
@@ -127,11 +127,15 @@ def dominance(scan_rows: pd.DataFrame) -> pd.DataFrame:
 
 def build(mech, tolerances, n: int = 1000, seed: int = 0, limit_output: str | None = None,
           upper: float | None = None, lower: float | None = None) -> GenericReport:
-    """Run nominal, scan, worst case (every output) and Monte-Carlo on the file."""
+    """Run nominal, scan, worst case (every output) and Monte-Carlo on the file; the yield of
+    limit_output within upper/lower, by default within the file's [[specs]] entry."""
     if upper is not None or lower is not None:
         upper, lower = check_limits(upper, lower)
-        limit_output = limit_output or mech.output_names[0]
-        mech.output(limit_output)
+    limit_output, spec, _ = mech.resolve_spec(limit_output, upper, lower)
+    if spec is None:
+        limit_output = None
+    else:
+        upper, lower = spec.upper, spec.lower
     nom = G.nominal(mech).rows
     sc = G.scan(mech, tolerances).rows
     wc_rows, wc_notes, notes = [], {}, []
@@ -150,22 +154,20 @@ def build(mech, tolerances, n: int = 1000, seed: int = 0, limit_output: str | No
         columns=["extreme", "output", "value", "corner_value", "interior"])
     for name, why in wc_notes.items():
         notes.append(f"worst case of {name} not computed ({why})")
-    mc = G.montecarlo(mech, tolerances, n, seed)
+    mc = G.montecarlo(mech, tolerances, n, seed, limit=upper, lower_limit=lower,
+                      limit_output=limit_output)
     machines = mc.machines
     yield_row = None
     if limit_output is not None:
-        v = machines[limit_output].to_numpy(float)
-        runs = (machines["status"] == "ok").to_numpy()
-        inside = runs & (excess(np.where(runs, v, 0.0), upper, lower) <= 0)
-        k = int(inside.sum())
-        ci = stats.binomtest(k, len(v)).proportion_ci(0.95, method="exact")
+        c = mc.counts(limit_output)
+        ci = stats.binomtest(c["ok"], c["n"]).proportion_ci(0.95, method="exact")
         yield_row = {"output": limit_output, "limit": upper, "lower_limit": lower,
                      "condition": limits_text(limit_output, upper, lower,
                                               mech.output(limit_output).unit),
-                     "n": len(v), "ok": k, "out_of_limits": int((runs & ~inside).sum()),
-                     "cannot_close": int(np.sum(machines["status"] == "cannot_close")),
-                     "dead_point": int(np.sum(machines["status"] == "dead_point")),
-                     "yield": k / len(v), "ci_low": float(ci.low), "ci_high": float(ci.high)}
+                     "n": c["n"], "ok": c["ok"], "out_of_limits": c["out_of_spec"],
+                     "cannot_close": c["cannot_close"], "dead_point": c["dead_point"],
+                     "yield": c["ok"] / c["n"], "ci_low": float(ci.low),
+                     "ci_high": float(ci.high)}
     return GenericReport(mech, tolerances, int(n), int(seed), limit_output, upper, lower, nom,
                          sc, dominance(sc), wc, wc_notes, mc.summary_frame(), machines,
                          yield_row, notes)

@@ -12,7 +12,8 @@ it looks at, and returns a frozen result with to_dataframe() and to_dict().
   prove it).
 - montecarlo: n machines drawn exactly as studies.montecarlo.sample_machines draws them (chunk i
   from child i of the seed: same seed, same table, for any n_jobs); every machine keeps its
-  status, so ok + out_of_spec + cannot_close + dead_point = n.
+  status, so ok + out_of_spec + cannot_close + dead_point = n; out_of_spec by the file's
+  [[specs]] unless limits are given.
 - sobol: first and total Sobol indices of one output with studies.sobol (SALib); a sample with
   machines that cannot run is refused in one line.
 """
@@ -28,6 +29,7 @@ from scipy import stats
 from scipy.optimize import minimize
 
 from sewtol.errors import AssemblyError, ParameterError
+from sewtol.mechanism.spec import Spec
 from sewtol.studies import montecarlo as mc
 from sewtol.studies import sobol as so
 from sewtol.tolerances import ToleranceSet
@@ -351,9 +353,11 @@ class GenericMonteCarloResult:
     outputs: tuple[str, ...]
     tolerances: str
     seed: int
-    limit: float | None = None
-    limit_output: str | None = None
+    limit_output: str  # the spec'd output of the JSON's cases (its spec may be None)
+    specs: tuple[Spec, ...] = ()  # the limits in force, at most one per output
+    spec_source: str | None = None  # of limit_output's spec: "file", "command line" or None
     adjust: str | None = None  # the compensator of the adjusted case (column NAME_adjusted)
+    unit: str = ""  # limit_output's unit
 
     @property
     def n(self) -> int:
@@ -363,20 +367,37 @@ class GenericMonteCarloResult:
     def adjusted_output(self) -> str | None:
         return None if self.adjust is None else f"{self.limit_output}_adjusted"
 
+    def spec(self, output: str | None = None) -> Spec | None:
+        """The limits in force for an output (its adjusted case keeps the output's limits)."""
+        if output is None or output == self.adjusted_output:
+            output = self.limit_output
+        return next((s for s in self.specs if s.output == output), None)
+
+    def cases(self) -> dict[str, str]:
+        """Case name -> column: "fixed" (every machine as drawn), or with a compensator C the
+        cases "fixed_C" (C at its nominal) and "adjusted_C" (C set per machine)."""
+        if self.adjust is None:
+            return {"fixed": self.limit_output}
+        return {f"fixed_{self.adjust}": self.limit_output,
+                f"adjusted_{self.adjust}": self.adjusted_output}
+
     def status(self, output: str | None = None) -> np.ndarray:
-        """Per machine: ok, out_of_spec (only for the limited output and its adjusted case),
+        """Per machine: ok, out_of_spec (outside the output's spec; no value fails a spec),
         cannot_close, dead_point (the adjusted case: at the machine's chosen setting)."""
         col = "status_adjusted" if output is not None and output == self.adjusted_output \
             else "status"
         s = self.machines[col].to_numpy(object).copy()
-        if self.limit is not None and output in (self.limit_output, self.adjusted_output):
-            v = self.machines[output].to_numpy(float)
-            s[(s == "ok") & (v > self.limit)] = "out_of_spec"
+        spec = self.spec(output) if output is not None else None
+        if spec is not None:
+            s[(s == "ok") & ~spec.passes(self.machines[output].to_numpy(float))] = "out_of_spec"
         return s
 
     def counts(self, output: str | None = None) -> dict[str, int]:
+        """ok + out_of_spec + failed = n, failed = cannot_close + dead_point (+ unexplained,
+        always 0 here: the keys of the needle's counts)."""
         s = self.status(output)
-        c = {k: int(np.sum(s == k)) for k in ("ok", "out_of_spec", "cannot_close", "dead_point")}
+        c = {k: int(np.sum(s == k)) for k in ("ok", "out_of_spec", "cannot_close", "dead_point",
+                                              "unexplained")}
         c["failed"] = c["cannot_close"] + c["dead_point"]
         c["n"] = int(s.size)
         return c
@@ -410,48 +431,55 @@ class GenericMonteCarloResult:
             else:
                 row.update(dict.fromkeys(("mean", "std", "min", "p50", "p95", "p99", "max"),
                                          float("nan")))
-            if self.limit is not None and name in (self.limit_output, self.adjusted_output):
+            spec = self.spec(name)
+            if spec is not None:
                 k = c["ok"]
                 ci = stats.binomtest(k, c["n"]).proportion_ci(0.95, method="exact")
-                row.update({"limit": self.limit, "yield": k / c["n"],
+                row.update({"limit": spec.upper, "lower_limit": spec.lower, "yield": k / c["n"],
                             "yield_ci_low": float(ci.low), "yield_ci_high": float(ci.high)})
             rows.append(row)
         return pd.DataFrame(rows)
 
     def to_dict(self) -> dict:
-        return {"mechanism": self.mechanism, "n": self.n, "seed": self.seed,
-                "tolerances": self.tolerances, "limit": self.limit,
-                "limit_output": self.limit_output,
-                "counts": {name: self.counts(name) for name in self.outputs},
-                "failed_groups": self.failed_groups(),
-                **({} if self.adjust is None else {
-                    "adjust": self.adjust,
-                    "failed_groups_adjusted": self.failed_groups(adjusted=True)}),
-                "summary": self.summary_frame().to_dict("records")}
+        """The Monte-Carlo JSON every path shares (studies.montecarlo.record); extra: the
+        compensator, the groups that failed per case and the summary of every output."""
+        cases = self.cases()
+        return mc.record(
+            mechanism=self.mechanism, n=self.n, seed=self.seed, tolerances=self.tolerances,
+            output=self.limit_output, unit=self.unit, spec=self.spec(),
+            counts={c: self.counts(o) for c, o in cases.items()},
+            quantiles={c: mc.quantiles(self.machines[o]) for c, o in cases.items()},
+            extra={"adjust": self.adjust, "failed_groups": self.failed_groups(),
+                   **({} if self.adjust is None else {
+                       "failed_groups_adjusted": self.failed_groups(adjusted=True)}),
+                   "summary": self.summary_frame().to_dict("records")})
 
 
 def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
                limit: float | None = None, limit_output: str | None = None, n_jobs: int = 1,
-               progress=False, chunk_size: int = CHUNK,
-               adjust: str | None = None) -> GenericMonteCarloResult:
-    """n machines of the file (see the module doc); `limit` (an upper limit of limit_output,
-    default the first output) splits ok machines into ok and out_of_spec. `adjust` (a
-    compensator of the file) adds the adjusted case: limit_output minimised over the
-    compensator on each machine (`optimise_compensator`), columns NAME_adjusted, PARAM_setting,
-    status_adjusted, failed_group_adjusted."""
+               progress=False, chunk_size: int = CHUNK, adjust: str | None = None,
+               lower_limit: float | None = None) -> GenericMonteCarloResult:
+    """n machines of the file (see the module doc). Every output with a [[specs]] entry in the
+    file splits its ok machines into ok and out_of_spec; `limit`/`lower_limit` replace the
+    spec of limit_output (default: the first output studied with limits given, else the first
+    output of the file's specs, else the first output). `adjust` (a compensator of the file)
+    adds the adjusted case: limit_output minimised over the compensator on each machine
+    (`optimise_compensator`), columns NAME_adjusted, PARAM_setting, status_adjusted,
+    failed_group_adjusted."""
     names = tuple(mech.output_names if outputs is None else outputs)
     for name in names:
         mech.output(name)
     if adjust is not None and adjust not in mech.compensators:
         raise ParameterError("adjust", "must name a compensator of the file ("
                              + (", ".join(mech.compensators) or "it has none") + ")", adjust)
-    if limit is not None or adjust is not None:
-        limit_output = limit_output or names[0]
-        mech.output(limit_output)
-        if limit_output not in names:
-            names = (*names, limit_output)
-        if limit is not None and not np.isfinite(limit):
-            raise ParameterError("limit", "must be a finite number", limit)
+    given = limit is not None or lower_limit is not None
+    if limit_output is None and (given or not mech.specs):
+        limit_output = names[0]
+    limit_output, spec, source = mech.resolve_spec(limit_output, limit, lower_limit)
+    if limit_output not in names:
+        names = (*names, limit_output)
+    specs = tuple(s for s in mech.specs if s.output in names and s.output != limit_output)
+    specs += () if spec is None else (spec,)
     record = mech.parameter_record()
     mc.check_seed(seed)
     mc.check_sampling(record, tolerances, n, seed, chunk_size,
@@ -463,8 +491,8 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
     if adjust is not None:
         names = (*names, f"{limit_output}_adjusted")
     return GenericMonteCarloResult(mech.name, machines, names, tolerances.name, int(seed),
-                                   None if limit is None else float(limit), limit_output,
-                                   adjust)
+                                   limit_output, specs, source, adjust,
+                                   mech.output(limit_output).unit)
 
 
 # --- Sobol ---------------------------------------------------------------------------------

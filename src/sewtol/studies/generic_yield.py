@@ -1,7 +1,8 @@
 """Failures per million and tolerance allocation for any mechanism file and any output.
 
 Nothing here names a mechanism: both studies take a FileMechanism (sewtol.mechanism), a
-tolerance set, one output and its limits (an upper limit, a lower limit, or both).
+tolerance set, one output and its limits (an upper limit, a lower limit, or both; by default
+those of the output's [[specs]] entry in the file).
 
 - `file_limit_state`: the output as a rare_event.LimitState over the standard-normal map of the
   tolerance set (rare_event.StandardNormalMap, the same map as the needle's). A machine fails when
@@ -29,6 +30,7 @@ import pandas as pd
 from scipy import stats
 
 from sewtol.errors import ParameterError
+from sewtol.mechanism.spec import Spec
 from sewtol.studies import generic as G
 from sewtol.studies.rare_event import LimitState, StandardNormalMap
 from sewtol.tolerances import Tolerance, ToleranceSet
@@ -40,26 +42,26 @@ MAX_DOUBLINGS = 20
 
 
 def check_limits(upper: float | None, lower: float | None) -> tuple[float | None, float | None]:
-    """At least one finite limit; lower below upper when both are given."""
+    """At least one finite limit; lower below upper when both are given (mechanism.spec.Spec's
+    rules, named by the command line's flags)."""
     if upper is None and lower is None:
         raise ParameterError("limit", "give an upper limit (--limit) and/or a lower limit "
-                             "(--lower-limit)", None)
-    for name, v in (("limit", upper), ("lower_limit", lower)):
-        if v is not None and not np.isfinite(v):
-            raise ParameterError(name, "must be a finite number", v)
-    if upper is not None and lower is not None and not lower < upper:
-        raise ParameterError("lower_limit", f"must be below the upper limit {upper:g}", lower)
-    return (None if upper is None else float(upper)), (None if lower is None else float(lower))
+                             "(--lower-limit), or a [[specs]] entry of the output in the file",
+                             None)
+    try:
+        spec = Spec("", upper, lower)
+    except ParameterError as exc:
+        raise ParameterError({"upper": "limit", "lower": "lower_limit"}[exc.field], exc.rule,
+                             exc.value) from None
+    return spec.upper, spec.lower
 
 
-def excess(y: np.ndarray, upper: float | None, lower: float | None) -> np.ndarray:
-    """How far each value lies beyond the limits (output units; <= 0 inside)."""
-    parts = []
-    if upper is not None:
-        parts.append(y - upper)
-    if lower is not None:
-        parts.append(lower - y)
-    return np.maximum.reduce(parts) if len(parts) > 1 else parts[0]
+def limits_of(mech, output: str, upper: float | None, lower: float | None):
+    """The limits of a study of `output`: those given, else the file's [[specs]] entry of it."""
+    spec = mech.spec_of(output)
+    if upper is None and lower is None and spec is not None:
+        return spec.upper, spec.lower
+    return check_limits(upper, lower)
 
 
 def _check_adjust(mech, adjust):
@@ -102,20 +104,21 @@ class _FileResponse:
         mode = np.zeros(y.size, dtype=int)
         for k, (s, g) in enumerate(self.modes, start=1):
             mode[(status == s) & (group == g)] = k
-        value = y if self.lower is None else excess(y, self.upper, self.lower)
+        value = y if self.lower is None else Spec(self.output, self.upper, self.lower).excess(y)
         return np.where(mode == 0, value, np.nan), mode
 
 
 def file_limit_state(mech, tolerances: ToleranceSet, output: str, upper: float | None = None,
                      lower: float | None = None, adjust: str | None = None) -> LimitState:
-    """One output of a file mechanism as a LimitState (see the module doc).
+    """One output of a file mechanism as a LimitState (see the module doc); without limits,
+    those of the file's [[specs]] entry of the output.
 
     With an upper limit only, the LimitState's value is the output itself and its limit the
     upper limit; with a lower limit, its value is the excess beyond the limits (output units,
     named OUTPUT_excess) and its limit 0."""
     mech.output(output)
     _check_adjust(mech, adjust)
-    upper, lower = check_limits(upper, lower)
+    upper, lower = limits_of(mech, output, upper, lower)
     tol = G._check_tolerances(mech, tolerances)
     zmap = StandardNormalMap(tol)
     modes = tuple((s, g) for g in _failing_groups(mech) for s in FAILURE_STATUSES)
@@ -195,12 +198,14 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
              adjust: str | None = None) -> FileAllocation:
     """The largest common scale k of `tolerances` (each limit times k times its weight, default
     weight 1) at which the fraction of n machines that run and keep `output` within the limits
-    is at least `target` (see the module doc: common random numbers, bisection on k to a
-    relative SCALE_RTOL). Machines that cannot run count against the yield. A scale at which the
-    set would draw machines the parameter rules reject (a length <= 0) counts as too wide."""
+    is at least `target` (limits default to the file's [[specs]] entry; see the module doc:
+    common random numbers, bisection on k to a relative SCALE_RTOL). Machines that cannot run
+    count against the yield. A scale at which the set would draw machines the parameter rules
+    reject (a length <= 0) counts as too wide."""
     mech.output(output)
     _check_adjust(mech, adjust)
-    upper, lower = check_limits(upper, lower)
+    upper, lower = limits_of(mech, output, upper, lower)
+    spec = Spec(output, upper, lower)
     if not (isinstance(target, (int, float)) and 0 < target < 1):
         raise ParameterError("target", "must be a yield strictly between 0 and 1", target)
     if int(n) != n or n < 10:
@@ -233,7 +238,7 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
         dev = {p: k * v for p, v in base.items()}
         y, status, _ = _evaluate(mech, G._values(mech, dev), output, adjust)
         runs = status == "ok"
-        inside = runs & (excess(np.where(runs, y, 0.0), upper, lower) <= 0)
+        inside = runs & spec.passes(y)
         yk = float(np.mean(inside))
         trials.append({"scale": k, "yield": yk, "ok": int(inside.sum()),
                        "out_of_limits": int((runs & ~inside).sum()),

@@ -3,7 +3,8 @@ and the contributors to an output's variance.
 
 `sample_machines` draws n machines in chunks of CHUNK, chunk i from child i of the seed (same
 seed, same table, for any number of workers) and evaluates any vectorised model on them;
-`draw_deviations` gives the deviations alone; `contributors` and `with_remainder` give each
+`draw_deviations` gives the deviations alone; `record` is the JSON shape every Monte-Carlo
+shares (docs/studies.md, "One Monte-Carlo JSON"); `contributors` and `with_remainder` give each
 tolerance's eta^2 (correlation ratio) as a share of the output's variance, the rest named as
 interaction. The needle's Monte-Carlo (beta fixed and adjusted) is
 sewtol.mechanisms.needle_208.montecarlo; any file's is sewtol.studies.generic.montecarlo.
@@ -25,8 +26,40 @@ if TYPE_CHECKING:
     pass
 
 CHUNK = 500
+YIELD_CI_METHOD = "Clopper-Pearson exact binomial interval of ok / n"
+QUANTILES_MEAN = ("p50, p95 and p99 of the spec'd output over all n machines, failed machines "
+                  "ranked as infinitely bad (numpy method 'higher': always a machine's value)")
 # bytes per machine and column of a study table (float64) plus pandas' working copies
 BYTES_PER_CELL = 8 * 4
+
+
+def quantiles(values) -> dict[str, float]:
+    """p50, p95, p99 of one case's output; NaN (a machine that cannot run) ranks as +inf."""
+    x = np.where(np.isnan(np.asarray(values, float)), np.inf, np.asarray(values, float))
+    return {f"p{q}": float(np.quantile(x, q / 100, method="higher")) for q in (50, 95, 99)}
+
+
+def record(*, mechanism: str, n: int, seed: int, tolerances: str, output: str, unit: str,
+           spec, counts: dict[str, dict], quantiles: dict[str, dict], extra: dict) -> dict:
+    """The JSON of a Monte-Carlo, the same keys whatever the path (docs/studies.md): per case
+    (e.g. fixed_beta, adjusted_beta) its counts (ok + out_of_spec + failed = n), yield ok / n
+    with its Clopper-Pearson interval and quantiles; `spec` the limits in force (None: every
+    machine that runs is ok); `extra` what only this path computes."""
+    from scipy import stats
+
+    ci = {}
+    for case, k in counts.items():
+        c = stats.binomtest(k["ok"], k["n"]).proportion_ci(0.95, method="exact")
+        ci[case] = [float(c.low), float(c.high)]
+    first = next(iter(counts.values()))
+    return {"mechanism": mechanism, "n": int(n), "seed": int(seed), "tolerances": tolerances,
+            "output": output, "unit": unit,
+            "spec": None if spec is None else spec.to_dict(),
+            "cases": list(counts), "failed": first["failed"], "counts": counts,
+            "yields": {case: k["ok"] / k["n"] for case, k in counts.items()},
+            "yield_ci": {"method": YIELD_CI_METHOD, "level": 0.95, **ci},
+            "quantiles": {"definition": QUANTILES_MEAN, **quantiles},
+            "extra": extra}
 
 
 def check_seed(seed) -> int:

@@ -28,7 +28,15 @@ if TYPE_CHECKING:
 
     from sewtol.mechanisms.needle_208.model import Needle208
     from sewtol.studies.checkpoint import ChunkStore
-from sewtol.studies.montecarlo import CHUNK, check_sampling, contributors, sample_machines, with_remainder
+from sewtol.studies.montecarlo import (
+    CHUNK,
+    check_sampling,
+    contributors,
+    quantiles,
+    record,
+    sample_machines,
+    with_remainder,
+)
 
 
 def _needle_model(nominal, dev, range_deg):
@@ -110,11 +118,9 @@ class MonteCarloResult:
         return float(ci.low), float(ci.high)
 
     def quantiles(self, case: str) -> dict:
-        """p50, p95 and p99 of SumDelta (um); failed machines rank as infinitely bad."""
-        case = self.case_of(case)
-        # failed machines rank as infinitely bad, so they are not hidden by the quantiles
-        x = self.machines[f"total_{case}_um"].fillna(np.inf).to_numpy()
-        return {f"p{q}": float(np.quantile(x, q / 100, method="higher")) for q in (50, 95, 99)}
+        """p50, p95 and p99 of SumDelta (um); failed machines rank as infinitely bad, so they
+        are not hidden by the quantiles (studies.montecarlo.quantiles)."""
+        return quantiles(self.machines[f"total_{self.case_of(case)}_um"])
 
     def beta_range(self) -> tuple[float, float]:
         """The smallest and largest per-machine beta* (deg) among machines that assemble."""
@@ -154,31 +160,28 @@ class MonteCarloResult:
         return int(at.sum())
 
     def to_dict(self) -> dict:
-        """The JSON of ``sewtol needle montecarlo``: counts, yields, labelled intervals and
-        capability of both cases, quantiles, beta* picks and their at-bound counts."""
+        """The JSON of ``sewtol needle montecarlo``, the shape every Monte-Carlo shares
+        (studies.montecarlo.record: counts, yields, labelled intervals and quantiles of both
+        cases); extra: capability, beta* picks and their at-bound counts, the fixed case's
+        beta and the searched range."""
+        from sewtol.mechanism.spec import Spec
+
         cases = {"fixed_beta": "fixed", "adjusted_beta": "adjusted"}
-        return {
-            "n": self.n,
-            "failed": self.failed,
-            "counts": {k: self.counts(c) for k, c in cases.items()},
-            "yield_fixed_beta": self.yield_of("fixed"),
-            "yield_adjusted_beta": self.yield_of("adjusted"),
-            "yield_ci": {"method": YIELD_CI_METHOD, "level": 0.95,
-                         **{k: list(self.yield_ci(c)) for k, c in cases.items()}},
-            "capability": {"definition": CAPABILITY_DEFINITION,
-                           **{k: self.capability(c) for k, c in cases.items()}},
-            "beta_picks_deg": list(self.beta_range()),
-            "beta_at_bound": self.beta_at_bound(),
-            "beta_pinned_at_bound": self.beta_at_bound(pinned=True),
-            "total_um_quantiles": {k: self.quantiles(c) for k, c in cases.items()},
-            "seed": self.seed,
-            "tolerances": self.tolerances,
-            "limit_um": self.limit_um,
-            "nominal_beta_deg": self.nominal_beta_deg,
-            "fixed_beta": self.fixed_beta,
-            "fixed_beta_means": FIXED_BETA_MEANS[self.fixed_beta],
-            "beta_search_range_deg": list(self.range_deg),
-        }
+        return record(
+            mechanism="needle_208", n=self.n, seed=self.seed, tolerances=self.tolerances,
+            output="SumDelta_um", unit="um", spec=Spec("SumDelta_um", self.limit_um),
+            counts={k: self.counts(c) for k, c in cases.items()},
+            quantiles={k: self.quantiles(c) for k, c in cases.items()},
+            extra={"capability": {"definition": CAPABILITY_DEFINITION,
+                                  **{k: self.capability(c) for k, c in cases.items()}},
+                   "beta_picks_deg": list(self.beta_range()),
+                   "beta_at_bound": self.beta_at_bound(),
+                   "beta_pinned_at_bound": self.beta_at_bound(pinned=True),
+                   "limit_um": self.limit_um,
+                   "nominal_beta_deg": self.nominal_beta_deg,
+                   "fixed_beta": self.fixed_beta,
+                   "fixed_beta_means": FIXED_BETA_MEANS[self.fixed_beta],
+                   "beta_search_range_deg": list(self.range_deg)})
 
     def summary_frame(self) -> pd.DataFrame:
         """One row per case: counts (ok + out_of_spec + failed = n), yield and interval, quantiles, Cpu."""
@@ -207,7 +210,6 @@ FIXED_BETA_MEANS = {
     "as_given": "every machine keeps the nominal's own beta parameter"}
 # an adjusted optimum whose plateau reaches a bound and is narrower than this is pinned there
 PINNED_PLATEAU_DEG = 0.1
-YIELD_CI_METHOD = "Clopper-Pearson exact binomial interval of ok / n"
 CAPABILITY_DEFINITION = {
     "Cpu": "one-sided (limit_um - mean) / (3 sd) of SumDelta over the machines that run "
            "(failed machines are in counts, not in Cpu)",
