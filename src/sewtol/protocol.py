@@ -55,6 +55,9 @@ class Mechanism(Protocol):
     @property
     def tolerance_sets(self) -> Mapping[str, ToleranceSet]: ...
 
+    @property
+    def specs(self) -> tuple: ...
+
     def nominal_values(self) -> dict[str, float]: ...
 
     def evaluate(self, values: dict | None = None, outputs=None): ...
@@ -122,8 +125,9 @@ def plugins(mech) -> Plugins:
 
 
 def specs(mech) -> tuple:
-    """The mechanism's specs (limits on outputs), () where it declares none."""
-    return tuple(getattr(mech, "specs", ()) or ())
+    """The mechanism's specs (`sewtol.mechanism.Spec`: limits on outputs), () where it
+    declares none."""
+    return tuple(mech.specs)
 
 
 def tolerance_set(mech, tolerances: ToleranceSet | str) -> ToleranceSet:
