@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from functools import partial
 from pathlib import Path
 
 from sewtol.errors import ParameterError
@@ -221,6 +222,8 @@ def cmd_mechanisms(args) -> None:
 def cmd_run(args) -> None:
     from sewtol.cli import _check_study
     from sewtol.studies import generic as G
+    from sewtol.studies import scan as S
+    from sewtol.studies import worst_case as W
 
     _check_flags(args)
     _check_study(args)
@@ -244,11 +247,11 @@ def cmd_run(args) -> None:
               f"needle_208 fast path: {args.path_reason}", file=sys.stderr)
     outputs = None if args.output is None else [args.output]
     if args.study == "scan":
-        res = _as_flags(G.scan, mech, tolerances, outputs, args.adjust)
+        res = _as_flags(partial(S.scan, fast=False), mech, tolerances, outputs, args.adjust)
         return _finish(args, fmt, mech, tolerances, res.to_dict(), {"scan": res.rows}, res.rows)
     if args.study == "worst-case":
-        res = _as_flags(G.worst_case, mech, tolerances, args.output or mech.output_names[0],
-                        100, args.adjust)
+        res = _as_flags(partial(W.worst_case, fast=False), mech, tolerances,
+                        args.output or mech.output_names[0], 100, args.adjust)
         return _finish(args, fmt, mech, tolerances, res.to_dict(), {"worst_case": res.rows},
                        res.rows)
     if args.study == "sobol":

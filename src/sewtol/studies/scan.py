@@ -97,10 +97,11 @@ def scan(mech, tolerances: ToleranceSet, outputs=None, adjust=None,
                          "failed_group": ev.failed_group[i]})
         if adj is not None:
             v, v0 = float(adj.value[i]), float(adj0.value[0])
-            rows.append({"param": p, "side": s, "deviation": d, "output": f"{target}_adjusted",
-                         "nominal": v0, "value": v, "change": v - v0, "status": adj.status[i],
-                         "failed_group": adj.extras.get("failed_group", [""] * len(params))[i],
-                         "setting": float(next(iter(adj.settings.values()))[i])})
+            row = {"param": p, "side": s, "deviation": d, "output": f"{target}_adjusted",
+                   "nominal": v0, "value": v, "change": v - v0, "status": adj.status[i],
+                   "failed_group": adj.extras.get("failed_group", [""] * len(params))[i]}
+            rows.append(row | {f"setting{'' if k == 0 else f'_{name}'}": float(x[i])
+                               for k, (name, x) in enumerate(adj.settings.items())})
     return ScanResult(mech.name, tolerances.name, pd.DataFrame(rows), params, sides, deltas,
                       values, adj, adj0)
 
