@@ -101,11 +101,35 @@ def scan(nominal: Needle208, tolerances: ToleranceSet | str, guide_shift_um: flo
     """Each tolerance at its upper and its lower limit, every other parameter nominal.
 
     The layout of the source study's Table 4.1: the guide stays fixed where the nominal machine
-    put it (optionally shifted, um; None keeps the nominal's) and beta is re-optimised in
-    range_deg on every row; with a strategy each row is adjusted by the strategy's joint
-    optimum instead (each other compensator's setting in a ``NAME_setting`` column, and a
-    ``status`` column against limit_um). Rows: ``param``, ``side``, ``delta_mm``,
-    ``value_mm`` and the figures (module docstring); ``nominal_row`` the same for the nominal.
+    put it (optionally shifted) and beta is re-optimised on every row. All 2k rows are one
+    batch.
+
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters).
+    tolerances : ToleranceSet or str
+        The limits to visit; parameters not in the set stay nominal.
+    guide_shift_um : float or None
+        The guide's shift along its normal for every row (um); the source moved the guide
+        by about 50 um for AB and BE. None keeps the nominal's own guide_shift_um.
+    limit_um : float
+        The SumDelta limit (um); default 10.
+    range_deg : tuple of float
+        The regulating range searched for beta*, (low, high) in deg; default (10, 35).
+    strategy : Strategy or None
+        None: beta re-optimised on each row. A strategy: each row adjusted by the strategy's
+        exact joint optimum, with each compensator's setting in a ``NAME_setting`` column and
+        a ``status`` column.
+
+    Returns
+    -------
+    ScanResult
+        Rows with ``param``, ``side`` (upper/lower), ``delta_mm`` (the deviation), ``value_mm``
+        (the parameter's value), ``beta_deg`` (beta*), ``plus_um``, ``minus_um`` and
+        ``total_um`` (Delta+, Delta-, SumDelta) and ``beta_at_bound`` (beta*'s plateau reaches
+        an end of range_deg: the row's optimum may lie outside it); ``nominal_row`` the same
+        for the nominal.
     """
     from sewtol.studies import scan as S
 
@@ -133,9 +157,34 @@ def largest_tolerances(nominal: Needle208, params: list[str],
                        guide_shift_um: float = 0.0,
                        range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
                        xtol_mm: float = 1e-5) -> pd.DataFrame:
-    """Per parameter and side, the largest |deviation| <= max_mm with SumDelta(beta*) <= limit
-    (beta* re-optimised in range_deg, the guide shifted by guide_shift_um): rows ``param``,
-    ``side``, ``largest_delta_mm`` (signed) and ``reaches_max`` (sewtol.studies.scan)."""
+    """Per parameter and side, the largest |deviation| <= max_mm with SumDelta(beta*) <= limit.
+
+    A geometric grid from 1 um to max_mm brackets the first crossing, bisection refines it to
+    xtol_mm. `reaches_max` marks sides where even max_mm keeps the limit.
+
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters).
+    params : list of str
+        The parameters to search, one at a time, every other one nominal.
+    limit_um : float
+        The SumDelta limit (um) at beta*; default 10.
+    max_mm : float
+        The largest deviation tried (mm, or the parameter's unit).
+    guide_shift_um : float
+        A shift of the guide along its normal (um).
+    range_deg : tuple of float
+        The regulating range searched for beta*, (low, high) in deg.
+    xtol_mm : float
+        The bisection's tolerance on the deviation (mm).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per parameter and side: ``param``, ``side`` (upper/lower),
+        ``largest_delta_mm`` (signed: negative on the lower side) and ``reaches_max``.
+    """
     from sewtol.studies import scan as S
 
     base = nominal.override(guide_shift_um=guide_shift_um)
@@ -194,12 +243,28 @@ def worst_case(nominal, tolerances: ToleranceSet | str, adjust: bool,
 def worst_case_table(nominal: Needle208, tolerances: ToleranceSet | str,
                      range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
                      strategy: Strategy | None = None) -> pd.DataFrame:
-    """The worst SumDelta over the tolerance box, with beta fixed (as in `nominal`, its beta*)
-    and after adjustment (beta re-optimised in range_deg, or the strategy's joint optimum).
+    """The worst SumDelta over the tolerance box, with beta fixed and after adjustment.
 
-    Rows ``fixed_beta`` and the adjusted case, with ``total_um`` (the worst SumDelta),
-    ``worst_corner_total_um``, ``beta_deg``, ``beta_at_bound``, ``interior`` (True when the
-    worst point is not a corner) and the worst point's deviation per parameter (``NAME_mm``).
+    Every corner of the box and its centre are evaluated as one batch; the three worst are
+    polished by L-BFGS-B inside the box, so a worst point inside the box is found too.
+
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters); its beta* is the fixed case's beta.
+    tolerances : ToleranceSet or str
+        The box: every tolerance between its lower and upper limit.
+    range_deg : tuple of float
+        The regulating range for beta, (low, high) in deg.
+    strategy : Strategy or None
+        The adjusted case: None for beta re-optimised, or a strategy's joint optimum.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Rows ``fixed_beta`` and the adjusted case, with ``total_um`` (the worst SumDelta),
+        ``worst_corner_total_um``, ``beta_deg``, ``interior`` (True when the worst point is not
+        a corner) and the worst point's deviation per parameter (``NAME_mm``).
     """
     tolerances = needle_set(tolerances)
     return pd.DataFrame([worst_case(nominal, tolerances, a, range_deg,
