@@ -68,8 +68,8 @@ def test_the_dispatch_refuses_what_no_adjuster_takes(needle, khujand):
 
 def test_a_strategy_goes_to_the_strategy_plug_in_with_its_status_words(needle):
     vals = _corners(needle)
-    a = adjusted(needle, vals, strategy_of(("beta", "guide_shift_um")).compensators,
-                 "SumDelta_um", limit_um=1e-6)
+    a = adjusted(needle, vals, strategy_of(("beta", "guide_shift_um")), "SumDelta_um",
+                 limit_um=1e-6)
     assert set(a.status) == {"out of spec"}  # nothing keeps 1e-6 um
     b = adjusted(needle, vals, {"beta": (10.0, 35.0), "guide_shift_um": (-100.0, 100.0)},
                  "SumDelta_um")

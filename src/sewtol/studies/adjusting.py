@@ -6,9 +6,10 @@ the per-machine optimum of one output.
 
 `compensators` names the compensators of the mechanism (its [compensators.NAME], boxes from the
 file), or maps parameters to boxes (low, high), or is a sequence of compensator objects (name,
-low, high and, where declared, steps, resolution, mode: a strategy's). The optimum comes from the
-mechanism's plug-ins (sewtol.protocol.Plugins) where they take that set and output (the exact
-adjuster for boxes, the strategy adjuster for objects), otherwise from the generic optimiser
+low, high and, where declared, steps, resolution, mode), or a strategy holding them. The
+optimum comes from the mechanism's plug-ins (sewtol.protocol.Plugins) where they take that set
+and output (the exact adjuster for boxes, the strategy adjuster for objects), otherwise from
+the generic optimiser
 (one call: sewtol.studies.generic.optimise_compensator). `fast=False` takes the generic one
 always (the reference path of `sewtol run FILE --path generic`).
 
@@ -67,6 +68,7 @@ def adjusted(mech, values: dict | None, compensators, output: str, *, fast: bool
     (e.g. limit_um, plateaus for the needle's strategy adjuster)."""
     mech.output(output)
     pl = plugins(mech) if fast else None
+    compensators = getattr(compensators, "compensators", compensators)  # a strategy's
     objects = _objects(compensators)
     if objects:
         names = [c.name for c in compensators]
