@@ -7,6 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from cli_helpers import run, strict_loads
 from sewtol import Needle208
 from sewtol.errors import ParameterError
 from sewtol.mechanism import load
@@ -137,7 +138,27 @@ def test_settings_rows_are_the_nominal_figures_of_each_setting(khujand):
     for o in khujand.output_names:
         assert rows.loc["as drawn", o] == base[o] and rows.loc["long AB", o] == moved[o]
     assert rows.loc["long AB", "dAB_mm"] == 0.1 and pd.isna(rows.loc["as drawn", "dAB_mm"])
+    far = ST.compare(khujand, [ST.Setting("no crank turn", {"AB": 40.0})]).rows.iloc[0]
+    assert far["status"] == "cannot_close" and far["failed_group"] != ""
+    assert all(np.isnan(far[o]) for o in khujand.output_names)
     with pytest.raises(ParameterError, match="distinct names"):
         ST.compare(khujand, [ST.Setting("a"), ST.Setting("a")])
     with pytest.raises(ParameterError, match="unknown parameter"):
         ST.compare(khujand, [ST.Setting("a", {"nope": 1.0})])
+
+
+def test_run_settings_prints_one_row_per_setting_and_refuses_bad_ones_in_one_line(khujand):
+    code, out, err = run("run", "khujand_feed", "settings", "--set", "drawn:AB=4",
+                         "--set", "long AB:AB=4.1,CD=20.2", "--set", "BC=45.5", "--format", "json")
+    assert code == 0, err
+    rows = {r["setting"]: r for r in strict_loads(out)["rows"]}
+    for name, changes in (("drawn", {"AB": 4.0}), ("long AB", {"AB": 4.1, "CD": 20.2})):
+        ref = khujand.override(BC=45.5, **changes).evaluate()
+        assert rows[name]["status"] == "ok"
+        for o in khujand.output_names:
+            assert rows[name][o] == float(ref.outputs[o][0])
+    for args, msg in ((["--set", "AB=4"], "needs at least one SETTING:NAME=VALUE"),
+                      (["--set", "a:AB=x"], "AB: must be a number"),
+                      (["--set", "a:AB=4", "--n", "5"], "--n: is not used by `run settings`")):
+        code, out, err = run("run", "khujand_feed", "settings", *args)
+        assert code == 2 and out == "" and msg in err and len(err.strip().splitlines()) == 1

@@ -9,9 +9,8 @@ file), or maps parameters to boxes (low, high), or is a sequence of compensator 
 low, high and, where declared, steps, resolution, mode), or a strategy holding them. The
 optimum comes from the mechanism's plug-ins (sewtol.protocol.Plugins) where they take that set
 and output (the exact adjuster for boxes, the strategy adjuster for objects), otherwise from
-the generic optimiser
-(one call: sewtol.studies.generic.optimise_compensator). `fast=False` takes the generic one
-always (the reference path of `sewtol run FILE --path generic`).
+the generic optimiser (one call: sewtol.studies.generic.optimise_compensator). `fast=False`
+takes the generic one always (the reference path of `sewtol run FILE --path generic`).
 
 `evaluated(mech, values, output)` is the same choice for a plain evaluation: the plug-in kernel
 where it gives the output, else mech.evaluate.

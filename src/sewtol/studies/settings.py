@@ -7,9 +7,10 @@ machines draws the same ones from its seed on every row: common random numbers).
 
     compare(mech, [Setting("long crank", {"LF": 7.0}), Setting("short crank", {"LF": 6.5})])
 
-`figures(machine, setting) -> dict` is the study of each row; the default is every output of
-the nominal machine (sewtol.studies.generic.nominal). A mechanism's own comparison (the
-needle's guide placements, needle_208/guides.py) is an instance with its own figures.
+`figures(machine, setting) -> dict` is the study of each row; the default is the nominal
+machine's status and every output (`sewtol run FILE settings --set NAME:PARAM=V,...`). A
+mechanism's own comparison (the needle's guide placements, needle_208/guides.py) is an instance
+with its own figures.
 """
 
 from __future__ import annotations
@@ -46,10 +47,11 @@ class SettingsResult:
 
 
 def nominal_figures(machine, setting: Setting) -> dict:
-    """Every output of the setting's nominal machine (a protocol mechanism)."""
-    from sewtol.studies.generic import nominal
-
-    return {r["output"]: r["value"] for r in nominal(machine).rows.to_dict("records")}
+    """The setting's nominal machine (a protocol mechanism): its status, the group that failed
+    ("" when it runs) and every output (NaN where it does not run: a failure is a row too)."""
+    ev = machine.evaluate()
+    return {"status": str(ev.status[0]), "failed_group": str(ev.failed_group[0]),
+            **{k: float(v[0]) for k, v in ev.outputs.items()}}
 
 
 def compare(base, settings: Sequence[Setting], figures: Callable | None = None,
