@@ -102,9 +102,9 @@ def _settings(args) -> list:
     the other --set items override the file's nominals for every setting)."""
     from sewtol.studies.settings import Setting
 
-    items = [i for i in args.set or [] if ":" in i.partition("=")[0]]
     if args.study != "settings":
         return []
+    items = [i for i in args.set or [] if ":" in i.partition("=")[0]]
     args.set = [i for i in args.set or [] if i not in items]
     if not items:
         raise ParameterError("--set", "`run settings` needs at least one "
