@@ -214,7 +214,7 @@ def test_worst_case_with_a_strategy():
     one cannot rise either; the strategy 'beta' agrees with the beta-only path at the corners."""
     from sewtol.mechanisms.needle_208.compensators import strategy_of
     from sewtol.mechanisms.needle_208.model import Needle208
-    from sewtol.mechanisms.needle_208.worst_case import worst_case_table
+    from sewtol.mechanisms.needle_208.tables import worst_case_table
     from sewtol.tolerances import NEEDLE_208_SETS
 
     p, ts = Needle208.nominal(), NEEDLE_208_SETS["base"]

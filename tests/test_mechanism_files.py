@@ -15,6 +15,8 @@ from sewtol.mechanisms import params as P
 from sewtol.mechanisms.feed_131.model import Feed131, chains
 from sewtol.mechanisms.needle_208.fast_path import needle_perturbations, needle_positions_residual
 from sewtol.studies import generic as G
+from sewtol.studies import scan as S
+from sewtol.studies import worst_case as W
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 NEEDLE = EXAMPLES / "needle_208.toml"
@@ -319,7 +321,7 @@ def test_transfer_functions_match_finite_differences(path):
 def test_worst_case_bounds_the_monte_carlo_sample():
     mech = load(KHUJAND)
     ts = mech.tolerance_sets["illustrative"]
-    wc = G.worst_case(mech, ts, "E_x_range_mm").rows.set_index("extreme")["value"]
+    wc = W.worst_case(mech, ts, "E_x_range_mm").rows.set_index("extreme")["value"]
     sample = G.montecarlo(mech, ts, 500, 2, outputs=["E_x_range_mm"]).machines["E_x_range_mm"]
     assert wc["min"] <= sample.min() and sample.max() <= wc["max"]
     assert wc["max"] - wc["min"] == pytest.approx(0.3038, abs=1e-3)
@@ -340,13 +342,13 @@ def test_transmission_outputs_match_the_exact_extremes():
 
 
 def test_generic_worst_case_equals_builtin_fixed_beta_worst_case(nominal):
-    from sewtol.mechanisms.needle_208.worst_case import worst_case
+    from sewtol.mechanisms.needle_208.tables import worst_case
     from sewtol.tolerances import NEEDLE_208_SETS
 
     built = worst_case(nominal, NEEDLE_208_SETS["base"], adjust=False)
     mech = load(NEEDLE)
     assert mech.nominal_values()["beta"] == built.beta_deg  # both keep the nominal beta
-    rows = G.worst_case(mech, mech.tolerance_sets["base"], "SumDelta_um").rows
+    rows = W.worst_case(mech, mech.tolerance_sets["base"], "SumDelta_um", fast=False).rows
     top = rows.set_index("extreme").loc["max"]
     assert top["value"] == pytest.approx(built.total_um, abs=1e-3)  # 720 samples vs exact
     assert {k: top[f"{k}_dev"] for k in built.point} == built.point
@@ -434,11 +436,11 @@ def test_adjusted_case_matches_the_builtin_beta_optimum(nominal):
 
 
 def test_adjusted_scan_equals_the_builtin_scan(nominal):
-    from sewtol.mechanisms.needle_208.scan import scan
+    from sewtol.mechanisms.needle_208.tables import scan
     from sewtol.tolerances import NEEDLE_208_SETS
 
     mech = load(NEEDLE)
-    rows = G.scan(mech, mech.tolerance_sets["base"], ["SumDelta_um"], adjust="beta").rows
+    rows = S.scan(mech, mech.tolerance_sets["base"], ["SumDelta_um"], adjust="beta", fast=False).rows
     rows = rows[rows["output"] == "SumDelta_um_adjusted"].reset_index(drop=True)
     built = scan(nominal, NEEDLE_208_SETS["base"]).to_dataframe()
     assert list(rows["param"]) == list(built["param"])

@@ -508,7 +508,7 @@ def _write_outputs(args, kind, inputs, started, result_obj, frames, runs):
 
 
 def cmd_needle_scan(args):
-    from sewtol.mechanisms.needle_208.scan import scan
+    from sewtol.mechanisms.needle_208.tables import scan
 
     strategy = _strategy(args)
     _check_beta_range(args)
@@ -883,7 +883,7 @@ def allocation_figure(table, reference: str, target: float, ax):
 
 
 def cmd_needle_worst_case(args):
-    from sewtol.mechanisms.needle_208.worst_case import worst_case_table
+    from sewtol.mechanisms.needle_208.tables import worst_case_table
 
     strategy = _strategy(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
@@ -953,7 +953,7 @@ def add_needle_guides_allocation(nsub, needle_common, study) -> None:
 
 def cmd_needle_largest_tolerances(args):
     from sewtol.mechanisms.needle_208.model import LENGTHS, Needle208
-    from sewtol.mechanisms.needle_208.scan import largest_tolerances
+    from sewtol.mechanisms.needle_208.tables import largest_tolerances
     from sewtol.mechanisms.params import field_names
     from sewtol.tolerances import is_branch
 

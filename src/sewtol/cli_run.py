@@ -11,11 +11,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+from functools import partial
 from pathlib import Path
 
 from sewtol.errors import ParameterError
 
-STUDIES = ("nominal", "scan", "montecarlo", "sobol", "worst-case", "ppm", "allocation", "report")
+STUDIES = ("nominal", "scan", "montecarlo", "sobol", "worst-case", "ppm", "allocation", "report",
+           "settings")
 RUN_FORMATS = ("text", "table", "json", "csv")
 DEFAULT_N = {"montecarlo": 2000, "sobol": 256, "ppm": 20000, "allocation": 2000, "report": 1000}
 # --target: the smallest probability ppm must resolve; the yield allocation must keep
@@ -32,7 +34,7 @@ USES = {"nominal": (), "scan": ("output", "tolerances", "adjust"),
                 "adjust", "n_jobs"),
         "allocation": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "target",
                        "weight", "adjust"),
-        "report": ("output", "tolerances", "n", "seed", "limit", "lower_limit")}
+        "report": ("output", "tolerances", "n", "seed", "limit", "lower_limit"), "settings": ()}
 
 
 def add_run(sub, parser_class=None) -> None:
@@ -74,7 +76,8 @@ def add_run(sub, parser_class=None) -> None:
     p.add_argument("--out", default=None, metavar="DIR",
                    help="write the tables, the result and run.json here")
     p.add_argument("--set", action="append", metavar="NAME=VALUE",
-                   help="override a nominal value of the file (repeatable)")
+                   help="override a nominal value of the file (repeatable); `run settings`: "
+                        "--set SETTING:NAME=VALUE[,NAME=VALUE...] names a setting to compare")
     p.add_argument("--path", choices=("auto", "generic"), default="auto",
                    help="auto: a file with fast_path = \"needle_208\" runs scan, worst-case, "
                         "montecarlo, sobol, ppm and allocation as `sewtol needle STUDY` does "
@@ -95,6 +98,25 @@ def parse_sets(items) -> dict:
             out[name] = float(text)
         except ValueError:
             raise ParameterError(name, "must be a number", text) from None
+    return out
+
+
+def _settings(args) -> list:
+    """The settings of `run settings` (--set SETTING:NAME=VALUE[,...], taken out of args.set;
+    the other --set items override the file's nominals for every setting)."""
+    from sewtol.studies.settings import Setting
+
+    if args.study != "settings":
+        return []
+    items = [i for i in args.set or [] if ":" in i.partition("=")[0]]
+    args.set = [i for i in args.set or [] if i not in items]
+    if not items:
+        raise ParameterError("--set", "`run settings` needs at least one "
+                             "SETTING:NAME=VALUE[,NAME=VALUE...]", None)
+    out = []
+    for item in items:
+        name, _, body = item.partition(":")
+        out.append(Setting(name.strip(), parse_sets(body.split(","))))
     return out
 
 
@@ -220,9 +242,12 @@ def cmd_mechanisms(args) -> None:
 def cmd_run(args) -> None:
     from sewtol.cli import _check_study
     from sewtol.studies import generic as G
+    from sewtol.studies import scan as S
+    from sewtol.studies import worst_case as W
 
     _check_flags(args)
     _check_study(args)
+    settings = _settings(args)
     mech = load_mechanism(args.file, parse_sets(args.set))
     fmt = "table" if args.format == "text" else args.format
     if args.output is not None:
@@ -236,6 +261,11 @@ def cmd_run(args) -> None:
         res = G.nominal(mech)
         return _finish(args, fmt, mech, None, res.to_dict(), {"nominal": res.to_dataframe()},
                        res.to_dataframe())
+    if args.study == "settings":
+        from sewtol.studies.settings import compare
+
+        res = compare(mech, settings)
+        return _finish(args, fmt, mech, None, res.to_dict(), {"settings": res.rows}, res.rows)
     tolerances = resolve_tolerances(mech, args.tolerances)
     if args.path_reason is None:
         args.path_reason = _tolerances_refusal(tolerances)
@@ -247,11 +277,11 @@ def cmd_run(args) -> None:
               f"needle_208 fast path: {args.path_reason}", file=sys.stderr)
     outputs = None if args.output is None else [args.output]
     if args.study == "scan":
-        res = _as_flags(G.scan, mech, tolerances, outputs, args.adjust)
+        res = _as_flags(partial(S.scan, fast=False), mech, tolerances, outputs, args.adjust)
         return _finish(args, fmt, mech, tolerances, res.to_dict(), {"scan": res.rows}, res.rows)
     if args.study == "worst-case":
-        res = _as_flags(G.worst_case, mech, tolerances, args.output or mech.output_names[0],
-                        100, args.adjust)
+        res = _as_flags(partial(W.worst_case, fast=False), mech, tolerances,
+                        args.output or mech.output_names[0], 100, args.adjust)
         return _finish(args, fmt, mech, tolerances, res.to_dict(), {"worst_case": res.rows},
                        res.rows)
     if args.study == "sobol":

@@ -92,6 +92,13 @@ class Plugins:
     adjuster_tol : float
         How far above the true minimum the adjuster's value may lie (the output's unit): the
         width of the plateau it takes the centre of, plus its own approximation error.
+    strategy_adjuster : callable or None
+        ``strategy_adjuster(mech, values, compensators, **options) -> dict`` (the adjuster's
+        keys): the mechanism's own adjuster of `adjusted_output` for compensators given as
+        objects (name, low, high and, where declared, steps, resolution, mode), any subset of
+        `strategy_parameters`; an outer search where it is not exact (not held to a grid).
+    strategy_parameters : frozenset
+        The compensator parameters the strategy adjuster takes.
     """
 
     kernel: Callable | None = None
@@ -101,12 +108,19 @@ class Plugins:
     adjuster_sets: tuple[frozenset, ...] = ()
     adjusted_output: str | None = None
     adjuster_tol: float = 0.0
+    strategy_adjuster: Callable | None = None
+    strategy_parameters: frozenset = frozenset()
     name: str = ""
     notes: tuple[str, ...] = field(default=())
 
     def adjusts(self, parameters) -> bool:
         """True when the exact adjuster solves exactly this set of compensator parameters."""
         return self.adjuster is not None and frozenset(parameters) in self.adjuster_sets
+
+    def adjusts_strategy(self, parameters) -> bool:
+        """True when the strategy adjuster takes this set of compensator parameters."""
+        return self.strategy_adjuster is not None and \
+            frozenset(parameters) <= self.strategy_parameters
 
 
 NO_PLUGINS = Plugins()

@@ -25,6 +25,8 @@ from sewtol.errors import ParameterError
 from sewtol.io import write_bytes_atomic, write_text_atomic
 from sewtol.reports.tables import to_csv, to_markdown
 from sewtol.studies import generic as G
+from sewtol.studies import scan as S
+from sewtol.studies import worst_case as W
 from sewtol.studies.generic_yield import check_limits, limits_text
 
 # the histogram's range: these quantiles of the machines that run, widened to show the limits;
@@ -137,11 +139,11 @@ def build(mech, tolerances, n: int = 1000, seed: int = 0, limit_output: str | No
     else:
         upper, lower = spec.upper, spec.lower
     nom = G.nominal(mech).rows
-    sc = G.scan(mech, tolerances).rows
+    sc = S.scan(mech, tolerances, fast=False).rows
     wc_rows, wc_notes, notes = [], {}, []
     for name in mech.output_names:
         try:
-            r = G.worst_case(mech, tolerances, name)
+            r = W.worst_case(mech, tolerances, name, fast=False)
         except ParameterError as exc:
             # too many corners, or every corner fails: said in the report, not dropped
             wc_notes[name] = f"{exc.field}: {exc.rule}"

@@ -1,15 +1,10 @@
 """Studies of any mechanism file (sewtol.mechanism.FileMechanism) and its outputs.
 
 Nothing here names a mechanism: a study takes the mechanism, a tolerance set and the output(s)
-it looks at, and returns a frozen result with to_dataframe() and to_dict().
+it looks at, and returns a frozen result with to_dataframe() and to_dict(). The scan and the
+worst case are sewtol.studies.scan and sewtol.studies.worst_case.
 
 - nominal: every output of the nominal machine.
-- scan: each toleranced parameter at its upper and lower limit, the others nominal.
-- worst_case: the largest and smallest value of one output over the tolerance box: every
-  corner and the centre, then L-BFGS-B from the best corner inside the box. Not proven global:
-  the corner answer is exact only if the output is monotone in each parameter over the box
-  (`monotone_on_axes` checks that along the axes through the centre, which supports but does not
-  prove it).
 - montecarlo: n machines drawn exactly as studies.montecarlo.sample_machines draws them (chunk i
   from child i of the seed: same seed, same table, for any n_jobs); every machine keeps its
   status, so ok + out_of_spec + cannot_close + dead_point = n; out_of_spec by the file's
@@ -20,13 +15,11 @@ it looks at, and returns a frozen result with to_dataframe() and to_dict().
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 from scipy import stats
-from scipy.optimize import minimize
 
 from sewtol.errors import AssemblyError, ParameterError
 from sewtol.mechanism.spec import Spec
@@ -34,24 +27,12 @@ from sewtol.studies import montecarlo as mc
 from sewtol.studies import sobol as so
 from sewtol.tolerances import ToleranceSet
 
-MAX_CORNER_PARAMS = 12
-# central-difference step of the local search, as a fraction of each tolerance width
-FD_STEP = 1e-4
 CHUNK = mc.CHUNK
 
 
 def _values(mech, dev: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     nominal = mech.nominal_values()
     return {k: nominal[k] + np.asarray(v, float) for k, v in dev.items()}
-
-
-def _check_tolerances(mech, tolerances: ToleranceSet) -> ToleranceSet:
-    tol = tolerances.active()
-    if not tol.items:
-        raise ParameterError("tolerances", "has no tolerance with a non-zero width",
-                             tolerances.name)
-    tolerances.check_against(mech.parameter_record())
-    return tol
 
 
 # --- adjustment at assembly: an output minimised over one compensator ----------------------
@@ -168,168 +149,6 @@ def nominal(mech) -> NominalResult:
     rows = pd.DataFrame([{"output": o.name, "unit": o.unit, "value": float(ev.outputs[o.name][0]),
                           "doc": o.doc} for o in mech.outputs])
     return NominalResult(mech.name, rows)
-
-
-# --- scan ----------------------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class ScanResult:
-    mechanism: str
-    tolerances: str
-    rows: pd.DataFrame
-
-    def to_dataframe(self) -> pd.DataFrame:
-        return self.rows
-
-    def to_dict(self) -> dict:
-        return {"mechanism": self.mechanism, "tolerances": self.tolerances,
-                "rows": self.rows.to_dict("records")}
-
-
-def scan(mech, tolerances: ToleranceSet, outputs=None, adjust: str | None = None) -> ScanResult:
-    """Each toleranced parameter at its upper and lower limit (others nominal): every output's
-    value and change from nominal; machines that cannot run keep their status. With `adjust`
-    (a compensator), rows NAME_adjusted add the first output minimised over it (`setting`)."""
-    tol = _check_tolerances(mech, tolerances)
-    names = mech.output_names if outputs is None else list(outputs)
-    base = nominal(mech).rows.set_index("output")["value"]
-    params, sides, deltas, dev = tol.limit_variants()
-    values = _values(mech, dev)
-    ev = mech.evaluate(values, names)
-    adj = adj0 = None
-    if adjust is not None:
-        adj = optimise_compensator(mech, values, names[0], adjust)
-        adj0 = optimise_compensator(mech, None, names[0], adjust)
-    rows = []
-    for i, (p, s, d) in enumerate(zip(params, sides, deltas, strict=True)):
-        for name in names:
-            v = float(ev.outputs[name][i])
-            rows.append({"param": p, "side": s, "deviation": d, "output": name,
-                         "nominal": float(base[name]), "value": v,
-                         "change": v - float(base[name]), "status": ev.status[i],
-                         "failed_group": ev.failed_group[i]})
-        if adj is not None:
-            v, v0 = float(adj.value[i]), float(adj0.value[0])
-            rows.append({"param": p, "side": s, "deviation": d,
-                         "output": f"{names[0]}_adjusted", "nominal": v0, "value": v,
-                         "change": v - v0, "status": adj.status[i],
-                         "failed_group": adj.failed_group[i], "setting": float(adj.setting[i])})
-    return ScanResult(mech.name, tolerances.name, pd.DataFrame(rows))
-
-
-# --- worst case ----------------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class WorstCaseResult:
-    mechanism: str
-    tolerances: str
-    output: str
-    rows: pd.DataFrame  # extreme (max/min), value, corner_value, interior, deviations
-    corners: int
-    failed_corners: int
-    monotone_on_axes: bool
-    adjust: str | None = None
-
-    method = ("every corner and the centre of the tolerance box, then L-BFGS-B inside the box "
-              "from the best corner (never below any evaluated point); not proven global: the "
-              "corner answer is exact when the output is monotone in each parameter over the box")
-
-    def to_dataframe(self) -> pd.DataFrame:
-        return self.rows
-
-    def to_dict(self) -> dict:
-        return {"mechanism": self.mechanism, "tolerances": self.tolerances,
-                "output": self.output, "adjust": self.adjust, "method": self.method,
-                "corners": self.corners,
-                "failed_corners": self.failed_corners,
-                "monotone_on_axes": self.monotone_on_axes,
-                "rows": self.rows.to_dict("records")}
-
-
-def _output_of(mech, names, output, compensator=None):
-    def f(X):
-        X = np.atleast_2d(X)
-        dev = {k: X[:, i] for i, k in enumerate(names)}
-        if compensator is not None:
-            return optimise_compensator(mech, _values(mech, dev), output, compensator).value
-        return mech.evaluate(_values(mech, dev), [output]).outputs[output]
-    return f
-
-
-def worst_case(mech, tolerances: ToleranceSet, output: str, maxiter: int = 100,
-               adjust: str | None = None) -> WorstCaseResult:
-    """Largest and smallest `output` over the tolerance box (see the module doc); with `adjust`
-    (a compensator), of the output minimised over it on each trial machine."""
-    mech.output(output)
-    if adjust is not None and adjust not in mech.compensators:
-        raise ParameterError("adjust", "must name a compensator of the file ("
-                             + (", ".join(mech.compensators) or "it has none") + ")", adjust)
-    tol = _check_tolerances(mech, tolerances)
-    names = tol.params
-    if len(names) > MAX_CORNER_PARAMS:
-        raise ParameterError("tolerances", f"worst case enumerates corners; at most "
-                             f"{MAX_CORNER_PARAMS} toleranced parameters", len(names))
-    lo = np.array([t.lower for t in tol.items])
-    hi = np.array([t.upper for t in tol.items])
-    f = _output_of(mech, names, output, adjust)
-    corners = np.array(list(itertools.product(*zip(lo, hi, strict=True))))
-    cands = np.vstack([corners, 0.5 * (lo + hi)])
-    val = f(cands)
-    failed = int(np.sum(np.isnan(val[:-1])))
-    width = hi - lo
-    rows = []
-    for extreme, sign in (("max", 1.0), ("min", -1.0)):
-        s = np.where(np.isnan(val), -np.inf, sign * val)
-        if not np.isfinite(s).any():
-            raise ParameterError("tolerances", f"no corner of the box gives a value of {output} "
-                                 "(every machine fails)", tolerances.name)
-        k = int(np.argmax(s))
-        best_x, best_s = cands[k], float(s[k])
-        corner_s = float(np.max(s[:-1]))
-        def neg_and_grad(z, sign=sign):
-            # value and central differences in one batch of 2d + 1 machines
-            pts = [z] + [np.clip(z + dz, 0, 1) for i in range(len(z))
-                         for dz in (FD_STEP * np.eye(len(z))[i], -FD_STEP * np.eye(len(z))[i])]
-            y = sign * f(lo + np.array(pts) * width)
-            y = np.where(np.isnan(y), -1e12, y)
-            g = np.array([(y[1 + 2 * i] - y[2 + 2 * i]) / (pts[1 + 2 * i][i] - pts[2 + 2 * i][i])
-                          if pts[1 + 2 * i][i] != pts[2 + 2 * i][i] else 0.0
-                          for i in range(len(z))])
-            return -float(y[0]), -g
-
-        z0 = np.where(width > 0, (best_x - lo) / np.where(width > 0, width, 1.0), 0.5)
-        res = minimize(neg_and_grad, z0, jac=True, method="L-BFGS-B",
-                       bounds=[(0.0, 1.0)] * len(names), options={"maxiter": maxiter})
-        x_opt = lo + res.x * width
-        v_opt = sign * float(f(x_opt)[0])
-        if np.isfinite(v_opt) and v_opt > best_s:
-            best_s, best_x = v_opt, x_opt
-        at_corner = bool(np.all(np.isclose(best_x, lo) | np.isclose(best_x, hi)))
-        row = {"extreme": extreme,
-               "output": output if adjust is None else f"{output}_adjusted",
-               "value": sign * best_s,
-               "corner_value": sign * corner_s, "interior": not at_corner}
-        row.update({f"{k}_dev": float(v) for k, v in zip(names, best_x, strict=True)})
-        rows.append(row)
-    return WorstCaseResult(mech.name, tolerances.name, output, pd.DataFrame(rows),
-                           len(corners), failed, _monotone_on_axes(f, lo, hi), adjust)
-
-
-def _monotone_on_axes(f, lo, hi, points: int = 7) -> bool:
-    """True if the output is monotone along every axis of the box through its centre."""
-    centre = 0.5 * (lo + hi)
-    X = []
-    for i in range(len(lo)):
-        for t in np.linspace(lo[i], hi[i], points):
-            x = centre.copy()
-            x[i] = t
-            X.append(x)
-    y = f(np.array(X)).reshape(len(lo), points)
-    if np.isnan(y).any():
-        return False
-    d = np.diff(y, axis=1)
-    tol = 1e-12 * np.maximum(1.0, np.abs(y).max())
-    return bool(np.all(np.all(d >= -tol, axis=1) | np.all(d <= tol, axis=1)))
 
 
 # --- Monte-Carlo ---------------------------------------------------------------------------

@@ -33,6 +33,7 @@ from sewtol.errors import ParameterError
 from sewtol.mechanism.spec import Spec
 from sewtol.studies import generic as G
 from sewtol.studies.rare_event import LimitState, StandardNormalMap
+from sewtol.studies.scan import checked
 from sewtol.tolerances import Tolerance, ToleranceSet
 
 FAILURE_STATUSES = ("cannot_close", "dead_point")
@@ -119,7 +120,7 @@ def file_limit_state(mech, tolerances: ToleranceSet, output: str, upper: float |
     mech.output(output)
     _check_adjust(mech, adjust)
     upper, lower = limits_of(mech, output, upper, lower)
-    tol = G._check_tolerances(mech, tolerances)
+    tol = checked(mech, tolerances)
     zmap = StandardNormalMap(tol)
     modes = tuple((s, g) for g in _failing_groups(mech) for s in FAILURE_STATUSES)
     label = output if adjust is None else f"{output}_adjusted"
@@ -212,7 +213,7 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
         raise ParameterError("n", "must be a whole number of machines >= 10", n)
     if int(seed) != seed or seed < 0:
         raise ParameterError("seed", "must be a whole number >= 0", seed)
-    tol = G._check_tolerances(mech, tolerances)
+    tol = checked(mech, tolerances)
     weights = dict(weights or {})
     unknown = sorted(set(weights) - set(tol.params))
     if unknown:

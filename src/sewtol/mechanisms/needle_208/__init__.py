@@ -14,8 +14,10 @@ joint optimum of beta and the guide), ``adjustment.py`` (any strategy's compensa
 ``kernels/`` (the fused numba fast paths, held equal to the numpy reference by tests),
 ``fast_path.py`` (the check that lets a mechanism file use them).
 
-The needle's studies on the exact optimiser: ``scan.py``, ``worst_case.py``, ``montecarlo.py``,
-``sobol.py``, ``allocation.py``, ``ppm.py``, ``guides.py``, ``strategies.py``;
+The generic studies (sewtol.studies.scan, worst_case, settings) in the source's columns, on this
+machine as a protocol mechanism: ``tables.py`` (``as_mechanism``); the needle's own studies on
+the exact optimiser: ``montecarlo.py``, ``sobol.py``, ``allocation.py``, ``ppm.py``,
+``guides.py`` (an instance of sewtol.studies.settings), ``strategies.py``;
 ``calibration.py`` reconstructs the unpublished frame.
 """
 

@@ -20,7 +20,7 @@ import pandas as pd
 from sewtol.errors import ParameterError
 from sewtol.mechanisms.needle_208 import beta as sb
 from sewtol.mechanisms.needle_208.evaluate import evaluate
-from sewtol.mechanisms.needle_208.scan import scan
+from sewtol.mechanisms.needle_208.tables import scan
 from sewtol.tolerances import Tolerance, ToleranceSet, needle_set
 
 if TYPE_CHECKING:

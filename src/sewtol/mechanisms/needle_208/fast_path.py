@@ -175,24 +175,60 @@ def needle_kernel_bound(mech, values) -> dict[str, np.ndarray]:
 
 def needle_adjuster(mech, values, boxes: dict) -> dict:
     """The exact joint optimum of beta (and the guide shift) per machine: the sliding-window
-    solution of mechanisms/needle_208/adjust.py. boxes: parameter -> (low, high), absolute."""
+    solution of mechanisms/needle_208/adjust.py. boxes: parameter -> (low, high), absolute.
+    `value` is the kernel's SumDelta at the settings (within PLATEAU_TOL_UM of the minimum);
+    `total_um`, `plus_um`, `minus_um` the exact figures there (needle_208.metrics)."""
     from sewtol.mechanisms.needle_208 import adjust as ad
+    from sewtol.mechanisms.needle_208 import metrics as nm
 
     c, _ = _batch(mech, values)
-    r = ad.optimise(c, {k: tuple(map(float, v)) for k, v in boxes.items()})
+    boxes = {k: tuple(map(float, v)) for k, v in boxes.items()}
+    r = ad.optimise(c, boxes)
+    dead = ~np.isfinite(r.settings["beta"])
+    # the figures at the settings; a machine no setting runs is figured at the box centres
+    figs = nm.deviation_figures(nm.with_values(c, **{
+        k: np.where(dead, 0.5 * (boxes[k][0] + boxes[k][1]), v) for k, v in r.settings.items()}))
     return {"value": r.total_um, "minimum": r.min_total_um, "settings": dict(r.settings),
-            "low": dict(r.low), "high": dict(r.high), "status": r.status}
+            "low": dict(r.low), "high": dict(r.high), "status": r.status,
+            "at_bound": dict(r.at_bound),
+            **{k: np.where(dead, np.nan, getattr(figs, k))
+               for k in ("total_um", "plus_um", "minus_um")}}
+
+
+def needle_strategy_adjuster(mech, values, compensators, limit_um: float = 10.0,
+                             plateaus: bool = True) -> dict:
+    """A strategy's joint optimum per machine (needle_208.adjustment.adjust: steps, resolution,
+    the guide angle and CD by an outer search): compensators are needle_208.compensators
+    objects. Status in the needle's words ("ok", "out of spec" against limit_um, "cannot
+    assemble", "dead point"); at_bound: a setting's plateau reaches an end of its range."""
+    from sewtol.mechanisms.needle_208.adjustment import adjust
+    from sewtol.mechanisms.needle_208.compensators import Strategy
+
+    c, _ = _batch(mech, values)
+    a = adjust(c, Strategy("adjusted", tuple(compensators)), limit_um, plateaus=plateaus)
+    at_bound = {}
+    for comp in compensators:
+        eps = 1e-6 * (comp.high - comp.low)
+        at_bound[comp.name] = ((a.plateau_low[comp.name] <= comp.low + eps)
+                               | (a.plateau_high[comp.name] >= comp.high - eps))
+    return {"value": a.total_um, "settings": dict(a.settings), "status": a.status,
+            "at_bound": at_bound, "total_um": a.total_um, "plus_um": a.plus_um,
+            "minus_um": a.minus_um, "low": dict(a.plateau_low), "high": dict(a.plateau_high),
+            "achieved_um": a.achieved_um, "total_before_um": a.total_before_um}
 
 
 def _plugins():
+    from sewtol.mechanisms import params as P
     from sewtol.mechanisms.needle_208 import adjust as ad
+    from sewtol.mechanisms.needle_208.model import Needle208
     from sewtol.protocol import Plugins
 
     return Plugins(kernel=needle_kernel, kernel_outputs=("SumDelta_um",),
                    kernel_bound=needle_kernel_bound, adjuster=needle_adjuster,
                    adjuster_sets=(frozenset({"beta"}), frozenset({"beta", "guide_shift_um"})),
                    adjusted_output="SumDelta_um", adjuster_tol=ad.PLATEAU_TOL_UM,
-                   name="needle_208")
+                   strategy_adjuster=needle_strategy_adjuster,
+                   strategy_parameters=frozenset(P.field_names(Needle208)), name="needle_208")
 
 
 FAST_PATH = FastPath("needle_208", ("L", "M", "B", "C", "E"), check_needle_208, _plugins())

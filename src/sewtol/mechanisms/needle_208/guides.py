@@ -1,4 +1,5 @@
-"""Guide settings compared in one table: beta*, SumDelta, window and the Monte-Carlo yields.
+"""Guide settings compared in one table: beta*, SumDelta, window and the Monte-Carlo yields (an
+instance of sewtol.studies.settings: each guide placement a named setting of the design).
 
 With `strategy=` every variant's machines (the same n machines for every variant, and the
 same ones `montecarlo` draws from the seed: common random numbers) are adjusted by the strategy's exact joint
@@ -20,6 +21,7 @@ from sewtol.mechanisms.needle_208 import beta as sb
 from sewtol.mechanisms.needle_208.montecarlo import montecarlo
 from sewtol.mechanisms.needle_208.single import nominal_figures
 from sewtol.studies.montecarlo import check_sampling, draw_deviations
+from sewtol.studies.settings import Setting, compare
 from sewtol.tolerances import ToleranceSet, needle_set
 
 if TYPE_CHECKING:
@@ -83,50 +85,52 @@ def compare_guides(nominal: Needle208, tolerances: ToleranceSet | str, n: int, s
         beta fixed and adjusted (or after the strategy, with its counts).
     """
     tolerances = needle_set(tolerances)
+    settings = [Setting(label, {"guide_shift_um": nominal.guide_shift_um + shift_um,
+                                "guide_angle": nominal.guide_angle + dangle},
+                        {"shift_um": shift_um}) for label, shift_um, dangle in variants]
     if strategy is not None:
-        return _compare_adjusted(nominal, tolerances, n, seed, variants, range_deg, strategy,
-                                 limit_um)
-    rows = []
-    for variant in variants:
-        p, fig, row = _variant(nominal, variant, range_deg, limit_um)
+        return compare(nominal, settings, _adjusted_figures(nominal, tolerances, n, seed,
+                                                            range_deg, strategy, limit_um),
+                       "guide").to_dataframe()
+
+    def figures(p, setting):
+        fig, row = _guide_figures(p, range_deg, limit_um)
         mc = montecarlo(p.override(beta=fig.beta_opt_deg), tolerances, n, seed,
                         limit_um=limit_um, range_deg=range_deg, n_jobs=n_jobs,
                         progress=progress, scheduler=scheduler)
-        rows.append({**row, "yield_fixed_beta": mc.yield_of("fixed"),
-                     "yield_adjusted_beta": mc.yield_of("adjusted"), "failed": mc.failed})
-    return pd.DataFrame(rows)
+        return {**row, "yield_fixed_beta": mc.yield_of("fixed"),
+                "yield_adjusted_beta": mc.yield_of("adjusted"), "failed": mc.failed}
+    return compare(nominal, settings, figures, "guide").to_dataframe()
 
 
-def _variant(nominal, variant, range_deg, limit_um=sb.DEFAULT_LIMIT_UM):
-    """The machine with this guide setting, its nominal figures, and the row's guide columns."""
-    label, shift_um, dangle = variant
-    p = nominal.override(guide_shift_um=nominal.guide_shift_um + shift_um,
-                         guide_angle=nominal.guide_angle + dangle)
+def _guide_figures(p, range_deg, limit_um=sb.DEFAULT_LIMIT_UM):
+    """The nominal figures of the machine with a guide setting, and the row's columns."""
     fig = nominal_figures(p, range_deg, limit_um)
-    row = {"guide": label, "shift_um": shift_um, "angle_from_vertical_deg": p.guide_angle,
+    row = {"angle_from_vertical_deg": p.guide_angle,
            "beta_opt_deg": fig.beta_opt_deg, "total_um": fig.total_um,
            "window_low_deg": fig.window_deg[0], "window_high_deg": fig.window_deg[1],
            "window_width_deg": fig.window_deg[1] - fig.window_deg[0]
            if np.all(np.isfinite(fig.window_deg)) else np.nan,
            "beta_at_bound": fig.beta_at_bound}
-    return p, fig, row
+    return fig, row
 
 
-def _compare_adjusted(nominal, tolerances, n, seed, variants, range_deg, strategy, limit_um):
+def _adjusted_figures(nominal, tolerances, n, seed, range_deg, strategy, limit_um):
+    """Each setting's figures with the strategy's joint optimum on the same machines."""
     from sewtol.mechanisms.needle_208.adjustment import adjust
     from sewtol.mechanisms.needle_208.compensators import Strategy
     from sewtol.mechanisms.needle_208.strategies import columns_of
 
     check_sampling(nominal, tolerances, n, seed)  # as montecarlo checks the same machines
     dev = draw_deviations(tolerances, n, seed)  # montecarlo's machines for this seed
-    rows = []
-    for variant in variants:
-        p, fig, row = _variant(nominal, variant, range_deg, limit_um)
+
+    def figures(p, setting):
+        fig, row = _guide_figures(p, range_deg, limit_um)
         c = columns_of(p.override(beta=fig.beta_opt_deg), dev)
         fixed = adjust(c, Strategy("none"), limit_um)
         adj = adjust(c, strategy, limit_um, plateaus=False)
         k = adj.counts()
-        rows.append({
+        return {
             **row,
             "yield_fixed_beta": float(np.mean(fixed.status == "ok")),
             "strategy": strategy.name, "yield_adjusted": k["ok"] / adj.n,
@@ -134,5 +138,5 @@ def _compare_adjusted(nominal, tolerances, n, seed, variants, range_deg, strateg
             "cannot_assemble": k["cannot assemble"], "dead_point": k["dead point"],
             "p95_after_um": float(np.percentile(np.where(np.isfinite(adj.total_um),
                                                          adj.total_um, np.inf), 95)),
-        })
-    return pd.DataFrame(rows)
+        }
+    return figures

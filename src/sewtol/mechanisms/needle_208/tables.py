@@ -1,0 +1,272 @@
+"""The needle's tables of the generic studies: a `Needle208` as a protocol mechanism, and the
+scan, worst case and largest tolerances (sewtol.studies.scan, sewtol.studies.worst_case) in the
+source study's columns.
+
+The studies run on `as_mechanism(nominal)` (the folder's mechanism.toml with the machine's
+values as nominals) and so on the needle's plug-ins (fast_path.py): SumDelta exactly by the
+fused kernel, beta (and the guide shift) by the exact sliding-window optimum, any strategy by
+needle_208.adjustment. This module only names their figures as the source did: beta_deg (beta*,
+the adjusted beta; or the machine's own where a strategy does not set it), plus_um, minus_um,
+total_um (Delta+, Delta-, SumDelta at the settings), beta_at_bound (beta*'s plateau reaches
+an end of its range), NAME_mm (deviations).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cache
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pandas as pd
+
+from sewtol.errors import ParameterError
+from sewtol.mechanisms import params as P
+from sewtol.mechanisms.needle_208 import beta as sb
+from sewtol.tolerances import ToleranceSet, needle_set
+
+if TYPE_CHECKING:
+    from sewtol.mechanisms.needle_208.compensators import Strategy
+    from sewtol.mechanisms.needle_208.model import Needle208
+
+OUTPUT = "SumDelta_um"
+MAX_CORNER_PARAMS = 10
+FIGURES = ("plus_um", "minus_um", "total_um")
+
+
+@cache
+def _file():
+    from sewtol.mechanism import load
+    from sewtol.mechanisms import mechanism_file
+
+    return load(mechanism_file("needle_208"))
+
+
+def as_mechanism(params: Needle208):
+    """The needle drive `params` (scalar fields) as a protocol mechanism: the folder's
+    mechanism.toml (fast_path needle_208) with the machine's values as its nominals."""
+    return _file().override(**{k: float(getattr(params, k)) for k in P.field_names(type(params))})
+
+
+def _beta_box(range_deg, limit_um=sb.DEFAULT_LIMIT_UM) -> dict:
+    sb.check_range(range_deg, limit_um)
+    return {"beta": tuple(map(float, range_deg))}
+
+
+@dataclass(frozen=True)
+class ScanResult:
+    """The rows of a per-parameter scan and the nominal machine's row (see `scan`).
+
+    ``to_dataframe()`` gives the rows; ``to_records()`` the same as dicts (the JSON of
+    ``sewtol needle scan``).
+    """
+
+    rows: pd.DataFrame  # param, side, delta_mm, value_mm, beta_deg, plus_um, minus_um, total_um
+    nominal_row: dict
+    tolerances: str
+    guide_shift_um: float
+    limit_um: float
+    strategy: str = "beta"  # the adjustment of every row (scan(strategy=...))
+
+    def to_dataframe(self) -> pd.DataFrame:
+        """The rows (a copy)."""
+        return self.rows.copy()
+
+    def to_records(self) -> list[dict]:
+        """The rows as dicts, the fixed columns first (the JSON rows of ``sewtol needle scan``)."""
+        cols = ["param", "side", "delta_mm", "value_mm", "beta_deg", "plus_um", "minus_um",
+                "total_um"]
+        cols += [c for c in self.rows.columns if c not in cols]
+        return self.rows[cols].to_dict(orient="records")
+
+
+def _figures(a, base, strategy) -> dict:
+    """The needle's columns of an adjusted batch (sewtol.studies.adjusting.Adjusted)."""
+    n = len(a.value)
+    if strategy is None:
+        return {"beta_deg": a.settings["beta"], **{k: a.extras[k] for k in FIGURES},
+                "beta_at_bound": np.asarray(a.at_bound["beta"], bool)}
+    f = {"beta_deg": a.settings["beta"] if "beta" in strategy.names else np.full(n, base.beta),
+         **{k: a.extras[k] for k in FIGURES},
+         "beta_at_bound": a.at_bound["beta"] if "beta" in strategy.names else np.zeros(n, bool)}
+    f.update({f"{k}_setting": a.settings[k] for k in strategy.names if k != "beta"})
+    f["status"] = a.status
+    return f
+
+
+def scan(nominal: Needle208, tolerances: ToleranceSet | str, guide_shift_um: float | None = None,
+         limit_um: float = sb.DEFAULT_LIMIT_UM,
+         range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
+         strategy: Strategy | None = None) -> ScanResult:
+    """Each tolerance at its upper and its lower limit, every other parameter nominal.
+
+    The layout of the source study's Table 4.1: the guide stays fixed where the nominal machine
+    put it (optionally shifted) and beta is re-optimised on every row. All 2k rows are one
+    batch.
+
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters).
+    tolerances : ToleranceSet or str
+        The limits to visit; parameters not in the set stay nominal.
+    guide_shift_um : float or None
+        The guide's shift along its normal for every row (um); the source moved the guide
+        by about 50 um for AB and BE. None keeps the nominal's own guide_shift_um.
+    limit_um : float
+        The SumDelta limit (um); default 10.
+    range_deg : tuple of float
+        The regulating range searched for beta*, (low, high) in deg; default (10, 35).
+    strategy : Strategy or None
+        None: beta re-optimised on each row. A strategy: each row adjusted by the strategy's
+        exact joint optimum, with each compensator's setting in a ``NAME_setting`` column and
+        a ``status`` column.
+
+    Returns
+    -------
+    ScanResult
+        Rows with ``param``, ``side`` (upper/lower), ``delta_mm`` (the deviation), ``value_mm``
+        (the parameter's value), ``beta_deg`` (beta*), ``plus_um``, ``minus_um`` and
+        ``total_um`` (Delta+, Delta-, SumDelta) and ``beta_at_bound`` (beta*'s plateau reaches
+        an end of range_deg: the row's optimum may lie outside it); ``nominal_row`` the same
+        for the nominal.
+    """
+    from sewtol.studies import scan as S
+
+    tolerances = needle_set(tolerances)
+    if guide_shift_um is None:
+        guide_shift_um = float(nominal.guide_shift_um)
+    base = nominal.override(guide_shift_um=guide_shift_um)
+    if strategy is None:
+        comps, options = _beta_box(range_deg, limit_um), {}
+    else:
+        comps, options = strategy.compensators, {"limit_um": limit_um}
+    r = S.scan(as_mechanism(base), tolerances, (), comps, OUTPUT, zero_width=True, **options)
+    values = [float(r.values[p][i]) for i, p in enumerate(r.params)]
+    rows = pd.DataFrame({"param": r.params, "side": r.sides, "delta_mm": r.deviations,
+                         "value_mm": values, **_figures(r.adjusted, base, strategy)})
+    nominal_row = {k: (str(v[0]) if k == "status" else bool(v[0]) if k == "beta_at_bound"
+                       else float(v[0]))
+                   for k, v in _figures(r.adjusted_nominal, base, strategy).items()}
+    return ScanResult(rows, nominal_row, tolerances.name, float(guide_shift_um), float(limit_um),
+                      "beta" if strategy is None else strategy.name)
+
+
+def largest_tolerances(nominal: Needle208, params: list[str],
+                       limit_um: float = sb.DEFAULT_LIMIT_UM, max_mm: float = 1.0,
+                       guide_shift_um: float = 0.0,
+                       range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
+                       xtol_mm: float = 1e-5) -> pd.DataFrame:
+    """Per parameter and side, the largest |deviation| <= max_mm with SumDelta(beta*) <= limit.
+
+    A geometric grid from 1 um to max_mm brackets the first crossing, bisection refines it to
+    xtol_mm. `reaches_max` marks sides where even max_mm keeps the limit.
+
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters).
+    params : list of str
+        The parameters to search, one at a time, every other one nominal.
+    limit_um : float
+        The SumDelta limit (um) at beta*; default 10.
+    max_mm : float
+        The largest deviation tried (mm, or the parameter's unit).
+    guide_shift_um : float
+        A shift of the guide along its normal (um).
+    range_deg : tuple of float
+        The regulating range searched for beta*, (low, high) in deg.
+    xtol_mm : float
+        The bisection's tolerance on the deviation (mm).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per parameter and side: ``param``, ``side`` (upper/lower),
+        ``largest_delta_mm`` (signed: negative on the lower side) and ``reaches_max``.
+    """
+    from sewtol.studies import scan as S
+
+    base = nominal.override(guide_shift_um=guide_shift_um)
+    t = S.largest_tolerances(as_mechanism(base), params, OUTPUT, limit_um,
+                             _beta_box(range_deg, limit_um), max_mm, xtol_mm, figure="total_um")
+    return t.rename(columns={"largest_deviation": "largest_delta_mm"})
+
+
+@dataclass(frozen=True)
+class WorstCase:
+    case: str
+    total_um: float
+    corner_total_um: float
+    point: dict  # deviation per parameter (mm)
+    beta_deg: float
+    interior: bool  # True when the worst point is not a corner
+    # the worst machine's adjusted beta*: its plateau reaches an end of the searched range
+    beta_at_bound: bool = False
+
+    def to_row(self) -> dict:
+        row = {"case": self.case, "total_um": self.total_um,
+               "worst_corner_total_um": self.corner_total_um, "beta_deg": self.beta_deg,
+               "beta_at_bound": self.beta_at_bound, "interior": self.interior}
+        row.update({f"{k}_mm": v for k, v in self.point.items()})
+        return row
+
+
+def worst_case(nominal, tolerances: ToleranceSet | str, adjust: bool,
+               range_deg=sb.DEFAULT_RANGE_DEG, starts: int = 3, strategy=None) -> WorstCase:
+    """The worst SumDelta over the tolerance box (sewtol.studies.worst_case, the best `starts`
+    corners polished, a machine that cannot run counting as the worst): beta fixed as in
+    `nominal` (adjust=False), beta re-optimised per trial machine (adjust=True), or, with
+    adjust=True and a strategy, the joint optimum over the strategy's compensators."""
+    from sewtol.studies import worst_case as W
+
+    tolerances = needle_set(tolerances)
+    if len(tolerances.active().params) > MAX_CORNER_PARAMS:
+        raise ParameterError("tolerances", "worst case enumerates corners; at most 10 parameters",
+                             len(tolerances.active().params))
+    comps, options = None, {}
+    if adjust:
+        comps = _beta_box(range_deg) if strategy is None else strategy.compensators
+        options = {} if strategy is None else {"plateaus": False}
+    search = W.Search(starts=starts, maxiter=200, step=None, eps=1e-6, failures="worst")
+    r = W.worst_case(as_mechanism(nominal), tolerances, OUTPUT, adjust=comps, extremes=("max",),
+                     search=search, axes=False, **options)
+    e = r.extremes[0]
+    sets_beta = adjust and (strategy is None or "beta" in strategy.names)
+    beta = float(e.adjusted.settings["beta"][0]) if sets_beta else float(nominal.beta)
+    at_bound = bool(e.adjusted.at_bound["beta"][0]) if sets_beta else False
+    case = "fixed_beta" if not adjust else \
+        "adjusted_beta" if strategy is None else f"adjusted_{strategy.name}"
+    return WorstCase(case, e.value, e.corner_value, e.point, beta, e.interior, at_bound)
+
+
+def worst_case_table(nominal: Needle208, tolerances: ToleranceSet | str,
+                     range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
+                     strategy: Strategy | None = None) -> pd.DataFrame:
+    """The worst SumDelta over the tolerance box, with beta fixed and after adjustment.
+
+    Every corner of the box and its centre are evaluated as one batch; the three worst are
+    polished by L-BFGS-B inside the box, so a worst point inside the box is found too.
+
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters); its beta* is the fixed case's beta.
+    tolerances : ToleranceSet or str
+        The box: every tolerance between its lower and upper limit.
+    range_deg : tuple of float
+        The regulating range for beta, (low, high) in deg.
+    strategy : Strategy or None
+        The adjusted case: None for beta re-optimised, or a strategy's joint optimum.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Rows ``fixed_beta`` and the adjusted case, with ``total_um`` (the worst SumDelta),
+        ``worst_corner_total_um``, ``beta_deg``, ``interior`` (True when the worst point is not
+        a corner) and the worst point's deviation per parameter (``NAME_mm``).
+    """
+    tolerances = needle_set(tolerances)
+    return pd.DataFrame([worst_case(nominal, tolerances, a, range_deg,
+                                    strategy=strategy if a else None).to_row()
+                         for a in (False, True)])
