@@ -1,9 +1,14 @@
 """Monte-Carlo machinery shared by every mechanism: reproducible sampling of machines, checks,
 and the contributors to an output's variance.
 
-`sample_machines` draws n machines in chunks of CHUNK, chunk i from child i of the seed (same
-seed, same table, for any number of workers) and evaluates any vectorised model on them;
-`draw_deviations` gives the deviations alone; `contributors` and `with_remainder` give each
+The one sampler of every study (Monte-Carlo, strategies, ppm by plain Monte-Carlo, allocation):
+machine k is row k % CHUNK of the standard uniforms drawn from child k // CHUNK of the seed
+(`unit_streams`, `draw_units`), mapped through each tolerance's inverse CDF
+(Tolerance.from_unit). So one seed and one tolerance set give the same machines in every study,
+for any number of workers and any evaluation chunk size, and a study that scales the set
+(allocation) keeps every machine's uniforms, hence its rank, for every scale.
+`sample_machines` evaluates any vectorised model on those machines; `draw_deviations` gives the
+deviations alone; `contributors` and `with_remainder` give each
 tolerance's eta^2 (correlation ratio) as a share of the output's variance, the rest named as
 interaction. The needle's Monte-Carlo (beta fixed and adjusted) is
 sewtol.mechanisms.needle_208.montecarlo; any file's is sewtol.studies.generic.montecarlo.
@@ -17,7 +22,7 @@ import numpy as np
 import pandas as pd
 
 from sewtol.errors import ParameterError
-from sewtol.studies.parallel import child_generators, chunk_bounds, run_chunks
+from sewtol.studies.parallel import chunk_bounds, run_chunks
 from sewtol.tolerances import ToleranceSet
 
 if TYPE_CHECKING:
@@ -61,8 +66,38 @@ def check_memory(n: int, columns: int, what: str = "n", value=None) -> None:
                              f"({have / 2**30:.3g} GiB)", n if value is None else value)
 
 
-def _chunk(model, nominal, tolerances: ToleranceSet, rng, m: int, kwargs):
-    dev = tolerances.sample(rng, m)
+def unit_streams(seed: int | np.random.Generator, n: int) -> list[np.random.SeedSequence]:
+    """The seed's children, one per CHUNK machines: machine k draws from child k // CHUNK.
+
+    seed: a whole number, or a Generator whose children are spawned (rare_event's plain
+    Monte-Carlo; numpy.random.default_rng(s) gives the same streams as s)."""
+    ss = seed.bit_generator.seed_seq if isinstance(seed, np.random.Generator) \
+        else np.random.SeedSequence(int(seed))
+    return ss.spawn(len(chunk_bounds(int(n), CHUNK)))
+
+
+def draw_units(streams: list[np.random.SeedSequence], d: int, start: int = 0,
+               stop: int | None = None) -> np.ndarray:
+    """Standard uniforms (stop - start, d) of machines start .. stop-1: machine k is row
+    k % CHUNK of the draw from streams[k // CHUNK] (a fresh Generator per stream, so any
+    window of machines draws the same numbers; `stream_window` gives a worker its slice)."""
+    stop = len(streams) * CHUNK if stop is None else int(stop)
+    first = start // CHUNK
+    rows = [np.random.default_rng(streams[j]).random((min(CHUNK, stop - j * CHUNK), d))
+            for j in range(first, -(-stop // CHUNK))]
+    return (np.concatenate(rows) if rows else np.empty((0, d)))[start - first * CHUNK:]
+
+
+def stream_window(streams: list, a: int, b: int) -> tuple[list, int, int]:
+    """The streams machines a .. b-1 draw from and their rows in them (draw_units(streams, d,
+    start, stop) then draws them without sending a worker every stream): (streams, start, stop)."""
+    first = a // CHUNK
+    return streams[first: -(-b // CHUNK)], a - first * CHUNK, b - first * CHUNK
+
+
+def _chunk(model, nominal, tolerances: ToleranceSet, window, kwargs):
+    streams, a, b = window
+    dev = tolerances.from_unit(draw_units(streams, len(tolerances.items), a, b))
     return dev, model(nominal, dev, **kwargs)
 
 
@@ -72,15 +107,16 @@ def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
                     scheduler=None, **kwargs) -> pd.DataFrame:
     """Deviations and model outputs of n machines, one row each (generic over mechanisms).
 
-    model(nominal, deviations, **kwargs) returns a dict of output arrays. Chunk i of the fixed
-    chunk_size draws from child i of the seed, so any n_jobs or cluster gives the same rows.
-    progress: True (bar on stderr) or progress(done, total) in chunks; scheduler: a Dask
-    scheduler address or distributed.Client to run the chunks on (parallel.run_chunks).
+    model(nominal, deviations, **kwargs) returns a dict of output arrays. The machines are the
+    module's one draw (`draw_deviations`); chunk_size only splits the evaluation, so any
+    n_jobs, chunk size or cluster gives the same rows. progress: True (bar on stderr) or
+    progress(done, total) in chunks; scheduler: a Dask scheduler address or
+    distributed.Client to run the chunks on (parallel.run_chunks).
     """
     check_sampling(nominal, tolerances, n, seed, chunk_size)
     tol = tolerances.active()
     bounds = chunk_bounds(int(n), chunk_size)
-    rngs = child_generators(seed, len(bounds))
+    streams = unit_streams(seed, n)
 
     def validate(i, part):
         """A saved chunk must hold exactly the machines chunk i draws from the seed."""
@@ -92,7 +128,7 @@ def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
             for k, v in list(dev.items()) + list(out.items()):
                 if np.shape(v) != (m,):
                     return f"column {k} has shape {np.shape(v)}, not ({m},)"
-            again = tol.sample(child_generators(seed, len(bounds))[i], m)
+            again = tol.from_unit(draw_units(streams, len(tol.items), *bounds[i]))
             for k, v in again.items():
                 if not np.allclose(dev[k], v, rtol=1e-12, atol=0.0):
                     return f"its {k} deviations are not the ones chunk {i} draws from the seed"
@@ -100,8 +136,8 @@ def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
             return f"malformed ({type(exc).__name__}: {exc})"
         return None
 
-    parts = run_chunks(_chunk, [(model, nominal, tol, r, b - a, kwargs)
-                                for r, (a, b) in zip(rngs, bounds, strict=True)],
+    parts = run_chunks(_chunk, [(model, nominal, tol, stream_window(streams, a, b), kwargs)
+                                for a, b in bounds],
                        n_jobs=n_jobs, progress=progress, desc=desc, backend=backend, store=store,
                        validate=validate, scheduler=scheduler)
     frames = []
@@ -115,15 +151,11 @@ def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
     return machines
 
 
-def draw_deviations(tolerances: ToleranceSet, n: int, seed: int,
-                    chunk_size: int = CHUNK) -> dict[str, np.ndarray]:
-    """The deviations of machines 0 .. n-1 exactly as `sample_machines` draws them (chunk i of
-    chunk_size from child i of the seed), for studies that adjust the same machines otherwise."""
+def draw_deviations(tolerances: ToleranceSet, n: int, seed: int) -> dict[str, np.ndarray]:
+    """The deviations of machines 0 .. n-1 of the tolerances that scatter: the one draw of
+    every study (`sample_machines`, strategies, ppm by plain Monte-Carlo, allocation)."""
     tol = tolerances.active()
-    bounds = chunk_bounds(int(n), chunk_size)
-    parts = [tol.sample(r, b - a)
-             for r, (a, b) in zip(child_generators(seed, len(bounds)), bounds, strict=True)]
-    return {k: np.concatenate([d[k] for d in parts]) for k in tol.params}
+    return tol.from_unit(draw_units(unit_streams(seed, n), len(tol.items), 0, n))
 
 
 def check_sampling(nominal, tolerances: ToleranceSet, n, seed, chunk_size: int = CHUNK,
