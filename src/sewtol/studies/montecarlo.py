@@ -174,6 +174,23 @@ def check_sampling(nominal, tolerances: ToleranceSet, n, seed, chunk_size: int =
     check_memory(n, columns if columns is not None else 2 * len(tol.items) + 16)
 
 
+def correlation_ratio(bin_of: np.ndarray, y: np.ndarray, bins: int,
+                      weights: np.ndarray | None = None) -> float:
+    """eta^2 = Var(E[Y | bin]) / Var(Y) of y grouped by bin_of (0 .. bins-1), bias-corrected
+    (epsilon^2: bins of pure noise give about (bins-1)/n) and never below 0; weights: rows
+    counted that many times (a bootstrap resample)."""
+    w = np.ones(y.size) if weights is None else np.asarray(weights, float)
+    total = w.sum()
+    mean = np.sum(w * y) / total
+    var = np.sum(w * (y - mean) ** 2) / total
+    if not var > 0 or total <= bins:
+        return 0.0
+    counts = np.bincount(bin_of, weights=w, minlength=bins)
+    means = np.bincount(bin_of, weights=w * y, minlength=bins) / np.maximum(counts, 1e-300)
+    eta2 = float(np.sum(counts * (means - mean) ** 2) / total / var)
+    return max(0.0, 1.0 - (1.0 - eta2) * (total - 1) / (total - bins))
+
+
 def contributors(machines: pd.DataFrame, params, output: str, bins: int = 20) -> pd.DataFrame:
     """Contributors to the scatter of `output`: the correlation ratio eta^2 of each tolerance.
 
@@ -190,17 +207,11 @@ def contributors(machines: pd.DataFrame, params, output: str, bins: int = 20) ->
     """
     m = machines.dropna(subset=[output])
     y = m[output].to_numpy()
-    var = y.var()
     rows = []
     for p in params:
         x = m[p].to_numpy()
         ranks = np.argsort(np.argsort(x, kind="stable"), kind="stable")
-        b = ranks * bins // len(x)
-        counts = np.bincount(b, minlength=bins)
-        means = np.bincount(b, weights=y, minlength=bins) / np.maximum(counts, 1)
-        eta2 = float(np.sum(counts * (means - y.mean()) ** 2) / len(y) / var) if var > 0 else 0.0
-        eta2 = max(0.0, 1.0 - (1.0 - eta2) * (len(y) - 1) / (len(y) - bins))
-        rows.append({"param": p, "eta2": eta2})
+        rows.append({"param": p, "eta2": correlation_ratio(ranks * bins // len(x), y, bins)})
     frame = pd.DataFrame(rows).sort_values("eta2", ascending=False).reset_index(drop=True)
     total = frame["eta2"].sum()
     frame["share_pct"] = 100 * frame["eta2"] / total if total > 0 else 0.0
