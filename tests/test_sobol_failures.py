@@ -127,6 +127,22 @@ def test_counts_add_up_and_the_same_seed_gives_the_same_answer():
     assert res.assembly()["counts"] == res.counts() and len(res.notes()) == 1
 
 
+def test_too_few_machines_that_assemble_give_undefined_indices_not_guesses():
+    X = so.sample(PROBLEM, 16, 1)
+    for kept in (0, so.MIN_COMPLETE - 1):  # complete base samples
+        y = np.where(np.arange(len(X)) < 5 * kept, ishigami(X), np.nan)
+        c = so.case_indices(PROBLEM, X, y, 16, 1, "few")
+        assert c.complete == kept and c.failed == len(X) - 5 * kept
+        assert c.indices[["S1", "S1_conf", "ST", "ST_conf"]].isna().all().all()
+        # S1_given needs MIN_GIVEN_ROWS assembled rows, not complete base samples
+        assert c.indices["S1_given"].isna().all() == (5 * kept < so.MIN_GIVEN_ROWS)
+        assert c.outcomes["rows"].sum() == len(X)
+        assert (c.feasibility is None) == (kept == 0)
+    res = so.result_of([c], 16, 1, "few", model_runs=len(X))
+    assert strict_loads(strict_json(res.assembly()))["counts"]["few"]["no_value"] == c.failed
+    assert strict_loads(strict_json(res.to_records()))[0]["S1"] is None
+
+
 def test_without_failures_the_numbers_are_the_plain_saltelli_analysis():
     X = so.sample(PROBLEM, 256, 5)
     y = ishigami(X)

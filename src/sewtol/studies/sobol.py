@@ -49,6 +49,9 @@ POLICY = ("rows that cannot be built are counted, never dropped: feasibility = S
 # between 10 and 100 bins: a bin averages E[Y | x] over its width (Ishigami's 7 sin^2 x2 loses
 # 3 % of its variance to 20 bins, 0.1 % to 100), while epsilon^2 removes the noise of the means
 ROWS_PER_BIN, MAX_BINS = 100, 100
+# below these, an index is NaN (undefined, never a guess): complete base samples for S1/ST (the
+# floor MIN_N // 2 of the convergence check) and assembled rows for S1_given (2 per bin)
+MIN_COMPLETE, MIN_GIVEN_ROWS = 8, 20
 
 
 def problem_of(tolerances: ToleranceSet) -> dict:
@@ -117,8 +120,6 @@ def _check_bootstrap(resamples, conf_level) -> None:
 def _analyze(problem: dict, y: np.ndarray, seed: int, resamples: int, conf_level: float,
              second_order: bool):
     _check_bootstrap(resamples, conf_level)
-    if y.size == 0:  # no complete base sample: the indices are undefined, not refused
-        y = np.full(rows_per_sample(problem["num_vars"], second_order) * 2, np.nan)
     res = sobol_analyze.analyze(problem, y, calc_second_order=bool(second_order),
                                 num_resamples=resamples, conf_level=conf_level,
                                 seed=_salib_seed(seed))
@@ -276,6 +277,8 @@ def _given_s1(X, y, usable, step, seed, resamples, conf_level) -> tuple[np.ndarr
     resampled together)."""
     from sewtol.studies.montecarlo import correlation_ratio
 
+    if usable.sum() < MIN_GIVEN_ROWS:
+        return np.full(X.shape[1], np.nan), np.full(X.shape[1], np.nan)
     yy = y[usable]
     blocks = y.size // step
     block = (np.arange(y.size) // step)[usable]
@@ -292,6 +295,18 @@ def _given_s1(X, y, usable, step, seed, resamples, conf_level) -> tuple[np.ndarr
         s1.append(correlation_ratio(b, yy, k))
         conf.append(z * np.std([correlation_ratio(b, yy, k, w) for w in weights], ddof=1))
     return np.array(s1), np.array(conf)
+
+
+def _undefined(problem: dict, second_order: bool):
+    """The frames of `_analyze` with every index NaN (too few complete base samples)."""
+    names = problem["names"]
+    first = pd.DataFrame({"param": names, **dict.fromkeys(("S1", "S1_conf", "ST", "ST_conf"),
+                                                           np.nan)})
+    pairs = pd.DataFrame([{"param_i": names[i], "param_j": names[j], "S2": np.nan,
+                           "S2_conf": np.nan}
+                          for i in range(len(names)) for j in range(i + 1, len(names))],
+                         columns=["param_i", "param_j", "S2", "S2_conf"])
+    return first, pairs if second_order else None
 
 
 def case_indices(problem: dict, X: np.ndarray, y: np.ndarray, n: int, seed: int,
@@ -335,7 +350,9 @@ def case_indices(problem: dict, X: np.ndarray, y: np.ndarray, n: int, seed: int,
     frames, pairs = [], []
     for m in (n // 2, n):  # the first m blocks of rows are the design of m base samples
         rows = np.repeat(complete[:m], step)
-        f, p = _analyze(problem, y[: m * step][rows], seed, resamples, conf_level, second_order)
+        f, p = _analyze(problem, y[: m * step][rows], seed, resamples, conf_level,
+                        second_order) if complete[:m].sum() >= MIN_COMPLETE \
+            else _undefined(problem, second_order)
         if failed:
             s1, conf = _given_s1(X[: m * step], y[: m * step], usable[: m * step], step, seed,
                                  resamples, conf_level)
