@@ -22,6 +22,7 @@ from sewtol.mechanism import load  # noqa: E402
 from sewtol.reports import generic_report as GR  # noqa: E402
 from sewtol.studies import generic_yield as GY  # noqa: E402
 from sewtol.studies import rare_event as R  # noqa: E402
+from sewtol.studies.montecarlo import draw_units, unit_streams  # noqa: E402
 from sewtol.tolerances import Tolerance, ToleranceSet  # noqa: E402
 
 FILE = str(Path(__file__).parent / "data" / "crank_slider.toml")
@@ -111,7 +112,7 @@ def test_ppm_with_compensator_is_the_adjusted_output(mech):
 def _order_statistic_scale(n, seed, target, half_mm, t_mm):
     """The largest k at which the same uniforms give yield >= target: P(|d_r| <= half) with
     d_r = k * t * (2 u - 1), i.e. k <= half / (t * V_(m)), V = |2 u - 1|, m = ceil(target n)."""
-    u = np.random.default_rng(seed).random((n, 2))
+    u = draw_units(unit_streams(seed, n), 2, 0, n)  # montecarlo's uniforms for the seed
     v = np.sort(np.abs(2 * u[:, 0] - 1))
     m = int(np.ceil(target * n))
     return half_mm / (t_mm * v[m - 1])

@@ -98,3 +98,13 @@ def test_the_api_reference_worked_example_runs_and_prints_what_it_says(tmp_path,
     got = scope["mech"].evaluate(scope["vals"]).outputs["rocker_swing_deg"]
     assert np.allclose(got, said, atol=5e-4)
     assert scope["res"].counts("rocker_swing_deg")["n"] == 2000
+
+
+def test_the_law_draws_the_machines_of_every_study():
+    from sewtol.studies.montecarlo import draw_deviations
+
+    mech = load(mechanism_file("needle_208"))
+    ts = mech.tolerance_sets["recommended"]
+    got = protocol.input_law(mech, ts).draw(1234, 2026)
+    want = draw_deviations(ts, 1234, 2026)
+    assert list(got) == list(want) and all(np.array_equal(got[k], want[k]) for k in want)

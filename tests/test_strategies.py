@@ -13,6 +13,7 @@ from sewtol.mechanisms.needle_208.adjustment import adjust, shift_optimum
 from sewtol.mechanisms.needle_208.kernels import positions as KP
 from sewtol.mechanisms.needle_208.kernels.path import band_kernel, pack
 from sewtol.mechanisms.needle_208.strategies import columns_of, strategies_table, summarise
+from sewtol.studies.montecarlo import draw_deviations
 from sewtol.tolerances import NEEDLE_208_SETS
 
 PHI = np.linspace(0.0, 2 * np.pi, 8001)
@@ -366,10 +367,8 @@ def test_allocation_takes_a_strategy(nominal):
     t = a.to_dataframe().set_index("param")
     # asymmetric reference shapes are kept (LF +0.25/-0.8)
     assert t.loc["LF", "lower_mm"] / t.loc["LF", "upper_mm"] == pytest.approx(-0.8 / 0.25)
-    # the yield claimed is the yield of the allocated set on the same random numbers
-    u = np.random.default_rng(4).random((20, len(t)))
-    dev = {p: t.loc[p, "lower_mm"] + (t.loc[p, "upper_mm"] - t.loc[p, "lower_mm"]) * u[:, i]
-           for i, p in enumerate(t.index)}
+    # the yield claimed is the yield of the allocated set's machines (montecarlo's, seed 4)
+    dev = draw_deviations(a.as_tolerance_set(), 20, 4)
     got = np.mean(adjust(columns_of(nominal, dev), shift).status == "ok")
     assert got == a.yield_adjusted >= 0.9
     # a guide shift takes back the sideways move of AB and BE: their adjusted slopes are a

@@ -772,11 +772,8 @@ def cmd_needle_sobol(args):
                                resamples=SOBOL_RESAMPLES, conf_level=SOBOL_CONF_LEVEL,
                                chunk_size=CHUNK, scheduler=client, strategy=strategy,
                                limit_um=args.limit_um, second_order=args.second_order)
-        frames = {"indices": res.to_dataframe(), "convergence": res.convergence}
-        if args.second_order:
-            frames["second_order"] = res.second_order_frame()
         _write_outputs(args, "sobol", inputs, started, _sobol_json(res, args.second_order, context),
-                       frames, runs)
+                       res.frames(), runs)
     finally:
         if store is not None:
             store.close()
@@ -785,6 +782,7 @@ def cmd_needle_sobol(args):
         sys.stdout.write("\nsecond-order indices S2 (pairs; conf: half-width of the "
                          f"{SOBOL_CONF_LEVEL:.0%} bootstrap interval)\n")
         emit("table", frame=res.second_order_frame())
+    _print_notes(args, res.notes())
     _save_plot(args, lambda ax: _plots().sobol_bars(
         res.to_dataframe().query("case == 'adjusted_beta'") if strategy is None
         else res.to_dataframe()[res.to_dataframe()["case"] != "fixed_beta"], ax=ax,
@@ -798,7 +796,8 @@ def _sobol_json(res, second_order: bool, context: dict):
             **({"second_order": res.second_order_frame().to_dict(orient="records")}
                if second_order else {}),
             "n": res.n, "seed": res.seed, "tolerances": res.tolerances,
-            "model_runs_per_case": res.model_runs, "context": context}
+            "model_runs_per_case": res.model_runs, "context": context,
+            **({"assembly": res.assembly()} if res.has_failures else {})}
 
 
 # --- needle guides and needle allocation (issue 13 items 6 and 7) ------------------------------

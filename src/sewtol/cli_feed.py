@@ -155,9 +155,10 @@ def cmd_feed_sobol(args):
     obj = {"context": {**_feed_context(args, params, tolerances),
                        "screening_machines": args.n_screen},
            "parameters": chosen, "indices": table.to_dict(orient="records"),
-           "convergence": res.convergence.to_dict(orient="records")}
+           "convergence": res.convergence.to_dict(orient="records"),
+           **({"assembly": res.assembly()} if res.has_failures else {})}
     _feed_write(args, "sobol", params, tolerances, started, obj,
-                {"indices": table, "convergence": res.convergence},
+                {**res.frames(), "indices": table},
                 screening_machines=args.n_screen)
     emit(args.format, obj=obj, frame=table)
     _save_sobol_panels(args, table)

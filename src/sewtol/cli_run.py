@@ -289,10 +289,10 @@ def cmd_run(args) -> None:
                         args.seed)
         obj = {"mechanism": mech.name, "tolerances": tolerances.name, "n": res.n,
                "seed": res.seed, "output": args.output or mech.output_names[0],
-               "rows": res.to_records(), "convergence": res.convergence.to_dict("records")}
+               "rows": res.to_records(), "convergence": res.convergence.to_dict("records"),
+               **({"assembly": res.assembly()} if res.has_failures else {})}
         return _finish(args, fmt, mech, tolerances, obj,
-                       {"indices": res.indices, "convergence": res.convergence},
-                       res.to_dataframe())
+                       {**res.frames(), "indices": res.indices}, res.to_dataframe())
     if args.study in ("ppm", "allocation", "report"):
         return _yield_study(args, fmt, mech, tolerances)
     res = _as_flags(G.montecarlo, mech, tolerances, args.n, args.seed, outputs, args.limit,

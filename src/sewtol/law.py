@@ -11,9 +11,12 @@ cannot hold, instead of assuming it.
     u = law.sample_unit(rng, n)          # (n, d) numbers in (0, 1): the machines' ranks
     dev = law.deviations(u)              # parameter -> deviation from nominal (its unit)
 
-`law.sample(rng, n)` equals `law.deviations(law.sample_unit(rng, n))` and, for the
-independent law, `ToleranceSet.sample(rng, n)` bit for bit: the same seed gives the same
-machines whichever of them a study calls.
+`law.draw(n, seed)` is the one sampler of every study (Monte-Carlo, strategies, ppm by plain
+Monte-Carlo, allocation): machine k is row k % STREAM of the standard uniforms drawn from child
+k // STREAM of the seed, mapped by `deviations`; so one seed and one law give the same machines
+in every study, for any number of workers. `law.sample(rng, n)` equals
+`law.deviations(law.sample_unit(rng, n))` and, for the independent law,
+`ToleranceSet.sample(rng, n)` bit for bit.
 """
 
 from __future__ import annotations
@@ -23,6 +26,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from sewtol.tolerances import Tolerance, ToleranceSet
+
+# machines per stream of the sampler: machine k draws from child k // STREAM of the seed
+STREAM = 500
 
 
 @dataclass(frozen=True)
@@ -73,6 +79,40 @@ class InputLaw:
         """n machines' deviations from nominal, one array per parameter."""
         return self.deviations(self.sample_unit(rng, n))
 
+    def draw(self, n: int, seed: int | np.random.Generator) -> dict[str, np.ndarray]:
+        """Machines 0 .. n-1 of the one sampler (the module docstring): deviations per
+        parameter, the same for one seed in every study."""
+        return self.deviations(draw_units(unit_streams(seed, n), self.dim, 0, n))
+
     def box(self) -> dict[str, tuple[float, float]]:
         """The smallest and largest deviation each parameter can draw (its reach)."""
         return {t.param: t.reach() for t in self.marginals}
+
+
+def unit_streams(seed: int | np.random.Generator, n: int) -> list[np.random.SeedSequence]:
+    """The seed's children, one per STREAM machines: machine k draws from child k // STREAM.
+
+    seed: a whole number, or a Generator whose children are spawned (rare_event's plain
+    Monte-Carlo; numpy.random.default_rng(s) gives the same streams as s)."""
+    ss = seed.bit_generator.seed_seq if isinstance(seed, np.random.Generator) \
+        else np.random.SeedSequence(int(seed))
+    return ss.spawn(-(-int(n) // STREAM))
+
+
+def draw_units(streams: list[np.random.SeedSequence], d: int, start: int = 0,
+               stop: int | None = None) -> np.ndarray:
+    """Standard uniforms (stop - start, d) of machines start .. stop-1: machine k is row
+    k % STREAM of the draw from streams[k // STREAM] (a fresh Generator per stream, so any
+    window of machines draws the same numbers; `stream_window` gives a worker its slice)."""
+    stop = len(streams) * STREAM if stop is None else int(stop)
+    first = start // STREAM
+    rows = [np.random.default_rng(streams[j]).random((min(STREAM, stop - j * STREAM), d))
+            for j in range(first, -(-stop // STREAM))]
+    return (np.concatenate(rows) if rows else np.empty((0, d)))[start - first * STREAM:]
+
+
+def stream_window(streams: list, a: int, b: int) -> tuple[list, int, int]:
+    """The streams machines a .. b-1 draw from and their rows in them (draw_units(streams, d,
+    start, stop) then draws them without sending a worker every stream): (streams, start, stop)."""
+    first = a // STREAM
+    return streams[first: -(-b // STREAM)], a - first * STREAM, b - first * STREAM

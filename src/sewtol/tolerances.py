@@ -194,8 +194,12 @@ class ToleranceSet:
         return self
 
     def sample(self, rng: np.random.Generator, n: int) -> dict[str, np.ndarray]:
-        """n machines' deviations from nominal, one array per parameter."""
-        u = rng.random((n, len(self.items)))
+        """n machines' deviations from nominal, one array per parameter (studies draw theirs
+        with studies.montecarlo.draw_deviations, the one sampler of every study)."""
+        return self.from_unit(rng.random((n, len(self.items))))
+
+    def from_unit(self, u: np.ndarray) -> dict[str, np.ndarray]:
+        """Deviations for standard uniforms u (n, one column per tolerance, in order)."""
         return {t.param: t.from_unit(u[:, i]) for i, t in enumerate(self.items)}
 
     def limit_variants(self) -> tuple[list[str], list[str], list[float], dict[str, np.ndarray]]:

@@ -318,7 +318,8 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
 
 def sobol(mech, tolerances: ToleranceSet, output: str, n: int, seed: int,
           resamples: int = 200) -> so.SobolResult:
-    """Sobol indices of one output at n and n/2 base samples (studies.sobol)."""
+    """Sobol indices of one output at n and n/2 base samples (studies.sobol); machines that
+    cannot run follow studies.sobol.POLICY (status and failed group from the file's groups)."""
     mech.output(output)
     record = mech.parameter_record()
     so.check_sobol(record, tolerances, n, seed)
@@ -326,13 +327,6 @@ def sobol(mech, tolerances: ToleranceSet, output: str, n: int, seed: int,
     X = so.sample(problem, n, seed)
     dev = {k: X[:, i] for i, k in enumerate(problem["names"])}
     ev = mech.evaluate(_values(mech, dev), [output])
-    y = ev.outputs[output]
-    bad = ev.status != "ok"
-    if bad.any():
-        groups = sorted(set(ev.failed_group[bad]))
-        raise ParameterError("sobol", f"{int(bad.sum())} of {bad.size} samples cannot run "
-                             f"({', '.join(f'{s}' for s in sorted(set(ev.status[bad])))} at "
-                             f"{', '.join(groups)}); Sobol indices need a model defined on the "
-                             "whole tolerance box", int(bad.sum()))
-    both, conv, _ = so._indices_from(problem, y, n, seed, output, resamples)
-    return so.SobolResult(both, conv, int(n), int(seed), {output: 0}, tolerances.name)
+    return so.result_of([so.case_indices(problem, X, ev.outputs[output], n, seed, output,
+                                         resamples, status=ev.status, group=ev.failed_group)],
+                        n, seed, tolerances.name, model_runs=len(X))

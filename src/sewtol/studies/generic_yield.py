@@ -32,6 +32,7 @@ from scipy import stats
 from sewtol.errors import ParameterError
 from sewtol.mechanism.spec import Spec
 from sewtol.studies import generic as G
+from sewtol.studies.montecarlo import draw_units, unit_streams
 from sewtol.studies.rare_event import LimitState, StandardNormalMap
 from sewtol.studies.scan import checked
 from sewtol.tolerances import Tolerance, ToleranceSet
@@ -223,20 +224,21 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
         if not (np.isfinite(w) and w > 0):
             raise ParameterError("weights", f"{k}'s weight must be a positive number", w)
     w = np.array([float(weights.get(p, 1.0)) for p in tol.params])
-    # common random numbers: the deviations at k = 1, scaled along their ray for every k
-    u = np.random.default_rng(seed).random((int(n), len(tol.items)))
-    base = {t.param: w[i] * t.from_unit(u[:, i]) for i, t in enumerate(tol.items)}
+    # common random numbers: montecarlo's uniforms for this seed, mapped through the scaled set
+    # for every k, so each machine moves along its ray from nominal
+    u = draw_units(unit_streams(seed, n), len(tol.items), 0, n)
     record = mech.parameter_record()
     trials = []
 
     def yield_at(k):
         try:
-            tol.scaled({p: k * w[i] for i, p in enumerate(tol.params)}).check_against(record)
+            trial = tol.scaled({p: k * w[i] for i, p in enumerate(tol.params)})
+            trial.check_against(record)
         except ParameterError as exc:
             trials.append({"scale": k, "yield": np.nan, "ok": 0, "out_of_limits": 0,
                            "cannot_close": 0, "dead_point": 0, "note": exc.rule})
             return -1.0
-        dev = {p: k * v for p, v in base.items()}
+        dev = trial.from_unit(u)
         y, status, _ = _evaluate(mech, G._values(mech, dev), output, adjust)
         runs = status == "ok"
         inside = runs & spec.passes(y)

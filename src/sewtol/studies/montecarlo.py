@@ -1,10 +1,15 @@
 """Monte-Carlo machinery shared by every mechanism: reproducible sampling of machines, checks,
 and the contributors to an output's variance.
 
-`sample_machines` draws n machines in chunks of CHUNK, chunk i from child i of the seed (same
-seed, same table, for any number of workers) and evaluates any vectorised model on them;
-`draw_deviations` gives the deviations alone; `record` is the JSON shape every Monte-Carlo
-shares (docs/studies.md, "One Monte-Carlo JSON"); `contributors` and `with_remainder` give each
+The one sampler of every study (Monte-Carlo, strategies, ppm by plain Monte-Carlo, allocation):
+machine k is row k % CHUNK of the standard uniforms drawn from child k // CHUNK of the seed
+(`unit_streams`, `draw_units`), mapped through each tolerance's inverse CDF
+(Tolerance.from_unit). So one seed and one tolerance set give the same machines in every study,
+for any number of workers and any evaluation chunk size, and a study that scales the set
+(allocation) keeps every machine's uniforms, hence its rank, for every scale.
+`sample_machines` evaluates any vectorised model on those machines; `draw_deviations` gives the
+deviations alone; `record` is the JSON shape every Monte-Carlo shares (docs/studies.md, "One
+Monte-Carlo JSON"); `contributors` and `with_remainder` give each
 tolerance's eta^2 (correlation ratio) as a share of the output's variance, the rest named as
 interaction. The needle's Monte-Carlo (beta fixed and adjusted) is
 sewtol.mechanisms.needle_208.montecarlo; any file's is sewtol.studies.generic.montecarlo.
@@ -18,14 +23,16 @@ import numpy as np
 import pandas as pd
 
 from sewtol.errors import ParameterError
-from sewtol.studies.parallel import child_generators, chunk_bounds, run_chunks
+from sewtol.law import STREAM, InputLaw, draw_units, stream_window, unit_streams
+from sewtol.studies.parallel import chunk_bounds, run_chunks
 from sewtol.tolerances import ToleranceSet
 
 if TYPE_CHECKING:
 
     pass
 
-CHUNK = 500
+# machines per evaluation chunk: the sampler's streams (sewtol.law.STREAM), so a chunk is one stream
+CHUNK = STREAM
 YIELD_CI_METHOD = "Clopper-Pearson exact binomial interval of ok / n"
 QUANTILES_MEAN = ("p50, p95 and p99 of the spec'd output over all n machines, failed machines "
                   "ranked as infinitely bad (numpy method 'higher': always a machine's value)")
@@ -94,8 +101,9 @@ def check_memory(n: int, columns: int, what: str = "n", value=None) -> None:
                              f"({have / 2**30:.3g} GiB)", n if value is None else value)
 
 
-def _chunk(model, nominal, tolerances: ToleranceSet, rng, m: int, kwargs):
-    dev = tolerances.sample(rng, m)
+def _chunk(model, nominal, tolerances: ToleranceSet, window, kwargs):
+    streams, a, b = window
+    dev = tolerances.from_unit(draw_units(streams, len(tolerances.items), a, b))
     return dev, model(nominal, dev, **kwargs)
 
 
@@ -105,15 +113,16 @@ def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
                     scheduler=None, **kwargs) -> pd.DataFrame:
     """Deviations and model outputs of n machines, one row each (generic over mechanisms).
 
-    model(nominal, deviations, **kwargs) returns a dict of output arrays. Chunk i of the fixed
-    chunk_size draws from child i of the seed, so any n_jobs or cluster gives the same rows.
-    progress: True (bar on stderr) or progress(done, total) in chunks; scheduler: a Dask
-    scheduler address or distributed.Client to run the chunks on (parallel.run_chunks).
+    model(nominal, deviations, **kwargs) returns a dict of output arrays. The machines are the
+    module's one draw (`draw_deviations`); chunk_size only splits the evaluation, so any
+    n_jobs, chunk size or cluster gives the same rows. progress: True (bar on stderr) or
+    progress(done, total) in chunks; scheduler: a Dask scheduler address or
+    distributed.Client to run the chunks on (parallel.run_chunks).
     """
     check_sampling(nominal, tolerances, n, seed, chunk_size)
     tol = tolerances.active()
     bounds = chunk_bounds(int(n), chunk_size)
-    rngs = child_generators(seed, len(bounds))
+    streams = unit_streams(seed, n)
 
     def validate(i, part):
         """A saved chunk must hold exactly the machines chunk i draws from the seed."""
@@ -125,7 +134,7 @@ def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
             for k, v in list(dev.items()) + list(out.items()):
                 if np.shape(v) != (m,):
                     return f"column {k} has shape {np.shape(v)}, not ({m},)"
-            again = tol.sample(child_generators(seed, len(bounds))[i], m)
+            again = tol.from_unit(draw_units(streams, len(tol.items), *bounds[i]))
             for k, v in again.items():
                 if not np.allclose(dev[k], v, rtol=1e-12, atol=0.0):
                     return f"its {k} deviations are not the ones chunk {i} draws from the seed"
@@ -133,8 +142,8 @@ def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
             return f"malformed ({type(exc).__name__}: {exc})"
         return None
 
-    parts = run_chunks(_chunk, [(model, nominal, tol, r, b - a, kwargs)
-                                for r, (a, b) in zip(rngs, bounds, strict=True)],
+    parts = run_chunks(_chunk, [(model, nominal, tol, stream_window(streams, a, b), kwargs)
+                                for a, b in bounds],
                        n_jobs=n_jobs, progress=progress, desc=desc, backend=backend, store=store,
                        validate=validate, scheduler=scheduler)
     frames = []
@@ -148,15 +157,10 @@ def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
     return machines
 
 
-def draw_deviations(tolerances: ToleranceSet, n: int, seed: int,
-                    chunk_size: int = CHUNK) -> dict[str, np.ndarray]:
-    """The deviations of machines 0 .. n-1 exactly as `sample_machines` draws them (chunk i of
-    chunk_size from child i of the seed), for studies that adjust the same machines otherwise."""
-    tol = tolerances.active()
-    bounds = chunk_bounds(int(n), chunk_size)
-    parts = [tol.sample(r, b - a)
-             for r, (a, b) in zip(child_generators(seed, len(bounds)), bounds, strict=True)]
-    return {k: np.concatenate([d[k] for d in parts]) for k in tol.params}
+def draw_deviations(tolerances: ToleranceSet, n: int, seed: int) -> dict[str, np.ndarray]:
+    """The deviations of machines 0 .. n-1 of the tolerances that scatter: the one draw of
+    every study (`sample_machines`, strategies, ppm by plain Monte-Carlo, allocation)."""
+    return InputLaw.of(tolerances).draw(n, seed)
 
 
 def check_sampling(nominal, tolerances: ToleranceSet, n, seed, chunk_size: int = CHUNK,
@@ -175,6 +179,23 @@ def check_sampling(nominal, tolerances: ToleranceSet, n, seed, chunk_size: int =
     check_memory(n, columns if columns is not None else 2 * len(tol.items) + 16)
 
 
+def correlation_ratio(bin_of: np.ndarray, y: np.ndarray, bins: int,
+                      weights: np.ndarray | None = None) -> float:
+    """eta^2 = Var(E[Y | bin]) / Var(Y) of y grouped by bin_of (0 .. bins-1), bias-corrected
+    (epsilon^2: bins of pure noise give about (bins-1)/n) and never below 0; weights: rows
+    counted that many times (a bootstrap resample)."""
+    w = np.ones(y.size) if weights is None else np.asarray(weights, float)
+    total = w.sum()
+    mean = np.sum(w * y) / total
+    var = np.sum(w * (y - mean) ** 2) / total
+    if not var > 0 or total <= bins:
+        return 0.0
+    counts = np.bincount(bin_of, weights=w, minlength=bins)
+    means = np.bincount(bin_of, weights=w * y, minlength=bins) / np.maximum(counts, 1e-300)
+    eta2 = float(np.sum(counts * (means - mean) ** 2) / total / var)
+    return max(0.0, 1.0 - (1.0 - eta2) * (total - 1) / (total - bins))
+
+
 def contributors(machines: pd.DataFrame, params, output: str, bins: int = 20) -> pd.DataFrame:
     """Contributors to the scatter of `output`: the correlation ratio eta^2 of each tolerance.
 
@@ -191,17 +212,11 @@ def contributors(machines: pd.DataFrame, params, output: str, bins: int = 20) ->
     """
     m = machines.dropna(subset=[output])
     y = m[output].to_numpy()
-    var = y.var()
     rows = []
     for p in params:
         x = m[p].to_numpy()
         ranks = np.argsort(np.argsort(x, kind="stable"), kind="stable")
-        b = ranks * bins // len(x)
-        counts = np.bincount(b, minlength=bins)
-        means = np.bincount(b, weights=y, minlength=bins) / np.maximum(counts, 1)
-        eta2 = float(np.sum(counts * (means - y.mean()) ** 2) / len(y) / var) if var > 0 else 0.0
-        eta2 = max(0.0, 1.0 - (1.0 - eta2) * (len(y) - 1) / (len(y) - bins))
-        rows.append({"param": p, "eta2": eta2})
+        rows.append({"param": p, "eta2": correlation_ratio(ranks * bins // len(x), y, bins)})
     frame = pd.DataFrame(rows).sort_values("eta2", ascending=False).reset_index(drop=True)
     total = frame["eta2"].sum()
     frame["share_pct"] = 100 * frame["eta2"] / total if total > 0 else 0.0

@@ -33,6 +33,7 @@ import pandas as pd
 from scipy import special, stats
 
 from sewtol.errors import ParameterError
+from sewtol.studies.montecarlo import draw_units, stream_window, unit_streams
 from sewtol.tolerances import ToleranceSet
 
 if TYPE_CHECKING:
@@ -312,8 +313,9 @@ def _check_common(rng, n, name="n", minimum=2):
 # --------------------------------------------------------------------------- plain Monte-Carlo
 
 
-def _mc_chunk(ls: LimitState, rng: np.random.Generator, m: int, keep: int):
-    z = rng.standard_normal((m, ls.dim))
+def _mc_chunk(ls: LimitState, window, keep: int):
+    streams, a, b = window
+    z = special.ndtri(draw_units(streams, ls.dim, a, b))
     value, _, labels = ls.evaluate(z)
     fail = np.flatnonzero(labels > 0)
     # keep the failing samples only (and at most `keep` of each mode nearest the origin)
@@ -331,14 +333,15 @@ def monte_carlo(ls: LimitState, n: int, rng: np.random.Generator, chunk_size: in
                 progress: bool = False) -> RareEventResult:
     """Plain Monte-Carlo: p = k/n, Clopper-Pearson 95 % interval, c.o.v. sqrt((1-p)/(n p)).
 
-    Chunk i draws from rng.spawn child i, so any n_jobs gives the same numbers."""
+    The samples are the machines of every study (studies.montecarlo.draw_units: machine k from
+    child k // CHUNK of the rng's seed sequence, z = Phi^-1(u)), so any n_jobs or chunk_size
+    gives the same numbers, and default_rng(seed) the machines of a Monte-Carlo with that seed."""
     from sewtol.studies.parallel import chunk_bounds, run_chunks
 
     _check_common(rng, n)
-    bounds = chunk_bounds(int(n), int(chunk_size))
-    rngs = rng.spawn(len(bounds))
-    parts = run_chunks(_mc_chunk, [(ls, r, b - a, examples_per_mode)
-                                   for r, (a, b) in zip(rngs, bounds, strict=True)],
+    streams = unit_streams(rng, n)
+    parts = run_chunks(_mc_chunk, [(ls, stream_window(streams, a, b), examples_per_mode)
+                                   for a, b in chunk_bounds(int(n), int(chunk_size))],
                        n_jobs=n_jobs, backend=backend, progress=progress, desc="Monte-Carlo")
     value = np.concatenate([p[0] for p in parts])
     labels = np.concatenate([p[1] for p in parts]).astype(int)

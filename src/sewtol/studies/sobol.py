@@ -9,6 +9,15 @@ second_order=True (SALib's calc_second_order) runs the design of N (2D + 2) rows
 N (D + 2) and adds the second-order indices S2_ij of every pair with their bootstrap intervals:
 the share of Var(Y) that only the pair i, j together explains (ST_i - S1_i is the sum of every
 interaction that involves i, so a large ST - S1 with S2 shows which partner it is).
+
+Machines that cannot be built (POLICY, docs/studies.md "Sobol with machines that cannot be
+built"): never a refusal, never a silent drop. Every row of the design gets an outcome
+(assembled, or its failure: cannot_close, dead_point, ... with the group where known), counted
+per case; `feasibility` holds the S1/ST of the indicator "assembles" on the whole design (which
+tolerances make machines unbuildable); S1/ST/S2 of the output come from the base samples whose
+every row assembled (complete blocks), and S1_given, the first-order index among all assembled
+rows, is the one estimate that stays exact when the failures make the inputs dependent. With
+no failure, every number and output is the one of the plain Saltelli analysis.
 """
 
 from __future__ import annotations
@@ -20,6 +29,7 @@ import numpy as np
 import pandas as pd
 from SALib.analyze import sobol as sobol_analyze
 from SALib.sample import sobol as sobol_sample
+from scipy import stats
 
 from sewtol.errors import ParameterError
 from sewtol.tolerances import ToleranceSet
@@ -29,6 +39,19 @@ if TYPE_CHECKING:
     pass
 
 CHUNK = 1000
+POLICY = ("rows that cannot be built are counted, never dropped: feasibility = Sobol indices of "
+          "the indicator 'assembles' on the whole design; S1, ST (and S2) = the output's indices "
+          "on the base samples whose every row assembled (exact when the machines that assemble "
+          "form a box of tolerances, otherwise leaning to machines far from the failure "
+          "boundary); S1_given = the output's first-order index among all assembled rows "
+          "(correlation ratio over quantile bins, exact under the dependence failures induce)")
+# the given-data first-order index bins each input into quantile bins of ROWS_PER_BIN rows,
+# between 10 and 100 bins: a bin averages E[Y | x] over its width (Ishigami's 7 sin^2 x2 loses
+# 3 % of its variance to 20 bins, 0.1 % to 100), while epsilon^2 removes the noise of the means
+ROWS_PER_BIN, MAX_BINS = 100, 100
+# below these, an index is NaN (undefined, never a guess): complete base samples for S1/ST (the
+# floor MIN_N // 2 of the convergence check) and assembled rows for S1_given (2 per bin)
+MIN_COMPLETE, MIN_GIVEN_ROWS = 8, 20
 
 
 def problem_of(tolerances: ToleranceSet) -> dict:
@@ -87,12 +110,16 @@ def _salib_seed(seed: int) -> int:
     return int(np.random.SeedSequence(0).generate_state(1)[0]) or 1
 
 
-def _analyze(problem: dict, y: np.ndarray, seed: int, resamples: int, conf_level: float,
-             second_order: bool):
+def _check_bootstrap(resamples, conf_level) -> None:
     if isinstance(resamples, bool) or int(resamples) != resamples or resamples < 2:
         raise ParameterError("resamples", "must be a whole number >= 2", resamples)
     if not (0 < conf_level < 1):
         raise ParameterError("conf_level", "must be in (0, 1)", conf_level)
+
+
+def _analyze(problem: dict, y: np.ndarray, seed: int, resamples: int, conf_level: float,
+             second_order: bool):
+    _check_bootstrap(resamples, conf_level)
     res = sobol_analyze.analyze(problem, y, calc_second_order=bool(second_order),
                                 num_resamples=resamples, conf_level=conf_level,
                                 seed=_salib_seed(seed))
@@ -123,15 +150,25 @@ class SobolResult:
     ``failed`` the machines per case that could not run.
     """
 
-    indices: pd.DataFrame  # param, S1, S1_conf, ST, ST_conf, case, n
+    indices: pd.DataFrame  # param, S1, S1_conf, ST, ST_conf[, S1_given, S1_given_conf], case, n
     convergence: pd.DataFrame  # case, max |dS1|, max |dST| between n/2 and n
     n: int
     seed: int
-    failed: dict
+    failed: dict  # case -> rows of the design that were not built (POLICY)
     tolerances: str
     # second_order=True: S2 of every pair (param_i, param_j, S2, S2_conf, case) at n
     second_order: pd.DataFrame | None = None
     model_runs: int = 0  # model evaluations per case (N (D + 2) or N (2D + 2))
+    # POLICY: what became of each row, per case (the rows of a case add up to its design)
+    outcomes: pd.DataFrame | None = None  # case, outcome, group, rows
+    # param, S1, S1_conf, ST, ST_conf, case of "assembles", for the cases where a row failed
+    feasibility: pd.DataFrame | None = None
+    complete: dict | None = None  # case -> base samples (of n) whose every row assembled
+
+    @property
+    def has_failures(self) -> bool:
+        """True when some row of some case was not built (the JSON and CSVs then say so)."""
+        return any(self.failed.values())
 
     def second_order_frame(self) -> pd.DataFrame:
         """S2 per pair and case, largest first within each case; refused without the design."""
@@ -146,16 +183,230 @@ class SobolResult:
 
     def to_records(self) -> list[dict]:
         """The indices at n as dicts (the JSON rows of ``sewtol needle sobol``)."""
-        return self.to_dataframe()[["param", "S1", "S1_conf", "ST", "ST_conf", "case"]].to_dict(
-            orient="records")
+        given = [c for c in ("S1_given", "S1_given_conf") if c in self.indices]
+        return self.to_dataframe()[["param", "S1", "S1_conf", "ST", "ST_conf", *given,
+                                    "case"]].to_dict(orient="records")
+
+    def counts(self) -> dict[str, dict]:
+        """Per case: rows, assembled, cannot_close, dead_point (and any other failure), the
+        failures per group ("cannot_close at G") and the complete base samples; rows =
+        assembled + every failure."""
+        out = {}
+        for case, f in self.outcomes.groupby("case", sort=False):
+            by = f.groupby("outcome", sort=False)["rows"].sum()
+            out[case] = {"rows": int(f["rows"].sum()), "assembled": int(by.get("assembled", 0)),
+                         "cannot_close": int(by.get("cannot_close", 0)),
+                         "dead_point": int(by.get("dead_point", 0)),
+                         **{k: int(v) for k, v in by.items()
+                            if k not in ("assembled", "cannot_close", "dead_point")},
+                         "failed_groups": {f"{r.outcome} at {r.group}": int(r.rows)
+                                           for r in f.itertuples() if r.group},
+                         "base_samples": self.n, "complete_base_samples": self.complete[case]}
+        return out
+
+    def assembly(self) -> dict | None:
+        """The JSON of machines that could not be built (None when every row assembled): the
+        policy, the counts per case and the indices of the indicator "assembles"."""
+        if not self.has_failures:
+            return None
+        return {"policy": POLICY, "counts": self.counts(),
+                "feasibility": [] if self.feasibility is None
+                else self.feasibility.to_dict(orient="records")}
+
+    def notes(self) -> list[str]:
+        """One line per case with rows that were not built (none without failures)."""
+        out = []
+        for case, c in self.counts().items():
+            if c["rows"] > c["assembled"]:
+                why = ", ".join(f"{k} {v}" for k, v in c.items() if k not in (
+                    "rows", "assembled", "failed_groups", "base_samples",
+                    "complete_base_samples") and v)
+                out.append(f"{case}: {c['rows'] - c['assembled']} of {c['rows']} machines not "
+                           f"built ({why}); S1/ST from the {c['complete_base_samples']} of "
+                           f"{self.n} base samples whose every machine assembled, S1_given "
+                           "from every assembled one (studies.sobol.POLICY)")
+        return out
+
+    def frames(self) -> dict[str, pd.DataFrame]:
+        """The CSV tables of a study folder: indices, convergence, and (when present)
+        second_order, outcomes and feasibility."""
+        out = {"indices": self.to_dataframe(), "convergence": self.convergence}
+        if self.second_order is not None:
+            out["second_order"] = self.second_order_frame()
+        if self.has_failures:
+            out["outcomes"] = self.outcomes
+            if self.feasibility is not None:
+                out["feasibility"] = self.feasibility
+        return out
+
+
+@dataclass(frozen=True)
+class CaseIndices:
+    """One output's Sobol indices under POLICY (`case_indices`); `result_of` joins cases."""
+
+    case: str
+    indices: pd.DataFrame  # at n/2 and n (column n)
+    convergence: pd.DataFrame
+    pairs: pd.DataFrame | None
+    outcomes: pd.DataFrame  # case, outcome, group, rows
+    feasibility: pd.DataFrame | None  # indices of "assembles"; None if no row or every row did
+    complete: int  # base samples whose every row assembled
+    failed: int  # rows not assembled
+
+
+def outcomes_of(y, status=None, group=None) -> tuple[np.ndarray, np.ndarray]:
+    """(outcome, group) per row: "assembled", the row's status when it is not "ok"
+    (cannot_close, dead_point, ...), "undefined" for a row that runs without a value, and
+    "no_value" for a non-finite value when no status is known; group "" where unknown."""
+    y = np.asarray(y, float)
+    if status is None:
+        outcome = np.where(np.isfinite(y), "assembled", "no_value").astype(object)
+    else:
+        status = np.asarray(status, object)
+        outcome = np.where(status == "ok", np.where(np.isfinite(y), "assembled", "undefined"),
+                           status).astype(object)
+    grp = np.full(y.shape, "", object) if group is None else np.asarray(group, object).copy()
+    grp[outcome == "assembled"] = ""
+    return outcome, grp
+
+
+def _given_s1(X, y, usable, step, seed, resamples, conf_level) -> tuple[np.ndarray, np.ndarray]:
+    """First-order index of y among the usable rows (the correlation ratio of
+    montecarlo.contributors over quantile bins of ROWS_PER_BIN rows, equal inputs in one bin),
+    with a bootstrap over base samples (the rows of one base sample share inputs, so they are
+    resampled together)."""
+    from sewtol.studies.montecarlo import correlation_ratio
+
+    if usable.sum() < MIN_GIVEN_ROWS:
+        return np.full(X.shape[1], np.nan), np.full(X.shape[1], np.nan)
+    yy = y[usable]
+    blocks = y.size // step
+    block = (np.arange(y.size) // step)[usable]
+    draws = np.random.default_rng(seed).integers(blocks, size=(int(resamples), blocks))
+    weights = [np.bincount(d, minlength=blocks)[block] for d in draws]
+    z = stats.norm.ppf(0.5 + conf_level / 2)
+    s1, conf = [], []
+    for j in range(X.shape[1]):
+        x = X[usable, j]
+        bins = int(np.clip(x.size // ROWS_PER_BIN, 10, MAX_BINS))
+        _, b = np.unique(np.searchsorted(np.sort(x), x) * bins // max(x.size, 1),
+                         return_inverse=True)
+        k = int(b.max(initial=0)) + 1
+        s1.append(correlation_ratio(b, yy, k))
+        conf.append(z * np.std([correlation_ratio(b, yy, k, w) for w in weights], ddof=1))
+    return np.array(s1), np.array(conf)
+
+
+def _undefined(problem: dict, second_order: bool):
+    """The frames of `_analyze` with every index NaN (too few complete base samples)."""
+    names = problem["names"]
+    first = pd.DataFrame({"param": names, **dict.fromkeys(("S1", "S1_conf", "ST", "ST_conf"),
+                                                           np.nan)})
+    pairs = pd.DataFrame([{"param_i": names[i], "param_j": names[j], "S2": np.nan,
+                           "S2_conf": np.nan}
+                          for i in range(len(names)) for j in range(i + 1, len(names))],
+                         columns=["param_i", "param_j", "S2", "S2_conf"])
+    return first, pairs if second_order else None
+
+
+def case_indices(problem: dict, X: np.ndarray, y: np.ndarray, n: int, seed: int,
+                 case: str = "y", resamples: int = 200, conf_level: float = 0.95,
+                 second_order: bool = False, status=None, group=None) -> CaseIndices:
+    """Sobol indices of one output on the Saltelli design X (`sample`) under POLICY.
+
+    Parameters
+    ----------
+    problem : dict
+        SALib's problem of the design.
+    X, y : ndarray
+        The design (rows, D) and the output per row (NaN where a machine was not built).
+    n : int
+        Base samples of the design; the indices are given at n/2 and n.
+    seed : int
+        Seeds the bootstraps.
+    case : str
+        The label of the rows.
+    resamples, conf_level
+        The bootstrap intervals.
+    second_order : bool
+        The design holds the second-order rows (S2 per pair).
+    status, group : array or None
+        Per row: "ok" or why the machine was not built (cannot_close, dead_point, ...) and
+        the group that failed ("" unknown); None: a non-finite y is "no_value".
+
+    Returns
+    -------
+    CaseIndices
+        The output's S1/ST (S2) on the complete base samples, S1_given among all assembled
+        rows (only when some row failed), the outcomes, the indices of "assembles".
+    """
+    _check_bootstrap(resamples, conf_level)
+    y = np.asarray(y, float)
+    step = rows_per_sample(problem["num_vars"], second_order)
+    outcome, grp = outcomes_of(y, status, group)
+    usable = outcome == "assembled"
+    failed = int(np.sum(~usable))
+    complete = usable.reshape(-1, step).all(axis=1)
+    frames, pairs = [], []
+    for m in (n // 2, n):  # the first m blocks of rows are the design of m base samples
+        rows = np.repeat(complete[:m], step)
+        f, p = _analyze(problem, y[: m * step][rows], seed, resamples, conf_level,
+                        second_order) if complete[:m].sum() >= MIN_COMPLETE \
+            else _undefined(problem, second_order)
+        if failed:
+            s1, conf = _given_s1(X[: m * step], y[: m * step], usable[: m * step], step, seed,
+                                 resamples, conf_level)
+            f["S1_given"], f["S1_given_conf"] = s1, conf
+        f["case"] = case
+        f["n"] = m
+        frames.append(f)
+        pairs.append(p)
+    both = pd.concat(frames, ignore_index=True)
+    half, full = frames
+    conv = {"case": case, "n_half": n // 2, "n": n,
+            "max_abs_dS1": float(np.max(np.abs(full["S1"] - half["S1"]))),
+            "max_abs_dST": float(np.max(np.abs(full["ST"] - half["ST"]))),
+            "max_ST_conf": float(np.max(full["ST_conf"]))}
+    if second_order:
+        d2 = pairs[1]["S2"].to_numpy() - pairs[0]["S2"].to_numpy()
+        conv["max_abs_dS2"] = float(np.max(np.abs(d2), initial=0.0))
+        pairs[1].insert(4, "case", case)
+    keys = sorted(set(zip(outcome, grp, strict=True)), key=lambda k: (k[0] != "assembled", k))
+    outcomes = pd.DataFrame([{"case": case, "outcome": o, "group": g,
+                              "rows": int(np.sum((outcome == o) & (grp == g)))} for o, g in keys])
+    feasibility = None
+    if 0 < failed < y.size:
+        feasibility = _analyze(problem, usable.astype(float), seed, resamples, conf_level,
+                               second_order)[0]
+        feasibility["case"] = case
+    return CaseIndices(case, both, pd.DataFrame([conv]), pairs[1] if second_order else None,
+                       outcomes, feasibility, int(complete.sum()), failed)
+
+
+def result_of(cases: list[CaseIndices], n: int, seed: int, tolerances: str,
+              second_order: bool = False, model_runs: int = 0) -> SobolResult:
+    """One SobolResult of the cases (its JSON and CSVs name the outcomes and feasibility only
+    when some row of some case was not built, so a study without failures writes what it
+    always wrote)."""
+    feas = [c.feasibility for c in cases if c.feasibility is not None]
+    return SobolResult(
+        pd.concat([c.indices for c in cases], ignore_index=True),
+        pd.concat([c.convergence for c in cases], ignore_index=True), int(n), int(seed),
+        {c.case: c.failed for c in cases}, tolerances,
+        pd.concat([c.pairs for c in cases], ignore_index=True) if second_order else None,
+        int(model_runs),
+        pd.concat([c.outcomes for c in cases], ignore_index=True),
+        pd.concat(feas, ignore_index=True) if feas else None,
+        {c.case: c.complete for c in cases})
 
 
 def sobol_indices(model, problem: dict, n: int, seed: int, case: str = "y",
                   resamples: int = 200) -> tuple[pd.DataFrame, pd.DataFrame, int]:
-    """Indices of model at n and n/2 base samples; model maps (N, D) to (N,)."""
+    """Indices of model at n and n/2 base samples (POLICY for rows where the model gives NaN);
+    model maps (N, D) to (N,). Returns the indices, the convergence row and the failed rows."""
     X = sample(problem, n, seed)
-    y = np.asarray(model(X), float)
-    return _indices_from(problem, y, n, seed, case, resamples)
+    c = case_indices(problem, X, np.asarray(model(X), float), n, seed, case, resamples)
+    return c.indices, c.convergence, c.failed
 
 
 def sobol_pairs(model, problem: dict, n: int, seed: int, case: str = "y",
@@ -166,7 +417,7 @@ def sobol_pairs(model, problem: dict, n: int, seed: int, case: str = "y",
     Parameters
     ----------
     model : callable
-        Maps an (N, D) array of inputs to N outputs.
+        Maps an (N, D) array of inputs to N outputs (NaN where it cannot run: POLICY).
     problem : dict
         SALib's problem: ``num_vars``, ``names``, ``bounds`` (and optionally ``dists``).
     n : int
@@ -188,39 +439,6 @@ def sobol_pairs(model, problem: dict, n: int, seed: int, case: str = "y",
         ``S2``, ``S2_conf``, ``case``).
     """
     X = sample(problem, n, seed, second_order=True)
-    y = np.asarray(model(X), float)
-    both, conv, _, pairs = _indices_and_pairs(problem, y, n, seed, case, resamples, conf_level,
-                                              True)
-    return both, conv, pairs
-
-
-def _indices_from(problem, y, n, seed, case, resamples, conf_level=0.95):
-    return _indices_and_pairs(problem, y, n, seed, case, resamples, conf_level, False)[:3]
-
-
-def _indices_and_pairs(problem, y, n, seed, case, resamples, conf_level=0.95,
-                       second_order=False):
-    d = rows_per_sample(problem["num_vars"], second_order) - 2
-    failed = int(np.isnan(y).sum())
-    if failed:
-        raise ParameterError("sobol", f"{failed} of {y.size} samples cannot assemble ({case}); "
-                             "Sobol indices need a model defined on the whole tolerance box",
-                             failed)
-    frames, pairs = [], []
-    for m in (n // 2, n):  # the first m (d + 2) rows are the design of m base samples
-        f, p = _analyze(problem, y[: m * (d + 2)], seed, resamples, conf_level, second_order)
-        f["case"] = case
-        f["n"] = m
-        frames.append(f)
-        pairs.append(p)
-    both = pd.concat(frames, ignore_index=True)
-    half, full = frames
-    conv = {"case": case, "n_half": n // 2, "n": n,
-            "max_abs_dS1": float(np.max(np.abs(full["S1"] - half["S1"]))),
-            "max_abs_dST": float(np.max(np.abs(full["ST"] - half["ST"]))),
-            "max_ST_conf": float(np.max(full["ST_conf"]))}
-    if second_order:
-        d2 = pairs[1]["S2"].to_numpy() - pairs[0]["S2"].to_numpy()
-        conv["max_abs_dS2"] = float(np.max(np.abs(d2), initial=0.0))
-        pairs[1].insert(4, "case", case)
-    return both, pd.DataFrame([conv]), failed, pairs[1]
+    c = case_indices(problem, X, np.asarray(model(X), float), n, seed, case, resamples,
+                     conf_level, True)
+    return c.indices, c.convergence, c.pairs

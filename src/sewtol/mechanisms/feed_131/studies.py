@@ -421,9 +421,9 @@ def sobol(params: Feed131, tolerances: ToleranceSet, n: int, seed: int, machines
     at n and n / 2 base samples (the convergence table). Chunks run like every study
     (n_jobs, progress, scheduler)."""
     from sewtol.studies.parallel import chunk_bounds, run_chunks
-    from sewtol.studies.sobol import SobolResult, _indices_from, problem_of, sample
+    from sewtol.studies.sobol import case_indices, problem_of, result_of, sample
 
-    frames, convs, chosen = [], [], {}
+    cases, chosen = [], {}
     for output in which:
         if output not in OUTPUTS:
             raise ParameterError("output", f"must be one of {', '.join(OUTPUTS)}", output)
@@ -436,10 +436,8 @@ def sobol(params: Feed131, tolerances: ToleranceSet, n: int, seed: int, machines
                                           for a, b in chunk_bounds(len(X), chunk_size)],
                            n_jobs=n_jobs, progress=progress, desc=f"feed Sobol {output}",
                            scheduler=scheduler)
-        f, c, _ = _indices_from(problem, np.concatenate(parts), n, seed, output, resamples)
-        c.insert(1, "params", len(names))
-        frames.append(f)
-        convs.append(c)
-    res = SobolResult(pd.concat(frames, ignore_index=True), pd.concat(convs, ignore_index=True),
-                      int(n), int(seed), {o: 0 for o in which}, tolerances.name)
+        c = case_indices(problem, X, np.concatenate(parts), n, seed, output, resamples)
+        c.convergence.insert(1, "params", len(names))
+        cases.append(c)
+    res = result_of(cases, n, seed, tolerances.name)
     return res, chosen

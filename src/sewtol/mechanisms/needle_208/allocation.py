@@ -21,6 +21,7 @@ from sewtol.errors import ParameterError
 from sewtol.mechanisms.needle_208 import beta as sb
 from sewtol.mechanisms.needle_208.evaluate import evaluate
 from sewtol.mechanisms.needle_208.tables import scan
+from sewtol.studies.montecarlo import draw_units, unit_streams
 from sewtol.tolerances import Tolerance, ToleranceSet, needle_set
 
 if TYPE_CHECKING:
@@ -118,15 +119,15 @@ def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 
     shape = (c / s**2) ** (1.0 / 3.0)
     shape = shape / shape.max()
 
-    # common random numbers: one standard-uniform matrix for every trial scale
-    u = np.random.default_rng(seed).random((n, len(names)))
+    # common random numbers: montecarlo's uniforms for this seed, the same for every scale
+    u = draw_units(unit_streams(seed, n), len(names), 0, n)
 
     def tolerances_at(k):
         return np.minimum(k * shape, max_mm)
 
     def yield_at(k):
-        t = tolerances_at(k)
-        dev = {p: (2 * u[:, i] - 1) * t[i] for i, p in enumerate(names)}
+        dev = ToleranceSet("trial", tuple(Tolerance(p, -t, t) for p, t in
+                                          zip(names, tolerances_at(k), strict=True))).from_unit(u)
         out = evaluate(nominal, dev, adjust=True, range_deg=range_deg)
         return float(np.mean(out.total_adjusted_um <= sc.limit_um))
 

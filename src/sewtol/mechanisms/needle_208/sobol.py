@@ -1,5 +1,8 @@
 """Sobol indices of the needle's SumDelta, beta fixed and beta re-optimised per sample (on the
-exact optimiser), with the generic machinery of sewtol.studies.sobol (SALib).
+exact optimiser), with the generic machinery of sewtol.studies.sobol (SALib). Machines that
+cannot be built follow studies.sobol.POLICY: each one's reason (cannot_close, dead_point,
+unexplained) and dyad come from needle_208.status.failure_reasons at the nominal (fixed) beta,
+as for a Monte-Carlo machine that no beta in the range assembles.
 """
 
 from __future__ import annotations
@@ -8,7 +11,6 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from sewtol.mechanisms.needle_208 import beta as sb
 from sewtol.mechanisms.needle_208.evaluate import evaluate
@@ -21,7 +23,24 @@ if TYPE_CHECKING:
     from sewtol.mechanisms.needle_208.compensators import Strategy
     from sewtol.mechanisms.needle_208.model import Needle208
     from sewtol.studies.checkpoint import ChunkStore
-from sewtol.studies.sobol import CHUNK, SobolResult, _indices_and_pairs, check_sobol, problem_of, sample
+from sewtol.studies.sobol import CHUNK, SobolResult, case_indices, check_sobol, problem_of, result_of, sample
+
+
+def _failures(nominal, names, X, bad) -> tuple[np.ndarray, np.ndarray]:
+    """(status, dyad) per row: "ok" and "" where bad is False, else why the machine does not
+    run at the nominal beta (status.failure_reasons; "unexplained" when no reason is found)."""
+    from sewtol.mechanisms import params as P
+    from sewtol.mechanisms.needle_208 import metrics as nm
+    from sewtol.mechanisms.needle_208.status import failure_reasons
+
+    status = np.full(len(X), "ok", dtype=object)
+    dyad = np.full(len(X), "", dtype=object)
+    if bad.any():
+        c, _ = nm.columns(P.with_deviations(nominal, {k: X[bad, i] for i, k in enumerate(names)}))
+        why = failure_reasons(c)
+        status[bad] = np.where(why["status"] == "", "unexplained", why["status"])
+        dyad[bad] = why["dyad"]
+    return status, dyad
 
 
 def _needle_chunk(nominal, names, X, range_deg, strategy=None, limit_um=sb.DEFAULT_LIMIT_UM):
@@ -131,15 +150,10 @@ def needle_sobol(nominal: Needle208, tolerances: ToleranceSet | str, n: int, see
                        store=store, validate=validate, scheduler=scheduler)
     y_fixed = np.concatenate([p[0] for p in parts])
     y_adj = np.concatenate([p[1] for p in parts])
-    frames, convs, pairs = [], [], []
+    status, dyad = _failures(nominal, problem["names"], X,
+                             ~(np.isfinite(y_fixed) & np.isfinite(y_adj)))
     adjusted = "adjusted_beta" if strategy is None else "adjusted_" + strategy.name
-    for case, y in (("fixed_beta", y_fixed), (adjusted, y_adj)):
-        f, c, _, p = _indices_and_pairs(problem, y, n, seed, case, resamples, conf_level,
-                                        second_order)
-        frames.append(f)
-        convs.append(c)
-        pairs.append(p)
-    return SobolResult(pd.concat(frames, ignore_index=True), pd.concat(convs, ignore_index=True),
-                       int(n), int(seed), {"fixed_beta": 0, adjusted: 0}, tolerances.name,
-                       pd.concat(pairs, ignore_index=True) if second_order else None,
-                       len(X))
+    return result_of([case_indices(problem, X, y, n, seed, case, resamples, conf_level,
+                                   second_order, np.where(np.isfinite(y), "ok", status), dyad)
+                      for case, y in (("fixed_beta", y_fixed), (adjusted, y_adj))],
+                     n, seed, tolerances.name, second_order, len(X))

@@ -24,8 +24,8 @@ from sewtol.mechanisms import params as P
 from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208.adjustment import STATUSES, Adjustment, adjust
 from sewtol.mechanisms.needle_208.compensators import Strategy, strategy_of
-from sewtol.studies.montecarlo import contributors
-from sewtol.tolerances import ToleranceSet, needle_set
+from sewtol.studies.montecarlo import contributors, draw_deviations, draw_units, unit_streams
+from sewtol.tolerances import Tolerance, ToleranceSet, needle_set
 
 if TYPE_CHECKING:
     from sewtol.mechanisms.needle_208.model import Needle208
@@ -265,7 +265,7 @@ def strategies_table(nominal: Needle208, tolerances: ToleranceSet | str, n: int,
     names = [s.name for s in strategies]
     if len(set(names)) != len(names):
         raise ParameterError("strategies", "names a strategy twice", names)
-    dev = tol.sample(np.random.default_rng(seed), int(n))
+    dev = draw_deviations(tol, int(n), int(seed))  # montecarlo's machines for this seed
     if n_jobs == 1 and not progress:
         c = columns_of(nominal, dev)
         valid = list(c)
@@ -310,8 +310,6 @@ class StrategyAllocation:
         return self.table.copy()
 
     def as_tolerance_set(self, name: str = "allocated") -> ToleranceSet:
-        from sewtol.tolerances import Tolerance
-
         return ToleranceSet(name, tuple(Tolerance(r.param, r.lower_mm, r.upper_mm)
                                         for r in self.table.itertuples()),
                             f"allocated by sewtol for strategy {self.strategy}")
@@ -356,16 +354,15 @@ def allocate_for_strategy(nominal, reference: ToleranceSet | str, strategy: Stra
     s = np.clip(np.array(slope), 1e-9, 1e12)
     shape = (cw / s**2) ** (1.0 / 3.0)
     shape = shape / shape.max()
-    u = np.random.default_rng(seed).random((int(n), len(names)))
+    u = draw_units(unit_streams(seed, n), len(names), 0, n)  # montecarlo's uniforms
 
     def limits_at(k):
         f = np.minimum(k * shape, max_mm) / half
         return [(t.lower * fi, t.upper * fi) for t, fi in zip(ref.items, f, strict=True)]
 
     def yield_at(k):
-        lim = limits_at(k)
-        d = {p: lo + (hi - lo) * u[:, i] for i, (p, (lo, hi)) in enumerate(zip(names, lim,
-                                                                               strict=True))}
+        d = ToleranceSet("trial", tuple(Tolerance(p, lo, hi) for p, (lo, hi) in
+                                        zip(names, limits_at(k), strict=True))).from_unit(u)
         a = adjust(columns_of(nominal, d), strategy, limit_um, plateaus=False)
         return float(np.mean(a.status == "ok"))
 

@@ -19,7 +19,7 @@ import pandas as pd
 from sewtol.errors import ParameterError
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.presser_foot import model as PF
-from sewtol.studies.montecarlo import CHUNK, check_sampling, draw_deviations
+from sewtol.studies.montecarlo import check_sampling, draw_deviations
 from sewtol.tolerances import Tolerance, ToleranceSet
 
 OUTPUTS = ("loss_deg", "regain_deg", "lost_deg", "separation_mm")
@@ -96,12 +96,12 @@ class PresserMonteCarlo:
         return self.machines.copy()
 
 
-def montecarlo(nominal: PF.PresserFoot, tolerances: ToleranceSet, n: int, seed: int,
-               chunk_size: int = CHUNK) -> PresserMonteCarlo:
+def montecarlo(nominal: PF.PresserFoot, tolerances: ToleranceSet, n: int,
+               seed: int) -> PresserMonteCarlo:
     """n machines drawn as every sewtol Monte-Carlo draws them (chunk i from child i of the
     seed), each run through the contact cycle."""
-    check_sampling(nominal, tolerances, n, seed, chunk_size)
-    dev = draw_deviations(tolerances, int(n), int(seed), chunk_size)
+    check_sampling(nominal, tolerances, n, seed)
+    dev = draw_deviations(tolerances, int(n), int(seed))
     machines = P.with_deviations(nominal, dev)
     f = _frame(nominal, machines)
     table = pd.DataFrame({k: v for k, v in dev.items()})
