@@ -735,7 +735,7 @@ def cmd_needle_sobol(args):
     from sewtol.mechanisms.needle_208.sobol import needle_sobol
     from sewtol.provenance import now
     from sewtol.studies.sobol import CHUNK, check_sobol
-    from sewtol.studies.sobol import _check_n as check_power_of_two
+    from sewtol.studies.sobol import check_power_of_two
 
     try:
         check_power_of_two(args.n)

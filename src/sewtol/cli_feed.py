@@ -138,7 +138,7 @@ def _contributor_figure(contrib, ax):
 def cmd_feed_sobol(args):
     from sewtol.mechanisms.feed_131 import studies as feed
     from sewtol.provenance import now
-    from sewtol.studies.sobol import _check_n as check_power_of_two
+    from sewtol.studies.sobol import check_power_of_two
 
     try:
         check_power_of_two(args.n)

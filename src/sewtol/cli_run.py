@@ -384,7 +384,7 @@ def _tolerances_refusal(tolerances) -> str | None:
 def _needle_namespace(args, mech, tolerances=None):
     """`run`'s flags as the arguments of `sewtol needle STUDY` (the file's nominal machine and
     tolerance set ride along as nominal_params and tolerance_set)."""
-    from sewtol.mechanisms.needle_208.fast_path import _needle_params
+    from sewtol.mechanisms.needle_208.fast_path import needle_params
 
     study = args.study
     beta_range = None
@@ -409,7 +409,7 @@ def _needle_namespace(args, mech, tolerances=None):
         limit_um=args.limit if study in ("montecarlo", "ppm") else None,
         adjust=adjust, range=None, step=None, resolution=None, second_order=False,
         method=args.method, target=args.target, budget=args.n if study == "ppm" else None,
-        nominal_params=_needle_params(mech), tolerance_set=tolerances,
+        nominal_params=needle_params(mech), tolerance_set=tolerances,
         file_inputs={"mechanism_file": str(args.file), "fast_path": "needle_208"})
     if study != "ppm":
         ns.budget = ns.method = None

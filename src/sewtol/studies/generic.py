@@ -38,12 +38,12 @@ FD_STEP = 1e-4
 CHUNK = mc.CHUNK
 
 
-def _values(mech, dev: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+def deviated_values(mech, dev: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     nominal = mech.nominal_values()
     return {k: nominal[k] + np.asarray(v, float) for k, v in dev.items()}
 
 
-def _check_tolerances(mech, tolerances: ToleranceSet) -> ToleranceSet:
+def check_tolerances(mech, tolerances: ToleranceSet) -> ToleranceSet:
     tol = tolerances.active()
     if not tol.items:
         raise ParameterError("tolerances", "has no tolerance with a non-zero width",
@@ -188,11 +188,11 @@ def scan(mech, tolerances: ToleranceSet, outputs=None, adjust: str | None = None
     """Each toleranced parameter at its upper and lower limit (others nominal): every output's
     value and change from nominal; machines that cannot run keep their status. With `adjust`
     (a compensator), rows NAME_adjusted add the first output minimised over it (`setting`)."""
-    tol = _check_tolerances(mech, tolerances)
+    tol = check_tolerances(mech, tolerances)
     names = mech.output_names if outputs is None else list(outputs)
     base = nominal(mech).rows.set_index("output")["value"]
     params, sides, deltas, dev = tol.limit_variants()
-    values = _values(mech, dev)
+    values = deviated_values(mech, dev)
     ev = mech.evaluate(values, names)
     adj = adj0 = None
     if adjust is not None:
@@ -249,8 +249,8 @@ def _output_of(mech, names, output, compensator=None):
         X = np.atleast_2d(X)
         dev = {k: X[:, i] for i, k in enumerate(names)}
         if compensator is not None:
-            return optimise_compensator(mech, _values(mech, dev), output, compensator).value
-        return mech.evaluate(_values(mech, dev), [output]).outputs[output]
+            return optimise_compensator(mech, deviated_values(mech, dev), output, compensator).value
+        return mech.evaluate(deviated_values(mech, dev), [output]).outputs[output]
     return f
 
 
@@ -262,7 +262,7 @@ def worst_case(mech, tolerances: ToleranceSet, output: str, maxiter: int = 100,
     if adjust is not None and adjust not in mech.compensators:
         raise ParameterError("adjust", "must name a compensator of the file ("
                              + (", ".join(mech.compensators) or "it has none") + ")", adjust)
-    tol = _check_tolerances(mech, tolerances)
+    tol = check_tolerances(mech, tolerances)
     names = tol.params
     if len(names) > MAX_CORNER_PARAMS:
         raise ParameterError("tolerances", f"worst case enumerates corners; at most "
@@ -333,7 +333,7 @@ def _monotone_on_axes(f, lo, hi, points: int = 7) -> bool:
 # --- Monte-Carlo ---------------------------------------------------------------------------
 
 def _file_model(record, dev, mech, outputs, compensator=None, target=None):
-    values = _values(mech, dev)
+    values = deviated_values(mech, dev)
     ev = mech.evaluate(values, outputs)
     out = {**ev.outputs, "status": ev.status, "failed_group": ev.failed_group}
     if compensator is not None:
@@ -478,7 +478,7 @@ def sobol(mech, tolerances: ToleranceSet, output: str, n: int, seed: int,
     problem = so.problem_of(tolerances)
     X = so.sample(problem, n, seed)
     dev = {k: X[:, i] for i, k in enumerate(problem["names"])}
-    ev = mech.evaluate(_values(mech, dev), [output])
+    ev = mech.evaluate(deviated_values(mech, dev), [output])
     y = ev.outputs[output]
     bad = ev.status != "ok"
     if bad.any():
@@ -487,5 +487,5 @@ def sobol(mech, tolerances: ToleranceSet, output: str, n: int, seed: int,
                              f"({', '.join(f'{s}' for s in sorted(set(ev.status[bad])))} at "
                              f"{', '.join(groups)}); Sobol indices need a model defined on the "
                              "whole tolerance box", int(bad.sum()))
-    both, conv, _ = so._indices_from(problem, y, n, seed, output, resamples)
+    both, conv, _ = so.indices_from(problem, y, n, seed, output, resamples)
     return so.SobolResult(both, conv, int(n), int(seed), {output: 0}, tolerances.name)

@@ -97,7 +97,7 @@ class _FileResponse:
 
     def __call__(self, z):
         dev = self.zmap.to_physical(z)
-        y, status, group = _evaluate(self.mech, G._values(self.mech, dev), self.output,
+        y, status, group = _evaluate(self.mech, G.deviated_values(self.mech, dev), self.output,
                                      self.adjust)
         mode = np.zeros(y.size, dtype=int)
         for k, (s, g) in enumerate(self.modes, start=1):
@@ -116,7 +116,7 @@ def file_limit_state(mech, tolerances: ToleranceSet, output: str, upper: float |
     mech.output(output)
     _check_adjust(mech, adjust)
     upper, lower = check_limits(upper, lower)
-    tol = G._check_tolerances(mech, tolerances)
+    tol = G.check_tolerances(mech, tolerances)
     zmap = StandardNormalMap(tol)
     modes = tuple((s, g) for g in _failing_groups(mech) for s in FAILURE_STATUSES)
     label = output if adjust is None else f"{output}_adjusted"
@@ -207,7 +207,7 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
         raise ParameterError("n", "must be a whole number of machines >= 10", n)
     if int(seed) != seed or seed < 0:
         raise ParameterError("seed", "must be a whole number >= 0", seed)
-    tol = G._check_tolerances(mech, tolerances)
+    tol = G.check_tolerances(mech, tolerances)
     weights = dict(weights or {})
     unknown = sorted(set(weights) - set(tol.params))
     if unknown:
@@ -231,7 +231,7 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
                            "cannot_close": 0, "dead_point": 0, "note": exc.rule})
             return -1.0
         dev = {p: k * v for p, v in base.items()}
-        y, status, _ = _evaluate(mech, G._values(mech, dev), output, adjust)
+        y, status, _ = _evaluate(mech, G.deviated_values(mech, dev), output, adjust)
         runs = status == "ok"
         inside = runs & (excess(np.where(runs, y, 0.0), upper, lower) <= 0)
         yk = float(np.mean(inside))

@@ -46,7 +46,7 @@ def problem_of(tolerances: ToleranceSet) -> dict:
 MIN_N = 16
 
 
-def _check_n(n):
+def check_power_of_two(n):
     if isinstance(n, bool) or int(n) != n or n < MIN_N or (int(n) & (int(n) - 1)) != 0:
         raise ParameterError("n", f"must be a power of two >= {MIN_N} (Sobol' sequence balance; "
                              "the convergence check uses N/2)", n)
@@ -61,7 +61,7 @@ def check_sobol(nominal, tolerances: ToleranceSet, n, seed, second_order: bool =
     """Every input of a Sobol study that can be checked before it runs (nothing is written)."""
     from sewtol.studies.montecarlo import check_memory, check_seed
 
-    _check_n(n)
+    check_power_of_two(n)
     check_seed(seed)
     d = len(tolerances.active().items)
     if d == 0:
@@ -73,7 +73,7 @@ def check_sobol(nominal, tolerances: ToleranceSet, n, seed, second_order: bool =
 
 
 def sample(problem: dict, n: int, seed: int, second_order: bool = False) -> np.ndarray:
-    _check_n(n)
+    check_power_of_two(n)
     return sobol_sample.sample(problem, int(n), calc_second_order=bool(second_order),
                                scramble=True, seed=seed)
 
@@ -155,7 +155,7 @@ def sobol_indices(model, problem: dict, n: int, seed: int, case: str = "y",
     """Indices of model at n and n/2 base samples; model maps (N, D) to (N,)."""
     X = sample(problem, n, seed)
     y = np.asarray(model(X), float)
-    return _indices_from(problem, y, n, seed, case, resamples)
+    return indices_from(problem, y, n, seed, case, resamples)
 
 
 def sobol_pairs(model, problem: dict, n: int, seed: int, case: str = "y",
@@ -189,16 +189,16 @@ def sobol_pairs(model, problem: dict, n: int, seed: int, case: str = "y",
     """
     X = sample(problem, n, seed, second_order=True)
     y = np.asarray(model(X), float)
-    both, conv, _, pairs = _indices_and_pairs(problem, y, n, seed, case, resamples, conf_level,
+    both, conv, _, pairs = indices_and_pairs(problem, y, n, seed, case, resamples, conf_level,
                                               True)
     return both, conv, pairs
 
 
-def _indices_from(problem, y, n, seed, case, resamples, conf_level=0.95):
-    return _indices_and_pairs(problem, y, n, seed, case, resamples, conf_level, False)[:3]
+def indices_from(problem, y, n, seed, case, resamples, conf_level=0.95):
+    return indices_and_pairs(problem, y, n, seed, case, resamples, conf_level, False)[:3]
 
 
-def _indices_and_pairs(problem, y, n, seed, case, resamples, conf_level=0.95,
+def indices_and_pairs(problem, y, n, seed, case, resamples, conf_level=0.95,
                        second_order=False):
     d = rows_per_sample(problem["num_vars"], second_order) - 2
     failed = int(np.isnan(y).sum())

@@ -240,12 +240,12 @@ def _phase_misfit(figs, dog: str) -> np.ndarray:
 def _rise_level(params: Feed131, values: dict) -> np.ndarray:
     """Per machine, the plate level at which the lower dog's highest rise is the read 1.1 mm
     (the highest point from a 1 deg grid, Newton-polished on the analytic velocity)."""
-    from sewtol.mechanisms.feed_131.metrics import _polish
+    from sewtol.mechanisms.feed_131.metrics import polish_extremes
 
     c, _ = columns(params.override(**values))
     y = fd.chains(c, np.radians(np.arange(0.0, 360.0, 1.0)).reshape(1, -1))["Q1"].p.imag
     y = np.broadcast_to(y, (c["b"].shape[0], y.shape[-1]))
-    _, top = _polish(c, "Q1", np.radians(np.argmax(y, axis=1)).reshape(-1, 1))
+    _, top = polish_extremes(c, "Q1", np.radians(np.argmax(y, axis=1)).reshape(-1, 1))
     return np.maximum(top.ravel(), y.max(axis=1)) - 1.1
 
 
@@ -421,7 +421,7 @@ def sobol(params: Feed131, tolerances: ToleranceSet, n: int, seed: int, machines
     at n and n / 2 base samples (the convergence table). Chunks run like every study
     (n_jobs, progress, scheduler)."""
     from sewtol.studies.parallel import chunk_bounds, run_chunks
-    from sewtol.studies.sobol import SobolResult, _indices_from, problem_of, sample
+    from sewtol.studies.sobol import SobolResult, indices_from, problem_of, sample
 
     frames, convs, chosen = [], [], {}
     for output in which:
@@ -436,7 +436,7 @@ def sobol(params: Feed131, tolerances: ToleranceSet, n: int, seed: int, machines
                                           for a, b in chunk_bounds(len(X), chunk_size)],
                            n_jobs=n_jobs, progress=progress, desc=f"feed Sobol {output}",
                            scheduler=scheduler)
-        f, c, _ = _indices_from(problem, np.concatenate(parts), n, seed, output, resamples)
+        f, c, _ = indices_from(problem, np.concatenate(parts), n, seed, output, resamples)
         c.insert(1, "params", len(names))
         frames.append(f)
         convs.append(c)

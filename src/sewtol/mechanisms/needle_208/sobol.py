@@ -21,7 +21,7 @@ if TYPE_CHECKING:
     from sewtol.mechanisms.needle_208.compensators import Strategy
     from sewtol.mechanisms.needle_208.model import Needle208
     from sewtol.studies.checkpoint import ChunkStore
-from sewtol.studies.sobol import CHUNK, SobolResult, _indices_and_pairs, check_sobol, problem_of, sample
+from sewtol.studies.sobol import CHUNK, SobolResult, check_sobol, indices_and_pairs, problem_of, sample
 
 
 def _needle_chunk(nominal, names, X, range_deg, strategy=None, limit_um=sb.DEFAULT_LIMIT_UM):
@@ -134,7 +134,7 @@ def needle_sobol(nominal: Needle208, tolerances: ToleranceSet | str, n: int, see
     frames, convs, pairs = [], [], []
     adjusted = "adjusted_beta" if strategy is None else "adjusted_" + strategy.name
     for case, y in (("fixed_beta", y_fixed), (adjusted, y_adj)):
-        f, c, _, p = _indices_and_pairs(problem, y, n, seed, case, resamples, conf_level,
+        f, c, _, p = indices_and_pairs(problem, y, n, seed, case, resamples, conf_level,
                                         second_order)
         frames.append(f)
         convs.append(c)
