@@ -12,7 +12,7 @@ import pytest
 
 import sewtol.mechanisms as M
 from sewtol.cli import main
-from sewtol.cli_run import load_mechanism
+from sewtol.cli.run import load_mechanism
 from sewtol.mechanism import load
 
 ROOT = Path(__file__).resolve().parents[1]
