@@ -746,7 +746,7 @@ def add_needle(sub) -> None:
     _study_options(p)
     p.add_argument("--n", type=int, default=500, help="machines (default 500)")
     _adjust_options(p)
-    plot_option(p, "the yield of each strategy with its 95 % interval")
+    plot_option(p, "the yield of each strategy with its 95 %% interval")
     p.set_defaults(func=cmd_needle_strategies)
 
     p = nsub.add_parser("sobol", help="Sobol indices of SumDelta (SALib)")
