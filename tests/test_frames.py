@@ -104,8 +104,12 @@ def test_table_and_window_contradict_in_every_frame():
 
 def test_cli_lists_frames_with_residuals(capsys):
     assert main(["needle", "frames", "--format", "json"]) == 0
-    data = json.loads(capsys.readouterr().out)
-    assert len(data) >= 2
+    obj = json.loads(capsys.readouterr().out)
+    # an object like every study's JSON: the context, then one full record per frame
+    assert obj["context"] == {"mechanism": "208 needle drive", "default_frame": DEFAULT_FRAME}
+    data = obj["rows"]
+    assert len(data) >= 2 and [f["name"] for f in data] == frame_names()
+    assert [f["name"] for f in data if f["default"]] == [DEFAULT_FRAME]
     for f in data:
         assert set(f["provenance"]["residuals"]) == set(f["provenance"]["targets"])
         assert any(r["kind"] == "delta" for r in f["published"])

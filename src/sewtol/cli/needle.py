@@ -160,12 +160,12 @@ def _tolerances(args):
 
 
 def cmd_needle_frames(args):
-    from sewtol.mechanisms.needle_208.frames import frames_table, list_frames
+    from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME, frames_table, list_frames
 
-    if args.format == "json":
-        emit("json", obj=[f.to_dict() for f in list_frames()])
-    else:
-        emit(args.format, frame=frames_table())
+    # JSON: every record in full (the table: one summary row per frame), as the studies print it
+    emit(args.format, frame=frames_table(),
+         obj={"context": {"mechanism": "208 needle drive", "default_frame": DEFAULT_FRAME},
+              "rows": [f.to_dict() for f in list_frames()]})
 
 
 def cmd_needle_nominal(args):
@@ -379,7 +379,7 @@ def cmd_needle_strategies(args):
     check_study(args)
     not_offered(args, "needle strategies",
                  resume="it keeps no checkpoints; rerun with the same seed",
-                 scheduler="it runs on this machine", n_jobs="it runs in one process")
+                 scheduler="it runs on this machine; use --n-jobs")
     strategy = _strategy(args)
     params, tolerances = _at_beta_star(args, _study_nominal(args)), _tolerances(args)
     rows = default_strategies()
@@ -388,7 +388,8 @@ def cmd_needle_strategies(args):
             strategy = Strategy(strategy.name + " (given)", strategy.compensators)
         rows.append(strategy)
     started = now()
-    res = strategies_table(params, tolerances, args.n, args.seed, rows)
+    res = strategies_table(params, tolerances, args.n, args.seed, rows, n_jobs=args.n_jobs,
+                           progress=args.progress)
     table = res.to_dataframe()
     frames = {"strategies": table}
     for r in rows:
