@@ -67,16 +67,21 @@ def _beta_options(p, what="searched for beta* (deg)"):
                    help="SumDelta limit (um) of the yield and the window; default 10")
 
 
-def _beta_star_figures(args, params, strategy=None):
-    """The nominal figures at beta* in --beta-range (default 10 35; with a strategy that adjusts
-    beta, beta's range), at --limit-um."""
-    from sewtol.mechanisms.needle_208.single import nominal_figures
-
+def _beta_search_range(args, strategy=None) -> tuple:
+    """--beta-range (default 10 35); with a strategy that adjusts beta, the strategy's own range."""
     rng = getattr(args, "beta_range", None) or (10.0, 35.0)
     for c in getattr(strategy, "compensators", ()):
         if c.name == "beta":
             rng = (c.low, c.high)
-    return nominal_figures(params, tuple(rng), getattr(args, "limit_um", None) or 10.0)
+    return tuple(rng)
+
+
+def _beta_star_figures(args, params, strategy=None):
+    """The nominal figures at beta* in the searched range (`_beta_search_range`), at --limit-um."""
+    from sewtol.mechanisms.needle_208.single import nominal_figures
+
+    return nominal_figures(params, _beta_search_range(args, strategy),
+                           getattr(args, "limit_um", None) or 10.0)
 
 
 def _at_beta_star(args, params, strategy=None):
@@ -104,17 +109,14 @@ def _context(args, params, tolerances, strategy) -> dict:
     """What decides a study's numbers, carried by its JSON (its CSVs: run.json beside them)."""
     from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME
 
-    beta = list(getattr(args, "beta_range", None) or (10.0, 35.0))
-    for c in getattr(strategy, "compensators", ()):
-        if c.name == "beta":  # the strategy's own range of beta
-            beta = [c.low, c.high]
     return {"tolerances": None if tolerances is None else tolerances.name,
             "seed": getattr(args, "seed", None),
             "n": getattr(args, "n", None), "frame": getattr(args, "frame", None) or DEFAULT_FRAME,
             "guide_shift_um": float(params.guide_shift_um),
             "guide_angle_deg": float(params.guide_angle),
             "strategy": "beta" if strategy is None else strategy.name,
-            "beta_search_range_deg": beta, "limit_um": getattr(args, "limit_um", None) or 10.0,
+            "beta_search_range_deg": list(_beta_search_range(args, strategy)),
+            "limit_um": getattr(args, "limit_um", None) or 10.0,
             # the model that computed the numbers (`run FILE` says "generic" on its sampled path)
             "path": "needle_208"}
 
