@@ -15,7 +15,6 @@ from sewtol.errors import ParameterError
 from sewtol.io import to_json
 
 FORMATS = ("table", "json", "csv")
-
 MIN_STEP_DEG = 1e-3  # 360 000 angles per turn; finer steps only fill memory
 
 

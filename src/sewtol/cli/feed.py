@@ -33,6 +33,11 @@ from sewtol.cli.common import (
 from sewtol.errors import ParameterError
 
 MAX_SWEEP_POINTS = 100_000
+FEED_SCREEN_N = 1000  # machines of the Monte-Carlo that picks each output's parameters
+# the quantile bins of studies.montecarlo.contributors: its bias correction divides by n - bins,
+# so the contributor table needs more machines than bins (n = 20 divided by zero; n < 20 gave
+# meaningless shares: at n = 10 every tolerance 100 % of the variance)
+CONTRIBUTOR_BINS = 20
 
 
 def _feed_params(args):
@@ -80,14 +85,6 @@ def cmd_feed_regulator(args):
     emit(args.format, obj={"context": machine_context(args, params, b_range_deg=[lo, hi, step]),
                            "rows": sweep.to_dict(orient="records")}, frame=sweep)
     save_plot(args, lambda ax: plots().regulator_curve(sweep, params.b, ax=ax))
-
-FEED_SCREEN_N = 1000  # machines of the Monte-Carlo that picks each output's parameters
-
-
-# the quantile bins of studies.montecarlo.contributors: its bias correction divides by n - bins,
-# so the contributor table needs more machines than bins (n = 20 divided by zero; n < 20 gave
-# meaningless shares: at n = 10 every tolerance 100 % of the variance)
-CONTRIBUTOR_BINS = 20
 
 
 def _feed_tolerances(args, params):

@@ -39,7 +39,6 @@ from sewtol.errors import ParameterError
 from sewtol.io import to_json
 
 BETA_LIMIT_DEG = 360.0
-
 SOBOL_RESAMPLES, SOBOL_CONF_LEVEL = 200, 0.95
 
 

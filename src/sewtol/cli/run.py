@@ -18,16 +18,10 @@ from sewtol.cli.common import FLAGS, as_flags, check_out, check_study, emit, par
 from sewtol.errors import ParameterError
 
 STUDIES = ("nominal", "scan", "montecarlo", "sobol", "worst-case", "ppm", "allocation", "report")
-
 RUN_FORMATS = ("text", "table", "json", "csv")
-
 DEFAULT_N = {"montecarlo": 2000, "sobol": 256, "ppm": 20000, "allocation": 2000, "report": 1000}
-
-
 # --target: the smallest probability ppm must resolve; the yield allocation must keep
 DEFAULT_TARGET = {"ppm": 1e-6, "allocation": 0.9973}
-
-
 # which flags each study reads; any other given flag is refused in one line
 USES = {"nominal": (), "scan": ("output", "tolerances", "adjust"),
         "worst-case": ("output", "tolerances", "adjust"),
