@@ -41,7 +41,7 @@ def _brute_one(p, lo, hi, blo, bhi, step_deg, T0, T1):
     npts = nb_ - 1 + L
     d = np.empty(npts)
     for j in range(npts):
-        f, _, _ = KB._point(p, 0.0, u0 + j * hs)
+        f, _, _ = KB.guide_offset(p, 0.0, u0 + j * hs)
         d[j] = f + p[14] * 1e-3
     best = np.inf
     bbest = np.nan
@@ -72,7 +72,7 @@ def _brute_one(p, lo, hi, blo, bhi, step_deg, T0, T1):
         if nan_last >= k or hmax >= tmax:
             continue
         u = u0 + k * hs
-        fe, _, _ = KB._point(p, 0.0, u + w)
+        fe, _, _ = KB.guide_offset(p, 0.0, u + w)
         if math.isnan(fe):
             continue
         fe += p[14] * 1e-3

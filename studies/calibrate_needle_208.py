@@ -68,7 +68,7 @@ def build_window(progress, searched=None) -> dict:
 def build_table41(progress) -> dict:
     win = load_frame("window")
     fam = cal.Family(**win.provenance["family"])
-    _, sign = cal.table41_residuals(win.machine())
+    _, sign = cal.table41_residuals(Needle208.nominal(win))
     x0 = list(win.provenance["frame_x"].values()) + [0.0]
     progress(f"table41: from the window frame, study's +50 um = {sign * 50:+g} um along n")
     sol, J, r, _, _ = cal.calibrate_table41(x0, fam, sign)
@@ -110,7 +110,7 @@ def reevaluate(name: str, progress) -> dict:
     targets = (cal.table41_targets(fam.lean) if kind == "table41"
                else cal.window_targets(fam.lean))
     progress(f"{name}: re-evaluating the stored geometry ({kind} targets)")
-    rec = cal.frame_record(name, old.summary, old.machine(), fam, targets, prov["method"],
+    rec = cal.frame_record(name, old.summary, Needle208.nominal(old), fam, targets, prov["method"],
                            prov.get("search"), kind=kind, x=list(prov["frame_x"].values()),
                            guide_sign=prov["table41_guide_sign"])
     for key in ("screen", "release_provenance"):
@@ -127,7 +127,7 @@ def _f(v, fmt=".4f"):
 
 def render(rec: dict) -> list[str]:
     frame = frame_from_record(rec)
-    p, m = rec["provenance"], frame.machine()
+    p, m = rec["provenance"], Needle208.nominal(frame)
     cond = p["conditioning"]
     x = p["frame_x"]
     out = [f"## Frame `{rec['name']}` (version {rec['version']})", "", rec["summary"] + ".", "",

@@ -18,6 +18,7 @@ import pandas as pd
 
 from sewtol.io import write_text_atomic
 from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME, frame_names, load_frame
+from sewtol.mechanisms.needle_208.model import Needle208
 from sewtol.mechanisms.needle_208.montecarlo import montecarlo
 from sewtol.mechanisms.needle_208.single import nominal_figures
 from sewtol.mechanisms.needle_208.sobol import needle_sobol
@@ -30,7 +31,7 @@ LINKS = ["LF", "LM", "AM", "AB", "BC", "BE", "CD"]
 
 def study_frame(name, args, progress):
     f = load_frame(name)
-    p = f.machine()
+    p = Needle208.nominal(f)
     nom = nominal_figures(p)
     progress(f"{name}: nominal")
     sc = scan(p, NEEDLE_208_SETS["recommended"]).to_dataframe()

@@ -82,3 +82,53 @@ def test_feed_bad_inputs():
     assert code == 2 and "valid names are O1F" in err
     code, _, err = run("feed", "trajectory", "--step-deg", "0")
     assert code == 2 and "--step-deg: must be in [0.001, 90] (got 0.0)" in err
+
+
+def _commands(parser, path=()):
+    """Every command path of the parser tree: (), ("needle",), ("needle", "scan"), ..."""
+    import argparse
+
+    yield path, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _commands(sub, (*path, name))
+
+
+def test_every_command_prints_its_help():
+    """`--help` on every command and group: exit 0, the command's usage and each of its flags."""
+    from sewtol.cli import build_parser
+
+    seen = 0
+    for path, parser in _commands(build_parser()):
+        code, out, err = run(*path, "--help")
+        assert code == 0 and err == "", (path, err)
+        assert out.startswith(f"usage: {' '.join(('sewtol', *path))}"), path
+        for action in parser._actions:
+            for flag in action.option_strings:
+                assert flag in out, (path, flag)
+        seen += 1
+    assert seen >= 23  # sewtol, needle and its 12 commands, feed and its 6, run, mechanisms
+    # a help text with a literal percent sign is written %% (argparse formats it)
+    assert "its 95 % interval" in " ".join(run("needle", "strategies", "--help")[1].split())
+
+
+def test_the_installed_command_prints_its_help():
+    """`python -m sewtol --help` in a fresh process, and the console script names sewtol.cli:main."""
+    import os
+    import subprocess
+    import sys
+    import tomllib
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    scripts = tomllib.loads((root / "pyproject.toml").read_text())["project"]["scripts"]
+    assert scripts == {"sewtol": "sewtol.cli:main"}
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [str(root / "src"), *filter(None, [os.environ.get("PYTHONPATH")])])}
+    done = subprocess.run([sys.executable, "-m", "sewtol", "--help"], capture_output=True,
+                          text=True, env=env, timeout=120)
+    assert done.returncode == 0 and done.stderr == ""
+    assert done.stdout.startswith("usage: sewtol")
+    for group in ("needle", "feed", "run", "mechanisms"):
+        assert group in done.stdout

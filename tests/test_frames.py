@@ -28,7 +28,7 @@ def test_sewtol_01_is_bit_for_bit_the_01_geometry():
 
 def test_api_takes_a_name_a_frame_or_nothing():
     f = load_frame("window")
-    assert Needle208.nominal(f) == Needle208.nominal("window") == f.machine()
+    assert Needle208.nominal(f) == Needle208.nominal("window") == Needle208(**f.params)
     assert Needle208.nominal() == Needle208.nominal(DEFAULT_FRAME)
     assert resolve(None).name == DEFAULT_FRAME
 
@@ -50,7 +50,7 @@ def test_window_frame_reproduces_the_published_lm_direction():
     for name, sign in (("window", 1.0), ("table41", 1.0), ("sewtol-0.1", -1.0)):
         f = load_frame(name)
         assert f.lm_direction == sign
-        m = f.machine()
+        m = Needle208.nominal(f)
         sets = {}
         for side, lm in (("UL", 58.5), ("LL", 57.5)):
             c, _ = nm.columns(m.override(LM=lm))
@@ -69,7 +69,7 @@ def test_stored_residual_table_regenerated_from_the_model():
     near-sets to one grid step, the model beta* inside its own near-set (not its bits: several
     rows are plateaus)."""
     for f in list_frames():
-        rows, sign = cal.table41_residuals(f.machine(), f.provenance["table41_guide_sign"])
+        rows, sign = cal.table41_residuals(Needle208.nominal(f), f.provenance["table41_guide_sign"])
         stored = [r for r in f.published if r["kind"] != "nominal"]
         assert len(rows) == len(stored)
         for new, old in zip(rows, stored, strict=True):
@@ -96,7 +96,7 @@ def test_table_and_window_contradict_in_every_frame():
         for key in ("LF_LL", "AM_UL"):
             assert c[key]["model_total_um"] <= c["nominal_total_um"] + 1e-6
             assert c[key]["published_total_um"] > 10.0
-        m = f.machine()
+        m = Needle208.nominal(f)
         cm, _ = nm.columns(m)
         # the window ends as stored bound the nominal's SumDelta in 19..25 from above
         assert c["nominal_total_um"] <= max(sb.total_at(cm, 19.0)[0], sb.total_at(cm, 25.0)[0])
@@ -104,8 +104,12 @@ def test_table_and_window_contradict_in_every_frame():
 
 def test_cli_lists_frames_with_residuals(capsys):
     assert main(["needle", "frames", "--format", "json"]) == 0
-    data = json.loads(capsys.readouterr().out)
-    assert len(data) >= 2
+    obj = json.loads(capsys.readouterr().out)
+    # an object like every study's JSON: the context, then one full record per frame
+    assert obj["context"] == {"mechanism": "208 needle drive", "default_frame": DEFAULT_FRAME}
+    data = obj["rows"]
+    assert len(data) >= 2 and [f["name"] for f in data] == frame_names()
+    assert [f["name"] for f in data if f["default"]] == [DEFAULT_FRAME]
     for f in data:
         assert set(f["provenance"]["residuals"]) == set(f["provenance"]["targets"])
         assert any(r["kind"] == "delta" for r in f["published"])
@@ -115,7 +119,7 @@ def test_cli_lists_frames_with_residuals(capsys):
 def test_every_needle_command_takes_frame(capsys):
     assert main(["needle", "nominal", "--frame", "window", "--format", "json"]) == 0
     win = json.loads(capsys.readouterr().out)
-    m = load_frame("window").machine()
+    m = Needle208.nominal(load_frame("window"))
     assert win["A_mm"] == [m.Ax, m.Ay]
     for cmd in (["deviation", "--step-deg", "90"], ["scan"], ["montecarlo", "--n", "2"],
                 ["sobol", "--n", "2"]):

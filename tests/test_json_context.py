@@ -147,13 +147,13 @@ def test_plot_draws_the_scan_rows_it_prints(tmp_path):
     import matplotlib.pyplot as plt
     import pandas as pd
 
-    from sewtol.cli import _scan_figure
+    from sewtol.cli.common import scan_figure
 
     code, out, _ = run("needle", "scan", "--format", "json")
     rows = strict_loads(out)["rows"]
     frame = pd.DataFrame(rows)
     fig, ax = plt.subplots()
-    _scan_figure(frame, "total_um", ax, "SumDelta", 10.0)
+    scan_figure(frame, "total_um", ax, "SumDelta", 10.0)
     heights = [p.get_height() for p in ax.patches]
     upper = [r["total_um"] for r in rows if r["side"] == "upper"]
     lower = [r["total_um"] for r in rows if r["side"] == "lower"]
@@ -176,7 +176,7 @@ def test_feed_sobol_plot_has_a_panel_per_output_with_the_printed_indices():
     import matplotlib.pyplot as plt
     import pandas as pd
 
-    from sewtol.cli_feed import sobol_panels
+    from sewtol.cli.feed import sobol_panels
 
     code, out, err = run("feed", "sobol", "--n", "16", "--n-screen", "100", "--format", "json")
     assert code == 0, err
@@ -196,7 +196,7 @@ def test_allocation_plot_draws_the_printed_widths():
     import matplotlib.pyplot as plt
     import pandas as pd
 
-    from sewtol.cli import allocation_figure
+    from sewtol.cli.needle import allocation_figure
 
     code, out, err = run("needle", "allocation", "--n", "100", "--format", "json")
     assert code == 0, err

@@ -12,7 +12,7 @@ import pytest
 
 import sewtol.mechanisms as M
 from sewtol.cli import main
-from sewtol.cli_run import load_mechanism
+from sewtol.cli.run import load_mechanism
 from sewtol.mechanism import load
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -43,6 +43,142 @@ def test_generic_studies_import_no_mechanism():
     offenders = {p.name: m for p in (SRC / "studies").glob("*.py") for m in _imports(p)
                  if m.startswith("sewtol.mechanisms") or m.startswith("sewtol.kernels")}
     assert offenders == {}
+
+
+# --- the import graph of src/sewtol: no cycles, no private names taken from another module ----
+
+def _modules() -> dict[str, tuple[Path, bool]]:
+    """Every module under src/sewtol by dotted name: (path, is a package's __init__)."""
+    out = {}
+    for path in sorted(SRC.rglob("*.py")):
+        parts = list(path.relative_to(SRC.parent).with_suffix("").parts)
+        package = parts[-1] == "__init__"
+        out[".".join(parts[:-1] if package else parts)] = (path, package)
+    return out
+
+
+def _walk(node):
+    """ast.walk, module- and function-level alike, skipping `if TYPE_CHECKING:` bodies (they
+    never run)."""
+    for child in ast.iter_child_nodes(node):
+        test = getattr(child, "test", None) if isinstance(child, ast.If) else None
+        if test is not None and "TYPE_CHECKING" in (getattr(test, "id", None),
+                                                    getattr(test, "attr", None)):
+            for other in child.orelse:
+                yield other
+                yield from _walk(other)
+            continue
+        yield child
+        yield from _walk(child)
+
+
+def _import_facts(name, path, package, modules):
+    """(modules imported, private names taken) of one module: `from x import _y` and `x._y` on a
+    name bound to a sewtol module, with their lines."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    here = name if package else name.rpartition(".")[0]
+    deps, private, bound = set(), [], {}
+    for node in _walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                deps.add(a.name)
+                bound[a.asname or a.name.partition(".")[0]] = a.name if a.asname else \
+                    a.name.partition(".")[0]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:  # relative: from .x import y
+                stem = here.split(".")[: len(here.split(".")) - node.level + 1]
+                base = ".".join(stem + ([node.module] if node.module else []))
+            for a in node.names:
+                full = f"{base}.{a.name}"
+                deps.add(full if full in modules else base)
+                if full in modules:
+                    bound[a.asname or a.name] = full
+                if a.name.startswith("_") and not a.name.startswith("__") \
+                        and base.startswith("sewtol"):
+                    private.append(f"{name}:{node.lineno}: from {base} import {a.name}")
+    for node in _walk(tree):
+        if isinstance(node, ast.Attribute) and node.attr.startswith("_") \
+                and not node.attr.startswith("__"):
+            chain, value = [], node.value
+            while isinstance(value, ast.Attribute):
+                chain.insert(0, value.attr)
+                value = value.value
+            if isinstance(value, ast.Name) and value.id in bound:
+                owner = ".".join([bound[value.id], *chain])
+                if owner in modules and owner.startswith("sewtol") and owner != name:
+                    private.append(f"{name}:{node.lineno}: {owner}.{node.attr}")
+    return {d for d in deps if d in modules and d != name}, private
+
+
+def _graph():
+    modules = _modules()
+    facts = {n: _import_facts(n, p, pkg, modules) for n, (p, pkg) in modules.items()}
+    return {n: f[0] for n, f in facts.items()}, [x for f in facts.values() for x in f[1]]
+
+
+def _cycle(graph) -> list[str] | None:
+    """One import cycle (a -> b -> ... -> a) if there is any (depth-first, colouring)."""
+    state, stack = {}, []
+
+    def visit(node):
+        state[node] = "open"
+        stack.append(node)
+        for dep in sorted(graph[node]):
+            if state.get(dep) == "open":
+                return stack[stack.index(dep):] + [dep]
+            if dep not in state and (found := visit(dep)):
+                return found
+        state[node] = "done"
+        stack.pop()
+        return None
+
+    for node in sorted(graph):
+        if node not in state and (found := visit(node)):
+            return found
+    return None
+
+
+def test_the_checks_see_function_level_imports_and_skip_type_checking(tmp_path):
+    """The two checks below on a made-up package: a cycle closed by a function-level import is
+    found, one closed only under `if TYPE_CHECKING:` is not; both forms of private use count."""
+    pkg = tmp_path / "sewtol"
+    pkg.mkdir()
+    (pkg / "a.py").write_text("import sewtol.b\n")
+    (pkg / "b.py").write_text("def f():\n    from sewtol.a import _x\n")
+    (pkg / "c.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
+                              "    from sewtol import a\nfrom sewtol import b as B\nB._y\n")
+    mods = {n: (pkg / f"{n}.py", False) for n in "abc"}
+    mods = {f"sewtol.{n}": v for n, v in mods.items()}
+    facts = {n: _import_facts(n, p, False, mods) for n, (p, _) in mods.items()}
+    graph = {n: f[0] for n, f in facts.items()}
+    assert graph == {"sewtol.a": {"sewtol.b"}, "sewtol.b": {"sewtol.a"}, "sewtol.c": {"sewtol.b"}}
+    assert _cycle(graph) == ["sewtol.a", "sewtol.b", "sewtol.a"]
+    assert facts["sewtol.b"][1] == ["sewtol.b:2: from sewtol.a import _x"]
+    assert facts["sewtol.c"][1] == ["sewtol.c:5: sewtol.b._y"]
+    assert _cycle({"sewtol.a": {"sewtol.b"}, "sewtol.b": set()}) is None
+
+
+def test_no_import_cycles_in_sewtol():
+    graph, _ = _graph()
+    assert len(graph) > 50 and "sewtol.cli.common" in graph["sewtol.cli.needle"]
+    cycle = _cycle(graph)
+    assert cycle is None, "import cycle: " + " -> ".join(cycle)
+
+
+def test_no_module_takes_another_modules_private_names():
+    _, private = _graph()
+    assert private == []
+
+
+def test_the_cli_families_import_common_and_common_no_family():
+    graph, _ = _graph()
+    families = {n for n in graph if n.startswith("sewtol.cli.") and n != "sewtol.cli.common"}
+    assert {"sewtol.cli.needle", "sewtol.cli.feed", "sewtol.cli.run"} <= families
+    assert not {d for d in graph["sewtol.cli.common"] if d.startswith("sewtol.cli")}
+    for family in families:
+        assert "sewtol.cli.common" in graph[family], family
+        assert "sewtol.cli" not in graph[family], family
 
 
 def test_the_built_in_mechanisms_are_the_folders():

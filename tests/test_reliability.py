@@ -139,7 +139,7 @@ def test_same_seed_byte_identical_json_for_any_workers(tmp_path):
 
 def test_interrupted_study_resumes_to_the_same_tables(tmp_path):
     """SIGINT a running study after some chunks, resume it, compare with an uninterrupted run."""
-    cmd = [sys.executable, "-m", "sewtol.cli", "needle", "montecarlo", "--n", "8000",
+    cmd = [sys.executable, "-m", "sewtol", "needle", "montecarlo", "--n", "8000",
            "--seed", "11", "--tolerances", "recommended", "--format", "json"]
     out = tmp_path / "interrupted"
     proc = subprocess.Popen(cmd + ["--out", str(out)], stdout=subprocess.PIPE,

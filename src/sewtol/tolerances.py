@@ -274,7 +274,7 @@ def _number(where: str, v) -> float:
     return float(v)
 
 
-def _parse_item(set_name: str, param: str, spec) -> Tolerance:
+def parse_item(set_name: str, param: str, spec) -> Tolerance:
     where = f"{set_name}.{param}"
     if not isinstance(spec, dict):
         if isinstance(spec, bool) or not isinstance(spec, (int, float)):
@@ -337,7 +337,7 @@ def load_toml(path: str | Path, valid_params: list[str] | None = None) -> dict[s
         if not isinstance(body, dict):
             raise ParameterError(f"sets.{name}", "must be a table", body)
         desc = str(body.get("description", ""))
-        items = tuple(_parse_item(name, k, v) for k, v in body.items() if k != "description")
+        items = tuple(parse_item(name, k, v) for k, v in body.items() if k != "description")
         ts = ToleranceSet(name, items, desc)
         if valid_params is not None:
             ts.check_names(valid_params)

@@ -30,7 +30,8 @@ from sewtol.mechanism.spec import (
     Parameter,
     Spec,
 )
-from sewtol.tolerances import Tolerance, ToleranceSet, _parse_item
+from sewtol.mechanisms.params import check_rule
+from sewtol.tolerances import Tolerance, ToleranceSet, parse_item
 
 MAX_BYTES = 1 << 20
 NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -171,22 +172,6 @@ def _header(ctx, m) -> Header:
         _str(ctx, ("mechanism", "fast_path"), "[mechanism] fast_path", fast)
     return Header(name, m.get("title", ""), m.get("source", ""), tuple(assumptions), samples,
                   None if rpm is None else float(rpm), driver, fast)
-
-
-def check_rule(name: str, rule: str, value) -> None:
-    """Raise ParameterError if value (a number or an array) breaks the parameter's rule."""
-    import numpy as np
-
-    from sewtol.mechanisms import params as P
-
-    if rule == "positive":
-        P.positive(name, value)
-    elif rule == "branch":
-        P.branch(name, value)
-    else:
-        P.finite(name, value)
-        if rule == "nonnegative" and np.any(np.asarray(value, float) < 0):
-            raise ParameterError(name, "must not be negative", P._show(value))
 
 
 def _parameters(ctx, table, overrides) -> list[Parameter]:
@@ -499,7 +484,7 @@ def _tolerance_sets(ctx, table, pnames) -> dict[str, ToleranceSet]:
                     hi = _number(ctx, path + (param,), where, spec[1])
                     items.append(Tolerance(param, lo, hi))
                 else:
-                    items.append(_parse_item(set_name, param, spec))
+                    items.append(parse_item(set_name, param, spec))
             except ParameterError as exc:
                 ctx.fail(path + (param,), where, exc.rule, spec)
         ts = ToleranceSet(set_name, tuple(items), desc)

@@ -23,6 +23,7 @@ from sewtol.errors import ParameterError
 from sewtol.mechanism.groups import GROUPS
 from sewtol.mechanism.outputs import OUTPUT_TYPES, OUTPUTS
 from sewtol.mechanism.spec import Compensator, Group, Header, Output, Parameter, Spec
+from sewtol.mechanisms.params import check_rule
 from sewtol.tolerances import ToleranceSet
 
 DEAD_POINT_DEG = 1.0
@@ -97,8 +98,6 @@ class FileMechanism:
 
     def override(self, **changes) -> FileMechanism:
         """A copy with new nominal values (checked by each parameter's rule)."""
-        from sewtol.mechanism.loader import check_rule
-
         names = self.parameter_names
         for k in changes:
             if k not in names:
@@ -151,8 +150,6 @@ class FileMechanism:
 
     def columns(self, values: dict | None = None) -> tuple[dict, int]:
         """Every parameter as an (m, 1) column: the given values, nominal for the rest."""
-        from sewtol.mechanism.loader import check_rule
-
         values = dict(values or {})
         names = self.parameter_names
         for k in values:
@@ -281,7 +278,6 @@ def parameter_class(mech: FileMechanism):
     key = (mech.name, tuple((p.name, p.rule) for p in mech.parameters))
     if key in _CLASSES:
         return _CLASSES[key]
-    from sewtol.mechanism.loader import check_rule
     from sewtol.mechanisms import params as P
 
     rules = {p.name: p.rule for p in mech.parameters}

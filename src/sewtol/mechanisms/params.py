@@ -34,29 +34,43 @@ def freeze(params) -> None:
 def positive(name: str, value) -> None:
     v = np.asarray(value, float)
     if not np.all(np.isfinite(v)):
-        raise ParameterError(name, "must be a finite number", _show(value))
+        raise ParameterError(name, "must be a finite number", show(value))
     if np.any(v <= 0.0):
-        raise ParameterError(name, "must be a positive length in mm", _show(value))
+        raise ParameterError(name, "must be a positive length in mm", show(value))
 
 
 def finite(name: str, value) -> None:
     v = np.asarray(value, float)
     if not np.all(np.isfinite(v)):
-        raise ParameterError(name, "must be a finite number", _show(value))
+        raise ParameterError(name, "must be a finite number", show(value))
 
 
 def branch(name: str, value) -> None:
     v = np.asarray(value, float)
     if not np.all(np.isin(v, (-1.0, 1.0))):
-        raise ParameterError(name, "must be +1 (left) or -1 (right)", _show(value))
+        raise ParameterError(name, "must be +1 (left) or -1 (right)", show(value))
 
 
-def _show(value):
+def show(value):
+    """A value as an error message shows it: a number, or an array's size and a bad element."""
     v = np.asarray(value, float)
     if v.ndim == 0:
         return float(v)
     bad = v[~np.isfinite(v) | (v <= 0)] if v.size else v
     return f"array of {v.size}, e.g. {float(bad.flat[0]) if bad.size else float(v.flat[0])}"
+
+
+def check_rule(name: str, rule: str, value) -> None:
+    """Raise ParameterError if value (a number or an array) breaks the parameter's rule
+    (mechanism files: positive, branch, nonnegative or finite)."""
+    if rule == "positive":
+        positive(name, value)
+    elif rule == "branch":
+        branch(name, value)
+    else:
+        finite(name, value)
+        if rule == "nonnegative" and np.any(np.asarray(value, float) < 0):
+            raise ParameterError(name, "must not be negative", show(value))
 
 
 def field_names(cls) -> list[str]:

@@ -30,7 +30,7 @@ from sewtol.tolerances import ToleranceSet
 CHUNK = mc.CHUNK
 
 
-def _values(mech, dev: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+def deviated_values(mech, dev: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     nominal = mech.nominal_values()
     return {k: nominal[k] + np.asarray(v, float) for k, v in dev.items()}
 
@@ -154,7 +154,7 @@ def nominal(mech) -> NominalResult:
 # --- Monte-Carlo ---------------------------------------------------------------------------
 
 def _file_model(record, dev, mech, outputs, compensator=None, target=None):
-    values = _values(mech, dev)
+    values = deviated_values(mech, dev)
     ev = mech.evaluate(values, outputs)
     out = {**ev.outputs, "status": ev.status, "failed_group": ev.failed_group}
     if compensator is not None:
@@ -326,7 +326,7 @@ def sobol(mech, tolerances: ToleranceSet, output: str, n: int, seed: int,
     problem = so.problem_of(tolerances)
     X = so.sample(problem, n, seed)
     dev = {k: X[:, i] for i, k in enumerate(problem["names"])}
-    ev = mech.evaluate(_values(mech, dev), [output])
+    ev = mech.evaluate(deviated_values(mech, dev), [output])
     return so.result_of([so.case_indices(problem, X, ev.outputs[output], n, seed, output,
                                          resamples, status=ev.status, group=ev.failed_group)],
                         n, seed, tolerances.name, model_runs=len(X))

@@ -101,7 +101,7 @@ class _FileResponse:
 
     def __call__(self, z):
         dev = self.zmap.to_physical(z)
-        y, status, group = _evaluate(self.mech, G._values(self.mech, dev), self.output,
+        y, status, group = _evaluate(self.mech, G.deviated_values(self.mech, dev), self.output,
                                      self.adjust)
         mode = np.zeros(y.size, dtype=int)
         for k, (s, g) in enumerate(self.modes, start=1):
@@ -239,7 +239,7 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
                            "cannot_close": 0, "dead_point": 0, "note": exc.rule})
             return -1.0
         dev = trial.from_unit(u)
-        y, status, _ = _evaluate(mech, G._values(mech, dev), output, adjust)
+        y, status, _ = _evaluate(mech, G.deviated_values(mech, dev), output, adjust)
         runs = status == "ok"
         inside = runs & spec.passes(y)
         yk = float(np.mean(inside))

@@ -69,7 +69,7 @@ def problem_of(tolerances: ToleranceSet) -> dict:
 MIN_N = 16
 
 
-def _check_n(n):
+def check_power_of_two(n):
     if isinstance(n, bool) or int(n) != n or n < MIN_N or (int(n) & (int(n) - 1)) != 0:
         raise ParameterError("n", f"must be a power of two >= {MIN_N} (Sobol' sequence balance; "
                              "the convergence check uses N/2)", n)
@@ -84,7 +84,7 @@ def check_sobol(nominal, tolerances: ToleranceSet, n, seed, second_order: bool =
     """Every input of a Sobol study that can be checked before it runs (nothing is written)."""
     from sewtol.studies.montecarlo import check_memory, check_seed
 
-    _check_n(n)
+    check_power_of_two(n)
     check_seed(seed)
     d = len(tolerances.active().items)
     if d == 0:
@@ -96,7 +96,7 @@ def check_sobol(nominal, tolerances: ToleranceSet, n, seed, second_order: bool =
 
 
 def sample(problem: dict, n: int, seed: int, second_order: bool = False) -> np.ndarray:
-    _check_n(n)
+    check_power_of_two(n)
     return sobol_sample.sample(problem, int(n), calc_second_order=bool(second_order),
                                scramble=True, seed=seed)
 

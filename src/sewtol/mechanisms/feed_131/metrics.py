@@ -57,7 +57,7 @@ def _refine_crossing(c, key, phi, level, iters=6):
     return phi, q.p.real
 
 
-def _polish(c, key, t, iters=6):
+def polish_extremes(c, key, t, iters=6):
     """Newton steps on dy/dphi = 0 from grid extremes t; returns (phi, y) there."""
     for _ in range(iters):
         qq, _ = _tooth(c, t, key)
@@ -99,8 +99,8 @@ def dog_figures(c: dict, which: str, n_grid: int = N_GRID, side: str | None = No
     phi_in, x_in = _refine_crossing(c, key, (i_in[:, None] + 0.5) * h, level)
     phi_out, x_out = _refine_crossing(c, key, (i_out[:, None] + 0.5) * h, level)
     # extreme rise on the working side and the travel, polished by Newton on y' = 0
-    t, y_work = _polish(c, key, np.argmax(depth, axis=1)[:, None] * h)
-    _, y_other = _polish(c, key, np.argmin(depth, axis=1)[:, None] * h)
+    t, y_work = polish_extremes(c, key, np.argmax(depth, axis=1)[:, None] * h)
+    _, y_other = polish_extremes(c, key, np.argmin(depth, axis=1)[:, None] * h)
     rise = np.maximum(sign * (y_work - level), depth.max(axis=1, keepdims=True))
     travel = np.maximum(np.abs(y_work - y_other).ravel(), y.max(axis=1) - y.min(axis=1))
     nan = np.where(ok, 1.0, np.nan)

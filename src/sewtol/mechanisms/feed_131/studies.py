@@ -240,12 +240,12 @@ def _phase_misfit(figs, dog: str) -> np.ndarray:
 def _rise_level(params: Feed131, values: dict) -> np.ndarray:
     """Per machine, the plate level at which the lower dog's highest rise is the read 1.1 mm
     (the highest point from a 1 deg grid, Newton-polished on the analytic velocity)."""
-    from sewtol.mechanisms.feed_131.metrics import _polish
+    from sewtol.mechanisms.feed_131.metrics import polish_extremes
 
     c, _ = columns(params.override(**values))
     y = fd.chains(c, np.radians(np.arange(0.0, 360.0, 1.0)).reshape(1, -1))["Q1"].p.imag
     y = np.broadcast_to(y, (c["b"].shape[0], y.shape[-1]))
-    _, top = _polish(c, "Q1", np.radians(np.argmax(y, axis=1)).reshape(-1, 1))
+    _, top = polish_extremes(c, "Q1", np.radians(np.argmax(y, axis=1)).reshape(-1, 1))
     return np.maximum(top.ravel(), y.max(axis=1)) - 1.1
 
 

@@ -445,7 +445,7 @@ def _reference(c, r_lo, r_hi, blo, bhi, slo, shi, shift, tol_um, n_psi=1441, n_u
         KBP = __import__("sewtol.mechanisms.needle_208.kernels.fused", fromlist=["pack"]).pack(c)
         for i in np.nonzero(bad)[0]:
             seg = np.empty((12, 2))
-            k = KW._segments(KBP[i], u0[i], u1[i] + w[i], 0.0, seg)
+            k = KW.feasible_segments(KBP[i], u0[i], u1[i] + w[i], 0.0, seg)
             closes = any(seg[r, 1] - seg[r, 0] >= w[i] for r in range(k))
             st[i] = 2 if closes else 1
     out[:, 9] = np.where(good, st, 1)

@@ -14,7 +14,7 @@ from sewtol.mechanism.fast_paths import (
 )
 
 
-def _needle_params(mech, values=None):
+def needle_params(mech, values=None):
     from sewtol.mechanisms import params as P
     from sewtol.mechanisms.needle_208.model import Needle208
 
@@ -47,7 +47,7 @@ def needle_positions_residual(mech, values: dict[str, np.ndarray]) -> tuple[floa
     q = mech.angles_rad()
     state = mech.state(values, q)
     m = state.shape[0]
-    built = nd.chain_from_crank(P.column(_needle_params(mech, values), m), q[None, :])
+    built = nd.chain_from_crank(P.column(needle_params(mech, values), m), q[None, :])
     worst, where = 0.0, ""
     for name in ("L", "M", "B", "C", "E"):
         a = np.broadcast_to(built[name].p, state.shape)
@@ -73,7 +73,7 @@ def check_needle_208(mech) -> str:
     if lacking:
         return "points missing: " + ", ".join(lacking)
     try:
-        _needle_params(mech)
+        needle_params(mech)
     except ValueError as exc:
         return str(exc)
     values = needle_perturbations(mech)

@@ -7,8 +7,8 @@ values, the residual per target and the conditioning of the fit (studies/calibra
 rebuilds any of them). docs/needle_208.md says why each exists and why the default is the
 default.
 
-    >>> from sewtol.mechanisms.needle_208.frames import load_frame
-    >>> load_frame("sewtol-0.1").machine()  # the geometry shipped by sewtol 0.1
+    >>> from sewtol import Needle208
+    >>> Needle208.nominal("sewtol-0.1")  # the geometry shipped by sewtol 0.1
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ DEFAULT_FRAME = "sewtol-0.1"
 class Frame:
     """One reconstruction of the frame: the nominal machine and where it came from.
 
-    Read with `load_frame`; ``frame.machine()`` is the nominal `Needle208` on it.
+    Read with `load_frame`; ``Needle208.nominal(frame)`` is the nominal machine on it.
 
     Parameters
     ----------
@@ -55,11 +55,6 @@ class Frame:
     params: dict
     provenance: dict
     published: tuple = ()  # rows of the residual table against the study's figures
-
-    def machine(self):
-        from sewtol.mechanisms.needle_208.model import Needle208
-
-        return Needle208(**self.params)
 
     @property
     def family(self) -> dict:

@@ -99,16 +99,16 @@ class PresserFoot:
                            ("stiffness_n_per_mm", "must be a positive stiffness in N/mm")):
             v = np.asarray(getattr(self, name), float)
             if not np.all(np.isfinite(v)) or np.any(v <= 0.0):
-                raise ParameterError(name, rule, P._show(getattr(self, name)))
+                raise ParameterError(name, rule, P.show(getattr(self, name)))
         for name in ("phase_deg", "material_mm", "preload_n"):
             P.finite(name, getattr(self, name))
         z = np.asarray(self.damping_ratio, float)
         if not np.all(np.isfinite(z)) or np.any((z < 0.0) | (z >= 1.0)):
             raise ParameterError("damping_ratio", "must be in [0, 1) (underdamped)",
-                                 P._show(self.damping_ratio))
+                                 P.show(self.damping_ratio))
         if np.any(np.asarray(self.crank_mm) >= np.asarray(self.rod_mm)):
             raise ParameterError("crank_mm", "must be shorter than rod_mm (the crank must turn)",
-                                 P._show(self.crank_mm))
+                                 P.show(self.crank_mm))
 
     def override(self, **changes) -> PresserFoot:
         return P.override(self, changes)

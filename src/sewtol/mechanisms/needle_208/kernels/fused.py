@@ -28,7 +28,7 @@ SIN_DEAD_POINT = math.sin(math.radians(1.0))
 
 
 @nb.njit(cache=True, fastmath=False)
-def _point(p, beta_deg, th):
+def guide_offset(p, beta_deg, th):
     """d (mm, relative to the guide) and its first two derivatives w.r.t. the rocker angle."""
     AB, BC, BE, CD, CBE, ax, ay, dx, dy, br, bs, gx, gy, ga, gs = (
         p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7], p[8], p[9], p[10], p[11], p[12], p[13],
@@ -90,7 +90,7 @@ def _polish(p, beta, t, lo, hi, h, sgn, iters):
     tl = max(t - h, lo)
     th_ = min(t + h, hi)
     for _ in range(iters):
-        f, f1, f2 = _point(p, beta, t)
+        f, f1, f2 = guide_offset(p, beta, t)
         f1 *= sgn
         f2 *= sgn
         if f2 < 0.0:
@@ -98,7 +98,7 @@ def _polish(p, beta, t, lo, hi, h, sgn, iters):
         else:
             step = h / 4.0 if f1 > 0 else -h / 4.0
         t = min(max(t + step, tl), th_)
-    f, _, _ = _point(p, beta, t)
+    f, _, _ = guide_offset(p, beta, t)
     return t, f
 
 
@@ -108,7 +108,7 @@ def _extremes_full(p, beta, lo, hi, n_grid, n_newton, cand):
     h = (hi - lo) / (n_grid - 1)
     fs = np.empty(n_grid)
     for k in range(n_grid):
-        f, _, _ = _point(p, beta, lo + h * k)
+        f, _, _ = guide_offset(p, beta, lo + h * k)
         if math.isnan(f):
             return np.nan, np.nan
         fs[k] = f
@@ -160,7 +160,7 @@ def _extremes_warm(p, beta, lo, hi, h, cand):
             else:
                 fmin = min(fmin, f)
     for t in (lo, hi):
-        f, _, _ = _point(p, beta, t)
+        f, _, _ = guide_offset(p, beta, t)
         fmax = max(fmax, f)
         fmin = min(fmin, f)
     return fmax, fmin

@@ -40,7 +40,7 @@ import math
 import numba as nb
 import numpy as np
 
-from sewtol.mechanisms.needle_208.kernels.fused import _point
+from sewtol.mechanisms.needle_208.kernels.fused import guide_offset
 
 _INVPHI = (math.sqrt(5.0) - 1.0) / 2.0
 DEAD_POINT_DEG = 1.0  # mechanisms.needle_208.DEAD_POINT_DEG (kept equal by a test)
@@ -80,7 +80,7 @@ def _arc_limits(p, gamma_min_deg):
 
 
 @nb.njit(cache=True)
-def _segments(p, P0, P1, gamma_min_deg, seg):
+def feasible_segments(p, P0, P1, gamma_min_deg, seg):
     """Feasible sub-intervals of [P0, P1] (rows of seg); returns their count."""
     a1, a2 = _arc_limits(p, gamma_min_deg)
     if a1 > a2:
@@ -185,7 +185,7 @@ def _solve_interval(p, ua, ub, w, h_target, T0, T1, tol_mm, res):
     f2 = np.empty(nn)
     shift = p[14] * 1e-3
     for j in range(nn):
-        a, b, cc = _point(p, 0.0, x[j])
+        a, b, cc = guide_offset(p, 0.0, x[j])
         f[j] = a + shift  # d without the machine's own guide shift
         f1[j] = b
         f2[j] = cc
@@ -356,7 +356,7 @@ def _optimise_one(p, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, out):
     u1 = lo + max(s * blo, s * bhi) * deg
     w = hi - lo
     seg = np.empty((12, 2))
-    n = _segments(p, u0, u1 + w, DEAD_POINT_DEG, seg)
+    n = feasible_segments(p, u0, u1 + w, DEAD_POINT_DEG, seg)
     res = np.empty(8)
     best = np.empty(8)
     best[0] = np.inf
@@ -383,7 +383,7 @@ def _optimise_one(p, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, out):
         # no feasible window: does B-C-D fail to close everywhere, or only pass a dead point?
         closes = False
         seg2 = np.empty((12, 2))
-        n_closed = _segments(p, u0, u1 + w, 0.0, seg2)
+        n_closed = feasible_segments(p, u0, u1 + w, 0.0, seg2)
         for i in range(n_closed):
             if seg2[i, 1] - seg2[i, 0] >= w:
                 closes = True
@@ -442,7 +442,7 @@ def _fixed_one(p, beta, lo, hi, h_target):
     f = np.empty(m + 1)
     f1 = np.empty(m + 1)
     for j in range(m + 1):
-        a, b, _ = _point(p, 0.0, u + j * h)
+        a, b, _ = guide_offset(p, 0.0, u + j * h)
         if math.isnan(a):
             return np.nan, np.nan
         f[j] = a
@@ -493,7 +493,7 @@ def _fixed_one(p, beta, lo, hi, h_target):
         b0 = a0 + h
         t = u + cj[k] * h + cx[k]
         for _ in range(6):
-            _, d1, d2 = _point(p, 0.0, t)
+            _, d1, d2 = guide_offset(p, 0.0, t)
             if d2 == 0.0 or math.isnan(d2):
                 break
             tn = t - d1 / d2
@@ -502,7 +502,7 @@ def _fixed_one(p, beta, lo, hi, h_target):
                 t = tn
                 break
             t = tn
-        v, _, _ = _point(p, 0.0, t)
+        v, _, _ = guide_offset(p, 0.0, t)
         if near_max:
             fmax = max(fmax, v)
         if near_min:
@@ -548,7 +548,7 @@ def window_extremes_batch(P, lo, hi, betas, h_deg=2.0):
         u0 = lo[i] + min(s * bmin, s * bmax) * deg
         u1 = lo[i] + max(s * bmin, s * bmax) * deg
         seg = np.empty((12, 2))
-        ns = _segments(p, u0 - 1e-9, u1 + w + 1e-9, DEAD_POINT_DEG, seg)
+        ns = feasible_segments(p, u0 - 1e-9, u1 + w + 1e-9, DEAD_POINT_DEG, seg)
         shift = p[14] * 1e-3
         for k in range(nb_):
             u = lo[i] + s * betas[i, k] * deg

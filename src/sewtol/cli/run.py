@@ -14,6 +14,8 @@ import sys
 from functools import partial
 from pathlib import Path
 
+from sewtol.cli import needle as N
+from sewtol.cli.common import FLAGS, as_flags, check_out, check_study, emit, parse_sets, write_outputs
 from sewtol.errors import ParameterError
 
 STUDIES = ("nominal", "scan", "montecarlo", "sobol", "worst-case", "ppm", "allocation", "report",
@@ -35,9 +37,12 @@ USES = {"nominal": (), "scan": ("output", "tolerances", "adjust"),
         "allocation": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "target",
                        "weight", "adjust"),
         "report": ("output", "tolerances", "n", "seed", "limit", "lower_limit"), "settings": ()}
+# the library's keyword arguments named as `run`'s flags in its errors
+RUN_FLAGS = {**FLAGS, "adjust": "--adjust", "limit": "--limit", "lower_limit": "--lower-limit",
+             "target": "--target", "weights": "--weight"}
 
 
-def add_run(sub, parser_class=None) -> None:
+def add_run(sub) -> None:
     p = sub.add_parser("run", help="a study of a mechanism file (docs/mechanism_files.md)")
     p.add_argument("file", metavar="FILE.toml",
                    help="mechanism file (format sewtol-mechanism/1), or the name of a built-in "
@@ -84,21 +89,6 @@ def add_run(sub, parser_class=None) -> None:
                         "(exact SumDelta, beta searched by the needle's optimiser) where its "
                         "flags allow; generic: always the sampled studies of the file")
     p.set_defaults(func=cmd_run, resume=False, progress=False, scheduler=None)
-
-
-def parse_sets(items) -> dict:
-    """--set NAME=VALUE pairs (the loader checks the names and each parameter's rule)."""
-    out = {}
-    for item in items or []:
-        if "=" not in item:
-            raise ParameterError("--set", "must be NAME=VALUE", item)
-        name, _, text = item.partition("=")
-        name = name.strip()
-        try:
-            out[name] = float(text)
-        except ValueError:
-            raise ParameterError(name, "must be a number", text) from None
-    return out
 
 
 def _settings(args) -> list:
@@ -201,52 +191,13 @@ def load_mechanism(text: str, overrides: dict | None = None):
                          + ", ".join(M.names()) + ")", text)
 
 
-def add_mechanisms(sub) -> None:
-    p = sub.add_parser("mechanisms", help="the built-in mechanisms: name, file, docs, fast path")
-    p.add_argument("--format", choices=("text", "csv", "json"), default="text")
-    p.set_defaults(func=cmd_mechanisms)
-
-
-def mechanisms_table():
-    """One row per built-in mechanism: its name, title, file, docs page, fast path and custom
-    output kinds (what `sewtol mechanisms` prints)."""
-    import tomllib
-
-    import pandas as pd
-
-    from sewtol import mechanisms as M
-
-    root = Path(M.__file__).parent
-    fast, kinds = M.declared("FAST_PATHS"), M.declared("OUTPUT_KINDS")
-    rows = []
-    for name in M.names():
-        head = tomllib.loads(M.mechanism_file(name).read_text())["mechanism"]
-        own = f"sewtol.mechanisms.{name}."
-        rows.append({"name": name, "title": head.get("title", ""),
-                     "file": str(M.mechanism_file(name).relative_to(root.parent.parent)),
-                     "docs": str((M.folder(name) / M.DOCS).relative_to(root.parent.parent)),
-                     "fast_path": ", ".join(k for k, v in fast.items() if v.startswith(own)),
-                     "output_kinds": ", ".join(k for k, v in kinds.items()
-                                               if v.startswith(own))})
-    return pd.DataFrame(rows)
-
-
-def cmd_mechanisms(args) -> None:
-    from sewtol.cli import emit
-
-    frame = mechanisms_table()
-    fmt = "table" if args.format == "text" else args.format
-    emit(fmt, obj={"mechanisms": frame.to_dict("records")}, frame=frame)
-
-
 def cmd_run(args) -> None:
-    from sewtol.cli import _check_study
     from sewtol.studies import generic as G
     from sewtol.studies import scan as S
     from sewtol.studies import worst_case as W
 
     _check_flags(args)
-    _check_study(args)
+    check_study(args)
     settings = _settings(args)
     mech = load_mechanism(args.file, parse_sets(args.set))
     fmt = "table" if args.format == "text" else args.format
@@ -303,16 +254,7 @@ def cmd_run(args) -> None:
 
 
 def _as_flags(fn, *a):
-    from sewtol.cli import FLAGS
-
-    flags = {**FLAGS, "adjust": "--adjust", "limit": "--limit", "lower_limit": "--lower-limit",
-             "target": "--target", "weights": "--weight"}
-    try:
-        return fn(*a)
-    except ParameterError as exc:
-        if exc.field in flags:
-            raise ParameterError(flags[exc.field], exc.rule, exc.value) from None
-        raise
+    return as_flags(fn, *a, flags=RUN_FLAGS)
 
 
 def _run_context(args, mech, tolerances) -> dict:
@@ -329,7 +271,6 @@ def _run_context(args, mech, tolerances) -> dict:
 
 
 def _finish(args, fmt, mech, tolerances, obj, frames, frame) -> None:
-    from sewtol.cli import _write_outputs, emit
     from sewtol.provenance import now, version_record
 
     obj = {**obj, "context": _run_context(args, mech, tolerances)}
@@ -344,13 +285,12 @@ def _finish(args, fmt, mech, tolerances, obj, frames, frame) -> None:
                   "tolerances": None if tolerances is None else
                   {"name": tolerances.name, "items": tolerances.as_dict()},
                   **version_record()}
-        _write_outputs(args, args.study.replace("-", "_"), inputs, now(), obj, frames, None)
+        write_outputs(args, args.study.replace("-", "_"), inputs, now(), obj, frames, None)
     emit(fmt, obj=obj, frame=frame)
 
-
-# --- the needle_208 fast path ------------------------------------------------------------------
-
 FAST_PATH_STUDIES = ("scan", "worst-case", "montecarlo", "sobol", "ppm", "allocation")
+
+
 # the needle commands that report the fixed and the adjusted case together (so with and without
 # --adjust beta); the others run `--adjust none` without --adjust and beta adjusted with it
 BOTH_CASES = ("worst-case", "montecarlo", "sobol")
@@ -426,7 +366,7 @@ def _needle_namespace(args, mech, tolerances=None):
     """`run`'s flags as the arguments of `sewtol needle STUDY` (the file's nominal machine and
     tolerance set ride along as nominal_params and tolerance_set)."""
     from sewtol.mechanisms.needle_208 import beta as sb
-    from sewtol.mechanisms.needle_208.fast_path import _needle_params
+    from sewtol.mechanisms.needle_208.fast_path import needle_params
 
     study = args.study
     beta_range = None
@@ -458,7 +398,7 @@ def _needle_namespace(args, mech, tolerances=None):
         else None,
         adjust=adjust, range=None, step=None, resolution=None, second_order=False,
         method=args.method, target=args.target, budget=args.n if study == "ppm" else None,
-        nominal_params=_needle_params(mech), tolerance_set=tolerances,
+        nominal_params=needle_params(mech), tolerance_set=tolerances,
         file_inputs={"mechanism_file": str(args.file), "fast_path": "needle_208"})
     if study != "ppm":
         ns.budget = ns.method = None
@@ -468,14 +408,12 @@ def _needle_namespace(args, mech, tolerances=None):
 
 
 def _needle_study(args, mech, tolerances) -> None:
-    """The needle_208 fast path: `sewtol needle STUDY` itself (cli.cmd_needle_*), on the file's
+    """The needle_208 fast path: `sewtol needle STUDY` itself (cli.needle.cmd_needle_*), on the file's
     nominal machine and tolerance set; see docs/mechanism_files.md for the flag mapping."""
-    from sewtol import cli
-
     ns = _needle_namespace(args, mech, tolerances)
-    cmd = {"scan": cli.cmd_needle_scan, "worst-case": cli.cmd_needle_worst_case,
-           "montecarlo": cli.cmd_needle_montecarlo, "sobol": cli.cmd_needle_sobol,
-           "ppm": cli.cmd_needle_ppm, "allocation": cli.cmd_needle_allocation}[args.study]
+    cmd = {"scan": N.cmd_needle_scan, "worst-case": N.cmd_needle_worst_case,
+           "montecarlo": N.cmd_needle_montecarlo, "sobol": N.cmd_needle_sobol,
+           "ppm": N.cmd_needle_ppm, "allocation": N.cmd_needle_allocation}[args.study]
     cmd(ns)
 
 
@@ -489,10 +427,9 @@ def _yield_study(args, fmt, mech, tolerances) -> None:
     output, spec = args.spec_output, args.spec
     upper, lower = (None, None) if spec is None else (spec.upper, spec.lower)
     if args.study == "report":
-        from sewtol.cli import _check_out
         from sewtol.reports import generic_report as GR
 
-        _check_out(args)
+        check_out(args)
         rep = _as_flags(GR.build, mech, tolerances, args.n, args.seed,
                         None if spec is None else output, upper, lower)
         try:

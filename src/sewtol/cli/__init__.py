@@ -1,0 +1,77 @@
+"""The `sewtol` command: a thin layer over the library. Only this and study scripts write files.
+
+One module per command family (needle, feed, run, mechanisms), each importing the helpers they
+share from sewtol.cli.common; this module builds the parser from them and runs a command."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+
+from sewtol.cli.common import Parser, check_out, check_plot, resolve_progress
+from sewtol.cli.feed import add_feed
+from sewtol.cli.mechanisms import add_mechanisms
+from sewtol.cli.needle import add_needle
+from sewtol.cli.run import add_run
+from sewtol.errors import AssemblyError, ParameterError
+from sewtol.io import strict  # noqa: F401  (strict is part of the CLI's API)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (a scheduler, `timeout`): stop exactly like Ctrl-C (joblib stops its workers;
+    no `except Exception` on the way can swallow it)."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from sewtol import __version__
+    from sewtol.provenance import git_revision
+
+    ap = Parser(prog="sewtol", description=__doc__.splitlines()[0])
+    ap.add_argument("--version", action="version",
+                    version=f"sewtol {__version__} (revision {git_revision()})")
+    sub = ap.add_subparsers(dest="group", required=True, parser_class=Parser)
+    add_needle(sub)
+    add_feed(sub)
+    add_run(sub)  # `sewtol run FILE.toml STUDY`
+    add_mechanisms(sub)
+    return ap
+
+
+def _on_sigterm(signum, frame):
+    raise Terminated()
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    previous = None
+    try:  # only the main thread may set handlers; a library caller's threads run without
+        previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    except ValueError:
+        pass
+    resolve_progress(args)
+    try:
+        check_out(args)
+        check_plot(args)
+        args.func(args)
+    except (ParameterError, AssemblyError) as exc:
+        print(f"sewtol: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # e.g. the disk filled up while a chunk was saved
+        where = getattr(args, "out", None)
+        kept = (f"; finished chunks are kept in {where}/chunks: rerun with --resume" if where
+                else "")
+        print(f"sewtol: error: {exc.filename or 'output'}: {exc.strerror or exc}{kept}",
+              file=sys.stderr)
+        return 2
+    except (KeyboardInterrupt, Terminated) as exc:
+        where = getattr(args, "out", None)
+        hint = (f"; finished chunks are saved in {where}/chunks: rerun the same command with "
+                "--resume" if where else "; nothing was saved (use --out DIR to keep chunks)")
+        what = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
+        print(f"sewtol: {what}{hint}", file=sys.stderr)
+        return 143 if isinstance(exc, Terminated) else 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+    return 0

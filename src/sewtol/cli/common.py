@@ -1,0 +1,349 @@
+"""What every command family of `sewtol` shares: the parser class, flag options and checks,
+outputs (emit, --out folders, --plot files) and the run records. Families import from here;
+this module imports no family."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import sys
+from pathlib import Path
+
+from sewtol.errors import ParameterError
+from sewtol.io import to_json
+
+FORMATS = ("table", "json", "csv")
+MIN_STEP_DEG = 1e-3  # 360 000 angles per turn; finer steps only fill memory
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line naming the flag, like every other refusal."""
+
+    def error(self, message):
+        self.exit(2, f"sewtol: error: {message} (see {self.prog} --help)\n")
+
+
+def parse_sets(items, cls=None) -> dict:
+    """--set NAME=VALUE pairs, their names checked against the parameters of `cls` if given
+    (`run FILE`: the loader checks the names and each parameter's rule)."""
+    from sewtol.mechanisms.params import field_names
+
+    valid = None if cls is None else field_names(cls)
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            raise ParameterError("--set", "must be NAME=VALUE", item)
+        name, _, text = item.partition("=")
+        name = name.strip()
+        if valid is not None and name not in valid:
+            raise ParameterError(name, f"unknown parameter; valid names are {', '.join(valid)}",
+                                 name)
+        try:
+            value = float(text)
+        except ValueError:
+            raise ParameterError(name, "must be a number", text) from None
+        out[name] = value
+    return out
+
+
+def emit(fmt: str, *, obj=None, frame=None) -> None:
+    if fmt == "json":
+        data = obj if obj is not None else frame.to_dict(orient="records")
+        sys.stdout.write(to_json(data))
+    elif fmt == "csv":
+        from sewtol.reports.tables import to_csv
+
+        sys.stdout.write(to_csv(frame))
+    else:
+        sys.stdout.write(frame.to_markdown(index=False, floatfmt=".4f") + "\n")
+
+
+def print_notes(args, notes) -> None:
+    """Table output says in words what JSON carries as flags (an optimum on a range bound)."""
+    if args.format == "table" and notes:
+        sys.stdout.write("".join(f"\nnote: {line}" for line in notes) + "\n")
+
+
+def plot_option(p, what):
+    p.add_argument("--plot", default=None, metavar="FILE",
+                   help=f"also draw {what} into FILE (.png, .svg or .pdf)")
+
+
+def progress_option(p):
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="progress bar on stderr (default: on when stderr is a terminal)")
+
+
+def check_plot(args) -> None:
+    """--plot FILE: a known suffix in a writable folder, checked before anything runs."""
+    plot = getattr(args, "plot", None)
+    if plot is None:
+        return
+    from sewtol.reports.plots import PLOT_FORMATS
+
+    path = Path(plot)
+    if path.suffix.lower() not in PLOT_FORMATS:
+        raise ParameterError("--plot", f"must end in {', '.join(PLOT_FORMATS)}", plot)
+    if path.is_dir():
+        raise ParameterError("--plot", "must be a file, not a folder", plot)
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise ParameterError("--plot", f"cannot be written: {folder} is not a folder", plot)
+
+
+def plots():
+    from sewtol.reports import plots
+
+    return plots
+
+
+def save_plot(args, draw) -> None:
+    """draw(ax) the study's figure and save it to --plot (no-op without it)."""
+    if getattr(args, "plot", None) is None:
+        return
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    draw(ax)
+    save_figure(args, fig)
+
+
+def save_figure(args, fig) -> None:
+    """Save a drawn figure to --plot; a folder that cannot be written is one line naming it."""
+    try:
+        plots().save_as(fig, Path(args.plot))
+    except OSError as exc:
+        raise ParameterError("--plot", f"cannot be written ({exc.strerror})", args.plot) from None
+
+
+def scan_figure(frame, column, ax, ylabel, limit=None):
+    """A scan's `column` at each tolerance's upper and lower limit, one group per tolerance."""
+    labels = list(dict.fromkeys(frame["param"]))
+    series = {side: [float(frame.loc[(frame["param"] == p) & (frame["side"] == side),
+                                     column].iloc[0]) for p in labels]
+              for side in ("upper", "lower")}
+    return plots().grouped_bars(labels, series, ax=ax, ylabel=ylabel, limit=limit,
+                                 title="each tolerance at its limits")
+
+
+def deviation_columns(machines, params, units=None):
+    """machines.csv names each drawn deviation as such, with its unit: dev_AB_mm, dev_beta_deg,
+    dev_guide_shift_um (a parameter whose name ends in its unit keeps it once)."""
+    units = units or {}
+    names = {}
+    for p in params:
+        unit = units.get(p) or _unit_of(p)
+        base = p[: -len(unit) - 1] if p.endswith("_" + unit) else p
+        names[p] = f"dev_{base}_{unit}"
+    return machines.rename(columns=names)
+
+
+def _unit_of(param: str) -> str:
+    for unit in ("um", "mm", "deg"):
+        if param.endswith("_" + unit):
+            return unit
+    # angles of the two mechanisms (deg): beta, CBE, the regulator b, every *angle* and *phase*
+    return "deg" if param in ("beta", "CBE", "b") or "angle" in param or "phase" in param \
+        else "mm"
+
+
+def machine_context(args, params, **extra) -> dict:
+    """What decides a single machine's numbers (its JSON's `context`): the frame or mechanism,
+    the values changed by --set, the sampling step and the guide, where there is one."""
+    from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME
+
+    out = {"set": parse_sets(getattr(args, "set", None) or [], type(params))}
+    if hasattr(params, "guide_shift_um"):
+        out.update({"mechanism": "208 needle drive",
+                    "frame": getattr(args, "frame", None) or DEFAULT_FRAME,
+                    "guide_shift_um": float(params.guide_shift_um),
+                    "guide_angle_deg": float(params.guide_angle)})
+    else:
+        out.update({"mechanism": "131-42+3 feed", "b_deg": float(params.b),
+                    "plate_mm": float(params.plate_mm), "material_mm": float(params.material_mm)})
+    if getattr(args, "step_deg", None) is not None:
+        out["step_deg"] = float(args.step_deg)
+    return {**out, **extra}
+
+
+def check_n(value, name="--n", minimum=2):
+    if value < minimum:
+        raise ParameterError(name, f"must be >= {minimum}", value)
+
+
+def check_step(value, name="--step-deg"):
+    if not (MIN_STEP_DEG <= value <= 90):
+        raise ParameterError(name, f"must be in [{MIN_STEP_DEG:g}, 90]", value)
+
+FLAGS = {"n": "--n", "seed": "--seed", "tolerances": "--tolerances", "n_jobs": "--n-jobs"}
+
+
+def as_flags(check, *a, flags=FLAGS):
+    """Run a library check; its error names the CLI flag rather than the keyword argument."""
+    try:
+        return check(*a)
+    except ParameterError as exc:
+        if exc.field in flags:
+            raise ParameterError(flags[exc.field], exc.rule, exc.value) from None
+        raise
+
+
+def check_out(args):
+    """--out must be (or become) a writable folder; checked before anything is written."""
+    out = getattr(args, "out", None)
+    if not out:
+        return
+    path = Path(out)
+    if path.exists() and not path.is_dir():
+        raise ParameterError("--out", "must be a folder, not a file", out)
+    probe = path
+    while not probe.exists():
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    if not probe.is_dir():
+        raise ParameterError("--out", f"cannot be created: {probe} is not a folder", out)
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise ParameterError("--out", f"cannot be written: no write permission in {probe}", out)
+
+
+def check_study(args):
+    """Every study flag is checked before anything is computed or written."""
+    if getattr(args, "seed", 0) < 0:
+        raise ParameterError("--seed", "must be a whole number >= 0", args.seed)
+    if getattr(args, "n_jobs", 1) == 0 or getattr(args, "n_jobs", 1) < -1:
+        raise ParameterError("--n-jobs", "must be a positive number of workers or -1 (all cores)",
+                             args.n_jobs)
+    if getattr(args, "resume", False) and not getattr(args, "out", None):
+        raise ParameterError("--resume", "needs --out, the folder of the interrupted study",
+                             True)
+    scheduler_address(args)
+
+
+def not_offered(args, command: str, **why) -> None:
+    """Refuse, in one line, a shared study flag (resume, scheduler, n_jobs) that `command` takes
+    from the common parser but does not use; `why` maps each checked flag to the reason."""
+    for key, reason in why.items():
+        if key == "resume":
+            flag, used, value = "--resume", bool(args.resume), True
+        elif key == "scheduler":
+            where = scheduler_address(args)
+            flag, used, value = "--scheduler", where is not None, where and where[1]
+        else:
+            flag, used, value = "--n-jobs", args.n_jobs != 1, args.n_jobs
+        if used:
+            raise ParameterError(flag, f"is not offered by {command} ({reason})", value)
+
+
+def scheduler_address(args) -> tuple[str, str] | None:
+    """(flag, address) of the Dask scheduler from --scheduler or SEWTOL_SCHEDULER, or None for
+    this machine. Checked with the other flags, before anything is computed."""
+    if getattr(args, "scheduler", None) is not None:
+        flag, address = "--scheduler", args.scheduler
+    elif os.environ.get("SEWTOL_SCHEDULER", "").strip():
+        flag, address = "SEWTOL_SCHEDULER", os.environ["SEWTOL_SCHEDULER"]
+    else:
+        return None
+    if not address.strip() or any(ch.isspace() for ch in address):
+        raise ParameterError(flag, "must be a Dask scheduler address such as tcp://host:8786",
+                             address)
+    if getattr(args, "n_jobs", 1) != 1:
+        raise ParameterError("--n-jobs", f"is the single-machine path; with {flag} the "
+                             "cluster's workers set the parallelism", args.n_jobs)
+    return flag, address
+
+
+@contextlib.contextmanager
+def cluster(args):
+    """A distributed.Client on the study's scheduler (None without one), closed afterwards."""
+    where = scheduler_address(args)
+    if where is None:
+        yield None
+        return
+    from sewtol.studies.parallel import connect
+
+    flag, address = where
+    try:
+        client = connect(address)
+    except ParameterError as exc:
+        raise ParameterError(flag, exc.rule, address) from None
+    with client:
+        yield client
+
+
+def study_inputs(args, kind, params, tolerances, **extra) -> dict:
+    """Every input that decides a study's numbers (the manifest binds its chunks to these)."""
+    from sewtol.mechanisms.params import as_dict
+    from sewtol.provenance import version_record
+
+    return {"study": kind, "n": getattr(args, "n", None), "seed": args.seed,
+            "params": as_dict(params),
+            "tolerances": {"name": tolerances.name, "items": tolerances.as_dict()},
+            **version_record(), **extra, **getattr(args, "file_inputs", {})}
+
+
+def open_store(args, inputs: dict):
+    """The checkpoint folder of a study run with --out (None without); takes its lock."""
+    if not args.out:
+        return None
+    from sewtol.studies.checkpoint import ChunkStore
+
+    return ChunkStore(Path(args.out) / "chunks", inputs, args.resume, label=str(args.out))
+
+
+def run_history(store, started: str) -> list:
+    """Start times of every run into this folder (the first, then each --resume)."""
+    if store is None:
+        return [{"started_utc": started, "resumed": False}]
+    from sewtol.io import write_text_atomic
+
+    path = store.folder / "runs.json"
+    try:
+        runs = json.loads(path.read_text(encoding="utf-8")) if path.exists() else []
+        runs = [r for r in runs if isinstance(r, dict)] if isinstance(runs, list) else []
+    except (OSError, ValueError):
+        runs = []
+    runs = [{"started_utc": str(r.get("started_utc")), "resumed": bool(r.get("resumed"))}
+            for r in runs] + [{"started_utc": started, "resumed": bool(runs) or store.resumed}]
+    write_text_atomic(path, json.dumps(runs, indent=2) + "\n")
+    return runs
+
+
+def write_outputs(args, kind, inputs, started, result_obj, frames, runs):
+    """Tables, then the result, then run.json into --out, each file atomically (a run.json
+    means the folder is complete)."""
+    if not args.out:
+        return
+    from sewtol.io import write_text_atomic
+    from sewtol.provenance import run_record
+    from sewtol.reports.tables import to_csv
+
+    out = Path(args.out)
+    try:
+        for name, frame in frames.items():
+            write_text_atomic(out / f"{name}.csv", to_csv(frame))
+        write_text_atomic(out / f"{kind}.json", to_json(result_obj))
+        where = scheduler_address(args)
+        record = run_record(started, {**inputs, "n_jobs": args.n_jobs,
+                                      "scheduler": where[1] if where else None}, runs=runs)
+        write_text_atomic(out / "run.json", to_json(record))
+    except OSError as exc:
+        raise ParameterError("--out", f"cannot be written ({exc.strerror}); the finished chunks "
+                             "are kept: free the space and rerun with --resume",
+                             str(exc.filename or out)) from None
+
+
+def resolve_progress(args, stream=None):
+    """--progress/--no-progress as given; neither: on when stderr is a terminal."""
+    if getattr(args, "progress", False) is None:
+        args.progress = bool((stream or sys.stderr).isatty())
+    return args
+
+
+def machine_options(p, example="LF=6.8", formats=FORMATS):
+    """--set NAME=VALUE and --format: every command on one machine or its tolerances."""
+    p.add_argument("--set", action="append", metavar="NAME=VALUE",
+                   help=f"override a parameter (repeatable), e.g. --set {example}")
+    p.add_argument("--format", choices=formats, default="table")

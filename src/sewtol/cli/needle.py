@@ -1,0 +1,827 @@
+"""`sewtol needle COMMAND`: the 208 needle drive's single-machine figures and tolerance studies
+(nominal, deviation, scan, montecarlo, strategies, sobol, ppm, worst-case, guides, allocation,
+largest-tolerances, frames). `sewtol run FILE STUDY` on the needle_208 fast path runs these
+commands themselves."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from sewtol.cli.common import (
+    FORMATS,
+    Parser,
+    as_flags,
+    check_n,
+    check_step,
+    check_study,
+    cluster,
+    deviation_columns,
+    emit,
+    machine_context,
+    machine_options,
+    not_offered,
+    open_store,
+    parse_sets,
+    plot_option,
+    plots,
+    print_notes,
+    progress_option,
+    run_history,
+    save_plot,
+    scan_figure,
+    study_inputs,
+    write_outputs,
+)
+from sewtol.errors import ParameterError
+from sewtol.io import to_json
+
+BETA_LIMIT_DEG = 360.0
+SOBOL_RESAMPLES, SOBOL_CONF_LEVEL = 200, 0.95
+
+
+def _needle_params(args):
+    from sewtol.mechanisms.needle_208.model import Needle208
+
+    sets = parse_sets(args.set, Needle208)
+    shift = getattr(args, "guide_shift_um", None)
+    if shift is not None:
+        if not np.isfinite(shift):
+            raise ParameterError("--guide-shift-um", "must be a finite number of um", shift)
+        if "guide_shift_um" in sets and sets["guide_shift_um"] != shift:
+            raise ParameterError("--guide-shift-um", "gives the guide shift that --set "
+                                 f"guide_shift_um={sets['guide_shift_um']:g} also gives; give "
+                                 "one of them", shift)
+        sets["guide_shift_um"] = float(shift)
+    return Needle208.nominal(args.frame).override(**sets)
+
+
+def _beta_options(p, what="searched for beta* (deg)"):
+    """--beta-range LOW HIGH and --limit-um (defaults 10 35 and 10, resolved when checked)."""
+    p.add_argument("--beta-range", nargs=2, type=float, default=None, metavar=("LOW", "HIGH"),
+                   help=f"regulating range {what}; default 10 35")
+    p.add_argument("--limit-um", type=float, default=None,
+                   help="SumDelta limit (um) of the yield and the window; default 10")
+
+
+def _beta_search_range(args, strategy=None) -> tuple:
+    """--beta-range (default 10 35); with a strategy that adjusts beta, the strategy's own range."""
+    rng = getattr(args, "beta_range", None) or (10.0, 35.0)
+    for c in getattr(strategy, "compensators", ()):
+        if c.name == "beta":
+            rng = (c.low, c.high)
+    return tuple(rng)
+
+
+def _beta_star_figures(args, params, strategy=None):
+    """The nominal figures at beta* in the searched range (`_beta_search_range`), at --limit-um."""
+    from sewtol.mechanisms.needle_208.single import nominal_figures
+
+    return nominal_figures(params, _beta_search_range(args, strategy),
+                           getattr(args, "limit_um", None) or 10.0)
+
+
+def _at_beta_star(args, params, strategy=None):
+    """The nominal with beta at its beta* (`_beta_star_figures`): what "beta fixed" means in
+    every needle study (montecarlo, sobol, guides, strategies, worst-case)."""
+    return params.override(beta=_beta_star_figures(args, params, strategy).beta_opt_deg)
+
+
+def _fixed_record(args, params, strategy=None) -> dict:
+    """The fixed case's beta, what it means, and whether that beta* lies on a range bound."""
+    from sewtol.mechanisms.needle_208.montecarlo import FIXED_BETA_MEANS
+
+    return {"fixed_beta_deg": float(params.beta), "fixed_beta_means": FIXED_BETA_MEANS["optimum"],
+            "fixed_beta_at_bound": _beta_star_figures(args, params, strategy).beta_at_bound}
+
+
+def _fixed_notes(record) -> list[str]:
+    if not record.get("fixed_beta_at_bound"):
+        return []
+    return [f"the fixed case's beta = {record['fixed_beta_deg']:.4f} deg, the nominal's beta*, "
+            "reaches a bound of the searched range: the nominal's optimum may lie outside it"]
+
+
+def _context(args, params, tolerances, strategy) -> dict:
+    """What decides a study's numbers, carried by its JSON (its CSVs: run.json beside them)."""
+    from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME
+
+    return {"tolerances": None if tolerances is None else tolerances.name,
+            "seed": getattr(args, "seed", None),
+            "n": getattr(args, "n", None), "frame": getattr(args, "frame", None) or DEFAULT_FRAME,
+            "guide_shift_um": float(params.guide_shift_um),
+            "guide_angle_deg": float(params.guide_angle),
+            "strategy": "beta" if strategy is None else strategy.name,
+            "beta_search_range_deg": list(_beta_search_range(args, strategy)),
+            "limit_um": getattr(args, "limit_um", None) or 10.0,
+            # where limit_um comes from: "default" (10 um), "command line" or "file" (`run FILE`)
+            "spec_source": getattr(args, "spec_source", None) or "default",
+            # the model that computed the numbers (`run FILE` says "generic" on its sampled path)
+            "path": "needle_208"}
+
+
+def _check_beta_range(args):
+    """--beta-range and --limit-um (defaults 10 35 and 10 um where a command takes them)."""
+    from sewtol.mechanisms.needle_208 import beta as sb
+
+    if getattr(args, "beta_range", None) is None:
+        args.beta_range = list(sb.DEFAULT_RANGE_DEG)
+    if getattr(args, "spec_source", None) is None:  # `run FILE` sets "file" or "command line"
+        args.spec_source = "default" if getattr(args, "limit_um", None) is None else "command line"
+    if getattr(args, "limit_um", None) is None:
+        args.limit_um = sb.DEFAULT_LIMIT_UM
+    lo, hi = args.beta_range
+    if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
+        raise ParameterError("--beta-range", "must be LOW HIGH with LOW < HIGH (deg)",
+                             args.beta_range)
+    if not (-BETA_LIMIT_DEG <= lo and hi <= BETA_LIMIT_DEG):
+        raise ParameterError("--beta-range", f"must lie within +/-{BETA_LIMIT_DEG:g} deg",
+                             args.beta_range)
+    if not (np.isfinite(args.limit_um) and args.limit_um > 0):
+        raise ParameterError("--limit-um", "must be a positive number of um", args.limit_um)
+
+
+def _study_nominal(args):
+    """The nominal machine of a study: it must assemble, or nothing is computed or written."""
+    from sewtol.mechanisms.needle_208.model import check_assembly
+
+    # `run FILE STUDY` on the needle fast path gives the file's nominal machine (nominal_params)
+    given = getattr(args, "nominal_params", None)
+    params = _needle_params(args) if given is None else given
+    check_assembly(params)
+    return params
+
+
+def _tolerances(args):
+    from sewtol.mechanisms.needle_208.model import Needle208
+    from sewtol.mechanisms.params import field_names
+    from sewtol.tolerances import NEEDLE_208_SETS, resolve
+
+    if getattr(args, "tolerance_set", None) is not None:  # `run FILE`: the file's set, resolved
+        return args.tolerance_set
+    return resolve(args.tolerances, NEEDLE_208_SETS, field_names(Needle208))
+
+
+def cmd_needle_frames(args):
+    from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME, frames_table, list_frames
+
+    # JSON: every record in full (the table: one summary row per frame), as the studies print it
+    emit(args.format, frame=frames_table(),
+         obj={"context": {"mechanism": "208 needle drive", "default_frame": DEFAULT_FRAME},
+              "rows": [f.to_dict() for f in list_frames()]})
+
+
+def cmd_needle_nominal(args):
+    from sewtol.mechanisms.needle_208.single import nominal_figures
+
+    _check_beta_range(args)
+    params = _needle_params(args)
+    fig = nominal_figures(params, tuple(args.beta_range), args.limit_um)
+    # the nominal machine: no tolerance set, nothing drawn; beta* searched as in every study
+    emit(args.format, obj={**fig.to_dict(), "context": _context(args, params, None, None)},
+         frame=fig.to_dataframe())
+    print_notes(args, fig.notes())
+
+    def draw(ax):
+        from sewtol.mechanisms.needle_208 import beta as sb
+        from sewtol.mechanisms.needle_208 import metrics as nm
+
+        betas = np.linspace(*args.beta_range, 201)
+        totals = sb.totals_on_grid(nm.columns(params)[0], betas)[0]
+        plots().sum_delta_vs_beta(betas, totals, fig.beta_opt_deg, fig.window_deg,
+                                   fig.limit_um, ax=ax)
+
+    save_plot(args, draw)
+
+
+def cmd_needle_deviation(args):
+    from sewtol.mechanisms.needle_208.single import deviation_table
+
+    check_step(args.step_deg)
+    p = _needle_params(args)
+    if args.beta is not None:
+        p = p.override(beta=args.beta)
+    frame = deviation_table(p, args.step_deg)
+    emit(args.format, obj={"context": machine_context(args, p, beta_deg=float(p.beta)),
+                           "rows": frame.to_dict(orient="records")}, frame=frame)
+    save_plot(args, lambda ax: plots().deviation_vs_crank(
+        {f"beta = {float(p.beta):.4f} deg": frame}, ax=ax))
+
+
+def cmd_needle_scan(args):
+    from sewtol.mechanisms.needle_208.tables import scan
+
+    strategy = _strategy(args)
+    _check_beta_range(args)
+    params, tolerances = _study_nominal(args), _tolerances(args)
+    rows = scan(params, tolerances, limit_um=args.limit_um, range_deg=tuple(args.beta_range),
+                strategy=strategy)
+    frame = rows.to_dataframe()
+    context = _context(args, params, tolerances, strategy)
+    obj = {"context": context, "rows": rows.to_records()}
+    if args.out:
+        from sewtol.provenance import now
+
+        started = now()
+        inputs = study_inputs(args, "scan", params, tolerances, limit_um=args.limit_um,
+                         beta_search_range_deg=list(args.beta_range), context=context)
+        write_outputs(args, "scan", inputs, started, obj, {"scan": frame},
+                       [{"started_utc": started, "resumed": False}])
+    emit(args.format, obj=obj, frame=frame)
+    if "beta_at_bound" in frame:
+        n = int(frame["beta_at_bound"].sum())
+        print_notes(args, [f"{n} of {len(frame)} rows have beta* on a bound of the searched "
+                            f"range {list(args.beta_range)} deg (column beta_at_bound): their "
+                            "optimum may lie outside it"] if n else [])
+    save_plot(args, lambda ax: scan_figure(frame, "total_um", ax, "SumDelta at beta* (um)",
+                                             args.limit_um))
+
+
+def cmd_needle_montecarlo(args):
+    from sewtol.studies.montecarlo import CHUNK, check_sampling
+
+    check_n(args.n)
+    check_study(args)
+    strategy = _strategy(args)
+    _check_beta_range(args)
+    params, tolerances = _study_nominal(args), _tolerances(args)
+    limit, rng = args.limit_um, tuple(args.beta_range)
+    as_flags(check_sampling, params, tolerances, args.n, args.seed, CHUNK)
+    if strategy is not None:
+        if args.plot is not None:
+            raise ParameterError("--plot", "is not offered with --adjust (the histograms show "
+                                 "beta fixed against beta adjusted)", args.plot)
+        return _adjusted_montecarlo(args, params, tolerances, strategy, limit)
+    res, record = run_montecarlo(args, params, tolerances, limit, rng)
+    emit(args.format, obj=record, frame=res.summary_frame())
+    print_notes(args, _montecarlo_notes(res, record))
+    save_plot(args, lambda ax: plots().montecarlo_histograms(
+        res.machines["total_fixed_um"], res.machines["total_adjusted_um"], res.limit_um,
+        (res.yield_of("fixed"), res.yield_of("adjusted")), ax=ax))
+
+
+def run_montecarlo(args, params, tolerances, limit, rng, **inputs_extra):
+    """The Monte-Carlo of `needle montecarlo` (beta fixed and adjusted), with its study folder
+    (--out/--resume) and cluster: the result and its JSON record. `run FILE montecarlo` on the
+    needle fast path runs cmd_needle_montecarlo itself (args.file_inputs names the file in
+    run.json), so both print the same bytes."""
+    from sewtol.mechanisms.needle_208.montecarlo import montecarlo
+    from sewtol.provenance import now
+    from sewtol.studies.montecarlo import CHUNK
+
+    started = now()
+    inputs = study_inputs(args, "montecarlo", params, tolerances, limit_um=limit,
+                     beta_search_range_deg=list(rng), chunk_size=CHUNK,
+                     strategy="beta fixed at the nominal's beta* (fixed_beta=optimum) and beta "
+                     "re-optimised per machine", **inputs_extra)
+    store = open_store(args, inputs)
+    try:
+        runs = run_history(store, started)
+        with cluster(args) as client:
+            res = montecarlo(params, tolerances, args.n, args.seed, limit_um=limit,
+                             range_deg=rng, n_jobs=args.n_jobs, progress=args.progress,
+                             store=store, chunk_size=CHUNK, scheduler=client)
+        record = _montecarlo_record(args, params, tolerances, res)
+        write_outputs(args, "montecarlo", inputs, started, record,
+                       {"machines": deviation_columns(res.machines, res.params),
+                        "summary": res.summary_frame()}, runs)
+    finally:
+        if store is not None:
+            store.close()
+    return res, record
+
+
+def _montecarlo_record(args, params, tolerances, res) -> dict:
+    """The JSON of `needle montecarlo` (and of `run FILE montecarlo` on the needle fast path):
+    the result, its context and whether the fixed case's beta* lies on a range bound."""
+    d = res.to_dict()
+    d["extra"]["fixed_beta_at_bound"] = _beta_star_figures(args, params).beta_at_bound
+    return {**d, "context": _context(args, params, tolerances, None)}
+
+
+def _montecarlo_notes(res, record) -> list[str]:
+    k, pinned = res.beta_at_bound(), res.beta_at_bound(pinned=True)
+    return ([f"yield intervals: {record['yield_ci']['method']}, 95 %"]
+            + _fixed_notes({**record["extra"], "fixed_beta_deg": res.nominal_beta_deg})
+            + ([f"{k} of {res.n} machines have an adjusted beta* whose optimum reaches a bound "
+                f"of the searched range {list(res.range_deg)} deg; {pinned} of them are pinned "
+                "there (SumDelta still falling: the optimum lies outside the range), the others "
+                "sit on a flat plateau"] if k else []))
+
+
+def _strategy(args):
+    """The strategy of --adjust/--range/--step/--resolution (None without --adjust).
+
+    --beta-range means the range searched for beta everywhere: with --adjust naming beta it is
+    beta's --range (giving both is refused); with --adjust not naming beta nothing searches beta,
+    so it is refused."""
+    from sewtol.mechanisms.needle_208.compensators import parse_cli
+    from sewtol.mechanisms.needle_208.model import Needle208
+    from sewtol.mechanisms.params import field_names
+
+    adjust, ranges = getattr(args, "adjust", None), list(args.range or [])
+    given = getattr(args, "beta_range", None)
+    if adjust is not None and given is not None:
+        names = [s.strip() for s in adjust.split(",")]
+        if "beta" not in names:
+            raise ParameterError("--beta-range", f"is the range searched for beta, which "
+                                 f"--adjust {adjust} does not adjust", given)
+        if any(r.partition("=")[0].strip() == "beta" for r in ranges):
+            raise ParameterError("--beta-range", "gives beta's range, which --range beta=... "
+                                 "also gives; give one of them", given)
+        lo, hi = given
+        ranges.append(f"beta={lo!r},{hi!r}")
+    return parse_cli(adjust, ranges, args.step, args.resolution,
+                     valid=field_names(Needle208))
+
+
+def _strategy_record(strategy) -> dict:
+    return {c.name: {"low": c.low, "high": c.high, "step": c.step, "resolution": c.resolution,
+                     "mode": c.mode} for c in strategy.compensators}
+
+
+def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
+    """needle montecarlo --adjust: the per-machine table of one strategy and its summary."""
+    from sewtol.mechanisms.needle_208.strategies import adjusted_montecarlo_model, summarise_frame
+    from sewtol.provenance import now
+    from sewtol.studies.montecarlo import CHUNK, sample_machines
+
+    params = _at_beta_star(args, params, strategy)
+    started = now()
+    inputs = study_inputs(args, "montecarlo_adjusted", params, tolerances, limit_um=limit,
+                     chunk_size=CHUNK, strategy=strategy.name,
+                     compensators=_strategy_record(strategy))
+    store = open_store(args, inputs)
+    try:
+        runs = run_history(store, started)
+        with cluster(args) as client:
+            machines = sample_machines(adjusted_montecarlo_model, params, tolerances, args.n,
+                                       args.seed, args.n_jobs, args.progress, store=store,
+                                       chunk_size=CHUNK, scheduler=client, strategy=strategy,
+                                       limit_um=limit)
+        summary = summarise_frame(machines, strategy, limit)
+        record = {**summary.iloc[0].to_dict(), "seed": args.seed, "tolerances": tolerances.name,
+                  "compensators": _strategy_record(strategy),
+                  **_fixed_record(args, params, strategy),
+                  "context": _context(args, params, tolerances, strategy)}
+        write_outputs(args, "montecarlo", inputs, started, record,
+                       {"machines": deviation_columns(machines, tolerances.active().params),
+                        "summary": summary}, runs)
+    finally:
+        if store is not None:
+            store.close()
+    emit(args.format, obj=record, frame=summary)
+    print_notes(args, _fixed_notes(record))
+
+
+def cmd_needle_strategies(args):
+    from sewtol.mechanisms.needle_208.compensators import Strategy
+    from sewtol.mechanisms.needle_208.strategies import default_strategies, strategies_table
+    from sewtol.provenance import now
+
+    check_n(args.n)
+    check_study(args)
+    not_offered(args, "needle strategies",
+                 resume="it keeps no checkpoints; rerun with the same seed",
+                 scheduler="it runs on this machine; use --n-jobs")
+    strategy = _strategy(args)
+    params, tolerances = _at_beta_star(args, _study_nominal(args)), _tolerances(args)
+    rows = default_strategies()
+    if strategy is not None:
+        if strategy.name in {r.name for r in rows}:
+            strategy = Strategy(strategy.name + " (given)", strategy.compensators)
+        rows.append(strategy)
+    started = now()
+    res = strategies_table(params, tolerances, args.n, args.seed, rows, n_jobs=args.n_jobs,
+                           progress=args.progress)
+    table = res.to_dataframe()
+    frames = {"strategies": table}
+    for r in rows:
+        safe = "".join(ch if ch.isalnum() else "_" for ch in r.name)
+        frames[f"machines_{safe}"] = deviation_columns(res.machines(r.name), res.params)
+    inputs = study_inputs(args, "strategies", params, tolerances, limit_um=10.0,
+                     strategies={r.name: _strategy_record(r) for r in rows})
+    context = {**_context(args, params, tolerances, strategy),
+               "strategy": [r.name for r in rows], "limit_um": 10.0}
+    obj = {"context": context, **_fixed_record(args, params, strategy),
+           "rows": table.to_dict(orient="records")}
+    write_outputs(args, "strategies", inputs, started, obj, frames, [])
+    emit(args.format, obj=obj, frame=table)
+    save_plot(args, lambda ax: plots().grouped_bars(
+        list(table["strategy"]), {"yield": table["yield"]}, ax=ax, ylabel="yield",
+        errors={"yield": (table["yield_ci_low"], table["yield_ci_high"])},
+        title=f"yield by adjustment strategy, {args.n} machines (95 % interval)"))
+
+
+def _adjust_options(p):
+    p.add_argument("--adjust", default=None, metavar="NAMES",
+                   help="compensators the assembler sets per machine, e.g. beta,guide_shift_um "
+                        "(built in: beta, guide_shift_um, guide_angle, CD; none: no adjustment)")
+    p.add_argument("--range", action="append", metavar="NAME=LOW,HIGH",
+                   help="a compensator's range (offset from as built; beta absolute, deg)")
+    p.add_argument("--step", action="append", metavar="NAME=VALUE",
+                   help="discrete settings low + k*VALUE (a shim set, a graduated clamp)")
+    p.add_argument("--resolution", action="append", metavar="NAME=VALUE",
+                   help="how finely the assembler sets it (report the worst within +/-VALUE/2)")
+
+
+def cmd_needle_sobol(args):
+    from sewtol.mechanisms.needle_208.sobol import needle_sobol
+    from sewtol.provenance import now
+    from sewtol.studies.sobol import CHUNK, check_power_of_two, check_sobol
+
+    try:
+        check_power_of_two(args.n)
+    except ParameterError as exc:
+        raise ParameterError("--n", exc.rule, args.n) from None
+    check_study(args)
+    strategy = _strategy(args)
+    _check_beta_range(args)
+    params, tolerances = _study_nominal(args), _tolerances(args)
+    as_flags(check_sobol, params, tolerances, args.n, args.seed, args.second_order)
+    rng = tuple(args.beta_range)
+    started = now()
+    context = _context(args, params, tolerances, strategy)
+    extra = {} if strategy is None else {"compensators": _strategy_record(strategy)}
+    inputs = study_inputs(args, "sobol", params, tolerances, beta_search_range_deg=list(rng),
+                     limit_um=args.limit_um, second_order=args.second_order, context=context,
+                     chunk_size=CHUNK, resamples=SOBOL_RESAMPLES,
+                     confidence_level=SOBOL_CONF_LEVEL,
+                     strategy="beta fixed at the nominal's beta* (fixed_beta=optimum) and beta "
+                     "re-optimised per sample" if strategy is None else "beta fixed at the "
+                     f"nominal's beta* (fixed_beta=optimum) and {strategy.name} adjusted per "
+                     "sample (exact joint optimum)", **extra)
+    store = open_store(args, inputs)
+    try:
+        runs = run_history(store, started)
+        with cluster(args) as client:
+            res = needle_sobol(params, tolerances, args.n, args.seed, range_deg=rng,
+                               n_jobs=args.n_jobs, progress=args.progress, store=store,
+                               resamples=SOBOL_RESAMPLES, conf_level=SOBOL_CONF_LEVEL,
+                               chunk_size=CHUNK, scheduler=client, strategy=strategy,
+                               limit_um=args.limit_um, second_order=args.second_order)
+        write_outputs(args, "sobol", inputs, started, _sobol_json(res, args.second_order, context),
+                       res.frames(), runs)
+    finally:
+        if store is not None:
+            store.close()
+    emit(args.format, obj=_sobol_json(res, args.second_order, context), frame=res.to_dataframe())
+    if args.second_order and args.format == "table":
+        sys.stdout.write("\nsecond-order indices S2 (pairs; conf: half-width of the "
+                         f"{SOBOL_CONF_LEVEL:.0%} bootstrap interval)\n")
+        emit("table", frame=res.second_order_frame())
+    print_notes(args, res.notes())
+    save_plot(args, lambda ax: plots().sobol_bars(
+        res.to_dataframe().query("case == 'adjusted_beta'") if strategy is None
+        else res.to_dataframe()[res.to_dataframe()["case"] != "fixed_beta"], ax=ax,
+        title="Sobol indices of SumDelta, adjusted"))
+
+
+def _sobol_json(res, second_order: bool, context: dict):
+    """One shape for both forms: the S1/ST records under "indices", the context, and with
+    --second-order the S2 pairs under "second_order"."""
+    return {"indices": res.to_records(),
+            **({"second_order": res.second_order_frame().to_dict(orient="records")}
+               if second_order else {}),
+            "n": res.n, "seed": res.seed, "tolerances": res.tolerances,
+            "model_runs_per_case": res.model_runs, "context": context,
+            **({"assembly": res.assembly()} if res.has_failures else {})}
+
+
+def _small_study(args):
+    """Flags of guides/allocation, checked before anything is computed."""
+    check_n(args.n)
+    if args.seed < 0:
+        raise ParameterError("--seed", "must be a whole number >= 0", args.seed)
+    strategy = _strategy(args)
+    params, tolerances = _study_nominal(args), _tolerances(args)
+    if not tolerances.active().items:
+        raise ParameterError("--tolerances", "has no tolerance with a non-zero width",
+                             tolerances.name)
+    tolerances.check_against(params)
+    return strategy, params, tolerances
+
+
+def cmd_needle_guides(args):
+    from sewtol.mechanisms.needle_208.guides import compare_guides
+
+    strategy, params, tolerances = _small_study(args)
+    _check_beta_range(args)
+    table = compare_guides(params, tolerances, args.n, args.seed, strategy=strategy,
+                           range_deg=tuple(args.beta_range), limit_um=args.limit_um)
+    obj = {"tolerances": tolerances.name, "n": args.n, "seed": args.seed,
+           "fixed_beta_means": "each guide setting's own beta* (as `sewtol needle nominal` "
+                               "prints it for that guide)",
+           "context": _context(args, params, tolerances, strategy),
+           "strategy": "fixed beta and beta adjusted" if strategy is None else strategy.name,
+           **({} if strategy is None else {"compensators": _strategy_record(strategy)}),
+           "rows": table.to_dict(orient="records")}
+    emit(args.format, obj=obj, frame=table)
+    save_plot(args, lambda ax: plots().grouped_bars(
+        list(table["guide"]), {"beta fixed at the guide's beta*": table["yield_fixed_beta"],
+                               **({"beta adjusted": table["yield_adjusted_beta"]}
+                                  if strategy is None else
+                                  {f"{strategy.name} adjusted": table["yield_adjusted"]})}, ax=ax,
+        ylabel="yield", title=f"yield by guide setting, {args.n} machines"))
+
+
+def cmd_needle_allocation(args):
+    from sewtol.mechanisms.needle_208.allocation import allocate
+    from sewtol.mechanisms.needle_208.strategies import allocate_for_strategy
+
+    if not (np.isfinite(args.target) and 0 < args.target < 1):
+        raise ParameterError("--target", "must be a yield strictly between 0 and 1",
+                             args.target)
+    strategy, params, tolerances = _small_study(args)
+    if strategy is None:
+        res = allocate(params, tolerances, args.target, args.n, args.seed)
+        name = "beta"
+        table = res.to_dataframe()
+        table["lower_mm"], table["upper_mm"] = -table["tolerance_mm"], table["tolerance_mm"]
+    else:
+        res = allocate_for_strategy(params, tolerances, strategy, args.target, args.n,
+                                    args.seed)
+        name = strategy.name
+        table = res.to_dataframe()
+    obj = {"tolerances": tolerances.name, "strategy": name, "target": res.target,
+           "yield_adjusted": res.yield_adjusted, "n": res.n, "seed": res.seed,
+           "scale": res.scale,
+           "cost_model": "reciprocal: sum c_i / width_i; shape (c_i / s_i^2)^(1/3), common "
+                         "scale by bisection on the Monte-Carlo yield (common random numbers)",
+           **({} if strategy is None else {"compensators": _strategy_record(strategy)}),
+           "context": _context(args, params, tolerances, strategy),
+           "rows": table.to_dict(orient="records")}
+    emit(args.format, obj=obj, frame=table)
+    save_plot(args, lambda ax: allocation_figure(table, tolerances.name, res.target, ax))
+
+
+def allocation_figure(table, reference: str, target: float, ax):
+    """Each tolerance's width (upper - lower, um) in the reference set and as allocated."""
+    widths = {f"set {reference}": 1000 * (table["reference_upper_mm"] - table["reference_lower_mm"]),
+              f"allocated (yield {target:g})": 1000 * (table["upper_mm"] - table["lower_mm"])}
+    ax = plots().grouped_bars(list(table["param"]), widths, ax=ax,
+                               ylabel="tolerance width (\u00b5m, log scale)",
+                               title="Tolerance allocation: widths before and after")
+    ax.set_yscale("log")  # the widths span two decades (LM about 1 mm, AB about 10 um)
+    return ax
+
+
+def cmd_needle_worst_case(args):
+    from sewtol.mechanisms.needle_208.tables import worst_case_table
+
+    strategy = _strategy(args)
+    params, tolerances = _study_nominal(args), _tolerances(args)
+    active = tolerances.active()
+    if not active.items:
+        raise ParameterError("--tolerances", "has no tolerance with a non-zero width",
+                             tolerances.name)
+    if len(active.items) > 10:
+        raise ParameterError("--tolerances", "worst case enumerates corners; at most 10 "
+                             "tolerances", len(active.items))
+    tolerances.check_against(params)
+    _check_beta_range(args)
+    params = _at_beta_star(args, params, strategy)
+    table = worst_case_table(params, tolerances, tuple(args.beta_range), strategy=strategy)
+    obj = {"tolerances": tolerances.name, **_fixed_record(args, params, strategy),
+           "context": _context(args, params, tolerances, strategy),
+           "strategy": "beta" if strategy is None else strategy.name,
+           **({} if strategy is None else {"compensators": _strategy_record(strategy)}),
+           "method": "every corner and the centre, the best 3 polished by L-BFGS-B in the box "
+                     "(never below any evaluated point; not proven global)",
+           "rows": table.to_dict(orient="records")}
+    emit(args.format, obj=obj, frame=table)
+    print_notes(args, _fixed_notes(obj) + [
+        f"the worst machine's beta* in {r['case']} reaches a bound of the searched range: its "
+        "optimum may lie outside it" for r in obj["rows"] if r.get("beta_at_bound")])
+    save_plot(args, lambda ax: plots().grouped_bars(
+        list(table["case"]), {"worst SumDelta in the box": table["total_um"]}, ax=ax,
+        ylabel="SumDelta (um)", limit=_context(args, params, tolerances, strategy)["limit_um"],
+        title=f"worst case over the tolerance box ({tolerances.name})"))
+
+
+def cmd_needle_largest_tolerances(args):
+    from sewtol.mechanisms.needle_208.model import LENGTHS, Needle208
+    from sewtol.mechanisms.needle_208.tables import largest_tolerances
+    from sewtol.mechanisms.params import field_names
+    from sewtol.tolerances import is_branch
+
+    _check_beta_range(args)
+    params = _study_nominal(args)
+    names = list(LENGTHS) if args.params is None else [s.strip() for s in args.params.split(",")]
+    # beta is re-optimised per machine, so a deviation of it means nothing here
+    valid = [f for f in field_names(Needle208)
+             if not is_branch(f) and f not in ("guide_shift_um", "beta")]
+    for name in names:
+        if name not in valid:
+            raise ParameterError("--params", "must name parameters of the needle drive "
+                                 f"({', '.join(valid)})", name)
+    if not (np.isfinite(args.max_mm) and args.max_mm > 0):
+        raise ParameterError("--max-mm", "must be a positive deviation in mm", args.max_mm)
+    table = largest_tolerances(params, names, limit_um=args.limit_um, max_mm=args.max_mm,
+                               guide_shift_um=float(params.guide_shift_um),
+                               range_deg=tuple(args.beta_range))
+    obj = {"context": _context(args, params, None, None),
+           "limit_um": args.limit_um, "max_mm": args.max_mm,
+           "method": "each parameter alone, the others nominal: SumDelta at beta* (re-optimised "
+                     "in the searched range) on a geometric grid from 1 um, then bisection to "
+                     "1e-5 mm; reaches_max marks sides where even max_mm keeps the limit",
+           "rows": table.to_dict(orient="records")}
+    emit(args.format, obj=obj, frame=table)
+
+
+def cmd_needle_ppm(args):
+    from sewtol.mechanisms.needle_208 import ppm as NR
+    from sewtol.provenance import now
+    from sewtol.studies import rare_event as R
+
+    check_study(args)
+    _check_beta_range(args)
+    not_offered(args, "needle ppm", resume="it keeps no checkpoints; rerun with the same seed",
+                 scheduler="its levels run on this machine; use --n-jobs")
+    if not (np.isfinite(args.target) and 0 < args.target < 1):
+        raise ParameterError("--target", "must be a probability in (0, 1)", args.target)
+    if args.budget < 100:
+        raise ParameterError("--budget", "must be a whole number of model calls >= 100",
+                             args.budget)
+    params, tolerances = _study_nominal(args), _tolerances(args)
+    ls = NR.needle_limit_state(params, tolerances, args.limit_um, args.adjust,
+                              tuple(args.beta_range))
+    started = now()
+    res = R.estimate(ls, np.random.default_rng(args.seed), args.method, args.target,
+                     args.budget, n_jobs=args.n_jobs, progress=args.progress)
+    obj = {**res.to_dict(), "tolerances": tolerances.name, "adjust": args.adjust,
+           "seed": args.seed, "target": args.target, "budget": args.budget,
+           "context": _context(args, params, tolerances, None)}
+    if args.out:
+        from sewtol.io import write_text_atomic
+        from sewtol.provenance import run_record
+        from sewtol.reports.tables import to_csv
+
+        out = Path(args.out)
+        inputs = study_inputs(args, "ppm", params, tolerances, method=args.method,
+                         target=args.target, budget=args.budget, adjust=args.adjust,
+                         limit_um=args.limit_um, beta_search_range_deg=list(args.beta_range))
+        try:
+            write_text_atomic(out / "ppm.json", to_json(obj))
+            for name, frame in (("levels", res.levels), ("failing_examples", res.examples)):
+                write_text_atomic(out / f"{name}.csv", to_csv(frame))
+            write_text_atomic(out / "run.json", to_json(run_record(started, inputs)))
+        except OSError as exc:
+            raise ParameterError("--out", f"cannot be written ({exc.strerror})",
+                                 str(exc.filename or out)) from None
+    frame = res.to_dataframe().assign(tolerances=tolerances.name, adjust=args.adjust)
+    emit(args.format, obj=obj, frame=frame)
+    if args.format == "table":
+        print(f"\nP(SumDelta > {args.limit_um:g} um or no value) = {res.statement}")
+
+
+def _needle_options(p, **kwargs):
+    """--set, --format, --frame and --guide-shift-um: every needle command on one machine."""
+    from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME
+
+    machine_options(p, **kwargs)
+    p.add_argument("--frame", default=None, metavar="NAME",
+                   help=f"named frame of the 208 (default {DEFAULT_FRAME}); "
+                        "list them with `sewtol needle frames`")
+    p.add_argument("--guide-shift-um", type=float, default=None, metavar="UM",
+                   help="move the fixed guide along its normal (um); the same as --set "
+                        "guide_shift_um=UM")
+
+
+def _study_options(p, seed=True):
+    """--tolerances and, for the studies that draw machines, --seed, --n-jobs, --scheduler,
+    --progress, --out and --resume."""
+    p.add_argument("--tolerances", default="base",
+                   help="base, recommended, FILE.toml or FILE.toml:SET (default base)")
+    if seed:
+        p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+        p.add_argument("--n-jobs", type=int, default=1,
+                       help="parallel workers on this machine (joblib)")
+        p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="run on a Dask cluster, e.g. tcp://host:8786 (default: "
+                       "$SEWTOL_SCHEDULER, else this machine); same numbers as a local run")
+        progress_option(p)
+        p.add_argument("--out", default=None, metavar="DIR",
+                       help="write results, machines, run.json and checkpoints here")
+        p.add_argument("--resume", action="store_true",
+                       help="continue the interrupted study in --out without recomputing "
+                            "its finished chunks")
+
+
+def add_needle(sub) -> None:
+    """`sewtol needle COMMAND`: one sub-parser per command."""
+    needle = sub.add_parser("needle", help="208-class needle drive")
+    nsub = needle.add_subparsers(dest="command", required=True, parser_class=Parser)
+
+    p = nsub.add_parser("nominal", help="beta*, deviation figures, window, guide, stroke")
+    _needle_options(p, formats=("table", "json"))
+    _beta_options(p)
+    plot_option(p, "SumDelta against beta with beta* and the window")
+    p.set_defaults(func=cmd_needle_nominal)
+
+    p = nsub.add_parser("deviation", help="E and d(phi) over one crank turn")
+    _needle_options(p)
+    p.add_argument("--beta", type=float, default=None, help="beta (deg); default: the nominal")
+    p.add_argument("--step-deg", type=float, default=1.0, help="crank-angle step (deg)")
+    plot_option(p, "d(phi) over the crank turn")
+    p.set_defaults(func=cmd_needle_deviation)
+
+    p = nsub.add_parser("scan", help="each tolerance at its limits, beta re-optimised")
+    _needle_options(p)
+    _study_options(p, seed=False)
+    _beta_options(p)
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="write scan.csv, scan.json and run.json (the context) here")
+    _adjust_options(p)
+    plot_option(p, "SumDelta at each tolerance's upper and lower limit")
+    p.set_defaults(func=cmd_needle_scan, seed=None, n_jobs=1)
+
+    p = nsub.add_parser("montecarlo", help="yield with beta fixed and adjusted per machine")
+    _needle_options(p)
+    _study_options(p)
+    p.add_argument("--n", type=int, default=2000, help="machines (default 2000)")
+    _beta_options(p)
+    plot_option(p, "the histograms of SumDelta, beta fixed and adjusted")
+    p.set_defaults(func=cmd_needle_montecarlo)
+    _adjust_options(p)
+
+    p = nsub.add_parser("strategies", help="yield by adjustment strategy on the same machines")
+    _needle_options(p)
+    _study_options(p)
+    p.add_argument("--n", type=int, default=500, help="machines (default 500)")
+    _adjust_options(p)
+    plot_option(p, "the yield of each strategy with its 95 %% interval")
+    p.set_defaults(func=cmd_needle_strategies)
+
+    p = nsub.add_parser("sobol", help="Sobol indices of SumDelta (SALib)")
+    _needle_options(p)
+    _study_options(p)
+    p.add_argument("--n", type=int, default=256, help="base samples, a power of two")
+    p.add_argument("--second-order", action="store_true",
+                   help="also the second-order indices S2 of every pair (N (2D + 2) runs "
+                        "instead of N (D + 2))")
+    _beta_options(p)
+    plot_option(p, "S1 and ST of the adjusted case with their intervals")
+    _adjust_options(p)
+    p.set_defaults(func=cmd_needle_sobol)
+
+    p = nsub.add_parser("ppm", help="failures per million after adjustment (rare-event methods)")
+    _needle_options(p)
+    _study_options(p)
+    p.add_argument("--adjust", choices=("none", "beta"), default="beta",
+                   help="assembly adjustment: none (beta fixed at nominal beta*) or beta")
+    _beta_options(p)
+    p.add_argument("--method", choices=("auto", "montecarlo", "subset", "nais"), default="auto",
+                   help="auto: Monte-Carlo if budget * target >= 10, else subset simulation")
+    p.add_argument("--target", type=float, default=1e-6,
+                   help="smallest probability to resolve (default 1e-6)")
+    p.add_argument("--budget", type=int, default=20000, help="model calls (default 20000)")
+    p.set_defaults(func=cmd_needle_ppm)
+
+    p = nsub.add_parser("worst-case", help="worst SumDelta over the tolerance box, fixed and "
+                        "adjusted")
+    _needle_options(p)
+    _study_options(p, seed=False)
+    p.add_argument("--beta-range", nargs=2, type=float, default=None, metavar=("LOW", "HIGH"),
+                   help="regulating range searched for beta (deg); default 10 35")
+    _adjust_options(p)
+    plot_option(p, "the worst SumDelta of each case against the limit")
+    p.set_defaults(func=cmd_needle_worst_case)
+
+    p = nsub.add_parser("guides", help="guide settings compared: beta*, window, yields")
+    _needle_options(p)
+    _study_options(p, seed=False)
+    p.add_argument("--n", type=int, default=2000, help="machines per guide setting")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    _beta_options(p)
+    _adjust_options(p)
+    plot_option(p, "the yields of each guide setting, beta fixed and adjusted")
+    p.set_defaults(func=cmd_needle_guides)
+
+    p = nsub.add_parser("allocation", help="widest tolerances for a yield after adjustment")
+    _needle_options(p)
+    _study_options(p, seed=False)
+    p.add_argument("--n", type=int, default=2000,
+                   help="machines per trial (common random numbers; default 2000)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--target", type=float, default=0.9973,
+                   help="yield after adjustment to keep (default 0.9973)")
+    _adjust_options(p)
+    plot_option(p, "each tolerance's width in the reference set and allocated")
+    p.set_defaults(func=cmd_needle_allocation)
+
+    p = nsub.add_parser("largest-tolerances", help="largest single deviation of each part that "
+                        "keeps SumDelta(beta*) within the limit")
+    _needle_options(p)
+    p.add_argument("--params", default=None, metavar="NAMES",
+                   help="comma-separated parameters (default the seven links LF ... CD)")
+    p.add_argument("--max-mm", type=float, default=1.0,
+                   help="largest deviation tried, mm (default 1)")
+    _beta_options(p)
+    p.set_defaults(func=cmd_needle_largest_tolerances)
+
+    p = nsub.add_parser("frames", help="the named frames of the 208 with their residuals")
+    p.add_argument("--format", choices=FORMATS, default="table")
+    p.set_defaults(func=cmd_needle_frames)
