@@ -2,8 +2,8 @@
 
 ``mechanism.toml`` is the crank-slider as data with the contact cycle as a custom output;
 ``model.py`` the crank-slider and the foot on its spring, with the fitted stiffness and mass;
-``kernel.py`` the event-driven contact dynamics (numba); ``studies.py`` its Monte-Carlo, scan and
-the spring's identifiability bound.
+``kernel.py`` the event-driven contact dynamics (numba); ``analysis.py`` the spring's
+identifiability bound; ``tables.py`` its Monte-Carlo and scan tables.
 """
 
 # the custom output kind a mechanism file may name, and the module that registers it
