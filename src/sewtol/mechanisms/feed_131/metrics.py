@@ -11,6 +11,7 @@ in). Crossings and the extreme rise are polished by Newton steps on the analytic
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -159,14 +160,15 @@ def pair_figures(c: dict, n_grid: int = N_GRID, lo: DogFigures | None = None,
 # The working figures come from the closed form above on the machines' parameter columns (the
 # file's groups are the same chains); the file's own status still marks machines that cannot
 # run. A step needs one dog, the ratio both, the mismatch the grip pass as well: the figures of
-# the last state evaluated are kept, so the outputs of one block cost one pass per dog.
+# the last state evaluated are kept (a weak reference: the state itself is not held), so the
+# outputs of one block cost one pass per dog.
 MEASURES = ("lower_step_mm", "upper_step_mm", "differential_ratio", "mismatch_mm")
-_last: list = [None, {}]
+_last: list = [lambda: None, {}]
 
 
 def _figures_of(state, which: str):
-    if _last[0] is not state:
-        _last[:] = [state, {}]
+    if _last[0]() is not state:
+        _last[:] = [weakref.ref(state), {}]
     memo = _last[1]
     if which not in memo:
         c = {"dog_bar_program": np.zeros((state.shape[0], 1)), **state.values}
