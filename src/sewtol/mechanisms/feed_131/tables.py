@@ -1,12 +1,8 @@
-"""The feed's tables of the generic studies: a `Feed131` as a protocol mechanism, and the scan,
-Monte-Carlo, contributors and Sobol indices (sewtol.studies) in the feed report's columns.
-
-The studies run on `as_mechanism(params)`: the folder's mechanism.toml with the machine's values
-as its nominals, whose outputs lower_step_mm, upper_step_mm, differential_ratio and mismatch_mm
-are the closed-form working figures (feed_131.metrics, output kind feed_dogs), NaN where a
-dog does not work and the file's status where the chains cannot run. Machines are drawn by the
-one sampler (studies.montecarlo.sample_machines, sewtol.law); Sobol rows that cannot run follow
-studies.sobol.POLICY.
+"""The feed's tables of the generic studies: a `Feed131` as a protocol mechanism (the folder's
+mechanism.toml with the machine's values as nominals; its dog outputs are the closed-form
+figures, kind feed_dogs) and the scan, Monte-Carlo (the one sampler), contributors and Sobol
+indices (rows that cannot run counted: studies.sobol.POLICY) of sewtol.studies in the feed
+report's columns.
 """
 
 from __future__ import annotations

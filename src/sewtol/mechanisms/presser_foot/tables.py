@@ -1,8 +1,5 @@
-"""The presser foot's tolerance tables: Monte-Carlo and one-at-a-time scan of its contact cycle
-(docs/presser_foot.md), on the kernel (presser_foot.model.evaluate), whose statuses and modes
-the mechanism file's outputs do not carry. The machines are the one sampler's
-(`InputLaw.draw`, sewtol.law) and the scan's those of `ToleranceSet.limit_variants`, as in
-sewtol.studies.
+"""The presser foot's tolerance tables: Monte-Carlo (the one sampler, `InputLaw.draw`) and
+one-at-a-time scan of its contact cycle on the kernel (model.evaluate; docs/presser_foot.md).
 
 Every machine gets a status (mechanisms.presser_foot.STATUS); the counts add up to n. Among
 the "ok" machines three modes are counted as well: the principal interval began by the force
