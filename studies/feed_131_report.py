@@ -16,7 +16,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from sewtol.io import to_json, write_text_atomic
-from sewtol.mechanisms.feed_131 import studies as feed
+from sewtol.mechanisms.feed_131 import analysis as feed
+from sewtol.mechanisms.feed_131 import tables as T
 from sewtol.mechanisms.feed_131.model import Feed131
 from sewtol.mechanisms.params import as_dict
 from sewtol.provenance import now, run_record
@@ -180,21 +181,21 @@ def main(argv=None) -> None:
     ax.set_title("Stitch regulator: forward, neutral, reverse", fontsize=10)
     plots.save(f, out / "regulator.png", args.figure_format)
 
-    ts = feed.default_tolerances()
+    ts = T.default_tolerances()
     tset = {**settings, "tolerance set": ts.description, "seed": args.seed}
-    sc = feed.scan(p, ts)
+    sc = T.scan(p, ts)
     sc = sc.reindex(sc["change_lower_step_mm"].abs().sort_values(ascending=False).index)
     write_table(sc.reset_index(drop=True), out, "scan",
                 "Per-parameter scan of the feed (sorted by |change of the lower step|)", tset,
                 floatfmt=".5f")
-    mc = feed.montecarlo(p, ts, args.n_mc, args.seed, n_jobs=args.n_jobs, progress=args.progress,
+    mc = T.montecarlo(p, ts, args.n_mc, args.seed, n_jobs=args.n_jobs, progress=args.progress,
                          scheduler=args.scheduler)
-    write_table(feed.montecarlo_summary(mc), out, "montecarlo",
+    write_table(T.montecarlo_summary(mc), out, "montecarlo",
                 f"Monte-Carlo of {args.n_mc} feed mechanisms", tset, floatfmt=".5f")
-    contrib = feed.contributor_table(mc, ts)
+    contrib = T.contributor_table(mc, ts)
     write_table(contrib, out, "contributors", "Contributors (bias-corrected eta^2) per output",
                 tset)
-    sob, chosen = feed.sobol(p, ts, args.n_sobol, args.seed, mc, n_jobs=args.n_jobs,
+    sob, chosen = T.sobol(p, ts, args.n_sobol, args.seed, mc, n_jobs=args.n_jobs,
                              progress=args.progress, scheduler=args.scheduler)
     write_table(sob.to_dataframe(), out, "sobol", "Sobol indices of the feed steps and the "
                 "differential ratio, each over the tolerances that matter to it",
@@ -207,7 +208,7 @@ def main(argv=None) -> None:
                 {**tset, "base samples N": args.n_sobol})
 
     fmt = "svg" if args.figure_format == "svg" else "png"
-    summary = feed.montecarlo_summary(mc)
+    summary = T.montecarlo_summary(mc)
     conclusions = {
         "What holds under every reading of the source, and what depends on it":
             reading_conclusions(res.summary()),

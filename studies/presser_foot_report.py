@@ -19,7 +19,7 @@ import pandas as pd
 from sewtol.io import to_json, write_text_atomic
 from sewtol.mechanisms.params import as_dict
 from sewtol.mechanisms.presser_foot import model as PF
-from sewtol.mechanisms.presser_foot import studies as S
+from sewtol.mechanisms.presser_foot import tables as S
 from sewtol.provenance import now, run_record
 from sewtol.reports import plots
 from sewtol.reports.tables import write_table
@@ -71,8 +71,8 @@ def main(argv=None) -> None:
     for k in [0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.4466, 1.0, 2.0, 5.0]:
         p = nom.override(stiffness_n_per_mm=k)
         rows.append({"stiffness_n_per_mm": k, "omega_n_over_omega": float(p.nu),
-                     "threshold_m_s2": S.follow_threshold_m_s2(p),
-                     "nominal_holding_m_s2": float(S.holding_m_s2(p))})
+                     "threshold_m_s2": PF.follow_threshold_m_s2(p),
+                     "nominal_holding_m_s2": float(PF.holding_m_s2(p))})
     ident = pd.DataFrame(rows)
     write_table(ident, out, "identifiability", "The spring family the table cannot tell apart: "
                 "any (k/m, (F + m g)/m) with (F + m g)/m >= threshold gives the fitted cycle",
@@ -84,9 +84,9 @@ def main(argv=None) -> None:
     sp.insert(0, "wire_mm", [row[0] for row in PF.SOURCE_TABLE])
     sp.insert(1, "stiffness_n_per_mm", np.asarray(springs.stiffness_n_per_mm))
     sp.insert(2, "omega_n_over_omega", np.asarray(springs.nu))
-    sp.insert(3, "threshold_m_s2", [S.follow_threshold_m_s2(nom.override(
+    sp.insert(3, "threshold_m_s2", [PF.follow_threshold_m_s2(nom.override(
         stiffness_n_per_mm=float(k))) for k in np.asarray(springs.stiffness_n_per_mm)])
-    sp.insert(4, "holding_m_s2", float(S.holding_m_s2(nom)))
+    sp.insert(4, "holding_m_s2", float(PF.holding_m_s2(nom)))
     write_table(sp, out, "springs", "Every spring of the source's table in the fitted model "
                 "(assumed coil, mass and pressing force): all follow the seat, one cycle",
                 settings, floatfmt=".4f")
@@ -115,7 +115,7 @@ def main(argv=None) -> None:
 
     # 4. the cycle
     soft = nom.override(stiffness_n_per_mm=0.02)
-    need = S.follow_threshold_m_s2(soft)
+    need = PF.follow_threshold_m_s2(soft)
     weak = soft.override(preload_n=float(soft.mass_kg * (0.8 * need - PF.GRAVITY_M_S2)))
     f, ax = plt.subplots(figsize=(7.5, 4.2))
     plots.presser_cycle(PF.foot_path(nom, 0.25), lowest, float(nom.material_mm), ax)

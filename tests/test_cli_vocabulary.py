@@ -267,7 +267,7 @@ def test_pareto_of_the_needle_is_mostly_interaction(nominal):
 
 
 def test_feed_scan_from_the_cli_is_the_library_scan():
-    from sewtol.mechanisms.feed_131 import studies as feed
+    from sewtol.mechanisms.feed_131 import tables as feed
     from sewtol.mechanisms.feed_131.model import Feed131
 
     code, out, err = run("feed", "scan", "--format", "json", "--set", "b=25")
@@ -282,7 +282,7 @@ def test_feed_scan_from_the_cli_is_the_library_scan():
 
 
 def test_feed_montecarlo_and_sobol_from_the_cli(tmp_path):
-    from sewtol.mechanisms.feed_131 import studies as feed
+    from sewtol.mechanisms.feed_131 import tables as feed
     from sewtol.mechanisms.feed_131.model import Feed131
     from sewtol.studies.montecarlo import EXPLAINED, REMAINDER
 

@@ -7,8 +7,9 @@ import pytest
 
 from sewtol.errors import AssemblyError, ParameterError
 from sewtol.mechanisms import params as P
+from sewtol.mechanisms.feed_131 import analysis as feed
 from sewtol.mechanisms.feed_131 import model as fd
-from sewtol.mechanisms.feed_131 import studies as feed
+from sewtol.mechanisms.feed_131 import tables as T
 from sewtol.mechanisms.feed_131.model import Feed131
 
 
@@ -116,8 +117,8 @@ def test_regulator_forward_neutral_reverse():
 
 def test_scan_rows_equal_direct_calls():
     p = Feed131()
-    ts = feed.default_tolerances()
-    sc = feed.scan(p, ts)
+    ts = T.default_tolerances()
+    sc = T.scan(p, ts)
     row = sc[(sc.param == "O3C") & (sc.side == "upper")].iloc[0]
     direct = feed.metrics(p.override(O3C=p.O3C + 0.05))
     assert abs(row.lower_step_mm - direct.lower["feed_step_mm"]) < 1e-9
@@ -125,9 +126,9 @@ def test_scan_rows_equal_direct_calls():
 
 
 def test_feed_montecarlo_reproducible():
-    ts = feed.default_tolerances()
-    a = feed.montecarlo(Feed131(), ts, 300, seed=4)
-    b = feed.montecarlo(Feed131(), ts, 300, seed=4, n_jobs=2)
+    ts = T.default_tolerances()
+    a = T.montecarlo(Feed131(), ts, 300, seed=4)
+    b = T.montecarlo(Feed131(), ts, 300, seed=4, n_jobs=2)
     assert a.equals(b)
     assert a["lower_step_mm"].notna().all()
 
@@ -281,16 +282,17 @@ def test_fitted_upper_phase_is_the_brute_force_optimum(readoffs):
 
 
 def test_feed_sobol_each_output_over_its_own_parameters():
+    from sewtol.studies.montecarlo import contributors
     from sewtol.studies.sobol import problem_of, sobol_indices
 
     p = Feed131()
-    ts = feed.default_tolerances()
-    mc = feed.montecarlo(p, ts, 200, seed=3)
-    res, chosen = feed.sobol(p, ts, 16, seed=5, machines=mc, chunk_size=20,
+    ts = T.default_tolerances()
+    mc = T.montecarlo(p, ts, 200, seed=3)
+    res, chosen = T.sobol(p, ts, 16, seed=5, machines=mc, chunk_size=20,
                              which=("lower_step_mm", "differential_ratio"))
     # the ratio's own contributors, not the lower step's
     for output, names in chosen.items():
-        eta = feed.contributors(mc, ts.active().params, output)
+        eta = contributors(mc, ts.active().params, output)
         assert names == eta["param"].tolist()[:len(names)]
         assert 4 <= len(names) <= 12
     assert chosen["differential_ratio"] != chosen["lower_step_mm"]

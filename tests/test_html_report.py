@@ -276,20 +276,27 @@ def test_strategies_in_chunks_are_the_strategies_in_one_piece():
         assert joined.n == 30 and joined.counts() == one.counts()
 
 
-def test_feed_output_of_is_outputs_for_each_output():
-    """The feed Sobol study evaluates only the dogs an output needs: the same numbers, exactly,
-    as the full evaluation (including the machines that fail)."""
-    from sewtol.mechanisms.feed_131 import studies as feed
+def test_feed_file_outputs_are_the_closed_form_for_each_output():
+    """The feed studies evaluate the mechanism file, whose dog outputs (kind feed_dogs) are the
+    closed form's: the same numbers, exactly, output by output and all together (including the
+    machines that fail)."""
+    from sewtol.mechanisms.feed_131 import analysis, tables
     from sewtol.mechanisms.feed_131.model import Feed131
+    from sewtol.protocol import machines
 
     p = Feed131()
-    dev = feed.default_tolerances().sample(np.random.default_rng(11), 40)
+    dev = tables.default_tolerances().sample(np.random.default_rng(11), 40)
     dev["O1A1"] = dev["O1A1"].copy()
     dev["O1A1"][:2] = 30.0  # an eccentric longer than the chain can take: two machines fail
-    full = feed.outputs(p, dev)
+    full = analysis.outputs(p, dev)
     assert np.isnan(full["lower_step_mm"][:2]).all()
-    for k in feed.OUTPUTS:
-        np.testing.assert_array_equal(feed.output_of(p, dev, k), full[k], err_msg=k)
+    mech = tables.as_mechanism(p)
+    together = mech.evaluate(machines(mech, dev), tables.OUTPUTS)
+    assert list(together.status[:2]) == ["cannot_close"] * 2
+    for k in tables.OUTPUTS:
+        alone = mech.evaluate(machines(mech, dev), [k]).outputs[k]
+        np.testing.assert_array_equal(alone, full[k], err_msg=k)
+        np.testing.assert_array_equal(together.outputs[k], full[k], err_msg=k)
 
 
 def test_feed_conclusions_come_from_the_tables():

@@ -202,6 +202,7 @@ def test_each_folder_holds_its_file_docs_and_a_described_package(name):
 
 def test_declarations_come_from_the_folders():
     assert M.declared("OUTPUT_KINDS") == {
+        "feed_dogs": "sewtol.mechanisms.feed_131.metrics",
         "presser_contact": "sewtol.mechanisms.presser_foot.model"}
     assert M.declared("FAST_PATHS") == {"needle_208": "sewtol.mechanisms.needle_208.fast_path"}
 
@@ -256,3 +257,12 @@ def test_a_newcomer_adds_a_folder_and_runs_it_by_name(tmp_path, monkeypatch):
         M.names.cache_clear()
         sys.modules.pop("sewtol.mechanisms.my_crank_slider", None)
     assert {p.name: p.read_bytes() for p in (SRC / "studies").glob("*.py")} == studies_before
+
+
+@pytest.mark.parametrize("name", ["feed_131", "presser_foot"])
+def test_folder_holds_no_module_named_after_a_study(name):
+    """Their tolerance studies run through sewtol.studies; the folder keeps the model, its own
+    analysis and the adapter to the studies' tables (feed_131/tables.py, presser_foot/tables.py)."""
+    studies = {"scan.py", "montecarlo.py", "sobol.py", "ppm.py", "allocation.py", "strategies.py",
+               "guides.py", "studies.py"}
+    assert not studies & {p.name for p in (SRC / "mechanisms" / name).glob("*.py")}

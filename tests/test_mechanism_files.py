@@ -190,6 +190,18 @@ def test_feed_file_equals_builtin_chain_positions():
     assert np.max(np.abs(built["holder_angle"].a - state.angles["f"].a)) <= 1e-12
 
 
+def test_feed_file_dog_bar_program_is_the_builtin_arithmetic():
+    """dog_bar_program = 1 in the file moves Q1 as the built-in program arithmetic does: about
+    2.3 um along the bar, equal to 1e-9 mm."""
+    mech = load(FEED).override(dog_bar_program=1.0)
+    q = mech.angles_rad()
+    state = mech.state(None, q)
+    built = chains(P.column(Feed131(dog_bar_program=1.0), None), q)
+    exact = load(FEED).state(None, q).points["Q1"].p[0]
+    assert np.max(np.abs(built["Q1"].p - state.points["Q1"].p[0])) <= 1e-9
+    assert 2.0e-3 < np.min(np.abs(state.points["Q1"].p[0] - exact)) < 2.6e-3
+
+
 def test_needle_sumdelta_matches_exact_figure():
     """The file samples 720 crank angles; the built-in finds the extremes exactly."""
     from sewtol.mechanisms.needle_208 import metrics as nm

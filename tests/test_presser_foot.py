@@ -14,7 +14,7 @@ from scipy.optimize import brentq
 from sewtol.errors import ParameterError
 from sewtol.mechanisms.presser_foot import kernel as K
 from sewtol.mechanisms.presser_foot import model as PF
-from sewtol.mechanisms.presser_foot import studies as S
+from sewtol.mechanisms.presser_foot import tables as S
 
 R, L, A = 17.5, 42.0, 8.0
 
@@ -163,7 +163,7 @@ def test_mass_stiffness_and_preload_enter_only_as_ratios():
     # a machine that flies (holding below the threshold) and the nominal one
     flying = PF.PresserFoot(stiffness_n_per_mm=0.02, preload_n=1.5)
     for base in (PF.PresserFoot(), flying):
-        fam = PF.evaluate(S.scaled_family(base, [0.2, 1.0, 5.0])).to_dataframe()
+        fam = PF.evaluate(PF.scaled_family(base, [0.2, 1.0, 5.0])).to_dataframe()
         for col in ("loss_deg", "regain_deg", "lost_deg", "separation_mm"):
             np.testing.assert_allclose(fam[col], fam[col].iloc[1], rtol=0, atol=1e-9)
     assert PF.evaluate(flying).lost_by_force[0]
@@ -171,7 +171,7 @@ def test_mass_stiffness_and_preload_enter_only_as_ratios():
 
 def test_the_follow_threshold_separates_kinematic_from_flying_cycles():
     nom = PF.PresserFoot(stiffness_n_per_mm=0.02)
-    need = S.follow_threshold_m_s2(nom)
+    need = PF.follow_threshold_m_s2(nom)
     assert 100.0 < need < 125.0       # soft spring: about max y'' omega^2 = 124 m/s^2
     m, g = nom.mass_kg, PF.GRAVITY_M_S2
     above = nom.override(preload_n=m * (need * 1.001 - g))
@@ -187,7 +187,7 @@ def test_the_follow_threshold_separates_kinematic_from_flying_cycles():
     # the seat: the table's springs all give the same cycle
     for k in np.asarray(PF.source_springs().stiffness_n_per_mm):
         one = PF.PresserFoot().override(stiffness_n_per_mm=float(k))
-        assert S.holding_m_s2(one) > S.follow_threshold_m_s2(one)
+        assert PF.holding_m_s2(one) > PF.follow_threshold_m_s2(one)
 
 
 def test_montecarlo_counts_add_up_and_repeat_for_the_same_seed():

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from cli_helpers import run, stretched_CD, strict_loads
 from sewtol.errors import AssemblyError
-from sewtol.mechanisms.feed_131 import studies as feed
+from sewtol.mechanisms.feed_131 import analysis as feed
 from sewtol.mechanisms.feed_131.model import Feed131
 from sewtol.mechanisms.needle_208 import model as nd
 from sewtol.mechanisms.needle_208.model import Needle208

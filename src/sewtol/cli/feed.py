@@ -47,7 +47,7 @@ def _feed_params(args):
 
 
 def cmd_feed_trajectory(args):
-    from sewtol.mechanisms.feed_131.studies import trajectory
+    from sewtol.mechanisms.feed_131.analysis import trajectory
 
     check_step(args.step_deg)
     params = _feed_params(args)
@@ -59,7 +59,7 @@ def cmd_feed_trajectory(args):
 
 
 def cmd_feed_metrics(args):
-    from sewtol.mechanisms.feed_131.studies import metrics
+    from sewtol.mechanisms.feed_131.analysis import metrics
 
     params = _feed_params(args)
     m = metrics(params)
@@ -71,7 +71,7 @@ def cmd_feed_metrics(args):
 
 
 def cmd_feed_regulator(args):
-    from sewtol.mechanisms.feed_131.studies import regulator_sweep
+    from sewtol.mechanisms.feed_131.analysis import regulator_sweep
 
     lo, hi, step = args.b_range
     if not (np.isfinite([lo, hi, step]).all() and lo < hi and step > 0):
@@ -89,7 +89,7 @@ def cmd_feed_regulator(args):
 
 def _feed_tolerances(args, params):
     from sewtol.mechanisms.feed_131.model import Feed131
-    from sewtol.mechanisms.feed_131.studies import default_tolerances
+    from sewtol.mechanisms.feed_131.tables import default_tolerances
     from sewtol.mechanisms.params import field_names
     from sewtol.tolerances import resolve
 
@@ -103,7 +103,7 @@ def _feed_tolerances(args, params):
 
 def _feed_study(args):
     """The feed's nominal (it must assemble) and tolerance set, every flag checked first."""
-    from sewtol.mechanisms.feed_131.studies import metrics
+    from sewtol.mechanisms.feed_131.analysis import metrics
 
     check_study(args)
     params = _feed_params(args)
@@ -131,7 +131,7 @@ def _feed_write(args, kind, params, tolerances, started, obj, frames, **extra):
 
 
 def cmd_feed_scan(args):
-    from sewtol.mechanisms.feed_131.studies import scan
+    from sewtol.mechanisms.feed_131.tables import scan
     from sewtol.provenance import now
 
     params, tolerances = _feed_study(args)
@@ -146,7 +146,7 @@ def cmd_feed_scan(args):
 
 
 def cmd_feed_montecarlo(args):
-    from sewtol.mechanisms.feed_131 import studies as feed
+    from sewtol.mechanisms.feed_131 import tables as feed
     from sewtol.provenance import now
     from sewtol.studies.montecarlo import check_sampling
 
@@ -190,7 +190,7 @@ def _contributor_figure(contrib, ax):
 
 
 def cmd_feed_sobol(args):
-    from sewtol.mechanisms.feed_131 import studies as feed
+    from sewtol.mechanisms.feed_131 import tables as feed
     from sewtol.provenance import now
     from sewtol.studies.sobol import check_power_of_two
 

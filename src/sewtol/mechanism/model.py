@@ -21,7 +21,7 @@ import pandas as pd
 from sewtol import engine
 from sewtol.errors import ParameterError
 from sewtol.mechanism.groups import GROUPS
-from sewtol.mechanism.outputs import OUTPUT_TYPES, OUTPUTS
+from sewtol.mechanism.outputs import OUTPUT_TYPES, provide
 from sewtol.mechanism.spec import Compensator, Group, Header, Output, Parameter, Spec
 from sewtol.mechanisms.params import check_rule
 from sewtol.tolerances import ToleranceSet
@@ -240,7 +240,8 @@ class FileMechanism:
         out = {}
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             for o in chosen:
-                ot = OUTPUTS[o.kind] if o.type == "custom" else OUTPUT_TYPES[o.type]
+                # provide: a worker process that unpickled the file imports the kind's module
+                ot = provide(o.kind) if o.type == "custom" else OUTPUT_TYPES[o.type]
                 kwargs = {}
                 for k, v in o.fields.items():
                     kind = ot.fields[k][0]

@@ -4,10 +4,14 @@ folder, the site's "131-42+3 feed").
 Data and topology: ``mechanism.toml`` (the file `sewtol run feed_131 ...` runs; its q is the
 main-shaft angle) and ``model.py`` (`Feed131`, the chains in the source's order). Outputs:
 ``metrics.py`` (working figures of the dogs: feed step, dog rise, phases, the differential
-ratio). The feed's own studies (trajectories, the stitch regulator, tolerance studies of the
-working figures): ``studies.py``.
+ratio; the file's outputs of kind feed_dogs). The machine's own analysis (trajectories, the
+stitch regulator, the source's read-offs): ``analysis.py``; the generic studies in the feed
+report's columns: ``tables.py``.
 """
 
 from sewtol.mechanisms.feed_131.model import Feed131
 
 __all__ = ["Feed131"]
+
+# the custom output kind a mechanism file may name, and the module that registers it
+OUTPUT_KINDS = {"feed_dogs": "sewtol.mechanisms.feed_131.metrics"}

@@ -11,6 +11,7 @@ in). Crossings and the extreme rise are polished by Newton steps on the analytic
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -128,9 +129,11 @@ class PairFigures:
     overlap_deg: np.ndarray
 
 
-def pair_figures(c: dict, n_grid: int = N_GRID) -> PairFigures:
-    lo = dog_figures(c, "lower", n_grid)
-    up = dog_figures(c, "upper", n_grid)
+def pair_figures(c: dict, n_grid: int = N_GRID, lo: DogFigures | None = None,
+                 up: DogFigures | None = None) -> PairFigures:
+    """Both dogs' figures (`lo`, `up`: already computed ones) and how they grip together."""
+    lo = dog_figures(c, "lower", n_grid) if lo is None else lo
+    up = dog_figures(c, "upper", n_grid) if up is None else up
     # from the later entry, both dogs grip until the first exit
     start = np.radians(np.where(
         np.mod(up.entry_phi_deg - lo.entry_phi_deg, 360) < 180, up.entry_phi_deg,
@@ -151,3 +154,48 @@ def pair_figures(c: dict, n_grid: int = N_GRID) -> PairFigures:
     ok = lo.ok & up.ok
     return PairFigures(lo, up, np.where(ok, up.feed_step_mm / lo.feed_step_mm, np.nan),
                        np.where(ok, mismatch, np.nan), np.where(ok, overlap, np.nan))
+
+
+# --- the "feed_dogs" output kind of mechanism files (type = "custom", feed_131/mechanism.toml) --
+# The working figures come from the closed form above on the machines' parameter columns (the
+# file's groups are the same chains); the file's own status still marks machines that cannot
+# run. A step needs one dog, the ratio both, the mismatch the grip pass as well: the figures of
+# the last state evaluated are kept (a weak reference: the state itself is not held), so the
+# outputs of one block cost one pass per dog.
+MEASURES = ("lower_step_mm", "upper_step_mm", "differential_ratio", "mismatch_mm")
+_last: list = [lambda: None, {}]
+
+
+def _figures_of(state, which: str):
+    if _last[0]() is not state:
+        _last[:] = [weakref.ref(state), {}]
+    memo = _last[1]
+    if which not in memo:
+        c = {"dog_bar_program": np.zeros((state.shape[0], 1)), **state.values}
+        if which == "pair":
+            memo[which] = pair_figures(c, lo=_figures_of(state, "lower"),
+                                       up=_figures_of(state, "upper"))
+        else:
+            memo[which] = dog_figures(c, which)
+    return memo[which]
+
+
+def feed_dogs_output(state, measure: str = "lower_step_mm") -> np.ndarray:
+    """The registry's form, fn(state, measure) -> array (m,): a dog's feed step, the
+    differential ratio or the mismatch while both grip (NaN where a dog does not work)."""
+    if measure in ("lower_step_mm", "upper_step_mm"):
+        return _figures_of(state, measure.split("_")[0]).feed_step_mm
+    if measure == "differential_ratio":
+        lo, up = _figures_of(state, "lower"), _figures_of(state, "upper")
+        return np.where(lo.ok & up.ok, up.feed_step_mm / lo.feed_step_mm, np.nan)
+    return _figures_of(state, "pair").mismatch_mm
+
+
+def _register() -> None:
+    from sewtol.mechanism.outputs import register_output
+
+    register_output("feed_dogs", feed_dogs_output,
+                    fields={"measure": ("choice", "lower_step_mm", MEASURES)})
+
+
+_register()

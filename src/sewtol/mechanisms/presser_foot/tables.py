@@ -1,5 +1,5 @@
-"""Tolerance studies of the presser foot's contact cycle: Monte-Carlo, one-at-a-time scan, and
-the spring's identifiability bound (docs/presser_foot.md).
+"""The presser foot's tolerance tables: Monte-Carlo (the one sampler, `InputLaw.draw`) and
+one-at-a-time scan of its contact cycle on the kernel (model.evaluate; docs/presser_foot.md).
 
 Every machine gets a status (mechanisms.presser_foot.STATUS); the counts add up to n. Among
 the "ok" machines three modes are counted as well: the principal interval began by the force
@@ -9,17 +9,16 @@ interval (e.g. a hop off the seat on the way up besides the stop on the material
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
-from sewtol.errors import ParameterError
+from sewtol.law import InputLaw
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.presser_foot import model as PF
-from sewtol.studies.montecarlo import check_sampling, draw_deviations
+from sewtol.studies.montecarlo import check_sampling
 from sewtol.tolerances import Tolerance, ToleranceSet
 
 OUTPUTS = ("loss_deg", "regain_deg", "lost_deg", "separation_mm")
@@ -101,7 +100,7 @@ def montecarlo(nominal: PF.PresserFoot, tolerances: ToleranceSet, n: int,
     """n machines drawn as every sewtol Monte-Carlo draws them (chunk i from child i of the
     seed), each run through the contact cycle."""
     check_sampling(nominal, tolerances, n, seed)
-    dev = draw_deviations(tolerances, int(n), int(seed))
+    dev = InputLaw.of(tolerances).draw(int(n), int(seed))
     machines = P.with_deviations(nominal, dev)
     f = _frame(nominal, machines)
     table = pd.DataFrame({k: v for k, v in dev.items()})
@@ -127,50 +126,3 @@ def scan(nominal: PF.PresserFoot, tolerances: ToleranceSet) -> pd.DataFrame:
     out["status"] = f["status"]
     out["lost_by_force"] = f["lost_by_force"]
     return out
-
-
-def follow_threshold_m_s2(params: PF.PresserFoot, step_deg: float = 0.01) -> float:
-    """The least holding acceleration (F + m g) / m (m/s^2, F = the spring force on the
-    material) for which the foot rides on the seat all the way down to the material, at the
-    machine's omega_n / omega: max over the seat's path above the material of
-    y'' + 2 zeta nu y' - nu^2 (y_m - y), times omega^2, and at least 0 (the foot must press on
-    the material to stay there). Above it the cycle is the kinematic one
-    (loss and regain where the seat passes the material) whatever the spring, mass and preload."""
-    if P.batch_size(params) is not None:
-        raise ParameterError("params", "must be one machine, not a batch", P.batch_size(params))
-    nu, z = float(params.nu), float(params.damping_ratio)
-    ym = float(params.material_mm)
-
-    def need(phi):
-        y, d1, d2 = PF.slider(phi, params.crank_mm, params.rod_mm, params.offset_mm)
-        return np.where(y <= ym, d2 + 2 * z * nu * d1 - nu * nu * (ym - y), -np.inf)
-
-    phi = np.radians(np.arange(0.0, 360.0, step_deg))
-    v = need(phi)
-    i = int(np.argmax(v))
-    lo, hi = phi[i] - np.radians(step_deg), phi[i] + np.radians(step_deg)
-    g = (math.sqrt(5.0) - 1.0) / 2.0
-    for _ in range(80):
-        c, d = hi - g * (hi - lo), lo + g * (hi - lo)
-        if need(c) > need(d):
-            hi = d
-        else:
-            lo = c
-    best = max(float(need(0.5 * (lo + hi))), float(v[i]))
-    # and the foot must press on the material (F + m g >= 0) to stay there
-    return max(best * float(params.speed_rad_s) ** 2 / 1e3, 0.0)
-
-
-def holding_m_s2(params: PF.PresserFoot):
-    """(F + m g) / m of the machine(s), m/s^2."""
-    return (np.asarray(params.preload_n) + np.asarray(params.mass_kg) * PF.GRAVITY_M_S2) \
-        / np.asarray(params.mass_kg)
-
-
-def scaled_family(params: PF.PresserFoot, factors) -> PF.PresserFoot:
-    """Machines with mass, spring rate and preload all times each factor: one point of the
-    family the contact cycle cannot tell apart (k/m and (F + m g)/m unchanged)."""
-    f = np.asarray(factors, float)
-    return dataclasses.replace(params, mass_kg=params.mass_kg * f,
-                               stiffness_n_per_mm=params.stiffness_n_per_mm * f,
-                               preload_n=params.preload_n * f)

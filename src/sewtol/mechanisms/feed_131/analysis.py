@@ -1,5 +1,7 @@
-"""Feed chains of the 131-42+3: trajectories, working figures, the stitch regulator and
-tolerance studies on the feed step and the differential ratio."""
+"""The 131-42+3 feed's own analysis of one machine: trajectories and velocities of the teeth,
+the working figures, the stitch regulator (sweep, the b for a step, the b range for a ratio band)
+and the source's read-offs with the explanations tested against them. Its tolerance studies run
+on the protocol (sewtol.studies through feed_131.tables)."""
 
 from __future__ import annotations
 
@@ -14,10 +16,6 @@ from sewtol.mechanisms.feed_131 import model as fd
 from sewtol.mechanisms.feed_131.metrics import dog_figures, pair_figures
 from sewtol.mechanisms.feed_131.model import Feed131
 from sewtol.optimize import bisect_root
-from sewtol.studies.montecarlo import contributors, sample_machines, with_remainder
-from sewtol.tolerances import Tolerance, ToleranceSet
-
-OUTPUTS = ("lower_step_mm", "upper_step_mm", "differential_ratio", "mismatch_mm")
 
 
 def columns(params: Feed131) -> tuple[dict, int]:
@@ -147,57 +145,6 @@ def b_range_for_ratio(params: Feed131, band=(1.0, 1.2), b_range=(0.0, 60.0),
     return frame
 
 
-def default_tolerances(params: Feed131 | None = None, link_mm: float = 0.05,
-                       pivot_mm: float = 0.05) -> ToleranceSet:
-    """An assumed set (the source gives no feed tolerances): every link length +/- link_mm and
-    every frame-pivot coordinate +/- pivot_mm, uniform."""
-    names = list(Feed131.LENGTHS)
-    pivots = [f for f in P.field_names(Feed131) if f[-1] in "xy" and f[:-1] in
-              ("O2", "O3", "O4", "O5", "O6", "O7", "O8", "X", "U")]
-    items = tuple(Tolerance(n, -link_mm, link_mm) for n in names) + \
-        tuple(Tolerance(n, -pivot_mm, pivot_mm) for n in pivots)
-    return ToleranceSet("feed_assumed", items,
-                        f"assumed: links +/-{link_mm} mm, frame pivots +/-{pivot_mm} mm, uniform")
-
-
-def scan(params: Feed131, tolerances: ToleranceSet) -> pd.DataFrame:
-    """Each tolerance at its limits, others nominal: feed steps and ratio, and their changes."""
-    names, sides, deltas, dev = tolerances.limit_variants()
-    out = outputs(params, dev)
-    nom = outputs(params, {})
-    frame = pd.DataFrame({"param": names, "side": sides, "delta_mm": deltas, **out})
-    for k in ("lower_step_mm", "upper_step_mm", "differential_ratio"):
-        frame[f"change_{k}"] = frame[k] - float(nom[k][0])
-    return frame
-
-
-def montecarlo(params: Feed131, tolerances: ToleranceSet, n: int, seed: int, n_jobs: int = 1,
-               progress=False, scheduler=None) -> pd.DataFrame:
-    """Feed outputs of n machines (sample_machines: progress bar or callback, Dask cluster)."""
-    return sample_machines(outputs, params, tolerances, n, seed, n_jobs, progress,
-                           desc="feed Monte-Carlo", scheduler=scheduler)
-
-
-def montecarlo_summary(machines: pd.DataFrame) -> pd.DataFrame:
-    rows = []
-    for k in OUTPUTS:
-        x = machines[k]
-        ok = x.dropna()
-        rows.append({"output": k, "n": len(x), "failed": int(x.isna().sum()),
-                     "mean": ok.mean(), "std": ok.std(ddof=1), "p1": ok.quantile(0.01),
-                     "p99": ok.quantile(0.99), "min": ok.min(), "max": ok.max()})
-    return pd.DataFrame(rows)
-
-
-def contributor_table(machines: pd.DataFrame, tolerances: ToleranceSet, top: int = 10):
-    frames = []
-    for k in ("lower_step_mm", "differential_ratio", "mismatch_mm"):
-        f = with_remainder(contributors(machines, tolerances.active().params, k), top)
-        f.insert(0, "output", k)
-        frames.append(f)
-    return pd.concat(frames, ignore_index=True)
-
-
 # The source's read-offs from its plots of the program's output (docs/feed_131.md restates
 # them): (dog, figure, value). Lower: top point of
 # the middle tooth; upper: bottom point of the middle tooth; plate level not stated. The steps
@@ -253,7 +200,6 @@ def _grid_fit(params: Feed131, name: str, lo: float, hi: float, step: float, dog
               plate_from_rise: bool, fixed: dict | None = None) -> float:
     """The value of `name` in [lo, hi] with the smallest largest phase residual of `dog`: a grid
     search at `step`, then a grid of step / 20 around the best point (first of ties)."""
-    from sewtol.mechanisms.feed_131.metrics import dog_figures
 
     def misfit(grid):
         values = {name: grid, **(fixed or {})}
@@ -356,7 +302,6 @@ def readoff_residuals(params: Feed131 | None = None,
     wrapped to (-180, 180]; the feed step keeps its sign (the source's T is positive forward).
     The step is compared as a length (|T|) and its sense as feed_direction (+1 forward). A
     figure the variant cannot produce (its tooth never crosses the level) is NaN."""
-    from sewtol.mechanisms.feed_131.metrics import dog_figures
 
     params = params or Feed131()
     explanations = explanations or readoff_explanations(params)
@@ -378,66 +323,3 @@ def readoff_residuals(params: Feed131 | None = None,
             rows.append({"explanation": e.name, "dog": dog, "figure": fig, "source": src,
                          "model": model, "residual": res})
     return ReadoffResiduals(pd.DataFrame(rows), tuple(explanations))
-
-
-# --- Sobol indices of the feed, each output over the tolerances that matter to it ----------
-
-SOBOL_OUTPUTS = ("lower_step_mm", "upper_step_mm", "differential_ratio")
-
-
-def important_parameters(machines: pd.DataFrame, tolerances: ToleranceSet, output: str,
-                         share: float = 0.9, min_params: int = 4,
-                         max_params: int = 12) -> list[str]:
-    """The tolerances that matter to `output`, from a Monte-Carlo's bias-corrected eta^2
-    (`contributors`): in falling order until they hold `share` of the summed first-order
-    effects, at least min_params and at most max_params."""
-    f = contributors(machines, tolerances.active().params, output)
-    k = int(np.searchsorted(f["cumulative_pct"].to_numpy(), 100.0 * share) + 1)
-    return f["param"].tolist()[:min(max(k, min_params), max_params, len(f))]
-
-
-def output_of(nominal: Feed131, deviations: dict, output: str) -> np.ndarray:
-    """outputs(nominal, deviations)[output], computing only the dogs that output needs (a step:
-    one dog, the ratio: both, without the grip-overlap pass): the same numbers, in a third to
-    two thirds of the time (what the Sobol study evaluates, once per output)."""
-    c = _machine_columns(nominal, deviations)
-    if output in ("lower_step_mm", "upper_step_mm"):
-        return dog_figures(c, output.split("_")[0]).feed_step_mm
-    if output == "differential_ratio":
-        lo, up = dog_figures(c, "lower"), dog_figures(c, "upper")
-        return np.where(lo.ok & up.ok, up.feed_step_mm / lo.feed_step_mm, np.nan)
-    return outputs(nominal, deviations)[output]
-
-
-def _sobol_chunk(params: Feed131, names, X, output):
-    return output_of(params, {k: X[:, i] for i, k in enumerate(names)}, output)
-
-
-def sobol(params: Feed131, tolerances: ToleranceSet, n: int, seed: int, machines: pd.DataFrame,
-          which: tuple[str, ...] = SOBOL_OUTPUTS, n_jobs: int = 1, progress=False,
-          scheduler=None, chunk_size: int = 512, resamples: int = 200, **select):
-    """Sobol indices (SALib) of each feed output over its own important parameters (chosen
-    from `machines`, a Monte-Carlo of the same set; `select` goes to important_parameters),
-    at n and n / 2 base samples (the convergence table). Chunks run like every study
-    (n_jobs, progress, scheduler)."""
-    from sewtol.studies.parallel import chunk_bounds, run_chunks
-    from sewtol.studies.sobol import case_indices, problem_of, result_of, sample
-
-    cases, chosen = [], {}
-    for output in which:
-        if output not in OUTPUTS:
-            raise ParameterError("output", f"must be one of {', '.join(OUTPUTS)}", output)
-        names = important_parameters(machines, tolerances, output, **select)
-        chosen[output] = names
-        problem = problem_of(ToleranceSet(tolerances.name, tuple(
-            t for t in tolerances.active().items if t.param in names), tolerances.description))
-        X = sample(problem, n, seed)
-        parts = run_chunks(_sobol_chunk, [(params, problem["names"], X[a:b], output)
-                                          for a, b in chunk_bounds(len(X), chunk_size)],
-                           n_jobs=n_jobs, progress=progress, desc=f"feed Sobol {output}",
-                           scheduler=scheduler)
-        c = case_indices(problem, X, np.concatenate(parts), n, seed, output, resamples)
-        c.convergence.insert(1, "params", len(names))
-        cases.append(c)
-    res = result_of(cases, n, seed, tolerances.name)
-    return res, chosen
