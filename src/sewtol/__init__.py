@@ -41,7 +41,7 @@ _PUBLIC = {
     "needle_sobol": ("sewtol.mechanisms.needle_208.sobol", "needle_sobol"),
     "allocate": ("sewtol.mechanisms.needle_208.allocation", "allocate"),
     "compare_guides": ("sewtol.mechanisms.needle_208.guides", "compare_guides"),
-    "strategies_table": ("sewtol.mechanisms.needle_208.strategies", "strategies_table"),
+    "strategies_table": ("sewtol.mechanisms.needle_208.tables", "strategies_table"),
     "optimise": ("sewtol.mechanisms.needle_208.adjust", "optimise"),
     "adjust": ("sewtol.mechanisms.needle_208.adjustment", "adjust"),
     "Compensator": ("sewtol.mechanisms.needle_208.compensators", "Compensator"),

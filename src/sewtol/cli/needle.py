@@ -344,7 +344,7 @@ def _strategy_record(strategy) -> dict:
 
 def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
     """needle montecarlo --adjust: the per-machine table of one strategy and its summary."""
-    from sewtol.mechanisms.needle_208.strategies import adjusted_montecarlo_model, summarise_frame
+    from sewtol.mechanisms.needle_208.tables import adjusted_montecarlo_model, summarise_frame
     from sewtol.provenance import now
     from sewtol.studies.montecarlo import CHUNK, sample_machines
 
@@ -377,8 +377,8 @@ def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
 
 
 def cmd_needle_strategies(args):
-    from sewtol.mechanisms.needle_208.compensators import Strategy
-    from sewtol.mechanisms.needle_208.strategies import default_strategies, strategies_table
+    from sewtol.mechanisms.needle_208.compensators import Strategy, default_strategies
+    from sewtol.mechanisms.needle_208.tables import strategies_table
     from sewtol.provenance import now
 
     check_n(args.n)
@@ -528,8 +528,7 @@ def cmd_needle_guides(args):
 
 
 def cmd_needle_allocation(args):
-    from sewtol.mechanisms.needle_208.allocation import allocate
-    from sewtol.mechanisms.needle_208.strategies import allocate_for_strategy
+    from sewtol.mechanisms.needle_208.allocation import allocate, allocate_for_strategy
 
     if not (np.isfinite(args.target) and 0 < args.target < 1):
         raise ParameterError("--target", "must be a yield strictly between 0 and 1",

@@ -86,14 +86,19 @@ def _chunk(mech, values, strategies, output, fast, options, threads):
         numba.set_num_threads(before)
 
 
-def _concat(parts: list[Adjusted]) -> Adjusted:
-    def cat(key):
-        return {k: np.concatenate([np.asarray(getattr(p, key)[k]) for p in parts])
-                for k in getattr(parts[0], key)}
+def _cat(values: list):
+    """Consecutive chunks' figures as one: arrays joined, dicts of them key by key."""
+    if isinstance(values[0], Mapping):
+        return {k: _cat([v[k] for v in values]) for k in values[0]}
+    if np.ndim(values[0]) == 0:  # a figure of the whole batch (the same in every chunk)
+        return values[0]
+    return np.concatenate([np.asarray(v, object if isinstance(v[0], str) else None)
+                           for v in values])
 
-    return Adjusted(np.concatenate([p.value for p in parts]), cat("settings"),
-                    np.concatenate([np.asarray(p.status, object) for p in parts]),
-                    cat("at_bound"), cat("extras"), parts[0].path)
+
+def _concat(parts: list[Adjusted]) -> Adjusted:
+    return Adjusted(*(_cat([getattr(p, k) for p in parts]) for k in
+                      ("value", "settings", "status", "at_bound", "extras")), parts[0].path)
 
 
 @dataclass(frozen=True)

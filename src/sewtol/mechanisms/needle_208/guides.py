@@ -117,9 +117,8 @@ def _guide_figures(p, range_deg, limit_um=sb.DEFAULT_LIMIT_UM):
 
 def _adjusted_figures(nominal, tolerances, n, seed, range_deg, strategy, limit_um):
     """Each setting's figures with the strategy's joint optimum on the same machines."""
-    from sewtol.mechanisms.needle_208.adjustment import adjust
+    from sewtol.mechanisms.needle_208.adjustment import adjust, columns_of
     from sewtol.mechanisms.needle_208.compensators import Strategy
-    from sewtol.mechanisms.needle_208.strategies import columns_of
 
     check_sampling(nominal, tolerances, n, seed)  # as montecarlo checks the same machines
     dev = draw_deviations(tolerances, n, seed)  # montecarlo's machines for this seed

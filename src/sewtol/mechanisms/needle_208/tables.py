@@ -19,10 +19,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
+from scipy import stats
 
 from sewtol.errors import ParameterError
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.needle_208 import beta as sb
+from sewtol.mechanisms.needle_208.adjustment import STATUSES, Adjustment, adjust, columns_of
+from sewtol.studies.montecarlo import contributors
 from sewtol.tolerances import ToleranceSet, needle_set
 
 if TYPE_CHECKING:
@@ -270,3 +273,196 @@ def worst_case_table(nominal: Needle208, tolerances: ToleranceSet | str,
     return pd.DataFrame([worst_case(nominal, tolerances, a, range_deg,
                                     strategy=strategy if a else None).to_row()
                          for a in (False, True)])
+
+
+def summary_row(strategy: Strategy, limit_um: float, total, status, at_limit: dict,
+                achieved, settings: dict) -> dict:
+    """One row of the strategies table (see the module docstring) from per-machine arrays."""
+    total, status, achieved = np.asarray(total, float), np.asarray(status), np.asarray(achieved)
+    n = total.size
+    counts = {s: int(np.sum(status == s)) for s in STATUSES}
+    if sum(counts.values()) != n:
+        raise ParameterError("status", f"must be one of {', '.join(STATUSES)} for every machine",
+                             sorted(set(status) - set(STATUSES)))
+    k = counts["ok"]
+    ci = stats.binomtest(k, n).proportion_ci(confidence_level=0.95, method="exact")
+    x = np.where(np.isfinite(total), total, np.inf)
+    q = {f"p{p}_um": float(np.quantile(x, p / 100, method="higher")) for p in (50, 95, 99)}
+    run = total[np.isfinite(total)]
+    if run.size >= 2 and np.std(run, ddof=1) > 0:
+        cpk = float((limit_um - run.mean()) / (3 * np.std(run, ddof=1)))
+    else:
+        cpk = float("nan")
+    row = {"strategy": strategy.name, "n": n, "ok": k,
+           "out_of_spec": counts["out of spec"], "cannot_assemble": counts["cannot assemble"],
+           "dead_point": counts["dead point"], "yield": k / n, "yield_ci_low": float(ci.low),
+           "yield_ci_high": float(ci.high), **q, "Cpk": cpk}
+    ok = status == "ok"
+    any_limit = np.zeros(n, bool)
+    for comp in strategy.compensators:
+        any_limit |= np.asarray(at_limit[comp.name], bool)
+    row["at_limit_share"] = float(any_limit.mean())
+    row["at_limit"] = ", ".join(f"{c.name} {np.mean(at_limit[c.name]):.1%}"
+                                for c in strategy.compensators)
+    row["achieved_yield"] = float(np.mean(achieved <= limit_um))
+    row["distinct_settings"] = ", ".join(
+        f"{c.name} {np.unique(np.round(np.asarray(settings[c.name])[ok], 9)).size}"
+        for c in strategy.compensators if c.discrete)
+    return row
+
+
+def summarise(adj: Adjustment) -> dict:
+    return summary_row(adj.strategy, adj.limit_um, adj.total_um, adj.status, adj.at_limit,
+                       adj.achieved_um, adj.settings)
+
+
+def summarise_frame(machines: pd.DataFrame, strategy: Strategy, limit_um: float) -> pd.DataFrame:
+    """The summary row of a per-machine table written by Adjustment.to_dataframe()."""
+    cols = {c.name: [k for k in machines.columns if k.startswith(f"{c.name}_setting")][0]
+            for c in strategy.compensators}
+    row = summary_row(strategy, limit_um, machines["total_after_um"].to_numpy(),
+                      machines["status"].to_numpy(),
+                      {c.name: machines[f"{c.name}_at_limit"].to_numpy(bool)
+                       for c in strategy.compensators},
+                      machines["achieved_um"].to_numpy(),
+                      {k: machines[v].to_numpy() for k, v in cols.items()})
+    return pd.DataFrame([row])
+
+
+@dataclass(frozen=True)
+class StrategiesResult:
+    """The strategies table, the per-machine adjustments and the deviations they share."""
+
+    deviations: pd.DataFrame
+    adjustments: tuple[Adjustment, ...]
+    params: tuple[str, ...]
+    tolerances: str
+    seed: int
+    limit_um: float
+    limits: dict  # param -> (lower, upper) deviation limits of the tolerance set
+
+    @property
+    def n(self) -> int:
+        return len(self.deviations)
+
+    def to_dataframe(self) -> pd.DataFrame:
+        return pd.DataFrame([summarise(a) for a in self.adjustments])
+
+    def machines(self, strategy: str) -> pd.DataFrame:
+        """Deviations, criterion before and after, settings, at-limit flags and status."""
+        adj = self.get(strategy)
+        f = self.deviations.copy()
+        f.insert(0, "machine", np.arange(self.n))
+        return pd.concat([f, adj.to_dataframe()], axis=1)
+
+    def get(self, strategy: str) -> Adjustment:
+        for a in self.adjustments:
+            if a.strategy.name == strategy:
+                return a
+        names = [a.strategy.name for a in self.adjustments]
+        raise ParameterError("strategy", f"not in this table; rows are {', '.join(names)}",
+                             strategy)
+
+    def failure_contributors(self, strategy: str, bins: int = 10) -> pd.DataFrame:
+        """Which tolerances drive the machines still out of spec after adjustment.
+
+        Two views side by side: the correlation-ratio shares (montecarlo.contributors) of the
+        adjusted SumDelta over all machines that run and over the out-of-spec ones alone, and
+        the conditional shift of each deviation: the mean of (deviation - mid) / half-width
+        over the failing machines, with mid and half-width those of the tolerance (about 0 for a
+        tolerance that does not matter, towards +/-1 for one whose limit the failures sit at),
+        and the mean |z| over the failing machines next to that over all machines.
+        """
+        adj = self.get(strategy)
+        frame = self.deviations.copy()
+        frame["total_after_um"] = adj.total_um
+        fail = adj.status == "out of spec"
+        out = pd.DataFrame({"param": list(self.params)})
+        all_c = contributors(frame, self.params, "total_after_um", bins).set_index("param")
+        out["share_all_pct"] = out.param.map(all_c["share_pct"])
+        if fail.sum() > bins + 1:
+            f_c = contributors(frame[fail], self.params, "total_after_um", bins).set_index("param")
+            out["share_failing_pct"] = out.param.map(f_c["share_pct"])
+        else:
+            out["share_failing_pct"] = np.nan
+        for p in self.params:
+            x = frame[p].to_numpy()
+            lo, hi = self.limits[p]
+            half = 0.5 * (hi - lo)
+            z = (x - 0.5 * (hi + lo)) / half
+            out.loc[out.param == p, "mean_z_failing"] = float(z[fail].mean()) if fail.any() \
+                else np.nan
+            out.loc[out.param == p, "mean_abs_z_failing"] = float(np.abs(z[fail]).mean()) \
+                if fail.any() else np.nan
+            out.loc[out.param == p, "mean_abs_z_all"] = float(np.abs(z).mean())
+        out.insert(1, "n_failing", int(fail.sum()))
+        return out.sort_values("mean_abs_z_failing", ascending=False, na_position="last") \
+            .reset_index(drop=True)
+
+
+def strategies_table(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed: int,
+                     strategies: list[Strategy] | None = None, limit_um: float = 10.0,
+                     n_jobs: int = 1, progress=False) -> StrategiesResult:
+    """`sewtol needle strategies`: the strategies study (sewtol.studies.strategies) of the same
+    n machines (one draw from `seed`) on `as_mechanism(nominal)`, each strategy's joint optimum
+    by the needle's strategy adjuster (needle_208.adjustment), in the source's columns.
+
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters).
+    tolerances : ToleranceSet or str
+        What the machines draw from.
+    n : int
+        Machines (>= 2), the same for every strategy.
+    seed : int
+        The seed of the one draw (>= 0).
+    strategies : list of Strategy or None
+        The rows; None: none, beta, beta+shift, beta+shift+angle, beta+CD and all, with the
+        built-in compensator ranges.
+    limit_um : float
+        The SumDelta limit (um).
+    n_jobs : int
+        Worker processes (chunks of machines; the same numbers, machine by machine).
+    progress : bool or callable
+        A progress bar, or a callback progress(done, total).
+
+    Returns
+    -------
+    StrategiesResult
+        ``to_dataframe()``: per strategy the counts (ok, out of spec, cannot assemble, dead
+        point; they add up to n), the yield and its interval, SumDelta quantiles (um), Cpk,
+        at-limit shares and distinct settings; ``machines(name)`` per machine.
+    """
+    from sewtol.mechanism.spec import Spec
+    from sewtol.mechanisms.needle_208.compensators import default_strategies
+    from sewtol.studies import strategies as ST
+
+    tolerances = needle_set(tolerances)
+    if not (np.isfinite(limit_um) and limit_um > 0):
+        raise ParameterError("limit_um", "must be a positive number of um", limit_um)
+    tol = tolerances.active()
+    strategies = default_strategies() if strategies is None else strategies
+    names = [s.name for s in strategies]
+    if len(set(names)) != len(names):
+        raise ParameterError("strategies", "names a strategy twice", names)
+    valid = list(columns_of(nominal, {t.param: np.zeros(1) for t in tol.items}))
+    strategies = [s.check_names(valid) for s in strategies]
+    r = ST.strategies(as_mechanism(nominal), tolerances, n, seed,
+                      {s.name: s for s in strategies}, OUTPUT, Spec(OUTPUT, float(limit_um)),
+                      n_jobs=n_jobs, progress=progress, limit_um=limit_um)
+    adjs = tuple(Adjustment(s, float(limit_um), a.extras["total_before_um"], a.value,
+                            a.extras["plus_um"], a.extras["minus_um"], a.extras["achieved_um"],
+                            a.status, a.settings, a.extras["low"], a.extras["high"],
+                            a.extras["at_limit"]) for s, a in zip(strategies, r.adjusted,
+                                                                  strict=True))
+    return StrategiesResult(pd.DataFrame(r.deviations), adjs, tuple(tol.params), tolerances.name,
+                            int(seed), float(limit_um),
+                            {t.param: (t.lower, t.upper) for t in tol.items})
+
+
+def adjusted_montecarlo_model(nominal, dev, strategy: Strategy, limit_um: float):
+    """Model for montecarlo.sample_machines: the per-machine table of one strategy."""
+    adj = adjust(columns_of(nominal, dev), strategy, limit_um)
+    f = adj.to_dataframe()
+    return {k: f[k].to_numpy() for k in f.columns}
