@@ -88,18 +88,18 @@ def test_file_studies_draw_the_same_machines(monkeypatch):
     mech = load(FILE)
     tol = mech.tolerance_sets["normal"]
     want = mc.draw_deviations(tol, N, SEED)
-    m = G.montecarlo(mech, tol, N, SEED).machines
+    m = mc.montecarlo(mech, tol, N, SEED).machines
     _same({k: m[k] for k in want}, want)
     _same(_ppm_machines(GY.file_limit_state(mech, tol, "stroke_mm", upper=20.02)), want,
           rtol=1e-12)
     calls = []
-    real = G._values
+    real = G.deviated_values
 
     def recording(mech_, dev):
         calls.append(dev)
         return real(mech_, dev)
 
-    monkeypatch.setattr(G, "_values", recording)
+    monkeypatch.setattr(G, "deviated_values", recording)
     a = GY.allocate(mech, tol, "stroke_mm", 0.9, upper=20.02, lower=19.98, n=N, seed=SEED)
     # one trial is at the reported scale: montecarlo's machines of the allocated set
     allocated = mc.draw_deviations(a.as_tolerance_set(), N, SEED)

@@ -256,8 +256,10 @@ def cmd_run(args) -> None:
         return _yield_study(args, fmt, mech, tolerances)
     if args.study == "strategies":
         return _strategies(args, fmt, mech, tolerances)
-    res = _as_flags(G.montecarlo, mech, tolerances, args.n, args.seed, outputs, args.limit,
-                    args.output, args.n_jobs, False, G.CHUNK, args.adjust, args.lower_limit)
+    from sewtol.studies import montecarlo as MC
+
+    res = _as_flags(MC.montecarlo, mech, tolerances, args.n, args.seed, outputs, args.limit,
+                    args.output, args.n_jobs, False, MC.CHUNK, args.adjust, args.lower_limit)
     return _finish(args, fmt, mech, tolerances, res.to_dict(),
                    {"machines": res.machines, "summary": res.summary_frame()},
                    res.summary_frame())
