@@ -92,8 +92,8 @@ def test_sobol_adjust_beta_matches_todays_adjusted_case():
 
 def test_sobol_model_chunk_calls_adjust():
     from sewtol.mechanisms.needle_208.evaluate import evaluate
-    from sewtol.mechanisms.needle_208.montecarlo import fixed_beta_of
     from sewtol.mechanisms.needle_208.sobol import _needle_chunk
+    from sewtol.mechanisms.needle_208.tables import fixed_beta_of
     from sewtol.studies.sobol import problem_of, sample
 
     tol = NEEDLE_208_SETS["base"]

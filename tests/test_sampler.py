@@ -9,9 +9,8 @@ import numpy as np
 from sewtol.mechanism import load
 from sewtol.mechanisms.needle_208 import allocation as NA
 from sewtol.mechanisms.needle_208 import compensators as C
-from sewtol.mechanisms.needle_208.montecarlo import montecarlo
 from sewtol.mechanisms.needle_208.ppm import needle_limit_state
-from sewtol.mechanisms.needle_208.tables import strategies_table
+from sewtol.mechanisms.needle_208.tables import montecarlo, strategies_table
 from sewtol.studies import generic as G
 from sewtol.studies import generic_yield as GY
 from sewtol.studies import montecarlo as mc

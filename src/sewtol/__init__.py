@@ -37,7 +37,7 @@ _PUBLIC = {
     "scan": ("sewtol.mechanisms.needle_208.tables", "scan"),
     "largest_tolerances": ("sewtol.mechanisms.needle_208.tables", "largest_tolerances"),
     "worst_case_table": ("sewtol.mechanisms.needle_208.tables", "worst_case_table"),
-    "montecarlo": ("sewtol.mechanisms.needle_208.montecarlo", "montecarlo"),
+    "montecarlo": ("sewtol.mechanisms.needle_208.tables", "montecarlo"),
     "needle_sobol": ("sewtol.mechanisms.needle_208.sobol", "needle_sobol"),
     "allocate": ("sewtol.mechanisms.needle_208.allocation", "allocate"),
     "compare_guides": ("sewtol.mechanisms.needle_208.guides", "compare_guides"),

@@ -91,7 +91,7 @@ def _at_beta_star(args, params, strategy=None):
 
 def _fixed_record(args, params, strategy=None) -> dict:
     """The fixed case's beta, what it means, and whether that beta* lies on a range bound."""
-    from sewtol.mechanisms.needle_208.montecarlo import FIXED_BETA_MEANS
+    from sewtol.mechanisms.needle_208.tables import FIXED_BETA_MEANS
 
     return {"fixed_beta_deg": float(params.beta), "fixed_beta_means": FIXED_BETA_MEANS["optimum"],
             "fixed_beta_at_bound": _beta_star_figures(args, params, strategy).beta_at_bound}
@@ -267,7 +267,7 @@ def run_montecarlo(args, params, tolerances, limit, rng, **inputs_extra):
     (--out/--resume) and cluster: the result and its JSON record. `run FILE montecarlo` on the
     needle fast path runs cmd_needle_montecarlo itself (args.file_inputs names the file in
     run.json), so both print the same bytes."""
-    from sewtol.mechanisms.needle_208.montecarlo import montecarlo
+    from sewtol.mechanisms.needle_208.tables import montecarlo
     from sewtol.provenance import now
     from sewtol.studies.montecarlo import CHUNK
 

@@ -13,7 +13,7 @@ Monte-Carlo JSON"); `contributors` and `with_remainder` give each
 tolerance's eta^2 (correlation ratio) as a share of the output's variance, the rest named as
 interaction. `montecarlo` is THE Monte-Carlo of any mechanism (every output, its status, and with
 a compensator the adjusted case through sewtol.studies.adjusting); the needle's beta fixed and
-adjusted table is sewtol.mechanisms.needle_208.montecarlo.
+adjusted table is sewtol.mechanisms.needle_208.tables.
 """
 
 from __future__ import annotations
@@ -262,19 +262,39 @@ def with_remainder(frame: pd.DataFrame, top: int | None = None) -> pd.DataFrame:
 # --- THE Monte-Carlo of any mechanism (the protocol) -------------------------------------
 
 def _file_model(record, dev, mech, outputs, compensator=None, target=None, fast=False):
-    from sewtol.protocol import machines
+    """One chunk of `montecarlo`: the outputs of machines nominal + dev as built (the plug-in
+    kernel where it gives every output, the status of the machines it cannot run from
+    mech.evaluate) and, with a compensator, the adjusted case."""
+    from sewtol.protocol import NO_PLUGINS, machines, plugins
     from sewtol.studies.adjusting import adjusted
 
     values = machines(mech, dev)
-    ev = mech.evaluate(values, outputs)
-    out = {**ev.outputs, "status": ev.status, "failed_group": ev.failed_group}
+    pl = plugins(mech) if fast else NO_PLUGINS
+    if pl.kernel is not None and set(outputs) <= set(pl.kernel_outputs):
+        got = pl.kernel(mech, values)
+        out = {o: got[o] for o in outputs}
+        m = len(got[outputs[0]])
+        status, group = np.full(m, "ok", object), np.full(m, "", object)
+        bad = ~np.all([np.isfinite(v) for v in out.values()], axis=0)
+        if bad.any():
+            ev = mech.evaluate({k: v[bad] for k, v in values.items()}, outputs)
+            status[bad], group[bad] = ev.status, ev.failed_group
+        out.update({"status": status, "failed_group": group})
+    else:
+        ev = mech.evaluate(values, outputs)
+        out = {**ev.outputs, "status": ev.status, "failed_group": ev.failed_group}
     if compensator is not None:
-        param = mech.compensators[compensator].parameter
-        a = adjusted(mech, values, [compensator], target, fast=fast)
-        out.update({f"{target}_adjusted": a.value, f"{param}_setting": a.settings[param],
-                    "status_adjusted": np.array([WORDS.get(w, w) for w in a.status], object),
-                    "failed_group_adjusted": a.extras.get("failed_group",
-                                                          np.full(len(a.value), ""))})
+        comps = [compensator] if isinstance(compensator, str) else compensator
+        a = adjusted(mech, values, comps, target, fast=fast)
+        out[f"{target}_adjusted"] = a.value
+        for param, setting in a.settings.items():
+            out[f"{param}_setting"] = setting
+            if a.path != "generic":  # a plug-in's plateau of optimal settings and its bound
+                out[f"{param}_low"] = a.extras["low"][param]
+                out[f"{param}_high"] = a.extras["high"][param]
+                out[f"{param}_at_bound"] = np.asarray(a.at_bound[param], float)
+        out["status_adjusted"] = np.array([WORDS.get(w, w) for w in a.status], object)
+        out["failed_group_adjusted"] = a.extras.get("failed_group", np.full(len(a.value), ""))
     return out
 
 
@@ -390,7 +410,8 @@ class GenericMonteCarloResult:
 def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
                limit: float | None = None, limit_output: str | None = None, n_jobs: int = 1,
                progress=False, chunk_size: int = CHUNK, adjust: str | None = None,
-               lower_limit: float | None = None, *, fast: bool = False) -> GenericMonteCarloResult:
+               lower_limit: float | None = None, *, fast: bool = False, backend=None,
+               store=None, scheduler=None) -> GenericMonteCarloResult:
     """n machines of the file (see the module doc). Every output with a [[specs]] entry in the
     file splits its ok machines into ok and out_of_spec; `limit`/`lower_limit` replace the
     spec of limit_output (default: the first output studied with limits given, else the first
@@ -398,11 +419,13 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
     adds the adjusted case: limit_output minimised over the compensator on each machine
     (`sewtol.studies.adjusting.adjusted`: the generic optimiser, or with fast=True the
     mechanism's plug-in where it takes the compensator), columns NAME_adjusted, PARAM_setting,
-    status_adjusted, failed_group_adjusted."""
+    status_adjusted, failed_group_adjusted; `adjust` may also map one parameter to its box (a
+    plug-in's search range). fast=True: the plug-in kernel for the outputs it gives. backend,
+    store, scheduler: as `sample_machines` (joblib backend, study folder, Dask cluster)."""
     names = tuple(mech.output_names if outputs is None else outputs)
     for name in names:
         mech.output(name)
-    if adjust is not None and adjust not in mech.compensators:
+    if isinstance(adjust, str) and adjust not in mech.compensators:
         raise ParameterError("adjust", "must name a compensator of the file ("
                              + (", ".join(mech.compensators) or "it has none") + ")", adjust)
     given = limit is not None or lower_limit is not None
@@ -416,13 +439,14 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
     record = mech.parameter_record()
     check_seed(seed)
     check_sampling(record, tolerances, n, seed, chunk_size,
-                      columns=len(tolerances.items) + len(names) + 3)
+                   columns=len(tolerances.items) + len(names) + 3)
     machines = sample_machines(_file_model, record, tolerances, n, seed, n_jobs, progress,
-                                  chunk_size=chunk_size, desc=f"Monte-Carlo {mech.name}",
-                                  mech=mech, outputs=list(names), compensator=adjust,
-                                  target=limit_output, fast=fast)
+                               backend, chunk_size, desc=f"Monte-Carlo {mech.name}",
+                               store=store, scheduler=scheduler, mech=mech, outputs=list(names),
+                               compensator=adjust, target=limit_output, fast=fast)
     if adjust is not None:
         names = (*names, f"{limit_output}_adjusted")
+        adjust = adjust if isinstance(adjust, str) else ",".join(adjust)
     return GenericMonteCarloResult(mech.name, machines, names, tolerances.name, int(seed),
                                    limit_output, specs, source, adjust,
                                    mech.output(limit_output).unit)

@@ -18,8 +18,8 @@ import numpy as np
 import pandas as pd
 
 from sewtol.mechanisms.needle_208 import beta as sb
-from sewtol.mechanisms.needle_208.montecarlo import montecarlo
 from sewtol.mechanisms.needle_208.single import nominal_figures
+from sewtol.mechanisms.needle_208.tables import montecarlo
 from sewtol.studies.montecarlo import check_sampling, draw_deviations
 from sewtol.studies.settings import Setting, compare
 from sewtol.tolerances import ToleranceSet, needle_set

@@ -126,7 +126,7 @@ def needle_sobol(nominal: Needle208, tolerances: ToleranceSet | str, n: int, see
         (with second_order, the S2 pairs and max |dS2|).
     """
     tolerances = needle_set(tolerances)
-    from sewtol.mechanisms.needle_208.montecarlo import fixed_beta_of
+    from sewtol.mechanisms.needle_208.tables import fixed_beta_of
 
     check_sobol(nominal, tolerances, n, seed, second_order)
     sb.check_range(range_deg, limit_um)
