@@ -18,7 +18,7 @@ from sewtol.errors import ParameterError
 from sewtol.mechanism import load, loads
 from sewtol.mechanism.spec import Spec
 from sewtol.studies import generic_yield as GY
-from sewtol.studies import montecarlo as MC
+from sewtol.studies import montecarlo_study as MC
 
 DATA = Path(__file__).parent / "data" / "crank_slider.toml"
 TEXT = DATA.read_text()

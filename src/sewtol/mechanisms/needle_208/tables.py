@@ -29,7 +29,7 @@ from sewtol.mechanisms import params as P
 from sewtol.mechanisms.needle_208 import beta as sb
 from sewtol.mechanisms.needle_208 import status as ns
 from sewtol.mechanisms.needle_208.adjustment import STATUSES, Adjustment, adjust, columns_of
-from sewtol.studies import montecarlo as MC
+from sewtol.studies import montecarlo_study as MC
 from sewtol.studies.montecarlo import CHUNK, check_sampling, contributors, quantiles, record, with_remainder
 from sewtol.tolerances import ToleranceSet, needle_set
 
