@@ -174,31 +174,12 @@ class StrategiesResult:
 def strategies(mech, tolerances, n: int, seed: int, strategies: Mapping | None = None,
                output: str | None = None, spec=None, *, fast: bool = True, n_jobs: int = 1,
                progress=False, **options) -> StrategiesResult:
-    """The machines 0 .. n-1 of `seed` (`law.draw`) adjusted under each strategy.
-
-    Parameters
-    ----------
-    mech : Mechanism
-        Any protocol mechanism.
-    tolerances : ToleranceSet or str
-        The tolerance set (or the name of one of the mechanism's).
-    n, seed : int
-        Machines (>= 2) and the seed (>= 0) of the one draw.
-    strategies : mapping or None
-        Strategy name -> compensators (see the module docstring); None: `default_strategies`.
-    output : str or None
-        The adjusted output; None: the output of the mechanism's first spec (else its first).
-    spec : Spec or None
-        The limits machines must keep; None: the mechanism's spec of `output` (else every
-        machine that runs is ok).
-    fast : bool
-        False: the generic optimiser always (no plug-in).
-    n_jobs, progress
-        Worker processes (chunks of CHUNK machines, the same for any n_jobs) and a
-        progress bar or callback.
-    options
-        For the mechanism's strategy adjuster (e.g. the needle's limit_um).
-    """
+    """The machines 0 .. n-1 of `seed` (`law.draw`) under each strategy (name -> compensators;
+    None: `default_strategies`), `output` (default: that of the mechanism's first spec, else its
+    first) adjusted and held to `spec` (default: the mechanism's spec of it; none: every machine
+    that runs is ok). fast=False: the generic optimiser always; n_jobs, progress: chunks of
+    CHUNK machines on worker processes; options go to the mechanism's strategy adjuster (e.g.
+    the needle's limit_um)."""
     if isinstance(n, bool) or int(n) != n or n < 2:
         raise ParameterError("n", "must be a whole number >= 2", n)
     check_seed(seed)
