@@ -410,14 +410,39 @@ class StrategiesResult:
 
 def strategies_table(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed: int,
                      strategies: list[Strategy] | None = None, limit_um: float = 10.0,
-                     n_jobs: int = 1, progress=False) -> StrategiesResult:
+                     n_jobs: int = 1, progress: bool | Callable[[int, int], None] = False,
+                     ) -> StrategiesResult:
     """`sewtol needle strategies`: the strategies study (sewtol.studies.strategies) of the same
-    n machines of `seed` on `as_mechanism(nominal)`, each strategy (default: none, beta,
-    beta+shift, beta+shift+angle, beta+CD, all) by the needle's strategy adjuster
-    (needle_208.adjustment), SumDelta limited to limit_um. ``to_dataframe()``: per strategy
-    the counts (ok, out of spec, cannot assemble, dead point; they add up to n), the yield
-    and its interval, SumDelta quantiles (um), Cpk, at-limit shares and distinct settings;
-    ``machines(name)`` per machine."""
+    n machines (one draw from `seed`) on `as_mechanism(nominal)`, each strategy's joint optimum
+    by the needle's strategy adjuster (needle_208.adjustment), in the source's columns.
+
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters).
+    tolerances : ToleranceSet or str
+        What the machines draw from.
+    n : int
+        Machines (>= 2), the same for every strategy.
+    seed : int
+        The seed of the one draw (>= 0).
+    strategies : list of Strategy or None
+        The rows; None: none, beta, beta+shift, beta+shift+angle, beta+CD and all, with the
+        built-in compensator ranges.
+    limit_um : float
+        The SumDelta limit (um).
+    n_jobs : int
+        Worker processes (chunks of machines; the same numbers for any n_jobs).
+    progress : bool or callable
+        A progress bar, or a callback progress(done, total).
+
+    Returns
+    -------
+    StrategiesResult
+        ``to_dataframe()``: per strategy the counts (ok, out of spec, cannot assemble, dead
+        point; they add up to n), the yield and its interval, SumDelta quantiles (um), Cpk,
+        at-limit shares and distinct settings; ``machines(name)`` per machine.
+    """
     from sewtol.mechanism.spec import Spec
     from sewtol.mechanisms.needle_208.compensators import default_strategies
     from sewtol.studies import strategies as ST
