@@ -26,7 +26,7 @@ import pandas as pd  # noqa: E402
 from sewtol.errors import ParameterError  # noqa: E402
 from sewtol.io import write_text_atomic  # noqa: E402
 from sewtol.mechanisms.needle_208.model import Needle208  # noqa: E402
-from sewtol.mechanisms.needle_208.strategies import strategies_table  # noqa: E402
+from sewtol.mechanisms.needle_208.tables import strategies_table  # noqa: E402
 from sewtol.mechanisms.params import field_names  # noqa: E402
 from sewtol.provenance import now, run_record  # noqa: E402
 from sewtol.reports import plots  # noqa: E402

@@ -7,10 +7,9 @@ import pytest
 
 from cli_helpers import run
 from cli_helpers import strict_loads as strict
-from sewtol.mechanisms.needle_208.adjustment import adjust
+from sewtol.mechanisms.needle_208.adjustment import adjust, columns_of
 from sewtol.mechanisms.needle_208.compensators import strategy_of
 from sewtol.mechanisms.needle_208.model import Needle208
-from sewtol.mechanisms.needle_208.strategies import columns_of
 from sewtol.studies.montecarlo import draw_deviations
 from sewtol.tolerances import NEEDLE_208_SETS
 
@@ -93,8 +92,8 @@ def test_sobol_adjust_beta_matches_todays_adjusted_case():
 
 def test_sobol_model_chunk_calls_adjust():
     from sewtol.mechanisms.needle_208.evaluate import evaluate
-    from sewtol.mechanisms.needle_208.montecarlo import fixed_beta_of
     from sewtol.mechanisms.needle_208.sobol import _needle_chunk
+    from sewtol.mechanisms.needle_208.tables import fixed_beta_of
     from sewtol.studies.sobol import problem_of, sample
 
     tol = NEEDLE_208_SETS["base"]
@@ -179,7 +178,7 @@ def test_allocation_cli_beta_and_shift_widens_ab_be():
 
 def test_allocation_yield_is_what_it_reports():
     """Recompute the strategy allocation's yield on its common random numbers with adjust()."""
-    from sewtol.mechanisms.needle_208.strategies import allocate_for_strategy
+    from sewtol.mechanisms.needle_208.allocation import allocate_for_strategy
 
     nom, tol = Needle208.nominal(), NEEDLE_208_SETS["base"]
     st = strategy_of(("beta", "guide_shift_um"))

@@ -13,7 +13,7 @@ from scipy import stats
 from cli_helpers import run, strict_loads
 from sewtol.cli import resolve_progress
 from sewtol.errors import ParameterError
-from sewtol.mechanisms.needle_208.montecarlo import montecarlo
+from sewtol.mechanisms.needle_208.tables import montecarlo
 from sewtol.studies.sobol import sample, sobol_pairs
 from sewtol.tolerances import NEEDLE_208_SETS, Tolerance, ToleranceSet, load_toml
 

@@ -259,21 +259,31 @@ def test_report_tolerances_from_a_file(tmp_path, capsys):
 def test_strategies_in_chunks_are_the_strategies_in_one_piece():
     """The parallel path of the strategies report adjusts chunks of machines and concatenates
     them: machine by machine the same numbers as one piece (compared exactly)."""
-    from sewtol.mechanisms.needle_208 import strategies as S
+    from sewtol.mechanisms.needle_208.compensators import default_strategies
     from sewtol.mechanisms.needle_208.model import Needle208
+    from sewtol.mechanisms.needle_208.tables import as_mechanism
+    from sewtol.protocol import machines
+    from sewtol.studies import strategies as S
     from sewtol.tolerances import NEEDLE_208_SETS
 
-    p = Needle208.nominal()
+    mech = as_mechanism(Needle208.nominal())
     tol = NEEDLE_208_SETS["recommended"].active()
-    dev = tol.sample(np.random.default_rng(3), 30)
-    chosen = [s for s in S.default_strategies() if s.name in ("beta", "beta+shift", "beta+CD")]
-    whole = S._adjust_chunk(p, dev, chosen, 10.0)
-    parts = [S._adjust_chunk(p, {k: v[a:b] for k, v in dev.items()}, chosen, 10.0)
+    values = machines(mech, tol.sample(np.random.default_rng(3), 30))
+    chosen = [s for s in default_strategies() if s.name in ("beta", "beta+shift", "beta+CD")]
+    args = ("SumDelta_um", True, {"limit_um": 10.0}, None)
+    whole = S._chunk(mech, values, chosen, *args)
+    parts = [S._chunk(mech, {k: v[a:b] for k, v in values.items()}, chosen, *args)
              for a, b in ((0, 7), (7, 19), (19, 30))]
     for i, one in enumerate(whole):
-        joined = S.concat_adjustments([part[i] for part in parts])
-        pd.testing.assert_frame_equal(joined.to_dataframe(), one.to_dataframe(), check_exact=True)
-        assert joined.n == 30 and joined.counts() == one.counts()
+        joined = S._concat([part[i] for part in parts])
+        np.testing.assert_array_equal(joined.value, one.value)
+        np.testing.assert_array_equal(joined.status, one.status)
+        for key in ("settings", "at_bound", "extras"):
+            for k, v in getattr(one, key).items():
+                got = getattr(joined, key)[k]
+                for name in (v if isinstance(v, dict) else {k: v}):
+                    np.testing.assert_array_equal(*((got, v) if not isinstance(v, dict)
+                                                    else (got[name], v[name])))
 
 
 def test_feed_file_outputs_are_the_closed_form_for_each_output():

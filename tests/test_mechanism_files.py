@@ -15,6 +15,7 @@ from sewtol.mechanisms import params as P
 from sewtol.mechanisms.feed_131.model import Feed131, chains
 from sewtol.mechanisms.needle_208.fast_path import needle_perturbations, needle_positions_residual
 from sewtol.studies import generic as G
+from sewtol.studies import montecarlo_study as MC
 from sewtol.studies import scan as S
 from sewtol.studies import worst_case as W
 
@@ -255,7 +256,7 @@ def test_status_counts_add_up_and_name_the_group():
     # b + c must reach a + d = 45 (B farthest from D at q = 180): b in [11, 17] around 14 fails
     # below b = 15, sits near the stretched dead point just above it, and runs beyond
     mech = loads(FOUR_BAR, "m.toml").override(b=14.0)
-    res = G.montecarlo(mech, mech.tolerance_sets["wide"], 400, 11, limit=20.0)
+    res = MC.montecarlo(mech, mech.tolerance_sets["wide"], 400, 11, limit=20.0)
     c = res.counts("B_y_range_mm")
     assert c["ok"] + c["out_of_spec"] + c["cannot_close"] + c["dead_point"] == c["n"] == 400
     b = res.machines["b"].to_numpy() + 14.0
@@ -279,9 +280,9 @@ def test_dead_point_is_counted():
 def test_same_seed_same_table_and_counts_in_cli():
     mech = load(KHUJAND)
     ts = mech.tolerance_sets["illustrative"]
-    a = G.montecarlo(mech, ts, 300, 5)
-    b = G.montecarlo(mech, ts, 300, 5)
-    c = G.montecarlo(mech, ts, 300, 6)
+    a = MC.montecarlo(mech, ts, 300, 5)
+    b = MC.montecarlo(mech, ts, 300, 5)
+    c = MC.montecarlo(mech, ts, 300, 6)
     assert a.machines.equals(b.machines)
     assert not a.machines["E_x_range_mm"].equals(c.machines["E_x_range_mm"])
     code, out, err = run("run", str(KHUJAND), "montecarlo", "--n", "300", "--seed", "5",
@@ -334,7 +335,7 @@ def test_worst_case_bounds_the_monte_carlo_sample():
     mech = load(KHUJAND)
     ts = mech.tolerance_sets["illustrative"]
     wc = W.worst_case(mech, ts, "E_x_range_mm").rows.set_index("extreme")["value"]
-    sample = G.montecarlo(mech, ts, 500, 2, outputs=["E_x_range_mm"]).machines["E_x_range_mm"]
+    sample = MC.montecarlo(mech, ts, 500, 2, outputs=["E_x_range_mm"]).machines["E_x_range_mm"]
     assert wc["min"] <= sample.min() and sample.max() <= wc["max"]
     assert wc["max"] - wc["min"] == pytest.approx(0.3038, abs=1e-3)
 
@@ -370,7 +371,7 @@ def test_tolerances_breaking_a_rule_are_refused_before_running():
     text = FOUR_BAR.replace("[tolerances.wide]\nb = 3.0", "[tolerances.wide]\na = 11.0")
     mech = loads(text, "m.toml")
     with pytest.raises(ParameterError, match=r"wide\.a\.lower: .*a = -1.*must be a positive"):
-        G.montecarlo(mech, mech.tolerance_sets["wide"], 10, 0)
+        MC.montecarlo(mech, mech.tolerance_sets["wide"], 10, 0)
 
 
 def test_missing_engine_module_is_refused_at_load():

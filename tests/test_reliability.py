@@ -17,7 +17,7 @@ from sewtol.mechanisms.feed_131 import analysis as feed
 from sewtol.mechanisms.feed_131.model import Feed131
 from sewtol.mechanisms.needle_208 import model as nd
 from sewtol.mechanisms.needle_208.model import Needle208
-from sewtol.mechanisms.needle_208.montecarlo import montecarlo
+from sewtol.mechanisms.needle_208.tables import montecarlo
 from sewtol.mechanisms.params import field_names
 from sewtol.tolerances import Tolerance, ToleranceSet
 

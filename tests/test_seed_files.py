@@ -66,11 +66,11 @@ def test_m6_file_equals_the_module():
 @pytest.mark.parametrize("name", ["spatial_crank_rocker", "m6_needle", "khujand_feed",
                                   "presser_foot"])
 def test_every_seed_file_runs_a_tolerance_study_with_counts_that_add_up(name):
-    from sewtol.studies import generic
+    from sewtol.studies import montecarlo_study as MC
 
     mech = load(EXAMPLES / f"{name}.toml")
     tol = next(iter(mech.tolerance_sets.values()))
-    res = generic.montecarlo(mech, tol, n=300, seed=11)
+    res = MC.montecarlo(mech, tol, n=300, seed=11)
     table = res.summary_frame()
     assert len(res.to_dataframe()) == 300
     for _, row in table.iterrows():
@@ -84,7 +84,7 @@ FOOT_NAMES = {"r": "crank_mm", "L": "rod_mm", "a": "offset_mm", "omega_rad_s": "
 
 def test_presser_file_equals_the_module_and_counts_machines_that_never_lose_contact():
     from sewtol.mechanisms.presser_foot import model as pf
-    from sewtol.studies import generic
+    from sewtol.studies import montecarlo_study as MC
 
     mech = load(EXAMPLES / "presser_foot.toml")
     nominal = {p.name: p.nominal for p in mech.parameters}
@@ -103,7 +103,7 @@ def test_presser_file_equals_the_module_and_counts_machines_that_never_lose_cont
     # a Monte-Carlo counts the machines whose loss angle has no value, never drops them
     tol = mech.tolerance_sets["assumed"] if "assumed" in mech.tolerance_sets else next(
         iter(mech.tolerance_sets.values()))
-    res = generic.montecarlo(mech, tol, n=200, seed=3)
+    res = MC.montecarlo(mech, tol, n=200, seed=3)
     row = res.summary_frame().set_index("output").loc["loss_deg"]
     defined = res.machines["loss_deg"].notna().sum()
     assert row["undefined"] + defined + row["cannot_close"] + row["dead_point"] == 200

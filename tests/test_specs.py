@@ -17,8 +17,8 @@ from cli_helpers import run, strict_loads
 from sewtol.errors import ParameterError
 from sewtol.mechanism import load, loads
 from sewtol.mechanism.spec import Spec
-from sewtol.studies import generic as G
 from sewtol.studies import generic_yield as GY
+from sewtol.studies import montecarlo_study as MC
 
 DATA = Path(__file__).parent / "data" / "crank_slider.toml"
 TEXT = DATA.read_text()
@@ -84,7 +84,7 @@ def test_montecarlo_counts_by_the_file_spec_or_the_flags(spec_file):
     assert code == 0, err
     d = strict_loads(out)
     mech = load(spec_file)
-    res = G.montecarlo(mech, mech.tolerance_sets["normal"], 500, 1)
+    res = MC.montecarlo(mech, mech.tolerance_sets["normal"], 500, 1)
     r2 = res.machines["stroke_mm"].to_numpy()
     inside = int(np.sum((r2 >= 19.98) & (r2 <= 20.02)))
     assert 0 < inside < 500

@@ -9,10 +9,10 @@ from sewtol.errors import ParameterError
 from sewtol.mechanisms.needle_208 import compensators as C
 from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208 import model as nd
-from sewtol.mechanisms.needle_208.adjustment import adjust, shift_optimum
+from sewtol.mechanisms.needle_208.adjustment import adjust, columns_of, shift_optimum
 from sewtol.mechanisms.needle_208.kernels import positions as KP
 from sewtol.mechanisms.needle_208.kernels.path import band_kernel, pack
-from sewtol.mechanisms.needle_208.strategies import columns_of, strategies_table, summarise
+from sewtol.mechanisms.needle_208.tables import strategies_table, summarise
 from sewtol.studies.montecarlo import draw_deviations
 from sewtol.tolerances import NEEDLE_208_SETS
 
@@ -364,7 +364,7 @@ def test_cli_strategies_takes_a_frame_and_prints_strict_json(tmp_path):
 
 
 def test_allocation_takes_a_strategy(nominal):
-    from sewtol.mechanisms.needle_208.strategies import allocate_for_strategy
+    from sewtol.mechanisms.needle_208.allocation import allocate_for_strategy
 
     ref = NEEDLE_208_SETS["recommended"]
     shift = C.strategy_of(("beta", "guide_shift_um"))

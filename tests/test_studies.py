@@ -6,8 +6,7 @@ import pytest
 
 from sewtol.errors import ParameterError
 from sewtol.mechanisms.needle_208 import beta as sb
-from sewtol.mechanisms.needle_208.montecarlo import montecarlo
-from sewtol.mechanisms.needle_208.tables import scan, worst_case
+from sewtol.mechanisms.needle_208.tables import montecarlo, scan, worst_case
 from sewtol.optimize import bisect_root
 from sewtol.studies.sobol import sobol_indices
 from sewtol.tolerances import NEEDLE_208_SETS, Tolerance, ToleranceSet

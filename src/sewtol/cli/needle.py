@@ -91,7 +91,7 @@ def _at_beta_star(args, params, strategy=None):
 
 def _fixed_record(args, params, strategy=None) -> dict:
     """The fixed case's beta, what it means, and whether that beta* lies on a range bound."""
-    from sewtol.mechanisms.needle_208.montecarlo import FIXED_BETA_MEANS
+    from sewtol.mechanisms.needle_208.tables import FIXED_BETA_MEANS
 
     return {"fixed_beta_deg": float(params.beta), "fixed_beta_means": FIXED_BETA_MEANS["optimum"],
             "fixed_beta_at_bound": _beta_star_figures(args, params, strategy).beta_at_bound}
@@ -267,7 +267,7 @@ def run_montecarlo(args, params, tolerances, limit, rng, **inputs_extra):
     (--out/--resume) and cluster: the result and its JSON record. `run FILE montecarlo` on the
     needle fast path runs cmd_needle_montecarlo itself (args.file_inputs names the file in
     run.json), so both print the same bytes."""
-    from sewtol.mechanisms.needle_208.montecarlo import montecarlo
+    from sewtol.mechanisms.needle_208.tables import montecarlo
     from sewtol.provenance import now
     from sewtol.studies.montecarlo import CHUNK
 
@@ -344,7 +344,7 @@ def _strategy_record(strategy) -> dict:
 
 def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
     """needle montecarlo --adjust: the per-machine table of one strategy and its summary."""
-    from sewtol.mechanisms.needle_208.strategies import adjusted_montecarlo_model, summarise_frame
+    from sewtol.mechanisms.needle_208.tables import adjusted_montecarlo_model, summarise_frame
     from sewtol.provenance import now
     from sewtol.studies.montecarlo import CHUNK, sample_machines
 
@@ -377,8 +377,8 @@ def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
 
 
 def cmd_needle_strategies(args):
-    from sewtol.mechanisms.needle_208.compensators import Strategy
-    from sewtol.mechanisms.needle_208.strategies import default_strategies, strategies_table
+    from sewtol.mechanisms.needle_208.compensators import Strategy, default_strategies
+    from sewtol.mechanisms.needle_208.tables import strategies_table
     from sewtol.provenance import now
 
     check_n(args.n)
@@ -528,8 +528,7 @@ def cmd_needle_guides(args):
 
 
 def cmd_needle_allocation(args):
-    from sewtol.mechanisms.needle_208.allocation import allocate
-    from sewtol.mechanisms.needle_208.strategies import allocate_for_strategy
+    from sewtol.mechanisms.needle_208.allocation import allocate, allocate_for_strategy
 
     if not (np.isfinite(args.target) and 0 < args.target < 1):
         raise ParameterError("--target", "must be a yield strictly between 0 and 1",

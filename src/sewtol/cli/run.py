@@ -19,13 +19,14 @@ from sewtol.cli.common import FLAGS, as_flags, check_out, check_study, emit, par
 from sewtol.errors import ParameterError
 
 STUDIES = ("nominal", "scan", "montecarlo", "sobol", "worst-case", "ppm", "allocation", "report",
-           "settings")
+           "settings", "strategies")
 RUN_FORMATS = ("text", "table", "json", "csv")
-DEFAULT_N = {"montecarlo": 2000, "sobol": 256, "ppm": 20000, "allocation": 2000, "report": 1000}
+DEFAULT_N = {"montecarlo": 2000, "strategies": 2000, "sobol": 256, "ppm": 20000,
+             "allocation": 2000, "report": 1000}
 # --target: the smallest probability ppm must resolve; the yield allocation must keep
 DEFAULT_TARGET = {"ppm": 1e-6, "allocation": 0.9973}
 # the studies whose limits default to the file's [[specs]] (--limit/--lower-limit override them)
-SPEC_STUDIES = ("montecarlo", "ppm", "allocation", "report")
+SPEC_STUDIES = ("montecarlo", "ppm", "allocation", "report", "strategies")
 # which flags each study reads; any other given flag is refused in one line
 USES = {"nominal": (), "scan": ("output", "tolerances", "adjust"),
         "worst-case": ("output", "tolerances", "adjust"),
@@ -36,7 +37,9 @@ USES = {"nominal": (), "scan": ("output", "tolerances", "adjust"),
                 "adjust", "n_jobs"),
         "allocation": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "target",
                        "weight", "adjust"),
-        "report": ("output", "tolerances", "n", "seed", "limit", "lower_limit"), "settings": ()}
+        "report": ("output", "tolerances", "n", "seed", "limit", "lower_limit"), "settings": (),
+        "strategies": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "n_jobs",
+                       "strategy")}
 # the library's keyword arguments named as `run`'s flags in its errors
 RUN_FLAGS = {**FLAGS, "adjust": "--adjust", "limit": "--limit", "lower_limit": "--lower-limit",
              "target": "--target", "weights": "--weight"}
@@ -77,6 +80,9 @@ def add_run(sub) -> None:
     p.add_argument("--weight", action="append", default=None, metavar="NAME=W",
                    help="allocation: tolerance NAME scales as W times the common scale "
                         "(repeatable; default 1)")
+    p.add_argument("--strategy", action="append", default=None, metavar="NAME=C1,C2",
+                   help="strategies: a row NAME adjusting these [compensators.NAME] of the file "
+                        "together (repeatable; default none, each compensator alone and all)")
     p.add_argument("--format", choices=RUN_FORMATS, default="text")
     p.add_argument("--out", default=None, metavar="DIR",
                    help="write the tables, the result and run.json here")
@@ -133,7 +139,8 @@ def _check_flags(args) -> None:
     for key, flag in (("output", "--output"), ("tolerances", "--tolerances"), ("n", "--n"),
                       ("seed", "--seed"), ("limit", "--limit"), ("n_jobs", "--n-jobs"),
                       ("adjust", "--adjust"), ("lower_limit", "--lower-limit"),
-                      ("method", "--method"), ("target", "--target"), ("weight", "--weight")):
+                      ("method", "--method"), ("target", "--target"), ("weight", "--weight"),
+                      ("strategy", "--strategy")):
         value = getattr(args, key)
         if value is not None and key not in used:
             raise ParameterError(flag, f"is not used by `run {args.study}`", value)
@@ -164,7 +171,8 @@ def _check_yield_flags(args) -> None:
             and not args.lower_limit < args.limit:
         raise ParameterError("--lower-limit", f"must be below --limit {args.limit:g}",
                              args.lower_limit)
-    minimum = {"montecarlo": 2, "ppm": 100, "allocation": 10, "report": 2}[args.study]
+    minimum = {"montecarlo": 2, "ppm": 100, "allocation": 10, "report": 2,
+               "strategies": 2}[args.study]
     if args.n < minimum:
         raise ParameterError("--n", f"must be >= {minimum} for `run {args.study}`", args.n)
     if args.study == "ppm":
@@ -246,11 +254,30 @@ def cmd_run(args) -> None:
                        {**res.frames(), "indices": res.indices}, res.to_dataframe())
     if args.study in ("ppm", "allocation", "report"):
         return _yield_study(args, fmt, mech, tolerances)
-    res = _as_flags(G.montecarlo, mech, tolerances, args.n, args.seed, outputs, args.limit,
-                    args.output, args.n_jobs, False, G.CHUNK, args.adjust, args.lower_limit)
+    if args.study == "strategies":
+        return _strategies(args, fmt, mech, tolerances)
+    from sewtol.studies import montecarlo_study as MC
+
+    res = _as_flags(MC.montecarlo, mech, tolerances, args.n, args.seed, outputs, args.limit,
+                    args.output, args.n_jobs, False, MC.CHUNK, args.adjust, args.lower_limit)
     return _finish(args, fmt, mech, tolerances, res.to_dict(),
                    {"machines": res.machines, "summary": res.summary_frame()},
                    res.summary_frame())
+
+
+def _strategies(args, fmt, mech, tolerances) -> None:
+    """`run FILE strategies` (sewtol.studies.strategies): the same machines under each strategy,
+    through the file's plug-ins unless --path generic."""
+    from sewtol.protocol import plugins
+    from sewtol.studies import strategies as ST
+
+    rows = None if args.strategy is None else ST.parse_strategies(args.strategy, mech)
+    fast = args.path != "generic"
+    args.path_used = (plugins(mech).name or "generic") if fast else "generic"
+    res = _as_flags(partial(ST.strategies, fast=fast, n_jobs=args.n_jobs), mech, tolerances,
+                    args.n, args.seed, rows, args.spec_output, args.spec)
+    frame = res.to_dataframe()
+    return _finish(args, fmt, mech, tolerances, res.to_dict(), {"strategies": frame}, frame)
 
 
 def _as_flags(fn, *a):
@@ -266,7 +293,8 @@ def _run_context(args, mech, tolerances) -> dict:
             "seed": args.seed if draws else None, "n": args.n if draws else None,
             "strategy": args.adjust or "none", "output": args.output,
             "limit": args.limit, "lower_limit": args.lower_limit,
-            "spec_source": getattr(args, "spec_source", None), "path": "generic",
+            "spec_source": getattr(args, "spec_source", None),
+            "path": getattr(args, "path_used", "generic"),
             "path_reason": getattr(args, "path_reason", None)}
 
 

@@ -25,6 +25,7 @@ from sewtol.errors import ParameterError
 from sewtol.io import write_bytes_atomic, write_text_atomic
 from sewtol.reports.tables import to_csv, to_markdown
 from sewtol.studies import generic as G
+from sewtol.studies import montecarlo_study as MC
 from sewtol.studies import scan as S
 from sewtol.studies import worst_case as W
 from sewtol.studies.generic_yield import check_limits, limits_text
@@ -156,8 +157,8 @@ def build(mech, tolerances, n: int = 1000, seed: int = 0, limit_output: str | No
         columns=["extreme", "output", "value", "corner_value", "interior"])
     for name, why in wc_notes.items():
         notes.append(f"worst case of {name} not computed ({why})")
-    mc = G.montecarlo(mech, tolerances, n, seed, limit=upper, lower_limit=lower,
-                      limit_output=limit_output)
+    mc = MC.montecarlo(mech, tolerances, n, seed, limit=upper, lower_limit=lower,
+                       limit_output=limit_output)
     machines = mc.machines
     yield_row = None
     if limit_output is not None:

@@ -11,13 +11,12 @@ for any number of workers and any evaluation chunk size, and a study that scales
 deviations alone; `record` is the JSON shape every Monte-Carlo shares (docs/studies.md, "One
 Monte-Carlo JSON"); `contributors` and `with_remainder` give each
 tolerance's eta^2 (correlation ratio) as a share of the output's variance, the rest named as
-interaction. The needle's Monte-Carlo (beta fixed and adjusted) is
-sewtol.mechanisms.needle_208.montecarlo; any file's is sewtol.studies.generic.montecarlo.
+interaction. `montecarlo` is THE Monte-Carlo of any mechanism (every output, its status, and with
+a compensator the adjusted case through sewtol.studies.adjusting); the needle's beta fixed and
+adjusted table is sewtol.mechanisms.needle_208.tables.
 """
 
 from __future__ import annotations
-
-from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -27,10 +26,6 @@ from sewtol.law import STREAM, InputLaw, draw_units, stream_window, unit_streams
 from sewtol.studies.parallel import chunk_bounds, run_chunks
 from sewtol.tolerances import ToleranceSet
 
-if TYPE_CHECKING:
-
-    pass
-
 # machines per evaluation chunk: the sampler's streams (sewtol.law.STREAM), so a chunk is one stream
 CHUNK = STREAM
 YIELD_CI_METHOD = "Clopper-Pearson exact binomial interval of ok / n"
@@ -38,6 +33,10 @@ QUANTILES_MEAN = ("p50, p95 and p99 of the spec'd output over all n machines, fa
                   "ranked as infinitely bad (numpy method 'higher': always a machine's value)")
 # bytes per machine and column of a study table (float64) plus pandas' working copies
 BYTES_PER_CELL = 8 * 4
+# the protocol's status words for a plug-in's (the needle's adjusters speak with spaces); a
+# machine out of spec still runs: the study's spec decides
+WORDS = {"cannot assemble": "cannot_close", "dead point": "dead_point", "out of spec": "ok",
+         "out_of_spec": "ok"}
 
 
 def quantiles(values) -> dict[str, float]:

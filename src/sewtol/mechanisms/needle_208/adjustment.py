@@ -36,6 +36,7 @@ import numpy as np
 import pandas as pd
 
 from sewtol.errors import ParameterError
+from sewtol.mechanisms import params as P
 from sewtol.mechanisms.needle_208 import adjust as exact
 from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208.compensators import Compensator, Strategy
@@ -509,3 +510,10 @@ def _achieved(c, strategy: Strategy, settings: dict, total) -> np.ndarray:
         v = nm.deviation_figures(cc).total_um
         worst = np.fmax(worst, np.where(np.isnan(v), np.inf, v))
     return np.where(np.isfinite(total), worst, np.nan)
+
+
+def columns_of(nominal, deviations: dict) -> dict:
+    """Parameter columns (n, 1) of the machines nominal + deviations."""
+    m = len(next(iter(deviations.values())))
+    c, _ = nm.columns(P.with_deviations(nominal, deviations))
+    return {k: np.broadcast_to(v, (m, 1)).copy() for k, v in c.items()}

@@ -322,3 +322,18 @@ def load_toml(path: str | Path, valid=None) -> dict[str, Compensator]:
                                  f"{', '.join(valid)}", name)
         out[name] = _from_table(f"compensators.{name}", name, spec)
     return out
+
+
+# the rows of the default strategies table, in order
+STRATEGY_ROWS = {
+    "none": (),
+    "beta": ("beta",),
+    "beta+shift": ("beta", "guide_shift_um"),
+    "beta+shift+angle": ("beta", "guide_shift_um", "guide_angle"),
+    "beta+CD": ("beta", "CD"),
+    "all": ("beta", "guide_shift_um", "guide_angle", "CD"),
+}
+
+
+def default_strategies(table=None) -> list[Strategy]:
+    return [strategy_of(names, table, name) for name, names in STRATEGY_ROWS.items()]

@@ -214,7 +214,8 @@ def needle_strategy_adjuster(mech, values, compensators, limit_um: float = 10.0,
     return {"value": a.total_um, "settings": dict(a.settings), "status": a.status,
             "at_bound": at_bound, "total_um": a.total_um, "plus_um": a.plus_um,
             "minus_um": a.minus_um, "low": dict(a.plateau_low), "high": dict(a.plateau_high),
-            "achieved_um": a.achieved_um, "total_before_um": a.total_before_um}
+            "achieved_um": a.achieved_um, "total_before_um": a.total_before_um,
+            "at_limit": dict(a.at_limit)}
 
 
 def _plugins():

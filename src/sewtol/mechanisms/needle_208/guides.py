@@ -18,8 +18,8 @@ import numpy as np
 import pandas as pd
 
 from sewtol.mechanisms.needle_208 import beta as sb
-from sewtol.mechanisms.needle_208.montecarlo import montecarlo
 from sewtol.mechanisms.needle_208.single import nominal_figures
+from sewtol.mechanisms.needle_208.tables import montecarlo
 from sewtol.studies.montecarlo import check_sampling, draw_deviations
 from sewtol.studies.settings import Setting, compare
 from sewtol.tolerances import ToleranceSet, needle_set
@@ -117,9 +117,8 @@ def _guide_figures(p, range_deg, limit_um=sb.DEFAULT_LIMIT_UM):
 
 def _adjusted_figures(nominal, tolerances, n, seed, range_deg, strategy, limit_um):
     """Each setting's figures with the strategy's joint optimum on the same machines."""
-    from sewtol.mechanisms.needle_208.adjustment import adjust
+    from sewtol.mechanisms.needle_208.adjustment import adjust, columns_of
     from sewtol.mechanisms.needle_208.compensators import Strategy
-    from sewtol.mechanisms.needle_208.strategies import columns_of
 
     check_sampling(nominal, tolerances, n, seed)  # as montecarlo checks the same machines
     dev = draw_deviations(tolerances, n, seed)  # montecarlo's machines for this seed

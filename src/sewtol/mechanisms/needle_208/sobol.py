@@ -48,8 +48,7 @@ def _needle_chunk(nominal, names, X, range_deg, strategy=None, limit_um=sb.DEFAU
     if strategy is None:
         out = evaluate(nominal, dev, adjust=True, range_deg=range_deg)
         return out.total_fixed_um, out.total_adjusted_um
-    from sewtol.mechanisms.needle_208.adjustment import adjust
-    from sewtol.mechanisms.needle_208.strategies import columns_of
+    from sewtol.mechanisms.needle_208.adjustment import adjust, columns_of
 
     fixed = evaluate(nominal, dev, adjust=False, range_deg=range_deg).total_fixed_um
     return fixed, adjust(columns_of(nominal, dev), strategy, limit_um, plateaus=False).total_um
@@ -127,7 +126,7 @@ def needle_sobol(nominal: Needle208, tolerances: ToleranceSet | str, n: int, see
         (with second_order, the S2 pairs and max |dS2|).
     """
     tolerances = needle_set(tolerances)
-    from sewtol.mechanisms.needle_208.montecarlo import fixed_beta_of
+    from sewtol.mechanisms.needle_208.tables import fixed_beta_of
 
     check_sobol(nominal, tolerances, n, seed, second_order)
     sb.check_range(range_deg, limit_um)

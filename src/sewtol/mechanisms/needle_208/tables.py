@@ -1,6 +1,8 @@
 """The needle's tables of the generic studies: a `Needle208` as a protocol mechanism, and the
-scan, worst case and largest tolerances (sewtol.studies.scan, sewtol.studies.worst_case) in the
-source study's columns.
+scan, worst case and largest tolerances (sewtol.studies.scan, sewtol.studies.worst_case), the
+Monte-Carlo (sewtol.studies.montecarlo: beta fixed at the nominal's beta* and re-optimised per
+machine, each failure named by needle_208.status) and the strategies table
+(sewtol.studies.strategies) in the source study's columns.
 
 The studies run on `as_mechanism(nominal)` (the folder's mechanism.toml with the machine's
 values as nominals) and so on the needle's plug-ins (fast_path.py): SumDelta exactly by the
@@ -13,21 +15,30 @@ an end of its range), NAME_mm (deviations).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
 from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
+from scipy import stats
 
 from sewtol.errors import ParameterError
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.needle_208 import beta as sb
+from sewtol.mechanisms.needle_208 import status as ns
+from sewtol.mechanisms.needle_208.adjustment import STATUSES, Adjustment, adjust, columns_of
+from sewtol.studies import montecarlo_study as MC
+from sewtol.studies.montecarlo import CHUNK, check_sampling, contributors, quantiles, record, with_remainder
 from sewtol.tolerances import ToleranceSet, needle_set
 
 if TYPE_CHECKING:
+    from distributed import Client
+
     from sewtol.mechanisms.needle_208.compensators import Strategy
     from sewtol.mechanisms.needle_208.model import Needle208
+    from sewtol.studies.checkpoint import ChunkStore
 
 OUTPUT = "SumDelta_um"
 MAX_CORNER_PARAMS = 10
@@ -270,3 +281,474 @@ def worst_case_table(nominal: Needle208, tolerances: ToleranceSet | str,
     return pd.DataFrame([worst_case(nominal, tolerances, a, range_deg,
                                     strategy=strategy if a else None).to_row()
                          for a in (False, True)])
+
+
+def summary_row(strategy: Strategy, limit_um: float, total, status, at_limit: dict,
+                achieved, settings: dict) -> dict:
+    """One row of the strategies table (see the module docstring) from per-machine arrays."""
+    total, status, achieved = np.asarray(total, float), np.asarray(status), np.asarray(achieved)
+    n = total.size
+    counts = {s: int(np.sum(status == s)) for s in STATUSES}
+    if sum(counts.values()) != n:
+        raise ParameterError("status", f"must be one of {', '.join(STATUSES)} for every machine",
+                             sorted(set(status) - set(STATUSES)))
+    k = counts["ok"]
+    ci = stats.binomtest(k, n).proportion_ci(confidence_level=0.95, method="exact")
+    x = np.where(np.isfinite(total), total, np.inf)
+    q = {f"p{p}_um": float(np.quantile(x, p / 100, method="higher")) for p in (50, 95, 99)}
+    run = total[np.isfinite(total)]
+    if run.size >= 2 and np.std(run, ddof=1) > 0:
+        cpk = float((limit_um - run.mean()) / (3 * np.std(run, ddof=1)))
+    else:
+        cpk = float("nan")
+    row = {"strategy": strategy.name, "n": n, "ok": k,
+           "out_of_spec": counts["out of spec"], "cannot_assemble": counts["cannot assemble"],
+           "dead_point": counts["dead point"], "yield": k / n, "yield_ci_low": float(ci.low),
+           "yield_ci_high": float(ci.high), **q, "Cpk": cpk}
+    ok = status == "ok"
+    any_limit = np.zeros(n, bool)
+    for comp in strategy.compensators:
+        any_limit |= np.asarray(at_limit[comp.name], bool)
+    row["at_limit_share"] = float(any_limit.mean())
+    row["at_limit"] = ", ".join(f"{c.name} {np.mean(at_limit[c.name]):.1%}"
+                                for c in strategy.compensators)
+    row["achieved_yield"] = float(np.mean(achieved <= limit_um))
+    row["distinct_settings"] = ", ".join(
+        f"{c.name} {np.unique(np.round(np.asarray(settings[c.name])[ok], 9)).size}"
+        for c in strategy.compensators if c.discrete)
+    return row
+
+
+def summarise(adj: Adjustment) -> dict:
+    return summary_row(adj.strategy, adj.limit_um, adj.total_um, adj.status, adj.at_limit,
+                       adj.achieved_um, adj.settings)
+
+
+def summarise_frame(machines: pd.DataFrame, strategy: Strategy, limit_um: float) -> pd.DataFrame:
+    """The summary row of a per-machine table written by Adjustment.to_dataframe()."""
+    cols = {c.name: [k for k in machines.columns if k.startswith(f"{c.name}_setting")][0]
+            for c in strategy.compensators}
+    row = summary_row(strategy, limit_um, machines["total_after_um"].to_numpy(),
+                      machines["status"].to_numpy(),
+                      {c.name: machines[f"{c.name}_at_limit"].to_numpy(bool)
+                       for c in strategy.compensators},
+                      machines["achieved_um"].to_numpy(),
+                      {k: machines[v].to_numpy() for k, v in cols.items()})
+    return pd.DataFrame([row])
+
+
+@dataclass(frozen=True)
+class StrategiesResult:
+    """The strategies table, the per-machine adjustments and the deviations they share."""
+
+    deviations: pd.DataFrame
+    adjustments: tuple[Adjustment, ...]
+    params: tuple[str, ...]
+    tolerances: str
+    seed: int
+    limit_um: float
+    limits: dict  # param -> (lower, upper) deviation limits of the tolerance set
+
+    @property
+    def n(self) -> int:
+        return len(self.deviations)
+
+    def to_dataframe(self) -> pd.DataFrame:
+        return pd.DataFrame([summarise(a) for a in self.adjustments])
+
+    def machines(self, strategy: str) -> pd.DataFrame:
+        """Deviations, criterion before and after, settings, at-limit flags and status."""
+        adj = self.get(strategy)
+        f = self.deviations.copy()
+        f.insert(0, "machine", np.arange(self.n))
+        return pd.concat([f, adj.to_dataframe()], axis=1)
+
+    def get(self, strategy: str) -> Adjustment:
+        for a in self.adjustments:
+            if a.strategy.name == strategy:
+                return a
+        names = [a.strategy.name for a in self.adjustments]
+        raise ParameterError("strategy", f"not in this table; rows are {', '.join(names)}",
+                             strategy)
+
+    def failure_contributors(self, strategy: str, bins: int = 10) -> pd.DataFrame:
+        """Which tolerances drive the machines still out of spec after adjustment.
+
+        Two views side by side: the correlation-ratio shares (montecarlo.contributors) of the
+        adjusted SumDelta over all machines that run and over the out-of-spec ones alone, and
+        the conditional shift of each deviation: the mean of (deviation - mid) / half-width
+        over the failing machines, with mid and half-width those of the tolerance (about 0 for a
+        tolerance that does not matter, towards +/-1 for one whose limit the failures sit at),
+        and the mean |z| over the failing machines next to that over all machines.
+        """
+        adj = self.get(strategy)
+        frame = self.deviations.copy()
+        frame["total_after_um"] = adj.total_um
+        fail = adj.status == "out of spec"
+        out = pd.DataFrame({"param": list(self.params)})
+        all_c = contributors(frame, self.params, "total_after_um", bins).set_index("param")
+        out["share_all_pct"] = out.param.map(all_c["share_pct"])
+        if fail.sum() > bins + 1:
+            f_c = contributors(frame[fail], self.params, "total_after_um", bins).set_index("param")
+            out["share_failing_pct"] = out.param.map(f_c["share_pct"])
+        else:
+            out["share_failing_pct"] = np.nan
+        for p in self.params:
+            x = frame[p].to_numpy()
+            lo, hi = self.limits[p]
+            half = 0.5 * (hi - lo)
+            z = (x - 0.5 * (hi + lo)) / half
+            out.loc[out.param == p, "mean_z_failing"] = float(z[fail].mean()) if fail.any() \
+                else np.nan
+            out.loc[out.param == p, "mean_abs_z_failing"] = float(np.abs(z[fail]).mean()) \
+                if fail.any() else np.nan
+            out.loc[out.param == p, "mean_abs_z_all"] = float(np.abs(z).mean())
+        out.insert(1, "n_failing", int(fail.sum()))
+        return out.sort_values("mean_abs_z_failing", ascending=False, na_position="last") \
+            .reset_index(drop=True)
+
+
+def strategies_table(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed: int,
+                     strategies: list[Strategy] | None = None, limit_um: float = 10.0,
+                     n_jobs: int = 1, progress: bool | Callable[[int, int], None] = False,
+                     ) -> StrategiesResult:
+    """`sewtol needle strategies`: the strategies study (sewtol.studies.strategies) of the same
+    n machines (one draw from `seed`) on `as_mechanism(nominal)`, each strategy's joint optimum
+    by the needle's strategy adjuster (needle_208.adjustment), in the source's columns.
+
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters).
+    tolerances : ToleranceSet or str
+        What the machines draw from.
+    n : int
+        Machines (>= 2), the same for every strategy.
+    seed : int
+        The seed of the one draw (>= 0).
+    strategies : list of Strategy or None
+        The rows; None: none, beta, beta+shift, beta+shift+angle, beta+CD and all, with the
+        built-in compensator ranges.
+    limit_um : float
+        The SumDelta limit (um).
+    n_jobs : int
+        Worker processes (chunks of machines; the same numbers for any n_jobs).
+    progress : bool or callable
+        A progress bar, or a callback progress(done, total).
+
+    Returns
+    -------
+    StrategiesResult
+        ``to_dataframe()``: per strategy the counts (ok, out of spec, cannot assemble, dead
+        point; they add up to n), the yield and its interval, SumDelta quantiles (um), Cpk,
+        at-limit shares and distinct settings; ``machines(name)`` per machine.
+    """
+    from sewtol.mechanism.spec import Spec
+    from sewtol.mechanisms.needle_208.compensators import default_strategies
+    from sewtol.studies import strategies as ST
+
+    tolerances = needle_set(tolerances)
+    if not (np.isfinite(limit_um) and limit_um > 0):
+        raise ParameterError("limit_um", "must be a positive number of um", limit_um)
+    tol = tolerances.active()
+    strategies = default_strategies() if strategies is None else strategies
+    names = [s.name for s in strategies]
+    if len(set(names)) != len(names):
+        raise ParameterError("strategies", "names a strategy twice", names)
+    valid = list(columns_of(nominal, {t.param: np.zeros(1) for t in tol.items}))
+    strategies = [s.check_names(valid) for s in strategies]
+    r = ST.strategies(as_mechanism(nominal), tolerances, n, seed,
+                      {s.name: s for s in strategies}, OUTPUT, Spec(OUTPUT, float(limit_um)),
+                      n_jobs=n_jobs, progress=progress, limit_um=limit_um)
+    adjs = tuple(Adjustment(s, float(limit_um), a.extras["total_before_um"], a.value,
+                            a.extras["plus_um"], a.extras["minus_um"], a.extras["achieved_um"],
+                            a.status, a.settings, a.extras["low"], a.extras["high"],
+                            a.extras["at_limit"]) for s, a in zip(strategies, r.adjusted,
+                                                                  strict=True))
+    return StrategiesResult(pd.DataFrame(r.deviations), adjs, tuple(tol.params), tolerances.name,
+                            int(seed), float(limit_um),
+                            {t.param: (t.lower, t.upper) for t in tol.items})
+
+
+def adjusted_montecarlo_model(nominal, dev, strategy: Strategy, limit_um: float):
+    """Model for montecarlo.sample_machines: the per-machine table of one strategy."""
+    adj = adjust(columns_of(nominal, dev), strategy, limit_um)
+    f = adj.to_dataframe()
+    return {k: f[k].to_numpy() for k in f.columns}
+
+
+@dataclass(frozen=True)
+class MonteCarloResult:
+    """The machines of a needle Monte-Carlo and what they give (see `montecarlo`).
+
+    Two cases: ``fixed`` (every machine at the fixed beta) and ``adjusted`` (beta re-optimised
+    per machine). ``summary_frame()`` has per case the counts (``ok + out_of_spec + failed =
+    n``), the yield with its Clopper-Pearson interval, SumDelta quantiles and capability;
+    ``yield_of(case)``, ``yield_ci(case)``, ``counts(case)``, ``quantiles(case)`` and
+    ``capability(case)`` give them one by one; ``machines`` has every machine's deviations
+    (mm), outputs (um, deg) and status.
+    """
+
+    machines: pd.DataFrame  # deviations (mm) and outputs per machine
+    params: tuple[str, ...]
+    tolerances: str
+    seed: int
+    limit_um: float
+    nominal_beta_deg: float  # the beta of the fixed case (see `montecarlo`'s fixed_beta)
+    range_deg: tuple[float, float]
+    fixed_beta: str = "optimum"
+
+    @property
+    def n(self) -> int:
+        """The number of machines drawn."""
+        return len(self.machines)
+
+    @property
+    def failed(self) -> int:
+        """Machines that cannot run at the nominal beta (the fixed case; see `counts`)."""
+        return self.counts("fixed")["failed"]
+
+    @staticmethod
+    def case_of(case: str) -> str:
+        """'fixed' or 'adjusted'; the output names 'fixed_beta' and 'adjusted_beta' work too."""
+        c = case[: -len("_beta")] if isinstance(case, str) and case.endswith("_beta") else case
+        if c not in ("fixed", "adjusted"):
+            raise ParameterError("case", "must be fixed, adjusted, fixed_beta or adjusted_beta",
+                                 case)
+        return c
+
+    def status(self, case: str) -> np.ndarray:
+        """Per machine: ok, out_of_spec, cannot_close, dead_point or unexplained."""
+        case = self.case_of(case)
+        col = f"status_{case}"
+        if col in self.machines:
+            return self.machines[col].to_numpy(object)
+        total = self.machines[f"total_{case}_um"].to_numpy(float)
+        return np.where(np.isnan(total), "unexplained",
+                        np.where(total <= self.limit_um, "ok", "out_of_spec")).astype(object)
+
+    def counts(self, case: str) -> dict[str, int]:
+        """ok, out_of_spec, failed (= cannot_close + dead_point + unexplained) and n of a case."""
+        return ns.counts(self.status(case))
+
+    def passed(self, case: str) -> np.ndarray:
+        """Per machine: True where SumDelta <= limit_um (a failed machine never passes)."""
+        case = self.case_of(case)
+        return (self.machines[f"total_{case}_um"] <= self.limit_um).to_numpy()
+
+    def yield_of(self, case: str) -> float:
+        """The share of machines that pass in a case (``"fixed"`` or ``"adjusted"``)."""
+        return float(self.passed(case).mean())
+
+    def yield_ci(self, case: str = "adjusted", level: float = 0.95) -> tuple[float, float]:
+        """Clopper-Pearson interval of the yield."""
+        case = self.case_of(case)
+        k = int(self.passed(case).sum())
+        ci = stats.binomtest(k, self.n).proportion_ci(confidence_level=level, method="exact")
+        return float(ci.low), float(ci.high)
+
+    def quantiles(self, case: str) -> dict:
+        """p50, p95 and p99 of SumDelta (um); failed machines rank as infinitely bad, so they
+        are not hidden by the quantiles (studies.montecarlo.quantiles)."""
+        return quantiles(self.machines[f"total_{self.case_of(case)}_um"])
+
+    def beta_range(self) -> tuple[float, float]:
+        """The smallest and largest per-machine beta* (deg) among machines that assemble."""
+        b = self.machines["beta_opt_deg"].dropna()
+        return (float(b.min()), float(b.max())) if len(b) else (float("nan"), float("nan"))
+
+    def capability(self, case: str) -> dict:
+        """Cpu = (USL - mean) / 3 sigma, and the percentile form (USL - p50) / (p99.865 - p50)."""
+        case = self.case_of(case)
+        x = self.machines[f"total_{case}_um"].dropna().to_numpy()
+        if x.size < 2:  # (almost) every machine failed: no scatter to speak of
+            return {"Cpu": float("nan"), "Cpu_percentile": float("nan")}
+        mean, sd = float(np.mean(x)), float(np.std(x, ddof=1))
+        p50, p99865 = np.quantile(x, [0.5, 0.99865])
+        return {"Cpu": (self.limit_um - mean) / (3 * sd) if sd > 0 else float("inf"),
+                "Cpu_percentile": float((self.limit_um - p50) / (p99865 - p50))
+                if p99865 > p50 else float("inf")}
+
+    def pareto(self, case: str = "adjusted", bins: int = 20) -> pd.DataFrame:
+        """Contributors to SumDelta's scatter (see `contributors`), with the explained sum and
+        the interaction remainder as the last two rows (`with_remainder`)."""
+        case = self.case_of(case)
+        return with_remainder(contributors(self.machines, self.params, f"total_{case}_um", bins))
+
+    def beta_at_bound(self, pinned: bool = False) -> int:
+        """Machines whose adjusted beta*'s plateau (SumDelta within 1e-3 um of its minimum)
+        reaches a bound of the searched range; pinned=True: only those whose plateau is narrower
+        than PINNED_PLATEAU_DEG, where SumDelta still falls at the bound and the optimum likely
+        lies outside the range (a wide plateau is flat: beta hardly matters there)."""
+        col = self.machines.get("beta_at_bound")
+        if col is None:
+            return 0
+        at = col.to_numpy(float) == 1.0
+        if pinned:
+            width = (self.machines["beta_high_deg"] - self.machines["beta_low_deg"]).to_numpy()
+            at &= width < PINNED_PLATEAU_DEG
+        return int(at.sum())
+
+    def to_dict(self) -> dict:
+        """The JSON of ``sewtol needle montecarlo``, the shape every Monte-Carlo shares
+        (studies.montecarlo.record: counts, yields, labelled intervals and quantiles of both
+        cases); extra: capability, beta* picks and their at-bound counts, the fixed case's
+        beta and the searched range."""
+        from sewtol.mechanism.spec import Spec
+
+        cases = {"fixed_beta": "fixed", "adjusted_beta": "adjusted"}
+        return record(
+            mechanism="needle_208", n=self.n, seed=self.seed, tolerances=self.tolerances,
+            output="SumDelta_um", unit="um", spec=Spec("SumDelta_um", self.limit_um),
+            counts={k: self.counts(c) for k, c in cases.items()},
+            quantiles={k: self.quantiles(c) for k, c in cases.items()},
+            extra={"capability": {"definition": CAPABILITY_DEFINITION,
+                                  **{k: self.capability(c) for k, c in cases.items()}},
+                   "beta_picks_deg": list(self.beta_range()),
+                   "beta_at_bound": self.beta_at_bound(),
+                   "beta_pinned_at_bound": self.beta_at_bound(pinned=True),
+                   "limit_um": self.limit_um,
+                   "nominal_beta_deg": self.nominal_beta_deg,
+                   "fixed_beta": self.fixed_beta,
+                   "fixed_beta_means": FIXED_BETA_MEANS[self.fixed_beta],
+                   "beta_search_range_deg": list(self.range_deg)})
+
+    def summary_frame(self) -> pd.DataFrame:
+        """One row per case: counts (ok + out_of_spec + failed = n), yield and interval, quantiles, Cpu."""
+        rows = []
+        for case in ("fixed", "adjusted"):
+            q = self.quantiles(case)
+            lo, hi = self.yield_ci(case)
+            cap = self.capability(case)
+            k = self.counts(case)
+            rows.append({"case": f"{case}_beta", "n": self.n, "ok": k["ok"],
+                         "out_of_spec": k["out_of_spec"], "failed": k["failed"],
+                         "cannot_close": k["cannot_close"], "dead_point": k["dead_point"],
+                         "yield": self.yield_of(case), "yield_ci_low": lo, "yield_ci_high": hi,
+                         "p50_um": q["p50"], "p95_um": q["p95"], "p99_um": q["p99"],
+                         "Cpu": cap["Cpu"], "Cpu_percentile": cap["Cpu_percentile"],
+                         "beta_at_bound": self.beta_at_bound() if case == "adjusted" else 0,
+                         "beta_pinned_at_bound": self.beta_at_bound(True)
+                         if case == "adjusted" else 0})
+        return pd.DataFrame(rows)
+
+
+FIXED_BETA = ("optimum", "as_given")
+FIXED_BETA_MEANS = {
+    "optimum": "every machine keeps the nominal machine's beta* in the searched range (as "
+               "`sewtol needle nominal` prints it for the same parameters)",
+    "as_given": "every machine keeps the nominal's own beta parameter"}
+# an adjusted optimum whose plateau reaches a bound and is narrower than this is pinned there
+PINNED_PLATEAU_DEG = 0.1
+CAPABILITY_DEFINITION = {
+    "Cpu": "one-sided (limit_um - mean) / (3 sd) of SumDelta over the machines that run "
+           "(failed machines are in counts, not in Cpu)",
+    "Cpu_percentile": "(limit_um - p50) / (p99.865 - p50) over the machines that run"}
+
+
+def fixed_beta_of(nominal, fixed_beta: str, range_deg, limit_um) -> float:
+    """The beta every machine keeps in the fixed case.
+
+    "optimum": the nominal machine's beta* in range_deg, exactly what `sewtol needle nominal`
+    prints for the same parameters (so a study of a shifted guide is fixed at that guide's beta*,
+    as an assembler would set it); "as_given": the nominal's own beta parameter.
+    """
+    if fixed_beta == "as_given":
+        return float(nominal.beta)
+    if fixed_beta != "optimum":
+        raise ParameterError("fixed_beta", f"must be one of {', '.join(FIXED_BETA)}", fixed_beta)
+    from sewtol.mechanisms.needle_208.single import nominal_figures
+
+    return float(nominal_figures(nominal, tuple(range_deg), limit_um).beta_opt_deg)
+
+
+def montecarlo(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed: int,
+               limit_um: float = 10.0, range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
+               n_jobs: int = 1, progress: bool | Callable[[int, int], None] = False,
+               backend: str | None = None, chunk_size: int = CHUNK,
+               store: ChunkStore | None = None, fixed_beta: str = "optimum",
+               scheduler: str | Client | None = None) -> MonteCarloResult:
+    """N machines in chunks of chunk_size, chunk i drawing from child i of the seed.
+
+    The fixed case keeps every machine at the nominal machine's beta* (fixed_beta="optimum",
+    the default) or at the nominal's own beta parameter (fixed_beta="as_given"); the adjusted case
+    re-optimises beta per machine in range_deg. With a ChunkStore (studies.checkpoint) finished
+    chunks are saved as they arrive and an interrupted study resumes without recomputing them.
+    progress: True (bar on stderr) or a callable progress(done, total) in chunks; scheduler: run
+    on a Dask cluster (address or distributed.Client), same machines as a local run.
+
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters); machines deviate from it.
+    tolerances : ToleranceSet or str
+        What each machine's parameters draw from (deviations in mm, deg or um).
+    n : int
+        The number of machines (>= 1).
+    seed : int
+        The seed (>= 0; 0 is a seed). Chunk i draws from child i of
+        ``numpy.random.default_rng(seed)`` (``spawn``).
+    limit_um : float
+        The SumDelta limit (um) a machine must keep to count as ok; default 10.
+    range_deg : tuple of float
+        The regulating range for beta, (low, high) in deg; default (10, 35).
+    n_jobs : int
+        Worker processes on this machine (joblib); the tables do not depend on it.
+    progress : bool or callable
+        True: a bar on stderr; a callable ``progress(done, total)`` is called as chunks finish.
+    backend : str or None
+        A joblib backend (e.g. ``"dask"`` inside a ``distributed.Client()``); None: joblib's
+        default.
+    chunk_size : int
+        Machines per chunk; part of the study's identity (another chunk size draws other
+        machines).
+    store : ChunkStore or None
+        A study folder (``studies.checkpoint.ChunkStore``) that saves finished chunks and
+        resumes an interrupted study.
+    fixed_beta : str
+        ``"optimum"``: the fixed case is the nominal machine's beta*; ``"as_given"``: the
+        nominal's own ``beta`` parameter.
+    scheduler : str, distributed.Client or None
+        A Dask scheduler address or client: the chunks run on that cluster.
+
+    Returns
+    -------
+    MonteCarloResult
+        Every machine with its deviations, SumDelta (um) in both cases, beta* (deg) and status;
+        yields, counts, quantiles and capability per case.
+
+    Raises
+    ------
+    ParameterError
+        For a bad n, seed, limit, range or tolerance set (before anything runs).
+
+    Examples
+    --------
+    >>> import sewtol
+    >>> res = sewtol.montecarlo(sewtol.Needle208.nominal(), sewtol.tolerance_set("base"),
+    ...                         n=200, seed=2026)
+    >>> c = res.counts("adjusted")
+    >>> c["ok"] + c["out_of_spec"] + c["failed"] == 200
+    True
+    """
+    tolerances = needle_set(tolerances)
+    if not (np.isfinite(limit_um) and limit_um > 0):
+        raise ParameterError("limit_um", "must be a positive number of um", limit_um)
+    sb.check_range(range_deg, limit_um)
+    params = tuple(tolerances.active().params)
+    check_sampling(nominal, tolerances, n, seed, chunk_size, columns=len(params) + 14)
+    nominal = nominal.override(beta=fixed_beta_of(nominal, fixed_beta, range_deg, limit_um))
+    r = MC.montecarlo(as_mechanism(nominal), tolerances, n, seed, [OUTPUT], limit_um,
+                      n_jobs=n_jobs, progress=progress, chunk_size=chunk_size,
+                      adjust={"beta": tuple(map(float, range_deg))}, fast=True,
+                      backend=backend, store=store, scheduler=scheduler)
+    m = r.machines
+    machines = m[["machine", *params]].assign(
+        total_fixed_um=m[OUTPUT], beta_opt_deg=m["beta_setting"],
+        total_adjusted_um=m[f"{OUTPUT}_adjusted"], beta_low_deg=m["beta_low"],
+        beta_high_deg=m["beta_high"], beta_at_bound=m["beta_at_bound"])
+    status = ns.machine_status(nominal, machines, params, float(limit_um))
+    machines = pd.concat([machines, status], axis=1)
+    return MonteCarloResult(machines, params, tolerances.name,
+                            int(seed), float(limit_um), float(nominal.beta),
+                            tuple(map(float, range_deg)), fixed_beta)
