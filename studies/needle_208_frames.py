@@ -21,8 +21,7 @@ from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME, frame_names, load
 from sewtol.mechanisms.needle_208.model import Needle208
 from sewtol.mechanisms.needle_208.montecarlo import montecarlo
 from sewtol.mechanisms.needle_208.single import nominal_figures
-from sewtol.mechanisms.needle_208.sobol import needle_sobol
-from sewtol.mechanisms.needle_208.tables import largest_tolerances, scan
+from sewtol.mechanisms.needle_208.tables import largest_tolerances, needle_sobol, scan
 from sewtol.reports import plots
 from sewtol.tolerances import NEEDLE_208_SETS
 

@@ -94,8 +94,8 @@ def test_sobol_adjust_beta_matches_todays_adjusted_case():
 def test_sobol_model_chunk_calls_adjust():
     from sewtol.mechanisms.needle_208.evaluate import evaluate
     from sewtol.mechanisms.needle_208.montecarlo import fixed_beta_of
-    from sewtol.mechanisms.needle_208.sobol import _needle_chunk
-    from sewtol.studies.sobol import problem_of, sample
+    from sewtol.mechanisms.needle_208.tables import as_mechanism
+    from sewtol.studies.sobol import case_values, problem_of, sample
 
     tol = NEEDLE_208_SETS["base"]
     nom = Needle208.nominal()
@@ -104,7 +104,9 @@ def test_sobol_model_chunk_calls_adjust():
     X = sample(pr, 16, 3)[:40]
     dev = {k: X[:, i] for i, k in enumerate(pr["names"])}
     st = strategy_of(("beta", "guide_shift_um"))
-    fixed, adjusted = _needle_chunk(nom, pr["names"], X, (10.0, 35.0), st, 10.0)
+    fixed, adjusted = case_values(as_mechanism(nom), "SumDelta_um",
+                                  {"fixed": None, "adjusted": st.compensators}, pr["names"], X,
+                                  options={"limit_um": 10.0, "plateaus": False})
     ref = adjust(columns_of(nom, dev), st, 10.0)
     np.testing.assert_allclose(adjusted, ref.total_um, rtol=0, atol=1e-9)
     np.testing.assert_array_equal(fixed, evaluate(nom, dev, adjust=False).total_fixed_um)

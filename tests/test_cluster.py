@@ -16,7 +16,7 @@ import pytest
 
 from sewtol.cli import main
 from sewtol.mechanisms.needle_208.montecarlo import _needle_model, montecarlo
-from sewtol.mechanisms.needle_208.sobol import needle_sobol
+from sewtol.mechanisms.needle_208.tables import needle_sobol
 from sewtol.studies import parallel
 from sewtol.studies.checkpoint import ChunkStore
 from sewtol.studies.montecarlo import sample_machines

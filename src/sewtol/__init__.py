@@ -38,7 +38,7 @@ _PUBLIC = {
     "largest_tolerances": ("sewtol.mechanisms.needle_208.tables", "largest_tolerances"),
     "worst_case_table": ("sewtol.mechanisms.needle_208.tables", "worst_case_table"),
     "montecarlo": ("sewtol.mechanisms.needle_208.montecarlo", "montecarlo"),
-    "needle_sobol": ("sewtol.mechanisms.needle_208.sobol", "needle_sobol"),
+    "needle_sobol": ("sewtol.mechanisms.needle_208.tables", "needle_sobol"),
     "allocate": ("sewtol.mechanisms.needle_208.allocation", "allocate"),
     "compare_guides": ("sewtol.mechanisms.needle_208.guides", "compare_guides"),
     "strategies_table": ("sewtol.mechanisms.needle_208.strategies", "strategies_table"),

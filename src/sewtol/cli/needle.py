@@ -428,7 +428,7 @@ def _adjust_options(p):
 
 
 def cmd_needle_sobol(args):
-    from sewtol.mechanisms.needle_208.sobol import needle_sobol
+    from sewtol.mechanisms.needle_208.tables import needle_sobol
     from sewtol.provenance import now
     from sewtol.studies.sobol import CHUNK, check_power_of_two, check_sobol
 

@@ -236,8 +236,10 @@ def cmd_run(args) -> None:
         return _finish(args, fmt, mech, tolerances, res.to_dict(), {"worst_case": res.rows},
                        res.rows)
     if args.study == "sobol":
-        res = _as_flags(G.sobol, mech, tolerances, args.output or mech.output_names[0], args.n,
-                        args.seed)
+        from sewtol.studies.sobol import sobol
+
+        res = _as_flags(partial(sobol, fast=False), mech, tolerances,
+                        args.output or mech.output_names[0], args.n, args.seed)
         obj = {"mechanism": mech.name, "tolerances": tolerances.name, "n": res.n,
                "seed": res.seed, "output": args.output or mech.output_names[0],
                "rows": res.to_records(), "convergence": res.convergence.to_dict("records"),

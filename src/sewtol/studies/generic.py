@@ -1,16 +1,14 @@
 """Studies of any mechanism file (sewtol.mechanism.FileMechanism) and its outputs.
 
 Nothing here names a mechanism: a study takes the mechanism, a tolerance set and the output(s)
-it looks at, and returns a frozen result with to_dataframe() and to_dict(). The scan and the
-worst case are sewtol.studies.scan and sewtol.studies.worst_case.
+it looks at, and returns a frozen result with to_dataframe() and to_dict(). The scan, the
+worst case and the Sobol indices are sewtol.studies.scan, worst_case and sobol.
 
 - nominal: every output of the nominal machine.
 - montecarlo: n machines drawn exactly as studies.montecarlo.sample_machines draws them (chunk i
   from child i of the seed: same seed, same table, for any n_jobs); every machine keeps its
   status, so ok + out_of_spec + cannot_close + dead_point = n; out_of_spec by the file's
   [[specs]] unless limits are given.
-- sobol: first and total Sobol indices of one output with studies.sobol (SALib); a sample with
-  machines that cannot run is refused in one line.
 """
 
 from __future__ import annotations
@@ -24,7 +22,6 @@ from scipy import stats
 from sewtol.errors import AssemblyError, ParameterError
 from sewtol.mechanism.spec import Spec
 from sewtol.studies import montecarlo as mc
-from sewtol.studies import sobol as so
 from sewtol.tolerances import ToleranceSet
 
 CHUNK = mc.CHUNK
@@ -313,20 +310,3 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
                                    limit_output, specs, source, adjust,
                                    mech.output(limit_output).unit)
 
-
-# --- Sobol ---------------------------------------------------------------------------------
-
-def sobol(mech, tolerances: ToleranceSet, output: str, n: int, seed: int,
-          resamples: int = 200) -> so.SobolResult:
-    """Sobol indices of one output at n and n/2 base samples (studies.sobol); machines that
-    cannot run follow studies.sobol.POLICY (status and failed group from the file's groups)."""
-    mech.output(output)
-    record = mech.parameter_record()
-    so.check_sobol(record, tolerances, n, seed)
-    problem = so.problem_of(tolerances)
-    X = so.sample(problem, n, seed)
-    dev = {k: X[:, i] for i, k in enumerate(problem["names"])}
-    ev = mech.evaluate(deviated_values(mech, dev), [output])
-    return so.result_of([so.case_indices(problem, X, ev.outputs[output], n, seed, output,
-                                         resamples, status=ev.status, group=ev.failed_group)],
-                        n, seed, tolerances.name, model_runs=len(X))

@@ -1,6 +1,6 @@
 """The needle's tables of the generic studies: a `Needle208` as a protocol mechanism, and the
-scan, worst case and largest tolerances (sewtol.studies.scan, sewtol.studies.worst_case) in the
-source study's columns.
+scan, worst case, largest tolerances and Sobol indices (sewtol.studies.scan, worst_case, sobol)
+in the source study's columns and words.
 
 The studies run on `as_mechanism(nominal)` (the folder's mechanism.toml with the machine's
 values as nominals) and so on the needle's plug-ins (fast_path.py): SumDelta exactly by the
@@ -270,3 +270,46 @@ def worst_case_table(nominal: Needle208, tolerances: ToleranceSet | str,
     return pd.DataFrame([worst_case(nominal, tolerances, a, range_deg,
                                     strategy=strategy if a else None).to_row()
                          for a in (False, True)])
+
+
+def _failure_reasons(mech, values, output) -> tuple[np.ndarray, np.ndarray]:
+    """(status, dyad) of machines that do not run, at the mechanism's beta: the first reason
+    in assembly order (status.failure_reasons; "unexplained" when none is found)."""
+    from sewtol.mechanisms.needle_208 import metrics as nm
+    from sewtol.mechanisms.needle_208.fast_path import needle_params
+    from sewtol.mechanisms.needle_208.status import failure_reasons
+
+    why = failure_reasons(nm.columns(needle_params(mech, values))[0])
+    return np.where(why["status"] == "", "unexplained", why["status"]), why["dyad"]
+
+
+def needle_sobol(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed: int,
+                 range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG, n_jobs: int = 1,
+                 progress=False, backend: str | None = None, resamples: int = 200,
+                 chunk_size: int | None = None, store=None, conf_level: float = 0.95,
+                 fixed_beta: str = "optimum", limit_um: float = sb.DEFAULT_LIMIT_UM,
+                 scheduler=None, strategy: Strategy | None = None,
+                 second_order: bool = False):
+    """Sobol indices of SumDelta (sewtol.studies.sobol.sobol), cases "fixed_beta" (every
+    machine at the nominal's beta*, fixed_beta="optimum", or its own beta, "as_given") and
+    "adjusted_beta" (beta re-optimised in range_deg per machine) or, with a strategy,
+    "adjusted_" + its name (its exact joint optimum against limit_um). A machine that does not
+    run is counted under studies.sobol.POLICY with its reason and dyad at the fixed beta.
+    The other arguments are those of studies.sobol.sobol; returns its SobolResult."""
+    from sewtol.mechanisms.needle_208.montecarlo import fixed_beta_of
+    from sewtol.studies import sobol as S
+
+    tolerances = needle_set(tolerances)
+    S.check_sobol(nominal, tolerances, n, seed, second_order)
+    sb.check_range(range_deg, limit_um)
+    nominal = nominal.override(beta=fixed_beta_of(nominal, fixed_beta, range_deg, limit_um))
+    if strategy is None:
+        adjusted, comps, options = "adjusted_beta", _beta_box(range_deg, limit_um), {}
+    else:
+        adjusted = "adjusted_" + strategy.name
+        comps, options = strategy.compensators, {"limit_um": limit_um, "plateaus": False}
+    return S.sobol(as_mechanism(nominal), tolerances, OUTPUT, n, seed,
+                   cases={"fixed_beta": None, adjusted: comps}, resamples=resamples,
+                   conf_level=conf_level, second_order=second_order, n_jobs=n_jobs,
+                   progress=progress, backend=backend, chunk_size=chunk_size or S.CHUNK,
+                   store=store, scheduler=scheduler, failures=_failure_reasons, **options)
