@@ -20,7 +20,8 @@ from scipy import stats  # noqa: E402
 from cli_helpers import run, strict_loads  # noqa: E402
 from sewtol.mechanism import load  # noqa: E402
 from sewtol.reports import generic_report as GR  # noqa: E402
-from sewtol.studies import generic_yield as GY  # noqa: E402
+from sewtol.studies import generic_yield as GY
+from sewtol.studies import ppm as PPM  # noqa: E402
 from sewtol.studies import rare_event as R  # noqa: E402
 from sewtol.studies.montecarlo import draw_units, unit_streams  # noqa: E402
 from sewtol.tolerances import Tolerance, ToleranceSet  # noqa: E402
@@ -46,7 +47,7 @@ def test_ppm_subset_simulation_normal_tail_at_1e_5(mech):
     # P(stroke > limit) = P(r > limit / 2) = P(z > z_true) with z_true chosen for 1e-5
     truth = 1e-5
     limit = 2 * (R0 + SIGMA_R * stats.norm.isf(truth))
-    ls = GY.file_limit_state(mech, mech.tolerance_sets["normal"], "stroke_mm", upper=limit)
+    ls = PPM.limit_state(mech, mech.tolerance_sets["normal"], "stroke_mm", upper=limit)
     assert ls.failure_modes == ("cannot_close at J", "dead_point at J")
     assert ls.limit == limit and ls.output == "stroke_mm"
     res = R.estimate(ls, np.random.default_rng(1), "auto", 1e-5, 20000)
@@ -64,11 +65,11 @@ def test_ppm_two_sided_and_lower_limit_monte_carlo(mech):
     tol = mech.tolerance_sets["normal"]
     a = 0.035  # limits 20 +/- a: fail when |2 d| > a
     truth = 2 * stats.norm.sf(a / (2 * SIGMA_R))
-    ls = GY.file_limit_state(mech, tol, "stroke_mm", upper=20 + a, lower=20 - a)
+    ls = PPM.limit_state(mech, tol, "stroke_mm", upper=20 + a, lower=20 - a)
     assert ls.output == "stroke_mm_excess" and ls.limit == 0.0
     res = R.estimate(ls, np.random.default_rng(3), "montecarlo", 1e-2, 20000)
     assert res.ci_low <= truth <= res.ci_high
-    low = GY.file_limit_state(mech, tol, "stroke_mm", lower=20 - a)
+    low = PPM.limit_state(mech, tol, "stroke_mm", lower=20 - a)
     res = R.estimate(low, np.random.default_rng(4), "montecarlo", 1e-2, 20000)
     assert res.ci_low <= truth / 2 <= res.ci_high
 
@@ -77,7 +78,7 @@ def test_ppm_machines_that_cannot_close_are_failures_named_by_group():
     # L near r: at q = 90 deg the rod cannot reach the guide when L < r
     mech = load(FILE, {"L": 10.05})
     tol = ToleranceSet("L", (Tolerance("L", -0.3, 0.3, "normal"),))
-    ls = GY.file_limit_state(mech, tol, "stroke_mm", upper=100.0)
+    ls = PPM.limit_state(mech, tol, "stroke_mm", upper=100.0)
     res = R.estimate(ls, np.random.default_rng(5), "montecarlo", 0.1, 4000)
     truth = stats.norm.cdf((R0 - 10.05) / 0.1)
     assert res.mode_counts["cannot_close at J"] == res.failures > 0
@@ -86,7 +87,7 @@ def test_ppm_machines_that_cannot_close_are_failures_named_by_group():
 
 
 def test_ppm_no_failure_is_a_bound_never_zero_ppm(mech):
-    ls = GY.file_limit_state(mech, mech.tolerance_sets["uniform"], "stroke_mm", upper=20.5)
+    ls = PPM.limit_state(mech, mech.tolerance_sets["uniform"], "stroke_mm", upper=20.5)
     res = R.estimate(ls, np.random.default_rng(0), "montecarlo", 0.01, 1000)
     assert not res.resolved and res.failures == 0
     assert res.statement.startswith("< ") and "at 95 %" in res.statement
@@ -98,7 +99,7 @@ def test_ppm_with_compensator_is_the_adjusted_output(mech):
     # J_x_max = L + r, minimised over L in [39, 41] at L = 39: fails when 39 + r > limit
     truth = 1e-3
     limit = 39 + R0 + SIGMA_R * stats.norm.isf(truth)
-    ls = GY.file_limit_state(mech, mech.tolerance_sets["normal"], "J_x_max_mm", upper=limit,
+    ls = PPM.limit_state(mech, mech.tolerance_sets["normal"], "J_x_max_mm", upper=limit,
                              adjust="rod")
     assert ls.output == "J_x_max_mm_adjusted"
     z = np.array([[0.0, 0.0], [1.0, -2.0], [-3.0, 3.0]])

@@ -10,11 +10,12 @@ from sewtol.mechanism import load
 from sewtol.mechanisms.needle_208 import allocation as NA
 from sewtol.mechanisms.needle_208 import compensators as C
 from sewtol.mechanisms.needle_208.montecarlo import montecarlo
-from sewtol.mechanisms.needle_208.ppm import needle_limit_state
 from sewtol.mechanisms.needle_208.strategies import strategies_table
+from sewtol.mechanisms.needle_208.tables import needle_limit_state
 from sewtol.studies import generic as G
 from sewtol.studies import generic_yield as GY
 from sewtol.studies import montecarlo as mc
+from sewtol.studies import ppm as PPM
 from sewtol.studies import rare_event as R
 from sewtol.tolerances import NEEDLE_208_SETS
 
@@ -90,7 +91,7 @@ def test_file_studies_draw_the_same_machines(monkeypatch):
     want = mc.draw_deviations(tol, N, SEED)
     m = G.montecarlo(mech, tol, N, SEED).machines
     _same({k: m[k] for k in want}, want)
-    _same(_ppm_machines(GY.file_limit_state(mech, tol, "stroke_mm", upper=20.02)), want,
+    _same(_ppm_machines(PPM.limit_state(mech, tol, "stroke_mm", upper=20.02)), want,
           rtol=1e-12)
     calls = []
     real = G._values

@@ -47,7 +47,7 @@ _PUBLIC = {
     "Compensator": ("sewtol.mechanisms.needle_208.compensators", "Compensator"),
     "Strategy": ("sewtol.mechanisms.needle_208.compensators", "Strategy"),
     "estimate": ("sewtol.studies.rare_event", "estimate"),
-    "needle_limit_state": ("sewtol.mechanisms.needle_208.ppm", "needle_limit_state"),
+    "needle_limit_state": ("sewtol.mechanisms.needle_208.tables", "needle_limit_state"),
     "ParameterError": ("sewtol.errors", "ParameterError"),
     "AssemblyError": ("sewtol.errors", "AssemblyError"),
 }

@@ -632,7 +632,7 @@ def cmd_needle_largest_tolerances(args):
 
 
 def cmd_needle_ppm(args):
-    from sewtol.mechanisms.needle_208 import ppm as NR
+    from sewtol.mechanisms.needle_208 import tables as NR
     from sewtol.provenance import now
     from sewtol.studies import rare_event as R
 

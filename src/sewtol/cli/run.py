@@ -424,6 +424,7 @@ def _yield_study(args, fmt, mech, tolerances) -> None:
     import numpy as np
 
     from sewtol.studies import generic_yield as GY
+    from sewtol.studies import ppm as PPM
     from sewtol.studies import rare_event as R
 
     output, spec = args.spec_output, args.spec
@@ -456,16 +457,17 @@ def _yield_study(args, fmt, mech, tolerances) -> None:
         _finish(args, fmt, mech, tolerances, res.to_dict(),
                 {"allocation": res.table, "trials": res.trials}, res.table)
         if fmt == "table":
-            cond = GY.limits_text(output, upper, lower, mech.output(output).unit)
+            cond = PPM.limits_text(output, upper, lower, mech.output(output).unit)
             print(f"\nscale {res.scale:.6g} of set '{tolerances.name}': yield {res.yield_:.4f} "
                   f"(target {args.target:g}) of {res.n} machines passing {cond}"
                   + (" (capped: the yield stays above the target up to this scale)"
                      if res.capped else ""))
         return None
-    ls = _as_flags(GY.file_limit_state, mech, tolerances, output, upper, lower, args.adjust)
+    ls = _as_flags(partial(PPM.limit_state, fast=False), mech, tolerances, output, upper, lower,
+                   args.adjust)
     res = _as_flags(R.estimate, ls, np.random.default_rng(args.seed), args.method, args.target,
                     args.n, args.n_jobs)
-    cond = GY.limits_text(output if args.adjust is None else f"{output}_adjusted", upper,
+    cond = PPM.limits_text(output if args.adjust is None else f"{output}_adjusted", upper,
                           lower, mech.output(output).unit)
     obj = {**res.to_dict(), "mechanism": mech.name, "tolerances": tolerances.name,
            "pass_condition": cond, "lower_limit": lower, "upper_limit": upper,

@@ -27,7 +27,7 @@ from sewtol.reports.tables import to_csv, to_markdown
 from sewtol.studies import generic as G
 from sewtol.studies import scan as S
 from sewtol.studies import worst_case as W
-from sewtol.studies.generic_yield import check_limits, limits_text
+from sewtol.studies.ppm import check_limits, limits_text
 
 # the histogram's range: these quantiles of the machines that run, widened to show the limits;
 # machines outside are counted as "beyond the plot" in the legend

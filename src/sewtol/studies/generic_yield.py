@@ -33,50 +33,14 @@ from sewtol.errors import ParameterError
 from sewtol.mechanism.spec import Spec
 from sewtol.studies import generic as G
 from sewtol.studies.montecarlo import draw_units, unit_streams
-from sewtol.studies.rare_event import LimitState, StandardNormalMap
+from sewtol.studies.ppm import check_adjust as _check_adjust
+from sewtol.studies.ppm import limits_of
 from sewtol.studies.scan import checked
 from sewtol.tolerances import Tolerance, ToleranceSet
 
-FAILURE_STATUSES = ("cannot_close", "dead_point")
 # bisection on the scale stops when the bracket is this small relative to the scale
 SCALE_RTOL = 1e-4
 MAX_DOUBLINGS = 20
-
-
-def check_limits(upper: float | None, lower: float | None) -> tuple[float | None, float | None]:
-    """At least one finite limit; lower below upper when both are given (mechanism.spec.Spec's
-    rules, named by the command line's flags)."""
-    if upper is None and lower is None:
-        raise ParameterError("limit", "give an upper limit (--limit) and/or a lower limit "
-                             "(--lower-limit), or a [[specs]] entry of the output in the file",
-                             None)
-    try:
-        spec = Spec("", upper, lower)
-    except ParameterError as exc:
-        raise ParameterError({"upper": "limit", "lower": "lower_limit"}[exc.field], exc.rule,
-                             exc.value) from None
-    return spec.upper, spec.lower
-
-
-def limits_of(mech, output: str, upper: float | None, lower: float | None):
-    """The limits of a study of `output`: those given, else the file's [[specs]] entry of it."""
-    spec = mech.spec_of(output)
-    if upper is None and lower is None and spec is not None:
-        return spec.upper, spec.lower
-    return check_limits(upper, lower)
-
-
-def _check_adjust(mech, adjust):
-    if adjust is not None and adjust not in mech.compensators:
-        raise ParameterError("adjust", "must name a compensator of the file ("
-                             + (", ".join(mech.compensators) or "it has none") + ")", adjust)
-
-
-def _failing_groups(mech) -> list[str]:
-    """The groups that can fail (they carry a closure), in assembly order, found on the nominal
-    machine's state."""
-    state = mech.state(q_rad=np.zeros(1))
-    return [g.name for g in mech.groups if g.name in state.closures]
 
 
 def _evaluate(mech, values, output, adjust):
@@ -85,63 +49,6 @@ def _evaluate(mech, values, output, adjust):
         return ev.outputs[output], ev.status, ev.failed_group
     a = G.optimise_compensator(mech, values, output, adjust)
     return a.value, a.status, a.failed_group
-
-
-@dataclass(frozen=True)
-class _FileResponse:
-    """z (n, dim) -> (value, mode) of one output of a file mechanism (picklable for workers)."""
-
-    mech: object
-    zmap: StandardNormalMap
-    output: str
-    upper: float | None
-    lower: float | None
-    adjust: str | None
-    modes: tuple[tuple[str, str], ...]  # (status, group) of failure mode k = index + 1
-
-    def __call__(self, z):
-        dev = self.zmap.to_physical(z)
-        y, status, group = _evaluate(self.mech, G.deviated_values(self.mech, dev), self.output,
-                                     self.adjust)
-        mode = np.zeros(y.size, dtype=int)
-        for k, (s, g) in enumerate(self.modes, start=1):
-            mode[(status == s) & (group == g)] = k
-        value = y if self.lower is None else Spec(self.output, self.upper, self.lower).excess(y)
-        return np.where(mode == 0, value, np.nan), mode
-
-
-def file_limit_state(mech, tolerances: ToleranceSet, output: str, upper: float | None = None,
-                     lower: float | None = None, adjust: str | None = None) -> LimitState:
-    """One output of a file mechanism as a LimitState (see the module doc); without limits,
-    those of the file's [[specs]] entry of the output.
-
-    With an upper limit only, the LimitState's value is the output itself and its limit the
-    upper limit; with a lower limit, its value is the excess beyond the limits (output units,
-    named OUTPUT_excess) and its limit 0."""
-    mech.output(output)
-    _check_adjust(mech, adjust)
-    upper, lower = limits_of(mech, output, upper, lower)
-    tol = checked(mech, tolerances)
-    zmap = StandardNormalMap(tol)
-    modes = tuple((s, g) for g in _failing_groups(mech) for s in FAILURE_STATUSES)
-    label = output if adjust is None else f"{output}_adjusted"
-    if lower is None:
-        limit, name = upper, label
-    else:
-        limit, name = 0.0, f"{label}_excess"
-    return LimitState(_FileResponse(mech, zmap, output, upper, lower, adjust, modes), zmap.dim,
-                      float(limit), tuple(f"{s} at {g}" for s, g in modes), name,
-                      zmap.to_physical)
-
-
-def limits_text(output: str, upper: float | None, lower: float | None, unit: str = "") -> str:
-    """The pass condition in words, e.g. "4.2 mm <= stroke_mm <= 4.4 mm"."""
-    u = f" {unit}" if unit and unit != "1" else ""
-    if lower is None:
-        return f"{output} <= {upper:g}{u}"
-    if upper is None:
-        return f"{output} >= {lower:g}{u}"
-    return f"{lower:g}{u} <= {output} <= {upper:g}{u}"
 
 
 # --- allocation ----------------------------------------------------------------------------

@@ -313,3 +313,48 @@ def needle_sobol(nominal: Needle208, tolerances: ToleranceSet | str, n: int, see
                    conf_level=conf_level, second_order=second_order, n_jobs=n_jobs,
                    progress=progress, backend=backend, chunk_size=chunk_size or S.CHUNK,
                    store=store, scheduler=scheduler, failures=_failure_reasons, **options)
+
+
+NEEDLE_MODES = ("cannot assemble", "dead point")
+ADJUSTMENTS = ("none", "beta")
+
+
+def _needle_failures(mech, values, output) -> np.ndarray:
+    """Per machine without a value: "cannot assemble" (a dyad misses at the mechanism's beta),
+    else "dead point" (a dyad passes within the dead-point angle, or no beta assembles it)."""
+    from sewtol.mechanisms.needle_208 import metrics as nm
+    from sewtol.mechanisms.needle_208.fast_path import needle_params
+
+    c, _ = nm.columns(needle_params(mech, values))
+    m = len(next(iter(values.values())))
+    f = nm.feasibility({k: np.broadcast_to(v, (m, 1)).copy() for k, v in c.items()})
+    return np.where((f.miss_LMA_mm > 0) | (f.miss_BCD_mm > 0), *NEEDLE_MODES)
+
+
+def needle_limit_state(nominal: Needle208, tolerances: ToleranceSet | str, limit_um: float = 10.0,
+                       adjust: str = "beta", range_deg: tuple[float, float] | None = None):
+    """SumDelta of the 208 needle drive as a rare-event LimitState (sewtol.studies.ppm).
+
+    adjust "beta": beta re-optimised per machine in range_deg (default (10, 35); value
+    total_adjusted_um); "none": every machine at the nominal's beta (total_fixed_um). A machine
+    fails when its SumDelta exceeds limit_um or when it has no value: failure modes "cannot
+    assemble" (a dyad misses at the nominal beta) and "dead point" (a dyad passes within the
+    dead-point angle, or no beta in the range assembles it). Raises ParameterError for an
+    unknown adjustment, a non-positive limit, or a set without any tolerance.
+    """
+    from sewtol.studies.ppm import limit_state
+
+    tolerances = needle_set(tolerances)
+    if adjust not in ADJUSTMENTS:
+        raise ParameterError("adjust", f"must be one of {', '.join(ADJUSTMENTS)}", adjust)
+    if not (np.isfinite(limit_um) and limit_um > 0):
+        raise ParameterError("limit_um", "must be a positive number of um", limit_um)
+    range_deg = sb.DEFAULT_RANGE_DEG if range_deg is None else tuple(map(float, range_deg))
+    if not tolerances.active().items:
+        raise ParameterError("tolerances", "has no tolerance with a non-zero width",
+                             tolerances.name)
+    beta = adjust == "beta"
+    return limit_state(as_mechanism(nominal), tolerances, OUTPUT, float(limit_um),
+                       adjust={"beta": range_deg} if beta else None,
+                       name="total_adjusted_um" if beta else "total_fixed_um",
+                       modes=NEEDLE_MODES, failures=_needle_failures)
