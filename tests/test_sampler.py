@@ -7,13 +7,12 @@ from pathlib import Path
 import numpy as np
 
 from sewtol.mechanism import load
-from sewtol.mechanisms.needle_208 import allocation as NA
 from sewtol.mechanisms.needle_208 import compensators as C
 from sewtol.mechanisms.needle_208.montecarlo import montecarlo
 from sewtol.mechanisms.needle_208.strategies import strategies_table
-from sewtol.mechanisms.needle_208.tables import needle_limit_state
+from sewtol.mechanisms.needle_208.tables import allocate, needle_limit_state
+from sewtol.studies import allocation as AL
 from sewtol.studies import generic as G
-from sewtol.studies import generic_yield as GY
 from sewtol.studies import montecarlo as mc
 from sewtol.studies import ppm as PPM
 from sewtol.studies import rare_event as R
@@ -73,16 +72,9 @@ def test_needle_studies_draw_the_same_machines(nominal, monkeypatch):
     _same(_ppm_machines(needle_limit_state(nominal, tol, adjust="none")), want, rtol=1e-12)
     # allocation: its last trial (the scale it reports) evaluates montecarlo's machines of the
     # allocated set
-    calls = []
-    real = NA.evaluate
-
-    def recording(nom, dev, **kw):
-        calls.append(dev)
-        return real(nom, dev, **kw)
-
-    monkeypatch.setattr(NA, "evaluate", recording)
-    a = NA.allocate(nominal, tol, target=0.9, n=N, seed=SEED, steps=3)
-    _same(calls[-1], mc.draw_deviations(a.as_tolerance_set(), N, SEED))
+    calls = _recording(monkeypatch)
+    a = allocate(nominal, tol, target=0.9, n=N, seed=SEED, steps=3)
+    _one_trial_draws(calls, mc.draw_deviations(a.as_tolerance_set(), N, SEED))
 
 
 def test_file_studies_draw_the_same_machines(monkeypatch):
@@ -93,16 +85,25 @@ def test_file_studies_draw_the_same_machines(monkeypatch):
     _same({k: m[k] for k in want}, want)
     _same(_ppm_machines(PPM.limit_state(mech, tol, "stroke_mm", upper=20.02)), want,
           rtol=1e-12)
+    calls = _recording(monkeypatch)
+    a = AL.allocate(mech, tol, "stroke_mm", 0.9, upper=20.02, lower=19.98, n=N, seed=SEED)
+    _one_trial_draws(calls, mc.draw_deviations(a.as_tolerance_set(), N, SEED))
+
+
+def _recording(monkeypatch) -> list:
+    """The deviations of every trial of studies.allocation (its machines)."""
     calls = []
-    real = G._values
+    real = AL.machines
 
     def recording(mech_, dev):
         calls.append(dev)
         return real(mech_, dev)
 
-    monkeypatch.setattr(G, "_values", recording)
-    a = GY.allocate(mech, tol, "stroke_mm", 0.9, upper=20.02, lower=19.98, n=N, seed=SEED)
+    monkeypatch.setattr(AL, "machines", recording)
+    return calls
+
+
+def _one_trial_draws(calls, allocated):
     # one trial is at the reported scale: montecarlo's machines of the allocated set
-    allocated = mc.draw_deviations(a.as_tolerance_set(), N, SEED)
     assert sum(all(np.allclose(d[k], v, rtol=1e-12, atol=0.0) for k, v in allocated.items())
                for d in calls) >= 1

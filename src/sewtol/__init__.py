@@ -39,7 +39,7 @@ _PUBLIC = {
     "worst_case_table": ("sewtol.mechanisms.needle_208.tables", "worst_case_table"),
     "montecarlo": ("sewtol.mechanisms.needle_208.montecarlo", "montecarlo"),
     "needle_sobol": ("sewtol.mechanisms.needle_208.tables", "needle_sobol"),
-    "allocate": ("sewtol.mechanisms.needle_208.allocation", "allocate"),
+    "allocate": ("sewtol.mechanisms.needle_208.tables", "allocate"),
     "compare_guides": ("sewtol.mechanisms.needle_208.guides", "compare_guides"),
     "strategies_table": ("sewtol.mechanisms.needle_208.strategies", "strategies_table"),
     "optimise": ("sewtol.mechanisms.needle_208.adjust", "optimise"),

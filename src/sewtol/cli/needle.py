@@ -528,8 +528,8 @@ def cmd_needle_guides(args):
 
 
 def cmd_needle_allocation(args):
-    from sewtol.mechanisms.needle_208.allocation import allocate
     from sewtol.mechanisms.needle_208.strategies import allocate_for_strategy
+    from sewtol.mechanisms.needle_208.tables import allocate
 
     if not (np.isfinite(args.target) and 0 < args.target < 1):
         raise ParameterError("--target", "must be a yield strictly between 0 and 1",

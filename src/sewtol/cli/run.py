@@ -420,10 +420,10 @@ def _needle_study(args, mech, tolerances) -> None:
 
 
 def _yield_study(args, fmt, mech, tolerances) -> None:
-    """ppm, allocation and report (sewtol.studies.generic_yield, sewtol.reports.generic_report)."""
+    """ppm, allocation and report (sewtol.studies.ppm, allocation, sewtol.reports.generic_report)."""
     import numpy as np
 
-    from sewtol.studies import generic_yield as GY
+    from sewtol.studies import allocation as AL
     from sewtol.studies import ppm as PPM
     from sewtol.studies import rare_event as R
 
@@ -452,8 +452,8 @@ def _yield_study(args, fmt, mech, tolerances) -> None:
         return None
     if args.study == "allocation":
         weights = parse_sets(args.weight)
-        res = _as_flags(GY.allocate, mech, tolerances, output, args.target, upper, lower,
-                        args.n, args.seed, weights, args.adjust)
+        res = _as_flags(partial(AL.allocate, fast=False), mech, tolerances, output, args.target,
+                        upper, lower, args.n, args.seed, weights, args.adjust)
         _finish(args, fmt, mech, tolerances, res.to_dict(),
                 {"allocation": res.table, "trials": res.trials}, res.table)
         if fmt == "table":

@@ -36,7 +36,7 @@ from scipy import stats
 
 from sewtol.errors import ParameterError
 from sewtol.protocol import machines
-from sewtol.studies.adjusting import adjusted, evaluated
+from sewtol.studies.adjusting import adjusted, evaluated, evaluated_failures
 from sewtol.studies.parallel import chunk_bounds, run_chunks
 from sewtol.tolerances import ToleranceSet
 
@@ -455,12 +455,6 @@ def case_values(mech, output: str, cases: Mapping, names: list, X: np.ndarray,
     return tuple(evaluated(mech, values, output, fast=fast) if comps is None
                  else adjusted(mech, values, comps, output, fast=fast, **(options or {})).value
                  for comps in cases.values())
-
-
-def evaluated_failures(mech, values: dict, output: str) -> tuple[np.ndarray, np.ndarray]:
-    """(status, group) of machines as the mechanism's evaluation gives them."""
-    ev = mech.evaluate(values, [output])
-    return ev.status, ev.failed_group
 
 
 def sobol(mech, tolerances: ToleranceSet, output: str, n: int, seed: int, *,

@@ -319,7 +319,7 @@ def allocate_for_strategy(nominal, reference: ToleranceSet | str, strategy: Stra
                           target: float = 0.9973, n: int = 500, seed: int = 0,
                           costs: dict | None = None, max_mm: float = 1.0, steps: int = 10,
                           limit_um: float = 10.0) -> StrategyAllocation:
-    """The allocation of needle_208.allocation with the yield taken after the
+    """The allocation of needle_208.tables.allocate with the yield taken after the
     strategy's joint adjustment.
 
     Cost model: reciprocal in the width, cost = sum c_i / (upper_i - lower_i). Each reference

@@ -23,7 +23,7 @@ import pandas as pd
 from sewtol.errors import ParameterError
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.needle_208 import beta as sb
-from sewtol.tolerances import ToleranceSet, needle_set
+from sewtol.tolerances import Tolerance, ToleranceSet, needle_set
 
 if TYPE_CHECKING:
     from sewtol.mechanisms.needle_208.compensators import Strategy
@@ -358,3 +358,111 @@ def needle_limit_state(nominal: Needle208, tolerances: ToleranceSet | str, limit
                        adjust={"beta": range_deg} if beta else None,
                        name="total_adjusted_um" if beta else "total_fixed_um",
                        modes=NEEDLE_MODES, failures=_needle_failures)
+
+
+@dataclass(frozen=True)
+class NeedleAllocation:
+    """Allocated symmetric tolerances and the yield they give (see `allocate`).
+
+    ``to_dataframe()`` has per parameter ``cost_weight``, ``slope_um_per_mm``,
+    ``tolerance_mm`` (the allocated +/- limit) and the reference limits;
+    ``as_tolerance_set()`` turns it into a `ToleranceSet` for further studies.
+    """
+
+    table: pd.DataFrame  # param, cost_weight, slope_um_per_mm, tolerance_mm, reference_mm
+    yield_adjusted: float
+    target: float
+    n: int
+    seed: int
+    scale: float
+
+    def to_dataframe(self) -> pd.DataFrame:
+        """The allocation table (a copy)."""
+        return self.table.copy()
+
+    def as_tolerance_set(self, name: str = "allocated") -> ToleranceSet:
+        """The allocated limits as a symmetric, uniform ToleranceSet."""
+        return ToleranceSet(name, tuple(Tolerance(p, -t, t) for p, t in
+                                        zip(self.table["param"], self.table["tolerance_mm"],
+                                            strict=True)), "allocated by sewtol")
+
+
+def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 0.9973,
+             n: int = 2000, seed: int = 0, costs: dict[str, float] | None = None,
+             max_mm: float = 1.0, range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
+             steps: int = 12) -> NeedleAllocation:
+    """The widest symmetric tolerances that keep the yield after beta adjustment at a target.
+
+    Cost is reciprocal, sum c_i / t_i; the shape t_i ~ (c_i / s_i^2)^(1/3) (s_i the slope of
+    SumDelta at beta* from the scan, um per mm) is the root-sum-square optimum, and the common
+    scale is found by bisection on the Monte-Carlo yield of the real model with beta set per
+    machine (the same random numbers for every trial scale).
+
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters).
+    reference : ToleranceSet or str
+        Which parameters to allocate, and the limits at which the slopes are taken.
+    target : float
+        The yield to keep, strictly between 0 and 1; default 0.9973 (+/-3 sigma).
+    n : int
+        Monte-Carlo machines per trial scale.
+    seed : int
+        Seed of the common random numbers (>= 0).
+    costs : dict or None
+        Cost weight c_i per parameter (> 0); a parameter not named weighs 1.
+    max_mm : float
+        The cap on any tolerance (mm); insensitive parameters end there.
+    range_deg : tuple of float
+        The regulating range for beta, (low, high) in deg.
+    steps : int
+        Bisection steps on the scale.
+
+    Returns
+    -------
+    NeedleAllocation
+        The allocated +/- tolerance per parameter (mm), the yield it gives with beta adjusted,
+        the target, n, seed and the scale found.
+
+    Raises
+    ------
+    ParameterError
+        For a target outside (0, 1) or a non-positive cost weight.
+    """
+    from sewtol.studies import allocation as A
+
+    reference = needle_set(reference)
+    if not (0 < target < 1):
+        raise ParameterError("target", "must be a yield strictly between 0 and 1", target)
+    ref = reference.active()
+    names = ref.params
+    costs = costs or {}
+    c = np.array([float(costs.get(p, 1.0)) for p in names])
+    if np.any(c <= 0):
+        raise ParameterError("costs", "must be positive weights", costs)
+    sc = scan(nominal, ref, range_deg=range_deg)
+    t0 = sc.nominal_row["total_um"]
+    rows = sc.rows
+    slope = []
+    for t in ref.items:
+        r = rows[rows["param"] == t.param]
+        width = max(abs(t.upper), abs(t.lower))
+        slope.append(float(np.max(np.abs(r["total_um"].to_numpy() - t0))) / width)
+    s = np.maximum(np.array(slope), 1e-9)
+    shape = (c / s**2) ** (1.0 / 3.0)
+    shape = shape / shape.max()
+    # the scale k (mm) of the shapes (the largest 1), searched in (0, max_mm): no tolerance
+    # exceeds max_mm; the yield is SumDelta <= limit after beta adjustment per machine
+    shapes = ToleranceSet(reference.name, tuple(Tolerance(p, -a, a) for p, a in
+                                                zip(names, shape, strict=True)))
+    a = A.allocate(as_mechanism(nominal), shapes, OUTPUT, target, sc.limit_um, None, n, seed,
+                   adjust=_beta_box(range_deg), bracket=(0.0, max_mm), steps=steps,
+                   failures=_failure_reasons)
+    table = pd.DataFrame({
+        "param": names, "cost_weight": c, "slope_um_per_mm": s,
+        "tolerance_mm": a.table["upper"].to_numpy(),
+        "reference_lower_mm": [x.lower for x in ref.items],
+        "reference_upper_mm": [x.upper for x in ref.items],
+    })
+    return NeedleAllocation(table, a.yield_ if a.scale > 0 else 1.0, target, n, seed, a.scale)

@@ -1,28 +1,25 @@
-"""Failures per million and tolerance allocation for any mechanism file and any output.
+"""Tolerance allocation of any mechanism: the largest common scale of a tolerance set that keeps
+the yield of one output at a target.
 
-Nothing here names a mechanism: both studies take a FileMechanism (sewtol.mechanism), a
-tolerance set, one output and its limits (an upper limit, a lower limit, or both; by default
-those of the output's [[specs]] entry in the file).
-
-- `file_limit_state`: the output as a rare_event.LimitState over the standard-normal map of the
-  tolerance set (rare_event.StandardNormalMap, the same map as the needle's). A machine fails when
-  its value lies beyond a limit or when it cannot run; each group that can fail gives two named
-  failure modes, "cannot_close at G" and "dead_point at G", so a failing machine is counted under
-  the group that failed first (assembly order), never dropped. With `adjust` (a compensator of
-  the file) the value is the output minimised over the compensator on each machine
-  (generic.optimise_compensator) and the status is the one at the chosen setting.
-- `allocate`: the largest common scale k of the set (each tolerance's limits times k times its
-  weight) at which the yield (fraction of machines that run and lie within the limits) reaches a
-  target. Common random numbers: one matrix of uniforms for every trial k, so each machine's
-  deviation moves along a fixed ray from nominal as k grows. The yield is then a step function
-  of k, and non-increasing in k when the pass region is star-shaped about the nominal along those
-  rays (e.g. an output monotone in each parameter, or |2 r - 2 r0| < limit); bisection finds the
-  crossing. Where the pass region is not star-shaped the yield need not be monotone, and the
-  bisection finds a crossing, not necessarily the largest one: `trials` lists every k tried.
+`allocate(mech, tolerances, output, target, upper, lower, ...)`: the largest scale k of the set
+(each tolerance's limits times k times its weight) at which the yield (the fraction of n
+machines that give a value within the limits; machines that cannot run count against it)
+reaches the target. The output is as evaluated (the plug-in kernel where the mechanism has one)
+or minimised over the compensators `adjust` (`sewtol.studies.adjusting.adjusted`: the needle's
+exact beta optimum). Common random numbers: one matrix of uniforms (the one sampler,
+sewtol.law) for every trial k, so each machine's deviation moves along a fixed ray from nominal
+as k grows. The yield is then a step function of k, and non-increasing in k when the pass
+region is star-shaped about the nominal along those rays (e.g. an output monotone in each
+parameter, or |2 r - 2 r0| < limit); bisection finds the crossing. Where the pass region is not
+star-shaped the yield need not be monotone, and the bisection finds a crossing, not necessarily
+the largest one: `trials` lists every k tried. The bracket is found by doubling (or halving)
+from k = 1, or given (`bracket`, e.g. the needle's (0, max_mm) for a set of shapes); the
+bisection runs to a relative SCALE_RTOL, or a given number of `steps`.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,11 +27,11 @@ import pandas as pd
 from scipy import stats
 
 from sewtol.errors import ParameterError
+from sewtol.law import draw_units, unit_streams
 from sewtol.mechanism.spec import Spec
-from sewtol.studies import generic as G
-from sewtol.studies.montecarlo import draw_units, unit_streams
-from sewtol.studies.ppm import check_adjust as _check_adjust
-from sewtol.studies.ppm import limits_of
+from sewtol.protocol import machines
+from sewtol.studies.adjusting import evaluated_failures
+from sewtol.studies.ppm import check_adjust, limits_of, output_of
 from sewtol.studies.scan import checked
 from sewtol.tolerances import Tolerance, ToleranceSet
 
@@ -43,18 +40,8 @@ SCALE_RTOL = 1e-4
 MAX_DOUBLINGS = 20
 
 
-def _evaluate(mech, values, output, adjust):
-    if adjust is None:
-        ev = mech.evaluate(values, [output])
-        return ev.outputs[output], ev.status, ev.failed_group
-    a = G.optimise_compensator(mech, values, output, adjust)
-    return a.value, a.status, a.failed_group
-
-
-# --- allocation ----------------------------------------------------------------------------
-
 @dataclass(frozen=True)
-class FileAllocation:
+class Allocation:
     """The largest common scale of a tolerance set that keeps the yield at a target.
 
     `table`: per parameter its weight, the reference limits and the allocated limits (reference
@@ -87,7 +74,7 @@ class FileAllocation:
         """The allocated limits as a ToleranceSet (each tolerance keeps its distribution)."""
         return ToleranceSet(name or f"{self.tolerances}*allocated", tuple(
             Tolerance(r["param"], r["lower"], r["upper"], r["dist"])
-            for r in self.table.to_dict("records")), "allocated by sewtol (generic_yield)")
+            for r in self.table.to_dict("records")), "allocated by sewtol (studies.allocation)")
 
     def to_dict(self) -> dict:
         ci = stats.binomtest(int(round(self.yield_ * self.n)), self.n).proportion_ci(
@@ -104,15 +91,23 @@ class FileAllocation:
 def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973,
              upper: float | None = None, lower: float | None = None, n: int = 2000,
              seed: int = 0, weights: dict[str, float] | None = None,
-             adjust: str | None = None) -> FileAllocation:
+             adjust=None, *, bracket: tuple[float, float] | None = None,
+             steps: int | None = None, failures: Callable | None = None, fast: bool = True,
+             **options) -> Allocation:
     """The largest common scale k of `tolerances` (each limit times k times its weight, default
     weight 1) at which the fraction of n machines that run and keep `output` within the limits
     is at least `target` (limits default to the file's [[specs]] entry; see the module doc:
     common random numbers, bisection on k to a relative SCALE_RTOL). Machines that cannot run
     count against the yield. A scale at which the set would draw machines the parameter rules
-    reject (a length <= 0) counts as too wide."""
+    reject (a length <= 0) counts as too wide.
+
+    adjust: compensators as `adjusting.adjusted` takes them; options go to the mechanism's
+    strategy adjuster. bracket (low, high): search k there (k = high when its yield reaches the
+    target) instead of doubling from 1; steps: that many bisection steps instead of SCALE_RTOL.
+    failures(mech, values, output) -> (status, group) of machines without a value (default
+    adjusting.evaluated_failures), counted per trial. fast=False: the generic reference path."""
     mech.output(output)
-    _check_adjust(mech, adjust)
+    check_adjust(mech, adjust)
     upper, lower = limits_of(mech, output, upper, lower)
     spec = Spec(output, upper, lower)
     if not (isinstance(target, (int, float)) and 0 < target < 1):
@@ -145,8 +140,13 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
             trials.append({"scale": k, "yield": np.nan, "ok": 0, "out_of_limits": 0,
                            "cannot_close": 0, "dead_point": 0, "note": exc.rule})
             return -1.0
-        dev = trial.from_unit(u)
-        y, status, _ = _evaluate(mech, G.deviated_values(mech, dev), output, adjust)
+        values = machines(mech, trial.from_unit(u))
+        y = output_of(mech, values, output, adjust, fast, **options)
+        status = np.full(y.size, "ok", dtype=object)
+        bad = ~np.isfinite(y)
+        if bad.any():
+            status[bad] = (failures or evaluated_failures)(
+                mech, {p: v[bad] for p, v in values.items()}, output)[0]
         runs = status == "ok"
         inside = runs & spec.passes(y)
         yk = float(np.mean(inside))
@@ -157,7 +157,11 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
         return yk
 
     lo, hi, capped = 0.0, 1.0, False
-    if yield_at(1.0) >= target:
+    if bracket is not None:
+        lo, hi = map(float, bracket)
+        if yield_at(hi) >= target:
+            lo, capped = hi, True
+    elif yield_at(1.0) >= target:
         lo = 1.0
         for _ in range(MAX_DOUBLINGS):
             hi = 2.0 * lo
@@ -174,13 +178,16 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
             hi = lo
         else:
             lo = 0.0
-    if not capped and lo > 0:
+    def bisect(lo, hi):
+        mid = 0.5 * (lo + hi)
+        return (mid, hi) if yield_at(mid) >= target else (lo, mid)
+
+    if not capped and steps is not None:
+        for _ in range(int(steps)):
+            lo, hi = bisect(lo, hi)
+    elif not capped and lo > 0:
         while hi - lo > SCALE_RTOL * lo:
-            mid = 0.5 * (lo + hi)
-            if yield_at(mid) >= target:
-                lo = mid
-            else:
-                hi = mid
+            lo, hi = bisect(lo, hi)
     done = {t["scale"]: t["yield"] for t in trials}
     y_lo = done.get(lo, float("nan"))  # nan: no scale down to 2**-20 reaches the target
     rows = [{"param": t.param, "unit": next(p.unit for p in mech.parameters
@@ -189,6 +196,6 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
              "lower": t.lower * lo * w[i], "upper": t.upper * lo * w[i], "dist": t.dist}
             for i, t in enumerate(tol.items)]
     trials_frame = pd.DataFrame(trials).sort_values("scale", kind="stable").reset_index(drop=True)
-    return FileAllocation(mech.name, output, upper, lower, tolerances.name, float(target),
-                          int(n), int(seed), float(lo), float(y_lo), capped, pd.DataFrame(rows),
-                          trials_frame, adjust)
+    return Allocation(mech.name, output, upper, lower, tolerances.name, float(target), int(n),
+                      int(seed), float(lo), float(y_lo), capped, pd.DataFrame(rows), trials_frame,
+                      adjust)
