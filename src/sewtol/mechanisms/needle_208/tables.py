@@ -26,8 +26,15 @@ from sewtol.mechanisms.needle_208 import beta as sb
 from sewtol.tolerances import Tolerance, ToleranceSet, needle_set
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from distributed import Client
+
     from sewtol.mechanisms.needle_208.compensators import Strategy
     from sewtol.mechanisms.needle_208.model import Needle208
+    from sewtol.studies.checkpoint import ChunkStore
+    from sewtol.studies.rare_event import LimitState
+    from sewtol.studies.sobol import SobolResult
 
 OUTPUT = "SumDelta_um"
 MAX_CORNER_PARAMS = 10
@@ -285,17 +292,77 @@ def _failure_reasons(mech, values, output) -> tuple[np.ndarray, np.ndarray]:
 
 def needle_sobol(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed: int,
                  range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG, n_jobs: int = 1,
-                 progress=False, backend: str | None = None, resamples: int = 200,
-                 chunk_size: int | None = None, store=None, conf_level: float = 0.95,
-                 fixed_beta: str = "optimum", limit_um: float = sb.DEFAULT_LIMIT_UM,
-                 scheduler=None, strategy: Strategy | None = None,
-                 second_order: bool = False):
-    """Sobol indices of SumDelta (sewtol.studies.sobol.sobol), cases "fixed_beta" (every
-    machine at the nominal's beta*, fixed_beta="optimum", or its own beta, "as_given") and
-    "adjusted_beta" (beta re-optimised in range_deg per machine) or, with a strategy,
-    "adjusted_" + its name (its exact joint optimum against limit_um). A machine that does not
-    run is counted under studies.sobol.POLICY with its reason and dyad at the fixed beta.
-    The other arguments are those of studies.sobol.sobol; returns its SobolResult."""
+                 progress: bool | Callable[[int, int], None] = False,
+                 backend: str | None = None, resamples: int = 200,
+                 chunk_size: int | None = None, store: ChunkStore | None = None,
+                 conf_level: float = 0.95, fixed_beta: str = "optimum",
+                 limit_um: float = sb.DEFAULT_LIMIT_UM,
+                 scheduler: str | Client | None = None,
+                 strategy: Strategy | None = None,
+                 second_order: bool = False) -> SobolResult:
+    """Sobol indices of SumDelta, beta fixed and beta adjusted, at n and n/2 base samples
+    (sewtol.studies.sobol.sobol on `as_mechanism`; a machine that does not run is counted under
+    studies.sobol.POLICY with its reason and dyad at the fixed beta).
+
+    strategy (a needle_208.compensators.Strategy): the adjusted case is SumDelta after the
+    strategy's exact joint optimum (needle_208.adjustment.adjust), its case named
+    "adjusted_" + strategy.name ("adjusted_beta" for beta alone, as without it); the fixed case
+    is unchanged. None: beta re-optimised in range_deg.
+
+    beta fixed means what it means in `montecarlo` (fixed_beta: "optimum", the nominal's beta*
+    as `sewtol needle nominal` prints it, or "as_given"). progress: True (bar on stderr) or
+    progress(done, total) in chunks; scheduler: run the model on a Dask cluster (address or
+    distributed.Client; parallel.run_chunks).
+
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters).
+    tolerances : ToleranceSet or str
+        The inputs: each tolerance is one factor with its distribution (uniform, normal,
+        truncated normal).
+    n : int
+        Base samples, a power of 2 (>= 16); the sample holds n (k + 2) machines for k factors,
+        each evaluated in both cases.
+    seed : int
+        Seeds the scrambled Sobol' sample and the bootstrap (>= 0; 0 is a seed).
+    range_deg : tuple of float
+        The regulating range for beta, (low, high) in deg.
+    n_jobs : int
+        Worker processes on this machine (joblib); the indices do not depend on it.
+    progress : bool or callable
+        True: a bar on stderr; a callable ``progress(done, total)`` is called as chunks finish.
+    backend : str or None
+        A joblib backend (e.g. ``"dask"`` inside a ``distributed.Client()``); None: joblib's
+        default.
+    resamples : int
+        Bootstrap resamples for the confidence intervals.
+    chunk_size : int or None
+        Model runs per chunk (None: studies.sobol.CHUNK).
+    store : ChunkStore or None
+        A study folder that saves finished chunks and resumes an interrupted study.
+    conf_level : float
+        The confidence level of the bootstrap intervals, in (0, 1).
+    fixed_beta : str
+        ``"optimum"`` (the nominal's beta*) or ``"as_given"`` (its ``beta`` parameter).
+    limit_um : float
+        The SumDelta limit (um) used by the beta search.
+    scheduler : str, distributed.Client or None
+        A Dask scheduler address or client: the model runs on that cluster.
+    strategy : Strategy or None
+        The adjusted case: None for beta re-optimised, or a strategy's joint optimum.
+    second_order : bool
+        True: the design of n (2k + 2) machines per case and the second-order index S2 of
+        every pair with its interval (`SobolResult.second_order_frame()`); the S1/ST of that
+        design differ from the first-order design's by their sampling error only.
+
+    Returns
+    -------
+    SobolResult
+        S1 and ST with their confidence half-widths per parameter and case
+        (``fixed_beta``, ``adjusted_<strategy>``), at n and n/2, and the convergence table
+        (with second_order, the S2 pairs and max |dS2|).
+    """
     from sewtol.mechanisms.needle_208.montecarlo import fixed_beta_of
     from sewtol.studies import sobol as S
 
@@ -332,15 +399,40 @@ def _needle_failures(mech, values, output) -> np.ndarray:
 
 
 def needle_limit_state(nominal: Needle208, tolerances: ToleranceSet | str, limit_um: float = 10.0,
-                       adjust: str = "beta", range_deg: tuple[float, float] | None = None):
-    """SumDelta of the 208 needle drive as a rare-event LimitState (sewtol.studies.ppm).
+                       adjust: str = "beta",
+                       range_deg: tuple[float, float] | None = None) -> LimitState:
+    """SumDelta of the 208 needle drive after the assembly adjustment, as a LimitState
+    (sewtol.studies.ppm.limit_state on `as_mechanism`).
 
-    adjust "beta": beta re-optimised per machine in range_deg (default (10, 35); value
-    total_adjusted_um); "none": every machine at the nominal's beta (total_fixed_um). A machine
-    fails when its SumDelta exceeds limit_um or when it has no value: failure modes "cannot
-    assemble" (a dyad misses at the nominal beta) and "dead point" (a dyad passes within the
-    dead-point angle, or no beta in the range assembles it). Raises ParameterError for an
-    unknown adjustment, a non-positive limit, or a set without any tolerance.
+    adjust "beta": beta re-optimised per machine in range_deg (total_adjusted_um); "none": beta
+    left at the nominal beta* (total_fixed_um). A machine without a value is "cannot assemble"
+    (a dyad misses at the nominal beta) or else "dead point" (a dyad passes within the dead-point
+    angle, or no beta in the range assembles it).
+
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters).
+    tolerances : ToleranceSet or str
+        The inputs, mapped from independent standard normals through each tolerance's
+        distribution.
+    limit_um : float
+        A machine fails when its SumDelta exceeds this (um), or when it cannot run.
+    adjust : str
+        ``"beta"`` (beta re-optimised per machine) or ``"none"`` (beta at the nominal's beta*).
+    range_deg : tuple of float or None
+        The regulating range for beta, (low, high) in deg; None: (10, 35).
+
+    Returns
+    -------
+    LimitState
+        The failure event for `estimate`, with failure modes ``"cannot assemble"`` and
+        ``"dead point"`` and the deviations (mm) of failing machines.
+
+    Raises
+    ------
+    ParameterError
+        For an unknown adjustment, a non-positive limit, or a set without any tolerance.
     """
     from sewtol.studies.ppm import limit_state
 
