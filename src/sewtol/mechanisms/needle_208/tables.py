@@ -304,64 +304,38 @@ def needle_sobol(nominal: Needle208, tolerances: ToleranceSet | str, n: int, see
     (sewtol.studies.sobol.sobol on `as_mechanism`; a machine that does not run is counted under
     studies.sobol.POLICY with its reason and dyad at the fixed beta).
 
-    strategy (a needle_208.compensators.Strategy): the adjusted case is SumDelta after the
-    strategy's exact joint optimum (needle_208.adjustment.adjust), its case named
-    "adjusted_" + strategy.name ("adjusted_beta" for beta alone, as without it); the fixed case
-    is unchanged. None: beta re-optimised in range_deg.
-
-    beta fixed means what it means in `montecarlo` (fixed_beta: "optimum", the nominal's beta*
-    as `sewtol needle nominal` prints it, or "as_given"). progress: True (bar on stderr) or
-    progress(done, total) in chunks; scheduler: run the model on a Dask cluster (address or
-    distributed.Client; parallel.run_chunks).
-
     Parameters
     ----------
     nominal : Needle208
         The nominal machine (scalar parameters).
     tolerances : ToleranceSet or str
-        The inputs: each tolerance is one factor with its distribution (uniform, normal,
-        truncated normal).
-    n : int
-        Base samples, a power of 2 (>= 16); the sample holds n (k + 2) machines for k factors,
-        each evaluated in both cases.
-    seed : int
-        Seeds the scrambled Sobol' sample and the bootstrap (>= 0; 0 is a seed).
+        The inputs: each tolerance is one factor with its distribution.
+    n, seed : int
+        Base samples, a power of 2 (>= 16; n (k + 2) machines for k factors, per case) and the
+        seed of the scrambled Sobol' sample and the bootstrap (>= 0; 0 is a seed).
     range_deg : tuple of float
         The regulating range for beta, (low, high) in deg.
-    n_jobs : int
-        Worker processes on this machine (joblib); the indices do not depend on it.
-    progress : bool or callable
-        True: a bar on stderr; a callable ``progress(done, total)`` is called as chunks finish.
-    backend : str or None
-        A joblib backend (e.g. ``"dask"`` inside a ``distributed.Client()``); None: joblib's
-        default.
-    resamples : int
-        Bootstrap resamples for the confidence intervals.
-    chunk_size : int or None
-        Model runs per chunk (None: studies.sobol.CHUNK).
-    store : ChunkStore or None
-        A study folder that saves finished chunks and resumes an interrupted study.
-    conf_level : float
-        The confidence level of the bootstrap intervals, in (0, 1).
+    n_jobs, progress, backend, chunk_size, store, scheduler : see studies.sobol.sobol
+        How the model runs (workers, a bar or ``progress(done, total)``, a joblib backend,
+        runs per chunk, a resumable study folder, a Dask cluster); no index depends on them.
+    resamples, conf_level : int, float
+        The bootstrap resamples and the confidence level of the intervals.
     fixed_beta : str
-        ``"optimum"`` (the nominal's beta*) or ``"as_given"`` (its ``beta`` parameter).
+        The fixed case's beta, as in `montecarlo`: ``"optimum"`` (the nominal's beta*) or
+        ``"as_given"`` (its ``beta`` parameter).
     limit_um : float
-        The SumDelta limit (um) used by the beta search.
-    scheduler : str, distributed.Client or None
-        A Dask scheduler address or client: the model runs on that cluster.
+        The SumDelta limit (um) of the beta search and the strategy's status.
     strategy : Strategy or None
-        The adjusted case: None for beta re-optimised, or a strategy's joint optimum.
+        The adjusted case: None for beta re-optimised in range_deg ("adjusted_beta"), or the
+        strategy's exact joint optimum ("adjusted_" + its name).
     second_order : bool
-        True: the design of n (2k + 2) machines per case and the second-order index S2 of
-        every pair with its interval (`SobolResult.second_order_frame()`); the S1/ST of that
-        design differ from the first-order design's by their sampling error only.
+        True: the design of n (2k + 2) machines per case and the S2 of every pair.
 
     Returns
     -------
     SobolResult
-        S1 and ST with their confidence half-widths per parameter and case
-        (``fixed_beta``, ``adjusted_<strategy>``), at n and n/2, and the convergence table
-        (with second_order, the S2 pairs and max |dS2|).
+        S1 and ST with their confidence half-widths per parameter and case, at n and n/2,
+        and the convergence table (with second_order, the S2 pairs and max |dS2|).
     """
     from sewtol.mechanisms.needle_208.montecarlo import fixed_beta_of
     from sewtol.studies import sobol as S
@@ -486,9 +460,9 @@ def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 
     """The widest symmetric tolerances that keep the yield after beta adjustment at a target.
 
     Cost is reciprocal, sum c_i / t_i; the shape t_i ~ (c_i / s_i^2)^(1/3) (s_i the slope of
-    SumDelta at beta* from the scan, um per mm) is the root-sum-square optimum, and the common
-    scale is found by bisection on the Monte-Carlo yield of the real model with beta set per
-    machine (the same random numbers for every trial scale).
+    SumDelta at beta* from the scan, um per mm) is the root-sum-square optimum; the common scale
+    of the shapes is sewtol.studies.allocation.allocate's (bisection in (0, max_mm) on the
+    yield after beta adjustment per machine, common random numbers).
 
     Parameters
     ----------
@@ -498,10 +472,8 @@ def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 
         Which parameters to allocate, and the limits at which the slopes are taken.
     target : float
         The yield to keep, strictly between 0 and 1; default 0.9973 (+/-3 sigma).
-    n : int
-        Monte-Carlo machines per trial scale.
-    seed : int
-        Seed of the common random numbers (>= 0).
+    n, seed : int
+        Monte-Carlo machines per trial scale and the seed of their common random numbers.
     costs : dict or None
         Cost weight c_i per parameter (> 0); a parameter not named weighs 1.
     max_mm : float
