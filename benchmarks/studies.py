@@ -30,6 +30,7 @@ import sys
 import time
 
 import numpy as np
+from sewtol.mechanisms.needle_208.montecarlo import montecarlo
 
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.needle_208 import adjust as ad
@@ -38,8 +39,7 @@ from sewtol.mechanisms.needle_208.evaluate import evaluate
 from sewtol.mechanisms.needle_208.kernels import fused as KB
 from sewtol.mechanisms.needle_208.kernels import positions as K
 from sewtol.mechanisms.needle_208.model import Needle208
-from sewtol.mechanisms.needle_208.montecarlo import montecarlo
-from sewtol.mechanisms.needle_208.sobol import needle_sobol
+from sewtol.mechanisms.needle_208.tables import needle_sobol
 from sewtol.studies.sobol import problem_of, sample
 from sewtol.tolerances import NEEDLE_208_SETS
 

@@ -20,8 +20,7 @@ from sewtol.io import write_text_atomic
 from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME, frame_names, load_frame
 from sewtol.mechanisms.needle_208.model import Needle208
 from sewtol.mechanisms.needle_208.single import nominal_figures
-from sewtol.mechanisms.needle_208.sobol import needle_sobol
-from sewtol.mechanisms.needle_208.tables import largest_tolerances, montecarlo, scan
+from sewtol.mechanisms.needle_208.tables import largest_tolerances, montecarlo, needle_sobol, scan
 from sewtol.reports import plots
 from sewtol.tolerances import NEEDLE_208_SETS
 

@@ -31,9 +31,9 @@ import pandas as pd  # noqa: E402
 
 from sewtol.errors import ParameterError  # noqa: E402
 from sewtol.io import write_text_atomic  # noqa: E402
-from sewtol.mechanisms.needle_208 import ppm as NR
-from sewtol.mechanisms.needle_208.allocation import allocate  # noqa: E402
+from sewtol.mechanisms.needle_208 import tables as NR
 from sewtol.mechanisms.needle_208.model import Needle208  # noqa: E402
+from sewtol.mechanisms.needle_208.tables import allocate  # noqa: E402
 from sewtol.mechanisms.params import as_dict  # noqa: E402
 from sewtol.provenance import now, run_record  # noqa: E402
 from sewtol.reports import plots  # noqa: E402

@@ -19,12 +19,17 @@ import matplotlib.pyplot as plt
 
 from sewtol.errors import ParameterError
 from sewtol.io import to_json, write_text_atomic
-from sewtol.mechanisms.needle_208.allocation import allocate
 from sewtol.mechanisms.needle_208.guides import compare_guides
 from sewtol.mechanisms.needle_208.model import Needle208
 from sewtol.mechanisms.needle_208.single import deviation_table
-from sewtol.mechanisms.needle_208.sobol import needle_sobol
-from sewtol.mechanisms.needle_208.tables import largest_tolerances, montecarlo, scan, worst_case_table
+from sewtol.mechanisms.needle_208.tables import (
+    allocate,
+    largest_tolerances,
+    montecarlo,
+    needle_sobol,
+    scan,
+    worst_case_table,
+)
 from sewtol.mechanisms.params import as_dict, field_names
 from sewtol.provenance import now, run_record
 from sewtol.reports import plots

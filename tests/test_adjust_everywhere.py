@@ -92,9 +92,8 @@ def test_sobol_adjust_beta_matches_todays_adjusted_case():
 
 def test_sobol_model_chunk_calls_adjust():
     from sewtol.mechanisms.needle_208.evaluate import evaluate
-    from sewtol.mechanisms.needle_208.sobol import _needle_chunk
-    from sewtol.mechanisms.needle_208.tables import fixed_beta_of
-    from sewtol.studies.sobol import problem_of, sample
+    from sewtol.mechanisms.needle_208.tables import as_mechanism, fixed_beta_of
+    from sewtol.studies.sobol import case_values, problem_of, sample
 
     tol = NEEDLE_208_SETS["base"]
     nom = Needle208.nominal()
@@ -103,7 +102,9 @@ def test_sobol_model_chunk_calls_adjust():
     X = sample(pr, 16, 3)[:40]
     dev = {k: X[:, i] for i, k in enumerate(pr["names"])}
     st = strategy_of(("beta", "guide_shift_um"))
-    fixed, adjusted = _needle_chunk(nom, pr["names"], X, (10.0, 35.0), st, 10.0)
+    fixed, adjusted = case_values(as_mechanism(nom), "SumDelta_um",
+                                  {"fixed": None, "adjusted": st.compensators}, pr["names"], X,
+                                  options={"limit_um": 10.0, "plateaus": False})
     ref = adjust(columns_of(nom, dev), st, 10.0)
     np.testing.assert_allclose(adjusted, ref.total_um, rtol=0, atol=1e-9)
     np.testing.assert_array_equal(fixed, evaluate(nom, dev, adjust=False).total_fixed_um)
@@ -178,7 +179,7 @@ def test_allocation_cli_beta_and_shift_widens_ab_be():
 
 def test_allocation_yield_is_what_it_reports():
     """Recompute the strategy allocation's yield on its common random numbers with adjust()."""
-    from sewtol.mechanisms.needle_208.allocation import allocate_for_strategy
+    from sewtol.mechanisms.needle_208.tables import allocate_for_strategy
 
     nom, tol = Needle208.nominal(), NEEDLE_208_SETS["base"]
     st = strategy_of(("beta", "guide_shift_um"))

@@ -351,7 +351,7 @@ def test_adjusted_scan_flags_the_same_rows():
 def test_second_order_shows_the_ab_be_interaction_of_the_needle(nominal):
     """Base set: AB and BE have S1 ~ 0.13 but ST ~ 0.87; S2 names the partner: AB x BE carries
     the gap (0.75 +/- 0.27 at N = 256; 0.78 +/- 0.14 at N = 1024)."""
-    from sewtol.mechanisms.needle_208.sobol import needle_sobol
+    from sewtol.mechanisms.needle_208.tables import needle_sobol
 
     res = needle_sobol(nominal, NEEDLE_208_SETS["base"], 256, seed=1, second_order=True)
     assert res.model_runs == 256 * (2 * 6 + 2)

@@ -15,8 +15,7 @@ import numpy as np
 import pytest
 
 from sewtol.cli import main
-from sewtol.mechanisms.needle_208.sobol import needle_sobol
-from sewtol.mechanisms.needle_208.tables import as_mechanism, montecarlo
+from sewtol.mechanisms.needle_208.tables import as_mechanism, montecarlo, needle_sobol
 from sewtol.studies import parallel
 from sewtol.studies.checkpoint import ChunkStore
 from sewtol.studies.montecarlo import sample_machines

@@ -20,8 +20,10 @@ from scipy import stats  # noqa: E402
 from cli_helpers import run, strict_loads  # noqa: E402
 from sewtol.mechanism import load  # noqa: E402
 from sewtol.reports import generic_report as GR  # noqa: E402
-from sewtol.studies import generic_yield as GY  # noqa: E402
+from sewtol.studies import allocation as AL  # noqa: E402
+from sewtol.studies import ppm as PPM  # noqa: E402
 from sewtol.studies import rare_event as R  # noqa: E402
+from sewtol.studies import sobol as SO  # noqa: E402
 from sewtol.studies.montecarlo import draw_units, unit_streams  # noqa: E402
 from sewtol.tolerances import Tolerance, ToleranceSet  # noqa: E402
 
@@ -46,7 +48,7 @@ def test_ppm_subset_simulation_normal_tail_at_1e_5(mech):
     # P(stroke > limit) = P(r > limit / 2) = P(z > z_true) with z_true chosen for 1e-5
     truth = 1e-5
     limit = 2 * (R0 + SIGMA_R * stats.norm.isf(truth))
-    ls = GY.file_limit_state(mech, mech.tolerance_sets["normal"], "stroke_mm", upper=limit)
+    ls = PPM.limit_state(mech, mech.tolerance_sets["normal"], "stroke_mm", upper=limit)
     assert ls.failure_modes == ("cannot_close at J", "dead_point at J")
     assert ls.limit == limit and ls.output == "stroke_mm"
     res = R.estimate(ls, np.random.default_rng(1), "auto", 1e-5, 20000)
@@ -64,11 +66,11 @@ def test_ppm_two_sided_and_lower_limit_monte_carlo(mech):
     tol = mech.tolerance_sets["normal"]
     a = 0.035  # limits 20 +/- a: fail when |2 d| > a
     truth = 2 * stats.norm.sf(a / (2 * SIGMA_R))
-    ls = GY.file_limit_state(mech, tol, "stroke_mm", upper=20 + a, lower=20 - a)
+    ls = PPM.limit_state(mech, tol, "stroke_mm", upper=20 + a, lower=20 - a)
     assert ls.output == "stroke_mm_excess" and ls.limit == 0.0
     res = R.estimate(ls, np.random.default_rng(3), "montecarlo", 1e-2, 20000)
     assert res.ci_low <= truth <= res.ci_high
-    low = GY.file_limit_state(mech, tol, "stroke_mm", lower=20 - a)
+    low = PPM.limit_state(mech, tol, "stroke_mm", lower=20 - a)
     res = R.estimate(low, np.random.default_rng(4), "montecarlo", 1e-2, 20000)
     assert res.ci_low <= truth / 2 <= res.ci_high
 
@@ -77,7 +79,7 @@ def test_ppm_machines_that_cannot_close_are_failures_named_by_group():
     # L near r: at q = 90 deg the rod cannot reach the guide when L < r
     mech = load(FILE, {"L": 10.05})
     tol = ToleranceSet("L", (Tolerance("L", -0.3, 0.3, "normal"),))
-    ls = GY.file_limit_state(mech, tol, "stroke_mm", upper=100.0)
+    ls = PPM.limit_state(mech, tol, "stroke_mm", upper=100.0)
     res = R.estimate(ls, np.random.default_rng(5), "montecarlo", 0.1, 4000)
     truth = stats.norm.cdf((R0 - 10.05) / 0.1)
     assert res.mode_counts["cannot_close at J"] == res.failures > 0
@@ -86,7 +88,7 @@ def test_ppm_machines_that_cannot_close_are_failures_named_by_group():
 
 
 def test_ppm_no_failure_is_a_bound_never_zero_ppm(mech):
-    ls = GY.file_limit_state(mech, mech.tolerance_sets["uniform"], "stroke_mm", upper=20.5)
+    ls = PPM.limit_state(mech, mech.tolerance_sets["uniform"], "stroke_mm", upper=20.5)
     res = R.estimate(ls, np.random.default_rng(0), "montecarlo", 0.01, 1000)
     assert not res.resolved and res.failures == 0
     assert res.statement.startswith("< ") and "at 95 %" in res.statement
@@ -98,7 +100,7 @@ def test_ppm_with_compensator_is_the_adjusted_output(mech):
     # J_x_max = L + r, minimised over L in [39, 41] at L = 39: fails when 39 + r > limit
     truth = 1e-3
     limit = 39 + R0 + SIGMA_R * stats.norm.isf(truth)
-    ls = GY.file_limit_state(mech, mech.tolerance_sets["normal"], "J_x_max_mm", upper=limit,
+    ls = PPM.limit_state(mech, mech.tolerance_sets["normal"], "J_x_max_mm", upper=limit,
                              adjust="rod")
     assert ls.output == "J_x_max_mm_adjusted"
     z = np.array([[0.0, 0.0], [1.0, -2.0], [-3.0, 3.0]])
@@ -118,15 +120,42 @@ def _order_statistic_scale(n, seed, target, half_mm, t_mm):
     return half_mm / (t_mm * v[m - 1])
 
 
+def test_allocation_in_a_given_bracket_finds_the_same_crossing(mech):
+    # the needle's search: k in (0, 2) by 14 bisection steps; the yield is a monotone step
+    # function here, so the sample's exact crossing lies in the last bracket
+    target, n = 0.9973, 2000
+    b = AL.allocate(mech, mech.tolerance_sets["uniform"], "stroke_mm", target, upper=20.02,
+                    lower=19.98, n=n, seed=0, bracket=(0.0, 2.0), steps=14)
+    k_sample = _order_statistic_scale(n, 0, target, 0.01, 0.03)
+    assert b.scale <= k_sample * (1 + 1e-9) and k_sample - b.scale < 2.0 / 2**14
+    assert len(b.trials) == 15 and b.yield_ >= target and not b.capped
+
+
+def test_sobol_cases_of_a_file_adjusted_and_in_chunks(mech):
+    # stroke = 2 r: the rod L (the compensator) explains nothing, fixed or adjusted, and the
+    # adjusted case equals the fixed one; the chunks of the model runs change no number
+    cases = {"fixed": None, "adjusted_rod": "rod"}
+    tol = mech.tolerance_sets["uniform"]
+    a = SO.sobol(mech, tol, "stroke_mm", 16, 1, cases=cases)
+    b = SO.sobol(mech, tol, "stroke_mm", 16, 1, cases=cases, chunk_size=7)
+    assert a.indices.equals(b.indices) and a.convergence.equals(b.convergence)
+    ix = a.to_dataframe().set_index(["case", "param"])
+    for case in cases:
+        assert abs(ix.loc[(case, "L"), "S1"]) < 1e-12 and abs(ix.loc[(case, "L"), "ST"]) < 1e-12
+    for k in ("S1", "ST"):
+        assert ix.loc[("adjusted_rod", "r"), k] == pytest.approx(ix.loc[("fixed", "r"), k],
+                                                                 rel=1e-9)
+
+
 def test_allocation_uniform_scale_matches_closed_form(mech):
     # P(|2 r - 2 r0| <= 0.02) with r uniform +/- 0.03 k is 0.01 / (0.03 k) = target
     target, n = 0.9973, 2000
-    a = GY.allocate(mech, mech.tolerance_sets["uniform"], "stroke_mm", target, upper=20.02,
+    a = AL.allocate(mech, mech.tolerance_sets["uniform"], "stroke_mm", target, upper=20.02,
                     lower=19.98, n=n, seed=0)
     k_true = 0.01 / (0.03 * target)
     k_sample = _order_statistic_scale(n, 0, target, 0.01, 0.03)
     # bisection to SCALE_RTOL below the sample's exact crossing
-    assert k_sample * (1 - 2 * GY.SCALE_RTOL) <= a.scale <= k_sample * (1 + 1e-9)
+    assert k_sample * (1 - 2 * AL.SCALE_RTOL) <= a.scale <= k_sample * (1 + 1e-9)
     # the sample crossing is an order statistic: sd of V_(m) is sqrt(p (1 - p) / n) ~ 0.0012
     assert abs(a.scale / k_true - 1) < 4 * np.sqrt(target * (1 - target) / n)
     assert a.yield_ >= target and not a.capped
@@ -138,21 +167,21 @@ def test_allocation_uniform_scale_matches_closed_form(mech):
     assert (tr.loc[tr["scale"] > a.scale, "yield"] < target).all()
     assert (tr.loc[tr["scale"] <= a.scale, "yield"] >= target).all()
     # same seed, same answer
-    b = GY.allocate(mech, mech.tolerance_sets["uniform"], "stroke_mm", target, upper=20.02,
+    b = AL.allocate(mech, mech.tolerance_sets["uniform"], "stroke_mm", target, upper=20.02,
                     lower=19.98, n=n, seed=0)
     assert b.scale == a.scale
 
 
 def test_allocation_weight_halves_r_doubles_the_scale(mech):
     tol = mech.tolerance_sets["uniform"]
-    a = GY.allocate(mech, tol, "stroke_mm", 0.95, upper=20.02, lower=19.98, n=500, seed=2)
-    b = GY.allocate(mech, tol, "stroke_mm", 0.95, upper=20.02, lower=19.98, n=500, seed=2,
+    a = AL.allocate(mech, tol, "stroke_mm", 0.95, upper=20.02, lower=19.98, n=500, seed=2)
+    b = AL.allocate(mech, tol, "stroke_mm", 0.95, upper=20.02, lower=19.98, n=500, seed=2,
                     weights={"r": 0.5})
     # r's allocated limit is the same (stroke depends on r only): k_b * 0.5 = k_a
-    assert b.scale * 0.5 == pytest.approx(a.scale, rel=3 * GY.SCALE_RTOL)
+    assert b.scale * 0.5 == pytest.approx(a.scale, rel=3 * AL.SCALE_RTOL)
     ra = a.table.set_index("param").loc["r", "upper"]
     rb = b.table.set_index("param").loc["r", "upper"]
-    assert rb == pytest.approx(ra, rel=3 * GY.SCALE_RTOL)
+    assert rb == pytest.approx(ra, rel=3 * AL.SCALE_RTOL)
 
 
 def test_allocation_counts_machines_that_cannot_close_against_the_yield():
@@ -161,7 +190,7 @@ def test_allocation_counts_machines_that_cannot_close_against_the_yield():
     mech = load(FILE, {"L": 10.5})
     tol = ToleranceSet("L", (Tolerance("L", -0.1, 0.1),))
     target, n = 0.9, 4000
-    a = GY.allocate(mech, tol, "stroke_mm", target, upper=100.0, n=n, seed=4)
+    a = AL.allocate(mech, tol, "stroke_mm", target, upper=100.0, n=n, seed=4)
     k_true = 0.5 / (2 * target - 1) / 0.1
     # the crossing is the sample's (1 - target) quantile of d / (0.1 k): sd sqrt(p (1-p) / n)
     # in u, i.e. 2 sqrt(p (1 - p) / n) / (2 (1 - target)) relative to the distance -0.5
@@ -175,7 +204,7 @@ def test_allocation_counts_machines_that_cannot_close_against_the_yield():
 def test_allocation_normal_scale_matches_closed_form(mech):
     # r normal with sigma 0.01 k: P(|2 sigma k z| <= 0.02) = target -> k = 1 / z_{(1+t)/2}
     target, n = 0.9, 4000
-    a = GY.allocate(mech, mech.tolerance_sets["normal"], "stroke_mm", target, upper=20.02,
+    a = AL.allocate(mech, mech.tolerance_sets["normal"], "stroke_mm", target, upper=20.02,
                     lower=19.98, n=n, seed=1)
     k_true = 1.0 / stats.norm.ppf(0.5 + target / 2)
     # quantile of |z| at p: sd sqrt(p (1 - p) / n) / (2 phi(q)) relative to q
@@ -242,7 +271,7 @@ def test_cli_ppm_allocation_report(tmp_path):
     assert code == 0, err
     obj = strict_loads(out)
     k = _order_statistic_scale(2000, 0, 0.9973, 0.01, 0.03)
-    assert k * (1 - 2 * GY.SCALE_RTOL) <= obj["scale"] <= k * (1 + 1e-9)
+    assert k * (1 - 2 * AL.SCALE_RTOL) <= obj["scale"] <= k * (1 + 1e-9)
     code, out, err = run("run", FILE, "report", "--tolerances", "uniform", "--n", "200",
                          "--limit", "20.05", "--out", str(tmp_path / "rep"))
     assert code == 0, err

@@ -17,6 +17,7 @@ from sewtol.mechanisms.needle_208.fast_path import needle_perturbations, needle_
 from sewtol.studies import generic as G
 from sewtol.studies import montecarlo_study as MC
 from sewtol.studies import scan as S
+from sewtol.studies import sobol as so
 from sewtol.studies import worst_case as W
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -552,7 +553,7 @@ def test_rrr_links_keep_their_lengths_in_the_template():
 def test_sobol_of_a_file_output_that_depends_on_one_parameter():
     text = FOUR_BAR.replace("[tolerances.wide]\nb = 3.0", "[tolerances.wide]\na = 0.5\nb = 0.5")
     mech = loads(text, "m.toml")
-    res = G.sobol(mech, mech.tolerance_sets["wide"], "B_y_range_mm", 64, 3)
+    res = so.sobol(mech, mech.tolerance_sets["wide"], "B_y_range_mm", 64, 3)
     ix = res.to_dataframe().set_index("param")
     # B_y_range = 2a exactly: b has no effect at all, a explains everything
     assert ix.loc["b", "ST"] == 0.0 and ix.loc["b", "S1"] == 0.0
@@ -561,7 +562,7 @@ def test_sobol_of_a_file_output_that_depends_on_one_parameter():
     # a box where some machines cannot close: counted per outcome and group (studies.sobol
     # POLICY), never refused, never dropped
     wide = loads(text.replace("a = 0.5", "a = [-5.0, 19.0]"), "m.toml")
-    c = G.sobol(wide, wide.tolerance_sets["wide"], "B_y_range_mm", 64, 3).counts()
+    c = so.sobol(wide, wide.tolerance_sets["wide"], "B_y_range_mm", 64, 3).counts()
     c = c["B_y_range_mm"]
     failed = c["cannot_close"] + c["dead_point"]
     assert c["rows"] == 256 == c["assembled"] + failed and failed > 0

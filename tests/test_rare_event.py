@@ -12,7 +12,7 @@ from scipy import special, stats
 
 from cli_helpers import run, strict_loads
 from sewtol.errors import ParameterError
-from sewtol.mechanisms.needle_208 import ppm as NR
+from sewtol.mechanisms.needle_208 import tables as NR
 from sewtol.studies import rare_event as R
 from sewtol.tolerances import Tolerance, ToleranceSet
 

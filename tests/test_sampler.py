@@ -7,13 +7,16 @@ from pathlib import Path
 import numpy as np
 
 from sewtol.mechanism import load
-from sewtol.mechanisms.needle_208 import allocation as NA
 from sewtol.mechanisms.needle_208 import compensators as C
-from sewtol.mechanisms.needle_208.ppm import needle_limit_state
-from sewtol.mechanisms.needle_208.tables import montecarlo, strategies_table
-from sewtol.studies import generic as G
-from sewtol.studies import generic_yield as GY
+from sewtol.mechanisms.needle_208.tables import (
+    allocate,
+    montecarlo,
+    needle_limit_state,
+    strategies_table,
+)
+from sewtol.studies import allocation as AL
 from sewtol.studies import montecarlo as mc
+from sewtol.studies import ppm as PPM
 from sewtol.studies import rare_event as R
 from sewtol.studies.montecarlo_study import montecarlo as montecarlo_study
 from sewtol.tolerances import NEEDLE_208_SETS
@@ -72,16 +75,9 @@ def test_needle_studies_draw_the_same_machines(nominal, monkeypatch):
     _same(_ppm_machines(needle_limit_state(nominal, tol, adjust="none")), want, rtol=1e-12)
     # allocation: its last trial (the scale it reports) evaluates montecarlo's machines of the
     # allocated set
-    calls = []
-    real = NA.evaluate
-
-    def recording(nom, dev, **kw):
-        calls.append(dev)
-        return real(nom, dev, **kw)
-
-    monkeypatch.setattr(NA, "evaluate", recording)
-    a = NA.allocate(nominal, tol, target=0.9, n=N, seed=SEED, steps=3)
-    _same(calls[-1], mc.draw_deviations(a.as_tolerance_set(), N, SEED))
+    calls = _recording(monkeypatch)
+    a = allocate(nominal, tol, target=0.9, n=N, seed=SEED, steps=3)
+    _one_trial_draws(calls, mc.draw_deviations(a.as_tolerance_set(), N, SEED))
 
 
 def test_file_studies_draw_the_same_machines(monkeypatch):
@@ -90,18 +86,27 @@ def test_file_studies_draw_the_same_machines(monkeypatch):
     want = mc.draw_deviations(tol, N, SEED)
     m = montecarlo_study(mech, tol, N, SEED).machines
     _same({k: m[k] for k in want}, want)
-    _same(_ppm_machines(GY.file_limit_state(mech, tol, "stroke_mm", upper=20.02)), want,
+    _same(_ppm_machines(PPM.limit_state(mech, tol, "stroke_mm", upper=20.02)), want,
           rtol=1e-12)
+    calls = _recording(monkeypatch)
+    a = AL.allocate(mech, tol, "stroke_mm", 0.9, upper=20.02, lower=19.98, n=N, seed=SEED)
+    _one_trial_draws(calls, mc.draw_deviations(a.as_tolerance_set(), N, SEED))
+
+
+def _recording(monkeypatch) -> list:
+    """The deviations of every trial of studies.allocation (its machines)."""
     calls = []
-    real = G.deviated_values
+    real = AL.machines
 
     def recording(mech_, dev):
         calls.append(dev)
         return real(mech_, dev)
 
-    monkeypatch.setattr(G, "deviated_values", recording)
-    a = GY.allocate(mech, tol, "stroke_mm", 0.9, upper=20.02, lower=19.98, n=N, seed=SEED)
+    monkeypatch.setattr(AL, "machines", recording)
+    return calls
+
+
+def _one_trial_draws(calls, allocated):
     # one trial is at the reported scale: montecarlo's machines of the allocated set
-    allocated = mc.draw_deviations(a.as_tolerance_set(), N, SEED)
     assert sum(all(np.allclose(d[k], v, rtol=1e-12, atol=0.0) for k, v in allocated.items())
                for d in calls) >= 1

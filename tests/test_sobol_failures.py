@@ -10,8 +10,7 @@ from SALib.analyze import sobol as sobol_analyze
 
 from cli_helpers import run, strict_loads
 from sewtol.mechanism import load
-from sewtol.mechanisms.needle_208.sobol import needle_sobol
-from sewtol.studies import generic as G
+from sewtol.mechanisms.needle_208.tables import needle_sobol
 from sewtol.studies import sobol as so
 from sewtol.tolerances import Tolerance, ToleranceSet
 
@@ -191,7 +190,7 @@ def test_file_sobol_counts_the_rod_that_cannot_reach(tmp_path):
     # clipped to [0, 1]
     mech = load(FILE, {"L": 10.5})
     wide = ToleranceSet("wide", (Tolerance("r", -0.3, 0.3), Tolerance("L", -1.0, 1.0)))
-    res = G.sobol(mech, wide, "stroke_mm", 1024, seed=2)
+    res = so.sobol(mech, wide, "stroke_mm", 1024, seed=2)
     c = res.counts()["stroke_mm"]
     assert c["rows"] == c["assembled"] + c["cannot_close"] == 1024 * 4
     assert c["failed_groups"] == {"cannot_close at J": c["cannot_close"]} and c["cannot_close"]

@@ -17,8 +17,8 @@ from cli_helpers import run, strict_loads
 from sewtol.errors import ParameterError
 from sewtol.mechanism import load, loads
 from sewtol.mechanism.spec import Spec
-from sewtol.studies import generic_yield as GY
 from sewtol.studies import montecarlo_study as MC
+from sewtol.studies import ppm as PPM
 
 DATA = Path(__file__).parent / "data" / "crank_slider.toml"
 TEXT = DATA.read_text()
@@ -120,10 +120,10 @@ def test_yield_studies_take_the_file_spec_by_default(spec_file):
             assert da[key] == db[key], key
         assert da.get("probability", 1) > 0 and da.get("scale", 1) > 0
     mech = load(spec_file)
-    assert GY.limits_of(mech, "stroke_mm", None, None) == (20.02, 19.98)
-    assert GY.limits_of(mech, "stroke_mm", 21.0, None) == (21.0, None)
+    assert PPM.limits_of(mech, "stroke_mm", None, None) == (20.02, 19.98)
+    assert PPM.limits_of(mech, "stroke_mm", 21.0, None) == (21.0, None)
     with pytest.raises(ParameterError, match="limit: give an upper limit"):
-        GY.limits_of(mech, "J_x_max_mm", None, None)  # no spec for that output
+        PPM.limits_of(mech, "J_x_max_mm", None, None)  # no spec for that output
 
 
 def test_report_yield_uses_the_file_spec(spec_file, tmp_path):

@@ -364,7 +364,7 @@ def test_cli_strategies_takes_a_frame_and_prints_strict_json(tmp_path):
 
 
 def test_allocation_takes_a_strategy(nominal):
-    from sewtol.mechanisms.needle_208.allocation import allocate_for_strategy
+    from sewtol.mechanisms.needle_208.tables import allocate_for_strategy
 
     ref = NEEDLE_208_SETS["recommended"]
     shift = C.strategy_of(("beta", "guide_shift_um"))

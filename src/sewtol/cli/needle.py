@@ -428,7 +428,7 @@ def _adjust_options(p):
 
 
 def cmd_needle_sobol(args):
-    from sewtol.mechanisms.needle_208.sobol import needle_sobol
+    from sewtol.mechanisms.needle_208.tables import needle_sobol
     from sewtol.provenance import now
     from sewtol.studies.sobol import CHUNK, check_power_of_two, check_sobol
 
@@ -528,7 +528,7 @@ def cmd_needle_guides(args):
 
 
 def cmd_needle_allocation(args):
-    from sewtol.mechanisms.needle_208.allocation import allocate, allocate_for_strategy
+    from sewtol.mechanisms.needle_208.tables import allocate, allocate_for_strategy
 
     if not (np.isfinite(args.target) and 0 < args.target < 1):
         raise ParameterError("--target", "must be a yield strictly between 0 and 1",
@@ -631,7 +631,7 @@ def cmd_needle_largest_tolerances(args):
 
 
 def cmd_needle_ppm(args):
-    from sewtol.mechanisms.needle_208 import ppm as NR
+    from sewtol.mechanisms.needle_208 import tables as NR
     from sewtol.provenance import now
     from sewtol.studies import rare_event as R
 

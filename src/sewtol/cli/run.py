@@ -244,8 +244,10 @@ def cmd_run(args) -> None:
         return _finish(args, fmt, mech, tolerances, res.to_dict(), {"worst_case": res.rows},
                        res.rows)
     if args.study == "sobol":
-        res = _as_flags(G.sobol, mech, tolerances, args.output or mech.output_names[0], args.n,
-                        args.seed)
+        from sewtol.studies.sobol import sobol
+
+        res = _as_flags(partial(sobol, fast=False), mech, tolerances,
+                        args.output or mech.output_names[0], args.n, args.seed)
         obj = {"mechanism": mech.name, "tolerances": tolerances.name, "n": res.n,
                "seed": res.seed, "output": args.output or mech.output_names[0],
                "rows": res.to_records(), "convergence": res.convergence.to_dict("records"),
@@ -446,10 +448,11 @@ def _needle_study(args, mech, tolerances) -> None:
 
 
 def _yield_study(args, fmt, mech, tolerances) -> None:
-    """ppm, allocation and report (sewtol.studies.generic_yield, sewtol.reports.generic_report)."""
+    """ppm, allocation and report (sewtol.studies.ppm, allocation, sewtol.reports.generic_report)."""
     import numpy as np
 
-    from sewtol.studies import generic_yield as GY
+    from sewtol.studies import allocation as AL
+    from sewtol.studies import ppm as PPM
     from sewtol.studies import rare_event as R
 
     output, spec = args.spec_output, args.spec
@@ -477,21 +480,22 @@ def _yield_study(args, fmt, mech, tolerances) -> None:
         return None
     if args.study == "allocation":
         weights = parse_sets(args.weight)
-        res = _as_flags(GY.allocate, mech, tolerances, output, args.target, upper, lower,
-                        args.n, args.seed, weights, args.adjust)
+        res = _as_flags(partial(AL.allocate, fast=False), mech, tolerances, output, args.target,
+                        upper, lower, args.n, args.seed, weights, args.adjust)
         _finish(args, fmt, mech, tolerances, res.to_dict(),
                 {"allocation": res.table, "trials": res.trials}, res.table)
         if fmt == "table":
-            cond = GY.limits_text(output, upper, lower, mech.output(output).unit)
+            cond = PPM.limits_text(output, upper, lower, mech.output(output).unit)
             print(f"\nscale {res.scale:.6g} of set '{tolerances.name}': yield {res.yield_:.4f} "
                   f"(target {args.target:g}) of {res.n} machines passing {cond}"
                   + (" (capped: the yield stays above the target up to this scale)"
                      if res.capped else ""))
         return None
-    ls = _as_flags(GY.file_limit_state, mech, tolerances, output, upper, lower, args.adjust)
+    ls = _as_flags(partial(PPM.limit_state, fast=False), mech, tolerances, output, upper, lower,
+                   args.adjust)
     res = _as_flags(R.estimate, ls, np.random.default_rng(args.seed), args.method, args.target,
                     args.n, args.n_jobs)
-    cond = GY.limits_text(output if args.adjust is None else f"{output}_adjusted", upper,
+    cond = PPM.limits_text(output if args.adjust is None else f"{output}_adjusted", upper,
                           lower, mech.output(output).unit)
     obj = {**res.to_dict(), "mechanism": mech.name, "tolerances": tolerances.name,
            "pass_condition": cond, "lower_limit": lower, "upper_limit": upper,

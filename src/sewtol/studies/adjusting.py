@@ -113,3 +113,10 @@ def evaluated(mech, values: dict | None, output: str, *, fast: bool = True) -> n
     if pl is not None and pl.kernel is not None and output in pl.kernel_outputs:
         return pl.kernel(mech, values or {})[output]
     return mech.evaluate(values, [output]).outputs[output]
+
+
+def evaluated_failures(mech, values: dict, output: str) -> tuple[np.ndarray, np.ndarray]:
+    """(status, failed group) of machines `values` as the mechanism's evaluation gives them:
+    why a machine gives no value of `output` ("ok" where it runs)."""
+    ev = mech.evaluate(values, [output])
+    return ev.status, ev.failed_group

@@ -1,13 +1,11 @@
 """Studies of any mechanism file (sewtol.mechanism.FileMechanism) and its outputs.
 
 Nothing here names a mechanism: a study takes the mechanism, a tolerance set and the output(s)
-it looks at, and returns a frozen result with to_dataframe() and to_dict(). The scan and the
-worst case are sewtol.studies.scan and sewtol.studies.worst_case, the Monte-Carlo
-sewtol.studies.montecarlo.montecarlo.
+it looks at, and returns a frozen result with to_dataframe() and to_dict(). The scan, the
+worst case, the Monte-Carlo and the Sobol indices are sewtol.studies.scan, worst_case,
+montecarlo_study and sobol.
 
 - nominal: every output of the nominal machine.
-- sobol: first and total Sobol indices of one output with studies.sobol (SALib); a sample with
-  machines that cannot run is refused in one line.
 """
 
 from __future__ import annotations
@@ -18,8 +16,6 @@ import numpy as np
 import pandas as pd
 
 from sewtol.errors import AssemblyError, ParameterError
-from sewtol.studies import sobol as so
-from sewtol.tolerances import ToleranceSet
 
 
 def deviated_values(mech, dev: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -143,19 +139,3 @@ def nominal(mech) -> NominalResult:
     return NominalResult(mech.name, rows)
 
 
-# --- Sobol ---------------------------------------------------------------------------------
-
-def sobol(mech, tolerances: ToleranceSet, output: str, n: int, seed: int,
-          resamples: int = 200) -> so.SobolResult:
-    """Sobol indices of one output at n and n/2 base samples (studies.sobol); machines that
-    cannot run follow studies.sobol.POLICY (status and failed group from the file's groups)."""
-    mech.output(output)
-    record = mech.parameter_record()
-    so.check_sobol(record, tolerances, n, seed)
-    problem = so.problem_of(tolerances)
-    X = so.sample(problem, n, seed)
-    dev = {k: X[:, i] for i, k in enumerate(problem["names"])}
-    ev = mech.evaluate(deviated_values(mech, dev), [output])
-    return so.result_of([so.case_indices(problem, X, ev.outputs[output], n, seed, output,
-                                         resamples, status=ev.status, group=ev.failed_group)],
-                        n, seed, tolerances.name, model_runs=len(X))

@@ -1,7 +1,10 @@
 """Sobol global sensitivity with SALib: first and total order with bootstrap intervals.
 
-`sobol_indices` takes any vectorised model of an (N, D) matrix (the needle's SumDelta:
-sewtol.mechanisms.needle_208.sobol; any file's output: sewtol.studies.generic.sobol). The Sobol'
+`sobol(mech, tolerances, output, n, seed, cases=...)` is the study of any protocol mechanism:
+one output, as evaluated (the plug-in kernel where the mechanism has one) and/or adjusted per
+machine (`sewtol.studies.adjusting.adjusted`: the needle's exact beta optimum), one case each,
+run in chunks (`sewtol.studies.parallel.run_chunks`: workers, a Dask cluster, a study folder
+that resumes). `sobol_indices` takes any vectorised model of an (N, D) matrix. The Sobol'
 sample of 2N base points starts with the sample of N base points, so one model run gives the
 indices at N and 2N, and their difference shows whether they have converged.
 
@@ -22,8 +25,8 @@ no failure, every number and output is the one of the plain Saltelli analysis.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -32,11 +35,10 @@ from SALib.sample import sobol as sobol_sample
 from scipy import stats
 
 from sewtol.errors import ParameterError
+from sewtol.protocol import machines
+from sewtol.studies.adjusting import adjusted, evaluated, evaluated_failures
+from sewtol.studies.parallel import chunk_bounds, run_chunks
 from sewtol.tolerances import ToleranceSet
-
-if TYPE_CHECKING:
-
-    pass
 
 CHUNK = 1000
 POLICY = ("rows that cannot be built are counted, never dropped: feasibility = Sobol indices of "
@@ -442,3 +444,87 @@ def sobol_pairs(model, problem: dict, n: int, seed: int, case: str = "y",
     c = case_indices(problem, X, np.asarray(model(X), float), n, seed, case, resamples,
                      conf_level, True)
     return c.indices, c.convergence, c.pairs
+
+
+def case_values(mech, output: str, cases: Mapping, names: list, X: np.ndarray,
+                fast: bool = True, options: Mapping | None = None) -> tuple[np.ndarray, ...]:
+    """`output` of the machines of design rows X (deviations of `names`), one array per case:
+    as evaluated (compensators None) or adjusted over the case's compensators (NaN where a
+    machine does not run). One chunk of `sobol`."""
+    values = machines(mech, {k: X[:, i] for i, k in enumerate(names)})
+    return tuple(evaluated(mech, values, output, fast=fast) if comps is None
+                 else adjusted(mech, values, comps, output, fast=fast, **(options or {})).value
+                 for comps in cases.values())
+
+
+def sobol(mech, tolerances: ToleranceSet, output: str, n: int, seed: int, *,
+          cases: Mapping | None = None, resamples: int = 200, conf_level: float = 0.95,
+          second_order: bool = False, n_jobs: int = 1, progress: bool | Callable = False,
+          backend: str | None = None, chunk_size: int = CHUNK, store=None, scheduler=None,
+          failures: Callable | None = None, fast: bool = True, **options) -> SobolResult:
+    """Sobol indices of one output of a protocol mechanism at n and n/2 base samples.
+
+    Parameters
+    ----------
+    mech : Mechanism
+        Any protocol mechanism (sewtol.protocol); its plug-ins serve where they apply.
+    tolerances : ToleranceSet
+        The inputs: each active tolerance is one factor with its distribution.
+    output : str
+        The output studied.
+    n, seed : int
+        Base samples (a power of 2, >= 16) and the seed of the design and the bootstraps.
+    cases : mapping or None
+        Case name -> compensators (as `adjusting.adjusted` takes them), None for the output as
+        evaluated; default {output: None}. Every case runs on the same design.
+    resamples, conf_level, second_order
+        As `case_indices`.
+    n_jobs, progress, backend, chunk_size, store, scheduler
+        How the model runs (sewtol.studies.parallel.run_chunks); the indices do not depend on
+        them.
+    failures : callable or None
+        ``failures(mech, values, output) -> (status, group)`` of the machines (absolute
+        values) that give no value in some case: why they do not run, in the mechanism's words
+        (POLICY); None: the mechanism's evaluation (`evaluated_failures`).
+    fast : bool
+        Use the mechanism's plug-ins (False: the generic reference path).
+    options
+        Go to the strategy adjuster of the mechanism (e.g. the needle's limit_um, plateaus).
+
+    Returns
+    -------
+    SobolResult
+        The indices per case under POLICY (a machine without a value in some case is counted
+        with the reason `failures` gives, at the mechanism's nominal compensators).
+    """
+    mech.output(output)
+    cases = {output: None} if cases is None else dict(cases)
+    check_sobol(mech.parameter_record(), tolerances, n, seed, second_order)
+    problem = problem_of(tolerances)
+    names = problem["names"]
+    X = sample(problem, n, seed, second_order)
+    bounds = chunk_bounds(len(X), chunk_size)
+
+    def validate(i, part):
+        m = bounds[i][1] - bounds[i][0]
+        if not (isinstance(part, tuple) and len(part) == len(cases)
+                and all(np.shape(p) == (m,) for p in part)):
+            return f"does not hold {len(cases)} outputs of {m} samples"
+        return None
+
+    parts = run_chunks(case_values, [(mech, output, cases, names, X[a:b], fast, options)
+                                     for a, b in bounds],
+                       n_jobs=n_jobs, progress=progress, desc="Sobol", backend=backend,
+                       store=store, validate=validate, scheduler=scheduler)
+    ys = [np.concatenate([p[i] for p in parts]) for i in range(len(cases))]
+    bad = ~np.logical_and.reduce([np.isfinite(y) for y in ys])
+    status = np.full(len(X), "ok", dtype=object)
+    group = np.full(len(X), "", dtype=object)
+    if bad.any():
+        why = (failures or evaluated_failures)(
+            mech, machines(mech, {k: X[bad, i] for i, k in enumerate(names)}), output)
+        status[bad], group[bad] = why
+    return result_of([case_indices(problem, X, y, n, seed, case, resamples, conf_level,
+                                   second_order, np.where(np.isfinite(y), "ok", status), group)
+                      for case, y in zip(cases, ys, strict=True)],
+                     n, seed, tolerances.name, second_order, len(X))

@@ -1,0 +1,201 @@
+"""Tolerance allocation of any mechanism: the largest common scale of a tolerance set that keeps
+the yield of one output at a target.
+
+`allocate(mech, tolerances, output, target, upper, lower, ...)`: the largest scale k of the set
+(each tolerance's limits times k times its weight) at which the yield (the fraction of n
+machines that give a value within the limits; machines that cannot run count against it)
+reaches the target. The output is as evaluated (the plug-in kernel where the mechanism has one)
+or minimised over the compensators `adjust` (`sewtol.studies.adjusting.adjusted`: the needle's
+exact beta optimum). Common random numbers: one matrix of uniforms (the one sampler,
+sewtol.law) for every trial k, so each machine's deviation moves along a fixed ray from nominal
+as k grows. The yield is then a step function of k, and non-increasing in k when the pass
+region is star-shaped about the nominal along those rays (e.g. an output monotone in each
+parameter, or |2 r - 2 r0| < limit); bisection finds the crossing. Where the pass region is not
+star-shaped the yield need not be monotone, and the bisection finds a crossing, not necessarily
+the largest one: `trials` lists every k tried. The bracket is found by doubling (or halving)
+from k = 1, or given (`bracket`, e.g. the needle's (0, max_mm) for a set of shapes); the
+bisection runs to a relative SCALE_RTOL, or a given number of `steps`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from sewtol.errors import ParameterError
+from sewtol.law import draw_units, unit_streams
+from sewtol.mechanism.spec import Spec
+from sewtol.protocol import machines
+from sewtol.studies.adjusting import evaluated_failures
+from sewtol.studies.ppm import check_adjust, limits_of, output_of
+from sewtol.studies.scan import checked
+from sewtol.tolerances import Tolerance, ToleranceSet
+
+# bisection on the scale stops when the bracket is this small relative to the scale
+SCALE_RTOL = 1e-4
+MAX_DOUBLINGS = 20
+
+
+@dataclass(frozen=True)
+class Allocation:
+    """The largest common scale of a tolerance set that keeps the yield at a target.
+
+    `table`: per parameter its weight, the reference limits and the allocated limits (reference
+    times scale times weight), in the parameter's unit. `trials`: every scale tried with its
+    yield and counts (the step function the bisection walked)."""
+
+    mechanism: str
+    output: str
+    upper: float | None
+    lower: float | None
+    tolerances: str
+    target: float
+    n: int
+    seed: int
+    scale: float
+    yield_: float
+    capped: bool  # True when the yield stays above the target up to the largest scale tried
+    table: pd.DataFrame
+    trials: pd.DataFrame
+    adjust: str | None = None
+
+    method = ("common scale k of the set (limits times k times each weight), bisection on the "
+              "Monte-Carlo yield with common random numbers (one matrix of uniforms for every "
+              "k): exact for the sample when the pass region is star-shaped about the nominal")
+
+    def to_dataframe(self) -> pd.DataFrame:
+        return self.table.copy()
+
+    def as_tolerance_set(self, name: str | None = None) -> ToleranceSet:
+        """The allocated limits as a ToleranceSet (each tolerance keeps its distribution)."""
+        return ToleranceSet(name or f"{self.tolerances}*allocated", tuple(
+            Tolerance(r["param"], r["lower"], r["upper"], r["dist"])
+            for r in self.table.to_dict("records")), "allocated by sewtol (studies.allocation)")
+
+    def to_dict(self) -> dict:
+        ci = stats.binomtest(int(round(self.yield_ * self.n)), self.n).proportion_ci(
+            0.95, method="exact")
+        return {"mechanism": self.mechanism, "output": self.output, "limit": self.upper,
+                "lower_limit": self.lower, "adjust": self.adjust,
+                "tolerances": self.tolerances, "target": self.target, "n": self.n,
+                "seed": self.seed, "scale": self.scale, "yield": self.yield_,
+                "yield_ci95": [float(ci.low), float(ci.high)], "capped": self.capped,
+                "method": self.method, "rows": self.table.to_dict("records"),
+                "trials": self.trials.to_dict("records")}
+
+
+def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973,
+             upper: float | None = None, lower: float | None = None, n: int = 2000,
+             seed: int = 0, weights: dict[str, float] | None = None,
+             adjust=None, *, bracket: tuple[float, float] | None = None,
+             steps: int | None = None, failures: Callable | None = None, fast: bool = True,
+             **options) -> Allocation:
+    """The largest common scale k of `tolerances` (each limit times k times its weight, default
+    weight 1) at which the fraction of n machines that run and keep `output` within the limits
+    is at least `target` (limits default to the file's [[specs]] entry; see the module doc:
+    common random numbers, bisection on k to a relative SCALE_RTOL). Machines that cannot run
+    count against the yield. A scale at which the set would draw machines the parameter rules
+    reject (a length <= 0) counts as too wide.
+
+    adjust: compensators as `adjusting.adjusted` takes them; options go to the mechanism's
+    strategy adjuster. bracket (low, high): search k there (k = high when its yield reaches the
+    target) instead of doubling from 1; steps: that many bisection steps instead of SCALE_RTOL.
+    failures(mech, values, output) -> (status, group) of machines without a value (default
+    adjusting.evaluated_failures), counted per trial. fast=False: the generic reference path."""
+    mech.output(output)
+    check_adjust(mech, adjust)
+    upper, lower = limits_of(mech, output, upper, lower)
+    spec = Spec(output, upper, lower)
+    if not (isinstance(target, (int, float)) and 0 < target < 1):
+        raise ParameterError("target", "must be a yield strictly between 0 and 1", target)
+    if int(n) != n or n < 10:
+        raise ParameterError("n", "must be a whole number of machines >= 10", n)
+    if int(seed) != seed or seed < 0:
+        raise ParameterError("seed", "must be a whole number >= 0", seed)
+    tol = checked(mech, tolerances)
+    weights = dict(weights or {})
+    unknown = sorted(set(weights) - set(tol.params))
+    if unknown:
+        raise ParameterError("weights", "must name toleranced parameters ("
+                             + ", ".join(tol.params) + ")", unknown)
+    for k, w in weights.items():
+        if not (np.isfinite(w) and w > 0):
+            raise ParameterError("weights", f"{k}'s weight must be a positive number", w)
+    w = np.array([float(weights.get(p, 1.0)) for p in tol.params])
+    # common random numbers: montecarlo's uniforms for this seed, mapped through the scaled set
+    # for every k, so each machine moves along its ray from nominal
+    u = draw_units(unit_streams(seed, n), len(tol.items), 0, n)
+    record = mech.parameter_record()
+    trials = []
+
+    def yield_at(k):
+        try:
+            trial = tol.scaled({p: k * w[i] for i, p in enumerate(tol.params)})
+            trial.check_against(record)
+        except ParameterError as exc:
+            trials.append({"scale": k, "yield": np.nan, "ok": 0, "out_of_limits": 0,
+                           "cannot_close": 0, "dead_point": 0, "note": exc.rule})
+            return -1.0
+        values = machines(mech, trial.from_unit(u))
+        y = output_of(mech, values, output, adjust, fast, **options)
+        status = np.full(y.size, "ok", dtype=object)
+        bad = ~np.isfinite(y)
+        if bad.any():
+            status[bad] = (failures or evaluated_failures)(
+                mech, {p: v[bad] for p, v in values.items()}, output)[0]
+        runs = status == "ok"
+        inside = runs & spec.passes(y)
+        yk = float(np.mean(inside))
+        trials.append({"scale": k, "yield": yk, "ok": int(inside.sum()),
+                       "out_of_limits": int((runs & ~inside).sum()),
+                       "cannot_close": int(np.sum(status == "cannot_close")),
+                       "dead_point": int(np.sum(status == "dead_point")), "note": ""})
+        return yk
+
+    lo, hi, capped = 0.0, 1.0, False
+    if bracket is not None:
+        lo, hi = map(float, bracket)
+        if yield_at(hi) >= target:
+            lo, capped = hi, True
+    elif yield_at(1.0) >= target:
+        lo = 1.0
+        for _ in range(MAX_DOUBLINGS):
+            hi = 2.0 * lo
+            if yield_at(hi) < target:
+                break
+            lo = hi
+        else:
+            capped = True
+    else:
+        for _ in range(MAX_DOUBLINGS):
+            lo = 0.5 * hi
+            if yield_at(lo) >= target:
+                break
+            hi = lo
+        else:
+            lo = 0.0
+    def bisect(lo, hi):
+        mid = 0.5 * (lo + hi)
+        return (mid, hi) if yield_at(mid) >= target else (lo, mid)
+
+    if not capped and steps is not None:
+        for _ in range(int(steps)):
+            lo, hi = bisect(lo, hi)
+    elif not capped and lo > 0:
+        while hi - lo > SCALE_RTOL * lo:
+            lo, hi = bisect(lo, hi)
+    done = {t["scale"]: t["yield"] for t in trials}
+    y_lo = done.get(lo, float("nan"))  # nan: no scale down to 2**-20 reaches the target
+    rows = [{"param": t.param, "unit": next(p.unit for p in mech.parameters
+                                            if p.name == t.param),
+             "weight": w[i], "reference_lower": t.lower, "reference_upper": t.upper,
+             "lower": t.lower * lo * w[i], "upper": t.upper * lo * w[i], "dist": t.dist}
+            for i, t in enumerate(tol.items)]
+    trials_frame = pd.DataFrame(trials).sort_values("scale", kind="stable").reset_index(drop=True)
+    return Allocation(mech.name, output, upper, lower, tolerances.name, float(target), int(n),
+                      int(seed), float(lo), float(y_lo), capped, pd.DataFrame(rows), trials_frame,
+                      adjust)
