@@ -50,9 +50,9 @@ def add_run(sub, parser_class=None) -> None:
     p.add_argument("--limit", type=float, default=None,
                    help="upper limit of --output (default the first output) for the yield")
     p.add_argument("--n-jobs", type=int, default=None, help="parallel workers (montecarlo)")
-    p.add_argument("--adjust", default=None, metavar="COMPENSATOR",
+    p.add_argument("--adjust", default=None, metavar="COMPENSATOR[,COMPENSATOR...]",
                    help="add the adjusted case: --output (default the first) minimised over "
-                        "this [compensators.NAME] of the file on each machine")
+                        "these [compensators.NAME] of the file (1 to 3, jointly) on each machine")
     p.add_argument("--lower-limit", type=float, default=None,
                    help="lower limit of --output (ppm, allocation, report; with or without "
                         "--limit)")
@@ -331,6 +331,7 @@ def sumdelta_outputs(mech) -> list[str]:
 
 def _fast_path_refusal(args, mech) -> str | None:
     """None when `run FILE STUDY` runs on the needle_208 fast path, else why it does not."""
+    from sewtol.adjuster import compensators_of
     from sewtol.mechanisms.needle_208 import beta as sb
 
     if args.path == "generic":
@@ -343,11 +344,10 @@ def _fast_path_refusal(args, mech) -> str | None:
         return (f"--output {args.output} is not the SumDelta output "
                 f"({', '.join(sumdelta_outputs(mech))}) the needle commands compute")
     if args.adjust is not None:
-        if args.adjust not in mech.compensators:  # refused as the generic studies refuse it
-            raise ParameterError("--adjust", "must name a compensator of the file ("
-                                 + (", ".join(mech.compensators) or "it has none") + ")",
-                                 args.adjust)
-        comp = mech.compensators[args.adjust]
+        comps = _as_flags(compensators_of, mech, args.adjust)  # as the generic studies refuse
+        comp = comps[0]
+        if len(comps) > 1:
+            return f"--adjust {args.adjust}: the needle commands adjust beta alone"
         if comp.parameter != "beta":
             return (f"--adjust {args.adjust} sets {comp.parameter}; the needle commands adjust "
                     "beta")

@@ -27,6 +27,7 @@ import pandas as pd
 from scipy import stats
 from scipy.optimize import minimize
 
+from sewtol import adjuster as ADJ
 from sewtol.errors import AssemblyError, ParameterError
 from sewtol.studies import montecarlo as mc
 from sewtol.studies import sobol as so
@@ -50,82 +51,6 @@ def _check_tolerances(mech, tolerances: ToleranceSet) -> ToleranceSet:
                              tolerances.name)
     tolerances.check_against(mech.parameter_record())
     return tol
-
-
-# --- adjustment at assembly: an output minimised over one compensator ----------------------
-
-# settings of the first pass over the compensator's range, then golden-section steps inside the
-# brackets of its BASINS best local minima: 25 + 3 * 32 evaluations per machine, each bracket
-# (two grid steps) shrunk by 0.618^30 = 5e-7
-ADJUST_GRID, ADJUST_ITERATIONS, BASINS = 25, 30, 3
-_GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
-
-
-@dataclass(frozen=True)
-class Adjusted:
-    """Per machine: the smallest output over the compensator's range, the setting that gives it,
-    and the status there (at the nominal setting when no setting in the range runs)."""
-
-    value: np.ndarray
-    setting: np.ndarray
-    status: np.ndarray
-    failed_group: np.ndarray
-
-
-def optimise_compensator(mech, values: dict | None, output: str, compensator: str,
-           grid: int = ADJUST_GRID, iterations: int = ADJUST_ITERATIONS) -> Adjusted:
-    """Minimise `output` over compensator `compensator` (a [compensators.NAME] of the file) on
-    each machine of `values` (absolute parameter values; the rest nominal): a grid of `grid`
-    settings over [low, high], then golden-section search in the brackets of the BASINS best
-    local minima of the grid. Exact for an output unimodal in the compensator near those
-    minima; a basin narrower than two grid steps can be missed (not proven global)."""
-    mech.output(output)
-    if compensator not in mech.compensators:
-        raise ParameterError("adjust", "must name a compensator of the file ("
-                             + (", ".join(mech.compensators) or "it has none") + ")", compensator)
-    comp = mech.compensators[compensator]
-    cols, m = mech.columns(values)
-    base = {k: np.asarray(v, float)[:, 0] for k, v in cols.items()}
-
-    def f(x, reps=1):
-        # machine j repeated `reps` times, next to each other, against the settings x
-        y = mech.evaluate({**{k: np.repeat(v, reps) for k, v in base.items()},
-                           comp.parameter: x}, [output]).outputs[output]
-        return np.where(np.isnan(y), np.inf, y)
-
-    s = np.linspace(comp.low, comp.high, grid)
-    y = f(np.tile(s, m), grid).reshape(m, grid)
-    # refine the BASINS best local minima of the grid (an output such as SumDelta can have two
-    # nearly equal basins far apart); candidate c of machine j sits at j * BASINS + c
-    padded = np.pad(y, ((0, 0), (1, 1)), constant_values=np.inf)
-    local = (y <= padded[:, :-2]) & (y <= padded[:, 2:]) & np.isfinite(y)
-    k = np.argsort(np.where(local, y, np.inf), axis=1, kind="stable")[:, :BASINS].ravel()
-    a = s[np.maximum(k - 1, 0)]
-    b = s[np.minimum(k + 1, grid - 1)]
-    best_x, best_y = s[k], np.repeat(y, BASINS, axis=0)[np.arange(k.size), k]
-    c, d = b - _GOLDEN * (b - a), a + _GOLDEN * (b - a)
-    fc, fd = f(c, BASINS), f(d, BASINS)
-    for x, fx in ((c, fc), (d, fd)):
-        better = fx < best_y
-        best_x, best_y = np.where(better, x, best_x), np.where(better, fx, best_y)
-    for _ in range(iterations):
-        left = fc <= fd  # the minimum is in [a, d]
-        a, b = np.where(left, a, c), np.where(left, d, b)
-        c_new = np.where(left, b - _GOLDEN * (b - a), d)
-        d_new = np.where(left, c, a + _GOLDEN * (b - a))
-        x = np.where(left, c_new, d_new)
-        fx = f(x, BASINS)
-        fc, fd = np.where(left, fx, fd), np.where(left, fc, fx)
-        c, d = c_new, d_new
-        better = fx < best_y
-        best_x, best_y = np.where(better, x, best_x), np.where(better, fx, best_y)
-    pick = np.argmin(best_y.reshape(m, BASINS), axis=1)
-    best_x = best_x.reshape(m, BASINS)[np.arange(m), pick]
-    best_y = best_y.reshape(m, BASINS)[np.arange(m), pick]
-    runs = np.isfinite(best_y)
-    setting = np.where(runs, best_x, base[comp.parameter])
-    ev = mech.evaluate({**base, comp.parameter: setting}, [output])
-    return Adjusted(ev.outputs[output], setting, ev.status, ev.failed_group)
 
 
 # --- nominal -------------------------------------------------------------------------------
@@ -184,10 +109,13 @@ class ScanResult:
                 "rows": self.rows.to_dict("records")}
 
 
-def scan(mech, tolerances: ToleranceSet, outputs=None, adjust: str | None = None) -> ScanResult:
+def scan(mech, tolerances: ToleranceSet, outputs=None, adjust=None,
+         objective=None) -> ScanResult:
     """Each toleranced parameter at its upper and lower limit (others nominal): every output's
     value and change from nominal; machines that cannot run keep their status. With `adjust`
-    (a compensator), rows NAME_adjusted add the first output minimised over it (`setting`)."""
+    (compensators: a name, "a,b" or a list; sewtol.adjuster), rows NAME_adjusted add the first
+    output adjusted for `objective` (default minimised) with the settings (`setting` for one
+    compensator, PARAM_setting for several)."""
     tol = _check_tolerances(mech, tolerances)
     names = mech.output_names if outputs is None else list(outputs)
     base = nominal(mech).rows.set_index("output")["value"]
@@ -196,8 +124,8 @@ def scan(mech, tolerances: ToleranceSet, outputs=None, adjust: str | None = None
     ev = mech.evaluate(values, names)
     adj = adj0 = None
     if adjust is not None:
-        adj = optimise_compensator(mech, values, names[0], adjust)
-        adj0 = optimise_compensator(mech, None, names[0], adjust)
+        adj = ADJ.adjust(mech, values, names[0], adjust, objective)
+        adj0 = ADJ.adjust(mech, None, names[0], adjust, objective)
     rows = []
     for i, (p, s, d) in enumerate(zip(params, sides, deltas, strict=True)):
         for name in names:
@@ -211,8 +139,15 @@ def scan(mech, tolerances: ToleranceSet, outputs=None, adjust: str | None = None
             rows.append({"param": p, "side": s, "deviation": d,
                          "output": f"{names[0]}_adjusted", "nominal": v0, "value": v,
                          "change": v - v0, "status": adj.status[i],
-                         "failed_group": adj.failed_group[i], "setting": float(adj.setting[i])})
+                         "failed_group": adj.failed_group[i], **_settings_row(adj, i)})
     return ScanResult(mech.name, tolerances.name, pd.DataFrame(rows))
+
+
+def _settings_row(adj, i) -> dict:
+    if len(adj.names) == 1:
+        return {"setting": float(adj.settings[adj.names[0]][i])}
+    return {f"{p}_setting": float(adj.settings[n][i])
+            for n, p in zip(adj.names, adj.parameters, strict=True)}
 
 
 # --- worst case ----------------------------------------------------------------------------
@@ -227,6 +162,7 @@ class WorstCaseResult:
     failed_corners: int
     monotone_on_axes: bool
     adjust: str | None = None
+    objective: str = "minimise"
 
     method = ("every corner and the centre of the tolerance box, then L-BFGS-B inside the box "
               "from the best corner (never below any evaluated point); not proven global: the "
@@ -237,31 +173,34 @@ class WorstCaseResult:
 
     def to_dict(self) -> dict:
         return {"mechanism": self.mechanism, "tolerances": self.tolerances,
-                "output": self.output, "adjust": self.adjust, "method": self.method,
+                "output": self.output, "adjust": self.adjust,
+                **({} if self.objective == "minimise" else {"objective": self.objective}),
+                "method": self.method,
                 "corners": self.corners,
                 "failed_corners": self.failed_corners,
                 "monotone_on_axes": self.monotone_on_axes,
                 "rows": self.rows.to_dict("records")}
 
 
-def _output_of(mech, names, output, compensator=None):
+def _output_of(mech, names, output, compensator=None, objective=None):
     def f(X):
         X = np.atleast_2d(X)
         dev = {k: X[:, i] for i, k in enumerate(names)}
         if compensator is not None:
-            return optimise_compensator(mech, _values(mech, dev), output, compensator).value
+            return ADJ.adjust(mech, _values(mech, dev), output, compensator, objective).value
         return mech.evaluate(_values(mech, dev), [output]).outputs[output]
     return f
 
 
 def worst_case(mech, tolerances: ToleranceSet, output: str, maxiter: int = 100,
-               adjust: str | None = None) -> WorstCaseResult:
+               adjust=None, objective=None) -> WorstCaseResult:
     """Largest and smallest `output` over the tolerance box (see the module doc); with `adjust`
-    (a compensator), of the output minimised over it on each trial machine."""
+    (compensators, sewtol.adjuster), of the output adjusted for `objective` (default
+    minimised) on each trial machine."""
     mech.output(output)
-    if adjust is not None and adjust not in mech.compensators:
-        raise ParameterError("adjust", "must name a compensator of the file ("
-                             + (", ".join(mech.compensators) or "it has none") + ")", adjust)
+    objective = ADJ.Objective.parse(objective)
+    if adjust is not None:
+        ADJ.compensators_of(mech, adjust)
     tol = _check_tolerances(mech, tolerances)
     names = tol.params
     if len(names) > MAX_CORNER_PARAMS:
@@ -269,7 +208,7 @@ def worst_case(mech, tolerances: ToleranceSet, output: str, maxiter: int = 100,
                              f"{MAX_CORNER_PARAMS} toleranced parameters", len(names))
     lo = np.array([t.lower for t in tol.items])
     hi = np.array([t.upper for t in tol.items])
-    f = _output_of(mech, names, output, adjust)
+    f = _output_of(mech, names, output, adjust, objective)
     corners = np.array(list(itertools.product(*zip(lo, hi, strict=True))))
     cands = np.vstack([corners, 0.5 * (lo + hi)])
     val = f(cands)
@@ -310,7 +249,8 @@ def worst_case(mech, tolerances: ToleranceSet, output: str, maxiter: int = 100,
         row.update({f"{k}_dev": float(v) for k, v in zip(names, best_x, strict=True)})
         rows.append(row)
     return WorstCaseResult(mech.name, tolerances.name, output, pd.DataFrame(rows),
-                           len(corners), failed, _monotone_on_axes(f, lo, hi), adjust)
+                           len(corners), failed, _monotone_on_axes(f, lo, hi),
+                           ADJ.adjust_label(adjust), str(objective))
 
 
 def _monotone_on_axes(f, lo, hi, points: int = 7) -> bool:
@@ -332,14 +272,15 @@ def _monotone_on_axes(f, lo, hi, points: int = 7) -> bool:
 
 # --- Monte-Carlo ---------------------------------------------------------------------------
 
-def _file_model(record, dev, mech, outputs, compensator=None, target=None):
+def _file_model(record, dev, mech, outputs, compensator=None, target=None, objective=None):
     values = _values(mech, dev)
     ev = mech.evaluate(values, outputs)
     out = {**ev.outputs, "status": ev.status, "failed_group": ev.failed_group}
     if compensator is not None:
-        a = optimise_compensator(mech, values, target, compensator)
+        a = ADJ.adjust(mech, values, target, compensator, objective)
         out.update({f"{target}_adjusted": a.value,
-                    f"{mech.compensators[compensator].parameter}_setting": a.setting,
+                    **{f"{p}_setting": a.settings[n]
+                       for n, p in zip(a.names, a.parameters, strict=True)},
                     "status_adjusted": a.status, "failed_group_adjusted": a.failed_group})
     return out
 
@@ -432,19 +373,19 @@ class GenericMonteCarloResult:
 
 def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
                limit: float | None = None, limit_output: str | None = None, n_jobs: int = 1,
-               progress=False, chunk_size: int = CHUNK,
-               adjust: str | None = None) -> GenericMonteCarloResult:
+               progress=False, chunk_size: int = CHUNK, adjust=None,
+               objective=None) -> GenericMonteCarloResult:
     """n machines of the file (see the module doc); `limit` (an upper limit of limit_output,
-    default the first output) splits ok machines into ok and out_of_spec. `adjust` (a
-    compensator of the file) adds the adjusted case: limit_output minimised over the
-    compensator on each machine (`optimise_compensator`), columns NAME_adjusted, PARAM_setting,
-    status_adjusted, failed_group_adjusted."""
+    default the first output) splits ok machines into ok and out_of_spec. `adjust`
+    (compensators of the file: a name, "a,b" or a list) adds the adjusted case: limit_output
+    adjusted for `objective` (default minimised) on each machine (sewtol.adjuster), columns
+    NAME_adjusted, PARAM_setting per compensator, status_adjusted, failed_group_adjusted."""
     names = tuple(mech.output_names if outputs is None else outputs)
     for name in names:
         mech.output(name)
-    if adjust is not None and adjust not in mech.compensators:
-        raise ParameterError("adjust", "must name a compensator of the file ("
-                             + (", ".join(mech.compensators) or "it has none") + ")", adjust)
+    objective = ADJ.Objective.parse(objective)
+    if adjust is not None:
+        ADJ.compensators_of(mech, adjust)
     if limit is not None or adjust is not None:
         limit_output = limit_output or names[0]
         mech.output(limit_output)
@@ -459,12 +400,12 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
     machines = mc.sample_machines(_file_model, record, tolerances, n, seed, n_jobs, progress,
                                   chunk_size=chunk_size, desc=f"Monte-Carlo {mech.name}",
                                   mech=mech, outputs=list(names), compensator=adjust,
-                                  target=limit_output)
+                                  target=limit_output, objective=objective)
     if adjust is not None:
         names = (*names, f"{limit_output}_adjusted")
     return GenericMonteCarloResult(mech.name, machines, names, tolerances.name, int(seed),
                                    None if limit is None else float(limit), limit_output,
-                                   adjust)
+                                   ADJ.adjust_label(adjust))
 
 
 # --- Sobol ---------------------------------------------------------------------------------

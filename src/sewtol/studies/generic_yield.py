@@ -8,8 +8,8 @@ tolerance set, one output and its limits (an upper limit, a lower limit, or both
   its value lies beyond a limit or when it cannot run; each group that can fail gives two named
   failure modes, "cannot_close at G" and "dead_point at G", so a failing machine is counted under
   the group that failed first (assembly order), never dropped. With `adjust` (a compensator of
-  the file) the value is the output minimised over the compensator on each machine
-  (generic.optimise_compensator) and the status is the one at the chosen setting.
+  the file, or several: sewtol.adjuster) the value is the output adjusted for `objective`
+  (default minimised) on each machine and the status is the one at the chosen settings.
 - `allocate`: the largest common scale k of the set (each tolerance's limits times k times its
   weight) at which the yield (fraction of machines that run and lie within the limits) reaches a
   target. Common random numbers: one matrix of uniforms for every trial k, so each machine's
@@ -28,6 +28,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from sewtol import adjuster as ADJ
 from sewtol.errors import ParameterError
 from sewtol.studies import generic as G
 from sewtol.studies.rare_event import LimitState, StandardNormalMap
@@ -63,9 +64,8 @@ def excess(y: np.ndarray, upper: float | None, lower: float | None) -> np.ndarra
 
 
 def _check_adjust(mech, adjust):
-    if adjust is not None and adjust not in mech.compensators:
-        raise ParameterError("adjust", "must name a compensator of the file ("
-                             + (", ".join(mech.compensators) or "it has none") + ")", adjust)
+    if adjust is not None:
+        ADJ.compensators_of(mech, adjust)
 
 
 def _failing_groups(mech) -> list[str]:
@@ -75,11 +75,11 @@ def _failing_groups(mech) -> list[str]:
     return [g.name for g in mech.groups if g.name in state.closures]
 
 
-def _evaluate(mech, values, output, adjust):
+def _evaluate(mech, values, output, adjust, objective=None):
     if adjust is None:
         ev = mech.evaluate(values, [output])
         return ev.outputs[output], ev.status, ev.failed_group
-    a = G.optimise_compensator(mech, values, output, adjust)
+    a = ADJ.adjust(mech, values, output, adjust, objective)
     return a.value, a.status, a.failed_group
 
 
@@ -94,11 +94,12 @@ class _FileResponse:
     lower: float | None
     adjust: str | None
     modes: tuple[tuple[str, str], ...]  # (status, group) of failure mode k = index + 1
+    objective: ADJ.Objective = ADJ.Objective()
 
     def __call__(self, z):
         dev = self.zmap.to_physical(z)
         y, status, group = _evaluate(self.mech, G._values(self.mech, dev), self.output,
-                                     self.adjust)
+                                     self.adjust, self.objective)
         mode = np.zeros(y.size, dtype=int)
         for k, (s, g) in enumerate(self.modes, start=1):
             mode[(status == s) & (group == g)] = k
@@ -107,7 +108,7 @@ class _FileResponse:
 
 
 def file_limit_state(mech, tolerances: ToleranceSet, output: str, upper: float | None = None,
-                     lower: float | None = None, adjust: str | None = None) -> LimitState:
+                     lower: float | None = None, adjust=None, objective=None) -> LimitState:
     """One output of a file mechanism as a LimitState (see the module doc).
 
     With an upper limit only, the LimitState's value is the output itself and its limit the
@@ -124,7 +125,8 @@ def file_limit_state(mech, tolerances: ToleranceSet, output: str, upper: float |
         limit, name = upper, label
     else:
         limit, name = 0.0, f"{label}_excess"
-    return LimitState(_FileResponse(mech, zmap, output, upper, lower, adjust, modes), zmap.dim,
+    return LimitState(_FileResponse(mech, zmap, output, upper, lower, ADJ.adjust_label(adjust),
+                                    modes, ADJ.Objective.parse(objective)), zmap.dim,
                       float(limit), tuple(f"{s} at {g}" for s, g in modes), name,
                       zmap.to_physical)
 
@@ -192,7 +194,7 @@ class FileAllocation:
 def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973,
              upper: float | None = None, lower: float | None = None, n: int = 2000,
              seed: int = 0, weights: dict[str, float] | None = None,
-             adjust: str | None = None) -> FileAllocation:
+             adjust=None, objective=None) -> FileAllocation:
     """The largest common scale k of `tolerances` (each limit times k times its weight, default
     weight 1) at which the fraction of n machines that run and keep `output` within the limits
     is at least `target` (see the module doc: common random numbers, bisection on k to a
@@ -231,7 +233,7 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
                            "cannot_close": 0, "dead_point": 0, "note": exc.rule})
             return -1.0
         dev = {p: k * v for p, v in base.items()}
-        y, status, _ = _evaluate(mech, G._values(mech, dev), output, adjust)
+        y, status, _ = _evaluate(mech, G._values(mech, dev), output, adjust, objective)
         runs = status == "ok"
         inside = runs & (excess(np.where(runs, y, 0.0), upper, lower) <= 0)
         yk = float(np.mean(inside))
@@ -276,4 +278,4 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
     trials_frame = pd.DataFrame(trials).sort_values("scale", kind="stable").reset_index(drop=True)
     return FileAllocation(mech.name, output, upper, lower, tolerances.name, float(target),
                           int(n), int(seed), float(lo), float(y_lo), capped, pd.DataFrame(rows),
-                          trials_frame, adjust)
+                          trials_frame, ADJ.adjust_label(adjust))
