@@ -54,7 +54,7 @@ SPLITS, MAX_ROUNDS, MIN_STEP = 4, 200, 1e-7
 # would be exact for a slope that never exceeds the measured ones; 1 allows twice that)
 SAFETY = 1.0
 # a cell is cut while its bound lies more than TOL (output unit) below the best value
-TOL = 1e-5
+TOL = 1e-4
 # settings within PLATEAU_TOL (output unit) of the optimum form its plateau; PROBE: the first
 # step along an axis (fraction of the box) that tells a plateau from a strict optimum
 PLATEAU_TOL, PROBE, BISECTIONS = 1e-6, 1e-3, 30
@@ -116,6 +116,15 @@ class Objective:
         if self.kind == "centre":
             return np.maximum(self.low - y, y - self.high)
         return y
+
+    @property
+    def floor(self) -> float:
+        """The smallest loss there can be: -inf, 0 (on target), -(U - L)/2 (centred)."""
+        if self.kind == "target":
+            return 0.0
+        if self.kind == "centre":
+            return -(self.high - self.low) / 2.0
+        return -np.inf
 
     def __str__(self) -> str:
         if self.kind == "target":
@@ -323,7 +332,7 @@ def _search(f, Y, P, shape, half, tol):
     for _ in range(MAX_ROUNDS if np.any(half > 0) else 0):
         best = np.full(m, np.inf)
         np.minimum.at(best, mach, F)
-        lb = F - D.sum(axis=1)
+        lb = np.maximum(F - D.sum(axis=1), f.objective.floor)
         cuttable = np.where(H > smallest, D, -1.0)
         want = np.isfinite(F) & (lb < best[mach] - tol) & (cuttable.max(axis=1) >= 0)
         sel = np.flatnonzero(want)
@@ -354,7 +363,8 @@ def _search(f, Y, P, shape, half, tol):
     first = order[np.searchsorted(mach[order], np.arange(m))]
     fx = F[first]
     low_bound = np.full(m, np.inf)
-    np.minimum.at(low_bound, mach, np.where(np.isfinite(F), F - D.sum(axis=1), np.inf))
+    np.minimum.at(low_bound, mach, np.where(np.isfinite(F), np.maximum(
+        F - D.sum(axis=1), f.objective.floor), np.inf))
     return X[first], fx, np.maximum(0.0, fx - low_bound), D[first].sum(axis=1)
 
 
