@@ -12,7 +12,8 @@
 
 Prints max |generic - brute| of the minimised quantity, max (generic - brute) (how far the
 generic search stops above the brute force's best), the certificate's largest gap bound and
-the time. Run: python benchmarks/validate_generic_adjuster.py [--n 2000] [--seed 2026]
+the time, after every chunk of machines (a running report). Run:
+python benchmarks/validate_generic_adjuster.py [--n 2000] [--seed 2026] [--only needle|rocker]
 """
 
 from __future__ import annotations
@@ -98,12 +99,16 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=2000)
     ap.add_argument("--seed", type=int, default=2026)
-    ap.add_argument("--chunk", type=int, default=250)
+    ap.add_argument("--chunk", type=int, default=100)
+    ap.add_argument("--only", choices=("needle", "rocker"), default=None)
     args = ap.parse_args(argv)
     needle = load("examples/needle_208.toml")
-    run("needle_208 beta,guide_shift minimise SumDelta_um", needle,
-        machines(needle, "base", args.n, args.seed), "SumDelta_um", "beta,guide_shift", None,
-        lambda v: needle_brute_force(needle, v)[0], args.chunk)
+    if args.only != "rocker":
+        run("needle_208 beta,guide_shift minimise SumDelta_um", needle,
+            machines(needle, "base", args.n, args.seed), "SumDelta_um", "beta,guide_shift",
+            None, lambda v: needle_brute_force(needle, v)[0], args.chunk)
+    if args.only == "needle":
+        return
     rocker = load("src/sewtol/mechanisms/spatial_crank_rocker/mechanism.toml")
     goal = f"target={SWING_TARGET_DEG}"
     comps = "rocker_arm,rocker_collar"

@@ -103,7 +103,7 @@ SAMPLES, FINE = 720, 36000
 POSITIONS_UM = 1e-6
 # the generic adjustment (sewtol.adjuster) cuts cells until none can hold a value more than TOL
 # below the best one found: its value is the minimum of the sampled SumDelta to within TOL um
-SEARCH_UM = ADJ.TOL
+SEARCH_UM = ADJ.TOL["um"]
 
 
 def _exact_um(p: Needle208) -> float:

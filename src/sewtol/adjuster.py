@@ -12,25 +12,30 @@ to serve one output (an `Objective`):
 The search (`adjust`), vectorised over machines (every machine repeated against its candidate
 settings, one `FileMechanism.evaluate` call per stage):
 
-1. a grid over the box: GRID[d] settings per continuous compensator (d of them), every setting
-   of a stepped one (low + k step, so a stepped compensator is searched exactly);
-2. a pattern search from each of the BASINS best local minima of the grid: the 3^d - 1
-   neighbours at spacing h (the grid step at first) around the best point, moving to a better
-   one or halving h, until h is MIN_STEP of the box;
+1. a grid over the box: the centres of GRID[d] cells per continuous compensator (d of them),
+   every setting of a stepped one (low + k step, so a stepped compensator is searched
+   exactly);
+2. branch and bound on the cells: each cell carries a drop per axis, SAFETY times the largest
+   change of the objective to its neighbours along that axis (how far it could fall inside
+   the cell if its slope stays within the measured ones); a cell whose bound (value minus
+   drops, never below the objective's floor) lies more than `tol` below the machine's best
+   value is cut in three along its axis of largest drop, until no cell qualifies (or cells
+   reach MIN_STEP of the box, or MAX_ROUNDS rounds); then each continuous setting is tried on
+   both faces of the box (cell centres never reach them);
 3. plateaus: where settings along a compensator's axis give the optimum within `plateau_tol`
    (a guide shift anywhere between the path's extremes gives the same SumDelta), its extent is
    found by bisection and the setting moved to the point of it nearest the machine's own
    setting (a fitter moves as little as possible): the as-built value for an ``absolute``
-   compensator, 0 for an ``offset`` one.
+   compensator, 0 for an ``offset`` one. Compensators are taken in the order given; a plateau
+   that is a curve across several axes (two compensators hitting a target) is left where the
+   search ended on it.
 
-Global here means: the best of a grid over the whole box, refined locally. The certificate says
-how far below the found optimum the true one could lie: around every grid point the objective
-can drop at most half the largest change to its neighbouring grid points per axis (a slope
-bound measured on the grid); `gap_bound` is the largest amount by which such a bound, over the
-cells not searched locally, lies below the optimum found (0 when no unsearched cell can hold a
-better value), `local_change` the largest change to the last stencil's neighbours. A basin
-narrower than a grid step with a slope steeper than its neighbours' can still hide: the tests
-compare the search with dense brute force.
+Global here means: the best of a grid over the whole box, refined wherever the measured slopes
+allow a better value. The certificate: `grid_step` per compensator, `gap_bound` (how far below
+the optimum found the lowest bound of any remaining cell lies: 0 when no cell can hold a better
+value, under the slope assumption) and `local_change` (the best cell's own drop). A basin
+narrower than a cell with slopes steeper than its neighbours' can still hide: the tests and
+benchmarks/validate_generic_adjuster.py compare the search with dense brute force.
 """
 
 from __future__ import annotations
@@ -53,8 +58,9 @@ SPLITS, MAX_ROUNDS, MIN_STEP = 4, 200, 1e-7
 # a cell's drop along an axis: SAFETY times the largest change to its neighbours there (0.5
 # would be exact for a slope that never exceeds the measured ones; 1 allows twice that)
 SAFETY = 1.0
-# a cell is cut while its bound lies more than TOL (output unit) below the best value
-TOL = 1e-4
+# a cell is cut while its bound lies more than TOL[unit] (default TOL_OTHER) below the best
+# value: 1e-4 um, in mm 1e-7 mm (the same), deg 1e-6 deg
+TOL, TOL_OTHER = {"um": 1e-4, "mm": 1e-7, "deg": 1e-6}, 1e-6
 # settings within PLATEAU_TOL (output unit) of the optimum form its plateau; PROBE: the first
 # step along an axis (fraction of the box) that tells a plateau from a strict optimum
 PLATEAU_TOL, PROBE, BISECTIONS = 1e-6, 1e-3, 30
@@ -233,7 +239,7 @@ class _Problem:
 
 def adjust(mech, values: dict | None, output: str, compensators,
            objective: Objective | str | None = None,
-           plateau_tol: float = PLATEAU_TOL, tol: float = TOL) -> Adjustment:
+           plateau_tol: float = PLATEAU_TOL, tol: float | None = None) -> Adjustment:
     """Set 1 to 3 compensators jointly on each machine for one output (see the module doc).
 
     Parameters
@@ -250,17 +256,18 @@ def adjust(mech, values: dict | None, output: str, compensators,
         "minimise" (default), "target=T", "centre=L,U" or an Objective.
     plateau_tol : float
         Settings within this much (output unit) of the optimum form a plateau.
-    tol : float
+    tol : float or None
         The search stops when no cell's bound lies more than this (output unit) below the best
-        value.
+        value; None: TOL of the output's unit (TOL_OTHER for other units).
 
     Returns
     -------
     Adjustment
     """
-    mech.output(output)
+    unit = mech.output(output).unit
     comps = compensators_of(mech, compensators)
     objective = Objective.parse(objective)
+    tol = TOL.get(unit, TOL_OTHER) if tol is None else tol
     if not (np.isfinite(plateau_tol) and plateau_tol >= 0):
         raise ParameterError("plateau_tol", "must be a number >= 0", plateau_tol)
     f = _Problem(mech, values, output, comps, objective)
@@ -320,7 +327,8 @@ def _search(f, Y, P, shape, half, tol):
         n = G.shape[i + 1]
         big = np.zeros_like(G)
         for lo in (0, 2):
-            dif = np.abs(np.take(Pd, range(lo, n + lo), axis=i + 1) - G)
+            with np.errstate(invalid="ignore"):  # inf - inf next to failing settings
+                dif = np.abs(np.take(Pd, range(lo, n + lo), axis=i + 1) - G)
             big = np.fmax(big, np.where(np.isfinite(dif), dif, 0.0))
         drop[:, :, i] = SAFETY * big.reshape(m, g)
     mach = np.repeat(np.arange(m), g)
@@ -338,7 +346,8 @@ def _search(f, Y, P, shape, half, tol):
         sel = np.flatnonzero(want)
         if not sel.size:
             break
-        sel = sel[np.lexsort((lb[sel], mach[sel]))]  # machine by machine, lowest bound first
+        # machine by machine, lowest bound first (on a tie, at the floor: lowest value)
+        sel = sel[np.lexsort((F[sel], lb[sel], mach[sel]))]
         sel = sel[np.arange(sel.size) - np.searchsorted(mach[sel], mach[sel]) < SPLITS]
         k = sel.size
         ax = np.argmax(cuttable[sel], axis=1)
@@ -365,7 +374,9 @@ def _search(f, Y, P, shape, half, tol):
     low_bound = np.full(m, np.inf)
     np.minimum.at(low_bound, mach, np.where(np.isfinite(F), np.maximum(
         F - D.sum(axis=1), f.objective.floor), np.inf))
-    return X[first], fx, np.maximum(0.0, fx - low_bound), D[first].sum(axis=1)
+    with np.errstate(invalid="ignore"):  # a machine no setting runs: inf - inf
+        gap = np.maximum(0.0, fx - low_bound)
+    return X[first], fx, gap, D[first].sum(axis=1)
 
 
 def _plateaus(f, x, fx, runs, axes, tol):

@@ -21,14 +21,15 @@ DEFAULT_N = {"montecarlo": 2000, "sobol": 256, "ppm": 20000, "allocation": 2000,
 # --target: the smallest probability ppm must resolve; the yield allocation must keep
 DEFAULT_TARGET = {"ppm": 1e-6, "allocation": 0.9973}
 # which flags each study reads; any other given flag is refused in one line
-USES = {"nominal": (), "scan": ("output", "tolerances", "adjust"),
-        "worst-case": ("output", "tolerances", "adjust"),
-        "montecarlo": ("output", "tolerances", "n", "seed", "limit", "n_jobs", "adjust"),
+USES = {"nominal": (), "scan": ("output", "tolerances", "adjust", "objective"),
+        "worst-case": ("output", "tolerances", "adjust", "objective"),
+        "montecarlo": ("output", "tolerances", "n", "seed", "limit", "n_jobs", "adjust",
+                       "objective"),
         "sobol": ("output", "tolerances", "n", "seed"),
         "ppm": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "method", "target",
-                "adjust", "n_jobs"),
+                "adjust", "n_jobs", "objective"),
         "allocation": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "target",
-                       "weight", "adjust"),
+                       "weight", "adjust", "objective"),
         "report": ("output", "tolerances", "n", "seed", "limit", "lower_limit")}
 
 
@@ -53,6 +54,9 @@ def add_run(sub, parser_class=None) -> None:
     p.add_argument("--adjust", default=None, metavar="COMPENSATOR[,COMPENSATOR...]",
                    help="add the adjusted case: --output (default the first) minimised over "
                         "these [compensators.NAME] of the file (1 to 3, jointly) on each machine")
+    p.add_argument("--objective", default=None, metavar="minimise|target=T|centre=L,U",
+                   help="with --adjust: minimise the output (default), bring it to T, or centre "
+                        "it in [L, U]")
     p.add_argument("--lower-limit", type=float, default=None,
                    help="lower limit of --output (ppm, allocation, report; with or without "
                         "--limit)")
@@ -117,10 +121,13 @@ def _check_flags(args) -> None:
     for key, flag in (("output", "--output"), ("tolerances", "--tolerances"), ("n", "--n"),
                       ("seed", "--seed"), ("limit", "--limit"), ("n_jobs", "--n-jobs"),
                       ("adjust", "--adjust"), ("lower_limit", "--lower-limit"),
-                      ("method", "--method"), ("target", "--target"), ("weight", "--weight")):
+                      ("method", "--method"), ("target", "--target"), ("weight", "--weight"),
+                      ("objective", "--objective")):
         value = getattr(args, key)
         if value is not None and key not in used:
             raise ParameterError(flag, f"is not used by `run {args.study}`", value)
+    if args.objective is not None and args.adjust is None:
+        raise ParameterError("--objective", "needs --adjust", args.objective)
     if args.n is None and args.study in DEFAULT_N:
         args.n = DEFAULT_N[args.study]
     args.seed = 0 if args.seed is None else args.seed
@@ -244,11 +251,11 @@ def cmd_run(args) -> None:
               f"needle_208 fast path: {args.path_reason}", file=sys.stderr)
     outputs = None if args.output is None else [args.output]
     if args.study == "scan":
-        res = _as_flags(G.scan, mech, tolerances, outputs, args.adjust)
+        res = _as_flags(G.scan, mech, tolerances, outputs, args.adjust, args.objective)
         return _finish(args, fmt, mech, tolerances, res.to_dict(), {"scan": res.rows}, res.rows)
     if args.study == "worst-case":
         res = _as_flags(G.worst_case, mech, tolerances, args.output or mech.output_names[0],
-                        100, args.adjust)
+                        100, args.adjust, args.objective)
         return _finish(args, fmt, mech, tolerances, res.to_dict(), {"worst_case": res.rows},
                        res.rows)
     if args.study == "sobol":
@@ -263,7 +270,7 @@ def cmd_run(args) -> None:
     if args.study in ("ppm", "allocation", "report"):
         return _yield_study(args, fmt, mech, tolerances)
     res = _as_flags(G.montecarlo, mech, tolerances, args.n, args.seed, outputs, args.limit,
-                    args.output, args.n_jobs, False, G.CHUNK, args.adjust)
+                    args.output, args.n_jobs, False, G.CHUNK, args.adjust, args.objective)
     return _finish(args, fmt, mech, tolerances, res.to_dict(),
                    {"machines": res.machines, "summary": res.summary_frame()},
                    res.summary_frame())
@@ -273,6 +280,7 @@ def _as_flags(fn, *a):
     from sewtol.cli import FLAGS
 
     flags = {**FLAGS, "adjust": "--adjust", "limit": "--limit", "lower_limit": "--lower-limit",
+             "objective": "--objective",
              "target": "--target", "weights": "--weight"}
     try:
         return fn(*a)
@@ -304,7 +312,8 @@ def _finish(args, fmt, mech, tolerances, obj, frames, frame) -> None:
         inputs = {"study": f"run {args.study}", "mechanism_file": str(args.file),
                   "mechanism": mech.name, "n": args.n, "seed": args.seed,
                   "output": args.output, "limit": args.limit, "adjust": args.adjust,
-                  **{k: getattr(args, k) for k in ("lower_limit", "method", "target", "weight")
+                  **{k: getattr(args, k) for k in ("lower_limit", "method", "target", "weight",
+                                                   "objective")
                      if getattr(args, k, None) is not None},
                   "params": mech.nominal_values(),
                   "tolerances": None if tolerances is None else
@@ -348,6 +357,8 @@ def _fast_path_refusal(args, mech) -> str | None:
         comp = comps[0]
         if len(comps) > 1:
             return f"--adjust {args.adjust}: the needle commands adjust beta alone"
+        if args.objective not in (None, "minimise"):
+            return f"--objective {args.objective}: the needle commands minimise SumDelta"
         if comp.parameter != "beta":
             return (f"--adjust {args.adjust} sets {comp.parameter}; the needle commands adjust "
                     "beta")
@@ -464,7 +475,8 @@ def _yield_study(args, fmt, mech, tolerances) -> None:
     if args.study == "allocation":
         weights = parse_sets(args.weight)
         res = _as_flags(GY.allocate, mech, tolerances, output, args.target, args.limit,
-                        args.lower_limit, args.n, args.seed, weights, args.adjust)
+                        args.lower_limit, args.n, args.seed, weights, args.adjust,
+                        args.objective)
         _finish(args, fmt, mech, tolerances, res.to_dict(),
                 {"allocation": res.table, "trials": res.trials}, res.table)
         if fmt == "table":
@@ -475,7 +487,7 @@ def _yield_study(args, fmt, mech, tolerances) -> None:
                      if res.capped else ""))
         return None
     ls = _as_flags(GY.file_limit_state, mech, tolerances, output, args.limit, args.lower_limit,
-                   args.adjust)
+                   args.adjust, args.objective)
     res = _as_flags(R.estimate, ls, np.random.default_rng(args.seed), args.method, args.target,
                     args.n, args.n_jobs)
     cond = GY.limits_text(output if args.adjust is None else f"{output}_adjusted", args.limit,
