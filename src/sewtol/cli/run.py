@@ -64,7 +64,7 @@ def add_run(sub) -> None:
                    help="upper limit of --output (default the first output) for the yield; "
                         "replaces the file's [[specs]] entry of that output")
     p.add_argument("--n-jobs", type=int, default=None, help="parallel workers (montecarlo)")
-    p.add_argument("--adjust", default=None, metavar="COMPENSATOR",
+    p.add_argument("--adjust", default=None, metavar="COMPENSATOR[,COMPENSATOR...]",
                    help="add the adjusted case: --output (default the first) minimised over "
                         "this [compensators.NAME] of the file on each machine")
     p.add_argument("--lower-limit", type=float, default=None,
@@ -346,6 +346,8 @@ def _fast_path_refusal(args, mech) -> str | None:
     if args.output is not None and args.output not in sumdelta_outputs(mech):
         return (f"--output {args.output} is not the SumDelta output "
                 f"({', '.join(sumdelta_outputs(mech))}) the needle commands compute")
+    if args.adjust is not None and "," in args.adjust:
+        return f"--adjust {args.adjust}: the needle commands adjust beta alone"
     if args.adjust is not None:
         if args.adjust not in mech.compensators:  # refused as the generic studies refuse it
             raise ParameterError("--adjust", "must name a compensator of the file ("

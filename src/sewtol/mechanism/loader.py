@@ -21,6 +21,7 @@ from sewtol.mechanism.lines import Locator
 from sewtol.mechanism.outputs import OUTPUT_TYPES, OUTPUTS, provide, providers
 from sewtol.mechanism.spec import (
     FORMAT,
+    MODES,
     RULES,
     UNITS,
     Compensator,
@@ -430,6 +431,10 @@ def _specs(ctx, table, outputs) -> tuple[Spec, ...]:
     return tuple(out)
 
 
+COMP_KEYS = ("parameter", "low", "high", "step", "resolution", "setting_error", "mode")
+MAX_STEPS = 10_000
+
+
 def _compensators(ctx, table, pnames) -> dict[str, Compensator]:
     if not isinstance(table, dict):
         ctx.fail(("compensators",), "[compensators]", "must be a table of [compensators.NAME]",
@@ -441,9 +446,9 @@ def _compensators(ctx, table, pnames) -> dict[str, Compensator]:
         if not isinstance(c, dict):
             ctx.fail(path, where, "must be a table with parameter, low, high", c)
         for k in c:
-            if k not in ("parameter", "low", "high"):
-                ctx.fail(path + (k,), f"{where} {k}", "unknown key; allowed: parameter, low, high",
-                         k)
+            if k not in COMP_KEYS:
+                ctx.fail(path + (k,), f"{where} {k}",
+                         f"unknown key; allowed: {', '.join(COMP_KEYS)}", k)
         p = c.get("parameter")
         if p not in pnames:
             ctx.fail(path + ("parameter",), f"{where} parameter", "must name a parameter", p)
@@ -453,7 +458,25 @@ def _compensators(ctx, table, pnames) -> dict[str, Compensator]:
         high = _number(ctx, path + ("high",), f"{where} high", c.get("high"))
         if not low < high:
             ctx.fail(path + ("high",), f"{where} high", "must be above low", (low, high))
-        out[name] = Compensator(name, p, low, high, ctx.loc.line(*path))
+        step = c.get("step")
+        if step is not None:
+            step = _number(ctx, path + ("step",), f"{where} step", step)
+            if not 0 < step <= high - low or (high - low) / step > MAX_STEPS:
+                ctx.fail(path + ("step",), f"{where} step", "must be positive, at most "
+                         f"high - low = {high - low:g} and give at most {MAX_STEPS} settings",
+                         step)
+        extra = {}
+        for k in ("resolution", "setting_error"):
+            if k in c:
+                extra[k] = _number(ctx, path + (k,), f"{where} {k}", c[k])
+                if extra[k] < 0:
+                    ctx.fail(path + (k,), f"{where} {k}", "must be >= 0", extra[k])
+        mode = c.get("mode", "absolute")
+        if mode not in MODES:
+            ctx.fail(path + ("mode",), f"{where} mode", f"must be one of {', '.join(MODES)}",
+                     mode)
+        out[name] = Compensator(name, p, low, high, ctx.loc.line(*path), step, mode=mode,
+                                **extra)
     return out
 
 

@@ -47,13 +47,35 @@ class Output:
     line: int = 0
 
 
+MODES = ("absolute", "offset")
+
+
 @dataclass(frozen=True)
 class Compensator:
+    """A [compensators.NAME]: a parameter the assembler sets on each machine.
+
+    `low`, `high` bound the setting (the parameter's unit); mode "absolute": the setting
+    replaces the parameter, "offset": it is added to the machine's as-built value. `step`
+    (None: continuous): only the settings low + k * step exist. `resolution` (how finely a
+    fitter can set it) and `setting_error` (the +- error of a setting made) are stored for the
+    studies; 0 means exact."""
+
     name: str
     parameter: str
     low: float
     high: float
     line: int = 0
+    step: float | None = None
+    resolution: float = 0.0
+    setting_error: float = 0.0
+    mode: str = "absolute"
+
+    def settings(self):
+        """The allowed settings of a stepped compensator: low + k * step inside [low, high]."""
+        import numpy as np
+
+        k = int(np.floor((self.high - self.low) / self.step * (1 + 1e-12)))
+        return self.low + self.step * np.arange(k + 1)
 
 
 @dataclass(frozen=True)

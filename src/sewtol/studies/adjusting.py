@@ -9,7 +9,7 @@ file), or maps parameters to boxes (low, high), or is a sequence of compensator 
 low, high and, where declared, steps, resolution, mode), or a strategy holding them. The
 optimum comes from the mechanism's plug-ins (sewtol.protocol.Plugins) where they take that set
 and output (the exact adjuster for boxes, the strategy adjuster for objects), otherwise from
-the generic optimiser (one call: sewtol.studies.generic.optimise_compensator). `fast=False`
+the generic adjuster (one call: sewtol.adjuster.adjust, 1 to 3 compensators jointly). `fast=False`
 takes the generic one always (the reference path of `sewtol run FILE --path generic`).
 
 `evaluated(mech, values, output)` is the same choice for a plain evaluation: the plug-in kernel
@@ -44,14 +44,20 @@ class Adjusted:
 def _boxes(mech, compensators) -> dict[str, tuple[float, float]]:
     if isinstance(compensators, Mapping):
         return {k: tuple(map(float, v)) for k, v in compensators.items()}
-    names = [compensators] if isinstance(compensators, str) else list(compensators)
+    if isinstance(compensators, str):
+        compensators = [compensators]
+    compensators = [c.strip() for name in compensators for c in name.split(",")]
     out = {}
-    for name in names:
+    for name in compensators:
         if name not in mech.compensators:
             raise ParameterError("adjust", "must name a compensator of the file ("
                                  + (", ".join(mech.compensators) or "it has none") + ")", name)
         c = mech.compensators[name]
-        out[c.parameter] = (float(c.low), float(c.high))
+        lo, hi = float(c.low), float(c.high)
+        if getattr(c, "mode", "absolute") == "offset":  # the plug-ins take absolute boxes
+            own = float(mech.nominal_values()[c.parameter])
+            lo, hi = own + lo, own + hi
+        out[c.parameter] = (lo, hi)
     return out
 
 
@@ -61,12 +67,17 @@ def _objects(compensators) -> bool:
 
 
 def adjusted(mech, values: dict | None, compensators, output: str, *, fast: bool = True,
-             **options) -> Adjusted:
+             objective=None, **options) -> Adjusted:
     """Each machine of `values` (absolute parameter values; the rest nominal) adjusted: `output`
-    minimised over the compensators (see the module docstring). `options` go to the plug-in
-    (e.g. limit_um, plateaus for the needle's strategy adjuster)."""
+    minimised over the compensators (see the module docstring), or brought to a target or
+    centred in a spec (`objective`: sewtol.adjuster.Objective or "target=T", "centre=L,U";
+    the plug-ins minimise, so another objective takes the generic adjuster). `options` go to
+    the plug-in (e.g. limit_um, plateaus for the needle's strategy adjuster)."""
+    from sewtol.adjuster import Objective
+
     mech.output(output)
-    pl = plugins(mech) if fast else None
+    objective = Objective.parse(objective)
+    pl = plugins(mech) if fast and objective.kind == "minimise" else None
     compensators = getattr(compensators, "compensators", compensators)  # a strategy's
     objects = _objects(compensators)
     if objects:
@@ -78,7 +89,7 @@ def adjusted(mech, values: dict | None, compensators, output: str, *, fast: bool
     boxes = _boxes(mech, compensators)
     if pl is not None and output == pl.adjusted_output and pl.adjusts(boxes):
         return _of(pl.adjuster(mech, values or {}, boxes), pl.name)
-    return _generic(mech, values, boxes, output)
+    return _generic(mech, values, boxes, output, objective)
 
 
 def _of(r: dict, path: str) -> Adjusted:
@@ -87,24 +98,35 @@ def _of(r: dict, path: str) -> Adjusted:
                     {k: v for k, v in r.items() if k not in known}, path)
 
 
-def _generic(mech, values, boxes, output) -> Adjusted:
-    from sewtol.studies.generic import optimise_compensator
+def _generic(mech, values, boxes, output, objective) -> Adjusted:
+    """The generic adjuster (sewtol.adjuster: 1 to 3 of the file's compensators jointly,
+    minimise, target or centre, checked against brute force) on the file's boxes; settings
+    are absolute parameter values (an offset compensator's added to the machine's own)."""
+    from sewtol.adjuster import adjust
 
     by_param = {c.parameter: name for name, c in mech.compensators.items()}
-    if len(boxes) != 1 or next(iter(boxes)) not in by_param:
-        raise ParameterError("adjust", "the generic adjuster sets one compensator of the file ("
+    unknown = [p for p in boxes if p not in by_param]
+    if unknown:
+        raise ParameterError("adjust", "the generic adjuster sets compensators of the file ("
                              + (", ".join(mech.compensators) or "it has none") + ")",
-                             ",".join(boxes))
-    (param, (lo, hi)), = boxes.items()
-    comp = mech.compensators[by_param[param]]
-    if (lo, hi) != (float(comp.low), float(comp.high)):
-        raise ParameterError("adjust", f"the generic adjuster takes the file's box of {param} "
-                             f"({comp.low:g}, {comp.high:g})", (lo, hi))
-    a = optimise_compensator(mech, values, output, by_param[param])
-    eps = 1e-9 * (hi - lo)
-    at = (a.setting <= lo + eps) | (a.setting >= hi - eps)
-    return Adjusted(a.value, {param: a.setting}, a.status, {param: at},
-                    {"failed_group": a.failed_group})
+                             ",".join(unknown))
+    names = [by_param[p] for p in boxes]
+    if _boxes(mech, names) != boxes:
+        raise ParameterError("adjust", "the generic adjuster takes the file's boxes ("
+                             + ", ".join(f"{n} {mech.compensators[n].low:g}.."
+                                         f"{mech.compensators[n].high:g}" for n in names)
+                             + ")", boxes)
+    a = adjust(mech, values, output, names, objective)
+    cols, _ = mech.columns(values)
+    settings, at_bound, extras = {}, {}, {"failed_group": a.failed_group,
+                                          "gap_bound": a.gap_bound, "loss": a.loss}
+    for n, p in zip(a.names, a.parameters, strict=True):
+        own = np.asarray(cols[p], float)[:, 0] if mech.compensators[n].mode == "offset" else 0.0
+        settings[p] = own + a.settings[n]
+        at_bound[p] = a.at_bound[n]
+        extras[f"{p}_plateau_low"] = own + a.plateau_low[n]
+        extras[f"{p}_plateau_high"] = own + a.plateau_high[n]
+    return Adjusted(a.value, settings, a.status, at_bound, extras)
 
 
 def evaluated(mech, values: dict | None, output: str, *, fast: bool = True) -> np.ndarray:

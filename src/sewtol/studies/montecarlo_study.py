@@ -196,9 +196,10 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
     names = tuple(mech.output_names if outputs is None else outputs)
     for name in names:
         mech.output(name)
-    if isinstance(adjust, str) and adjust not in mech.compensators:
-        raise ParameterError("adjust", "must name a compensator of the file ("
-                             + (", ".join(mech.compensators) or "it has none") + ")", adjust)
+    for name in adjust.split(",") if isinstance(adjust, str) else ():
+        if name.strip() not in mech.compensators:
+            raise ParameterError("adjust", "must name a compensator of the file ("
+                                 + (", ".join(mech.compensators) or "it has none") + ")", adjust)
     given = limit is not None or lower_limit is not None
     if limit_output is None and (given or not mech.specs):
         limit_output = names[0]
