@@ -19,11 +19,11 @@ import matplotlib.pyplot as plt
 
 from sewtol.errors import ParameterError
 from sewtol.io import to_json, write_text_atomic
-from sewtol.mechanisms.needle_208.guides import compare_guides
 from sewtol.mechanisms.needle_208.model import Needle208
 from sewtol.mechanisms.needle_208.single import deviation_table
 from sewtol.mechanisms.needle_208.tables import (
     allocate,
+    compare_guides,
     largest_tolerances,
     montecarlo,
     needle_sobol,

@@ -142,7 +142,7 @@ def test_guides_cli_adjust_beta_equals_montecarlo_yields():
 
 
 def test_guides_with_guide_shift_beats_beta_alone():
-    from sewtol.mechanisms.needle_208.guides import compare_guides
+    from sewtol.mechanisms.needle_208.tables import compare_guides
 
     nom, tol = Needle208.nominal(), NEEDLE_208_SETS["base"]
     beta = compare_guides(nom, tol, 200, 1, strategy=strategy_of(("beta",)))

@@ -437,7 +437,7 @@ def test_a_flag_has_one_type_default_and_arity_in_every_command():
 
 def test_montecarlo_and_compare_guides_agree_on_the_same_machine(nominal):
     """Trap 1 in the API: the guide comparison's nominal row is montecarlo's fixed case."""
-    from sewtol.mechanisms.needle_208.guides import compare_guides
+    from sewtol.mechanisms.needle_208.tables import compare_guides
 
     shifted = nominal.override(guide_shift_um=20.0)
     table = compare_guides(shifted, NEEDLE_208_SETS["base"], 150, 3,

@@ -40,7 +40,7 @@ _PUBLIC = {
     "montecarlo": ("sewtol.mechanisms.needle_208.tables", "montecarlo"),
     "needle_sobol": ("sewtol.mechanisms.needle_208.tables", "needle_sobol"),
     "allocate": ("sewtol.mechanisms.needle_208.tables", "allocate"),
-    "compare_guides": ("sewtol.mechanisms.needle_208.guides", "compare_guides"),
+    "compare_guides": ("sewtol.mechanisms.needle_208.tables", "compare_guides"),
     "strategies_table": ("sewtol.mechanisms.needle_208.tables", "strategies_table"),
     "optimise": ("sewtol.mechanisms.needle_208.adjust", "optimise"),
     "adjust": ("sewtol.mechanisms.needle_208.adjustment", "adjust"),

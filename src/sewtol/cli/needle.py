@@ -108,7 +108,8 @@ def _context(args, params, tolerances, strategy) -> dict:
     """What decides a study's numbers, carried by its JSON (its CSVs: run.json beside them)."""
     from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME
 
-    return {"tolerances": None if tolerances is None else tolerances.name,
+    return {"mechanism": "needle_208",
+            "tolerances": None if tolerances is None else tolerances.name,
             "seed": getattr(args, "seed", None),
             "n": getattr(args, "n", None), "frame": getattr(args, "frame", None) or DEFAULT_FRAME,
             "guide_shift_um": float(params.guide_shift_um),
@@ -505,7 +506,7 @@ def _small_study(args):
 
 
 def cmd_needle_guides(args):
-    from sewtol.mechanisms.needle_208.guides import compare_guides
+    from sewtol.mechanisms.needle_208.tables import compare_guides
 
     strategy, params, tolerances = _small_study(args)
     _check_beta_range(args)

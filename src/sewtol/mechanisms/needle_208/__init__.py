@@ -12,13 +12,14 @@ SumDelta with beta fixed and adjusted), ``status.py`` (what became of each machi
 Compensators, exactly: ``beta.py`` (beta* by the sliding-window optimum), ``adjust.py`` (the
 joint optimum of beta and the guide), ``adjustment.py`` (any strategy's compensators, batched),
 ``kernels/`` (the fused numba fast paths, held equal to the numpy reference by tests),
-``fast_path.py`` (the check that lets a mechanism file use them).
+``fast_path.py`` (the check that lets a mechanism file use them, and the protocol's plug-ins:
+the exact SumDelta kernel, the exact beta / beta + guide-shift adjuster and the strategy
+adjuster).
 
-The generic studies (sewtol.studies.scan, worst_case, settings) in the source's columns, on this
-machine as a protocol mechanism: ``tables.py`` (``as_mechanism``); the needle's own studies on
-the exact optimiser: ``montecarlo.py``, ``sobol.py``, ``allocation.py``, ``ppm.py``,
-``guides.py`` (an instance of sewtol.studies.settings), ``strategies.py``;
-``calibration.py`` reconstructs the unpublished frame.
+No study lives here: every study is written once in sewtol.studies and runs on this machine as
+a protocol mechanism; ``tables.py`` (``as_mechanism``) gives their tables in the source's
+columns and words (scan, worst case, Monte-Carlo, strategies, Sobol, ppm, allocation, the guide
+settings compared). ``calibration.py`` reconstructs the unpublished frame.
 """
 
 from sewtol.mechanisms.needle_208.model import (
