@@ -12,15 +12,14 @@ from sewtol.mechanism import load
 from sewtol.mechanisms import mechanism_file
 from sewtol.studies import strategies as ST
 
-SHIFT = '\n[compensators.guide_shift]\nparameter = "guide_shift_um"\nlow = -100\nhigh = 100\n'
-
 
 @pytest.fixture(scope="module")
-def needle_file(tmp_path_factory):
-    """The needle file with the guide shift (+/-100 um about the nominal 0, the needle's
-    built-in guide_shift_um compensator) declared as a second compensator."""
-    path = tmp_path_factory.mktemp("strategies") / "needle_shift.toml"
-    path.write_text(mechanism_file("needle_208").read_text() + SHIFT)
+def needle_file():
+    """The needle file: it declares the guide shift (+/-100 um about the nominal 0, the needle's
+    built-in guide_shift_um compensator) as its second compensator."""
+    path = mechanism_file("needle_208")
+    g = load(path).compensators["guide_shift"]
+    assert (g.parameter, g.low, g.high) == ("guide_shift_um", -100.0, 100.0)
     return path
 
 
