@@ -194,10 +194,7 @@ def cmd_feed_sobol(args):
     from sewtol.provenance import now
     from sewtol.studies.sobol import check_power_of_two
 
-    try:
-        check_power_of_two(args.n)
-    except ParameterError as exc:
-        raise ParameterError("--n", exc.rule, args.n) from None
+    as_flags(check_power_of_two, args.n)  # its error names --n
     check_n(args.n_screen, "--n-screen", minimum=100)
     params, tolerances = _feed_study(args)
     started = now()

@@ -433,10 +433,7 @@ def cmd_needle_sobol(args):
     from sewtol.provenance import now
     from sewtol.studies.sobol import CHUNK, check_power_of_two, check_sobol
 
-    try:
-        check_power_of_two(args.n)
-    except ParameterError as exc:
-        raise ParameterError("--n", exc.rule, args.n) from None
+    as_flags(check_power_of_two, args.n)  # its error names --n
     check_study(args)
     strategy = _strategy(args)
     _check_beta_range(args)
