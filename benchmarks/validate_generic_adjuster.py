@@ -4,8 +4,8 @@
   uses the structure where it is exact: SumDelta at guide shift s is max(D1 - s, 0) +
   max(s - D0, 0), D0 and D1 the smallest and largest deviation over the turn (read from the file
   itself at s = +-1e4 um), so its minimum over the shift box is analytic per beta; beta: a grid
-  of 251 settings over 10 ... 35 deg (0.1 deg), then 4 zooms of 21 settings over +-1 step of
-  the best (to 1e-5 deg).
+  of 251 settings over 10 ... 35 deg (0.1 deg), then 5 zooms of 21 settings over +-1 step
+  around each of the 4 lowest local minima of that grid (to 1e-6 deg).
 - spatial_crank_rocker (set `illustrative`): rocker_arm and rocker_collar bring rocker_swing_deg
   to a target at the edge of their reach (some machines reach it, some stop at a corner); brute
   force: adjuster.brute_force (a 31 x 31 grid, then 4 zooms of 9 x 9).
@@ -30,7 +30,7 @@ BIG_UM = 1e4
 SWING_TARGET_DEG = 53.45
 
 
-def needle_brute_force(mech, values, points=251, zoom=21, zooms=4):
+def needle_brute_force(mech, values, points=251, zoom=21, zooms=5, basins=4):
     """min over (beta, guide_shift) of SumDelta_um: analytic in the shift, grids in beta."""
     comp, shift = mech.compensators["beta"], mech.compensators["guide_shift"]
     m = len(next(iter(values.values())))
@@ -47,20 +47,30 @@ def needle_brute_force(mech, values, points=251, zoom=21, zooms=4):
         return np.where(np.isnan(val), np.inf, val)
 
     B = np.linspace(comp.low, comp.high, points)
-    h = B[1] - B[0]
     Y = g(np.repeat(np.arange(m), points), np.tile(B, m)).reshape(m, points)
-    k = Y.argmin(axis=1)
-    x, fx = B[k], Y[np.arange(m), k]
+    # every basin of the grid, not only the best cell: zoom around the `basins` lowest local
+    # minima of each machine's grid (a basin whose grid value is a little higher can hold the
+    # global minimum between two grid points)
+    pad = np.pad(Y, ((0, 0), (1, 1)), constant_values=np.inf)
+    local = (Y <= pad[:, :-2]) & (Y <= pad[:, 2:]) & np.isfinite(Y)
+    ranked = np.argsort(np.where(local, Y, np.inf), axis=1, kind="stable")[:, :basins]
+    rows = np.repeat(np.arange(m), basins)
+    x = B[ranked.ravel()]
+    fx = Y[rows, ranked.ravel()]
+    h = B[1] - B[0]
     u = np.linspace(-1.0, 1.0, zoom)
     for _ in range(zooms):
         C = np.clip(x[:, None] + u * h, comp.low, comp.high)
-        Yc = g(np.repeat(np.arange(m), zoom), C.ravel()).reshape(m, zoom)
+        Yc = g(np.repeat(rows, zoom), C.ravel()).reshape(rows.size, zoom)
         j = Yc.argmin(axis=1)
-        better = Yc[np.arange(m), j] < fx
-        x = np.where(better, C[np.arange(m), j], x)
-        fx = np.minimum(fx, Yc[np.arange(m), j])
+        k = np.arange(rows.size)
+        better = Yc[k, j] < fx
+        x = np.where(better, C[k, j], x)
+        fx = np.minimum(fx, Yc[k, j])
         h *= 2.0 / (zoom - 1)
-    return fx, x
+    fx, x = fx.reshape(m, basins), x.reshape(m, basins)
+    best = fx.argmin(axis=1)
+    return fx[np.arange(m), best], x[np.arange(m), best]
 
 
 def machines(mech, set_name, n, seed):
