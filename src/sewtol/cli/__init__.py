@@ -1,7 +1,7 @@
 """The `sewtol` command: a thin layer over the library. Only this and study scripts write files.
 
-One module per command family (needle, feed, run, mechanisms), each importing the helpers they
-share from sewtol.cli.common; this module builds the parser from them and runs a command."""
+One module per command family (needle, feed, run, mechanisms, fit), each importing the helpers
+they share from sewtol.cli.common; this module builds the parser from them and runs a command."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import sys
 
 from sewtol.cli.common import Parser, check_out, check_plot, resolve_progress
 from sewtol.cli.feed import add_feed
+from sewtol.cli.fit import add_fit
 from sewtol.cli.mechanisms import add_mechanisms
 from sewtol.cli.needle import add_needle
 from sewtol.cli.run import add_run
@@ -35,6 +36,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_feed(sub)
     add_run(sub)  # `sewtol run FILE.toml STUDY`
     add_mechanisms(sub)
+    add_fit(sub)  # `sewtol fit H7/g6 25`
     return ap
 
 

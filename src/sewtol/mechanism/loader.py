@@ -16,6 +16,7 @@ from pathlib import Path
 
 from sewtol.errors import ParameterError
 from sewtol.mechanism import expressions as X
+from sewtol.mechanism.clearance import parse_clearances
 from sewtol.mechanism.groups import GROUPS
 from sewtol.mechanism.lines import Locator
 from sewtol.mechanism.outputs import OUTPUT_TYPES, OUTPUTS, provide, providers
@@ -40,7 +41,7 @@ MECH_NAME = re.compile(r"^[a-z0-9_]+$")
 # groups whose Closure carries a transmission angle (a transmission output may name them)
 TRANSMISSION_GROUPS = ("rrr", "spatial_rocker", "spatial_slider")
 TOP_KEYS = ("format", "mechanism", "parameters", "groups", "outputs", "specs", "compensators",
-            "tolerances")
+            "tolerances", "clearances")
 SPEC_KEYS = ("output", "upper", "lower", "doc")
 MECH_KEYS = ("name", "title", "source", "assumptions", "samples", "rpm", "driver", "fast_path")
 PARAM_KEYS = ("nominal", "unit", "rule", "doc")
@@ -107,9 +108,11 @@ def loads(text: str, path: str = "<text>", overrides: dict | None = None):
     specs = _specs(ctx, data.get("specs", []), outputs)
     comps = _compensators(ctx, data.get("compensators", {}), pnames)
     sets = _tolerance_sets(ctx, data.get("tolerances", {}), pnames)
+    clearances = parse_clearances(data.get("clearances"), groups,  # joint clearances: data only
+                                  lambda p: (f"{path}:{ctx.loc.line(*p)}: ", ctx.loc.line(*p)))
     mech = FileMechanism(path=path, header=header, parameters=tuple(params),
                          groups=tuple(groups), outputs=tuple(outputs), compensators=comps,
-                         tolerance_sets=sets, specs=specs)
+                         tolerance_sets=sets, specs=specs, clearances=clearances)
     if header.fast_path is not None:
         from sewtol.mechanism.fast_paths import fast_paths
 

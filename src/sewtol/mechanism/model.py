@@ -20,6 +20,7 @@ import pandas as pd
 
 from sewtol import engine
 from sewtol.errors import ParameterError
+from sewtol.mechanism.clearance import Clearance
 from sewtol.mechanism.groups import GROUPS
 from sewtol.mechanism.outputs import OUTPUT_TYPES, provide
 from sewtol.mechanism.spec import Compensator, Group, Header, Output, Parameter, Spec
@@ -76,6 +77,7 @@ class FileMechanism:
     compensators: dict[str, Compensator] = field(default_factory=dict)
     tolerance_sets: dict[str, ToleranceSet] = field(default_factory=dict)
     specs: tuple[Spec, ...] = ()
+    clearances: tuple[Clearance, ...] = ()  # [[clearances]]: data; no study uses them yet
 
     @property
     def name(self) -> str:

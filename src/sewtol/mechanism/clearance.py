@@ -1,0 +1,173 @@
+"""Joint clearances of a mechanism file: the `[[clearances]]` tables, checked into Clearance data.
+
+A revolute pair names its joint point and gives a radial clearance c (``radial_mm``: one value,
+or ``[min, max]``) or an ISO 286 fit at a pin diameter (``fit = "H7/g6"``,
+``diameter_mm = 8``). A prismatic pair (``pair = "prismatic"``) names its slider group and gives
+the gap across the guide (``gap_mm``, hole minus rod or slot minus block) or a fit, and the
+guide's length (``length_mm``). Stored as the diametral clearance range (hole minus shaft, mm),
+the way ISO 286 states it. Data only: no study uses the clearances yet.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from sewtol.errors import ParameterError
+from sewtol.fits import check_diameter, iso_fit
+
+PAIRS = ("revolute", "prismatic")
+KEYS = ("joint", "pair", "radial_mm", "gap_mm", "fit", "diameter_mm", "length_mm", "doc")
+# where each group type has its pairs: point fields (and "name", the group's own point or
+# angle) that are revolute joints, and the group whose body slides in a prismatic pair
+REVOLUTE_AT = {"crank": ("center", "name"), "rrr": ("name", "p1", "p2"), "rrp": ("name", "p1"),
+               "rpr": ("pivot", "block")}
+PRISMATIC_AT = ("rrp", "rpr", "spatial_slider")
+
+
+@dataclass(frozen=True)
+class Clearance:
+    """The clearance of one pair. ``clearance_min_mm`` <= ``clearance_max_mm`` are diametral
+    (hole minus shaft, >= 0); a radial clearance c is half of it. ``length_mm`` is the guide's
+    length of a prismatic pair (None for a revolute one); ``fit`` and ``diameter_mm`` say where
+    the range came from when a fit was given."""
+
+    joint: str
+    pair: str
+    clearance_min_mm: float
+    clearance_max_mm: float
+    length_mm: float | None = None
+    fit: str | None = None
+    diameter_mm: float | None = None
+    doc: str = ""
+    line: int = 0
+
+    def __post_init__(self):
+        if self.pair not in PAIRS:
+            raise ParameterError("pair", f"must be one of {', '.join(PAIRS)}", self.pair)
+        lo, hi = self.clearance_min_mm, self.clearance_max_mm
+        if not (_finite(lo) and _finite(hi) and 0.0 <= lo <= hi):
+            raise ParameterError("clearance_mm", "must be 0 <= min <= max, finite (mm)", (lo, hi))
+        if (self.pair == "prismatic") != (self.length_mm is not None):
+            raise ParameterError("length_mm", "is required for a prismatic pair and only for one",
+                                 self.length_mm)
+        if self.length_mm is not None and not (_finite(self.length_mm) and self.length_mm > 0):
+            raise ParameterError("length_mm", "must be a positive length in mm", self.length_mm)
+
+    @property
+    def radial_min_mm(self) -> float:
+        return self.clearance_min_mm / 2
+
+    @property
+    def radial_max_mm(self) -> float:
+        return self.clearance_max_mm / 2
+
+
+def _finite(v) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def pair_joints(groups) -> dict[str, set[str]]:
+    """The names a clearance may take, per pair kind, from the file's groups."""
+    revolute, prismatic = set(), set()
+    for g in groups:
+        for f in REVOLUTE_AT.get(g.type, ()):
+            revolute.add(g.name if f == "name" else g.fields[f])
+        if g.type in PRISMATIC_AT:
+            prismatic.add(g.name)
+    return {"revolute": revolute, "prismatic": prismatic}
+
+
+def _range(value, what: str) -> tuple[float, float]:
+    """A value or [min, max] in mm, as (min, max)."""
+    pair = value if isinstance(value, list) else [value, value]
+    if len(pair) != 2 or not all(_finite(v) for v in pair) or not 0 <= pair[0] <= pair[1]:
+        raise ParameterError(what, "must be a number >= 0 or [min, max] with 0 <= min <= max "
+                                   "(mm)", value)
+    return float(pair[0]), float(pair[1])
+
+
+def parse_clearances(table, groups, locate) -> tuple[Clearance, ...]:
+    """The checked [[clearances]] of a file. `locate(path)` gives the "FILE:LINE: " prefix and
+    the line of a TOML path, so a refusal points at the line."""
+    if table is None:
+        return ()
+    if not isinstance(table, list):
+        prefix, _ = locate(("clearances",))
+        raise ParameterError(f"{prefix}[[clearances]]", "must be an array of tables", table)
+    joints = pair_joints(groups)
+    out, seen = [], set()
+    for i, c in enumerate(table):
+        path = ("clearances", i)
+        prefix, line = locate(path)
+        where = f"{prefix}[[clearances]] #{i + 1}"
+        try:
+            out.append(_clearance(c, joints, line))
+        except ParameterError as exc:
+            key = exc.field if isinstance(c, dict) and exc.field in c else None
+            if key is not None:
+                prefix, _ = locate(path + (key,))
+                where = f"{prefix}[[clearances]] #{i + 1}"
+            raise ParameterError(f"{where}.{exc.field}", exc.rule, exc.value) from None
+        if (out[-1].joint, out[-1].pair) in seen:
+            raise ParameterError(f"{where}.joint", f"has a {out[-1].pair} clearance already",
+                                 out[-1].joint)
+        seen.add((out[-1].joint, out[-1].pair))
+    return tuple(out)
+
+
+def _clearance(c, joints, line) -> Clearance:
+    if not isinstance(c, dict):
+        raise ParameterError("table", "must be a table { joint = ..., fit = ... }", c)
+    for k in c:
+        if k not in KEYS:
+            raise ParameterError(k, f"unknown key; allowed: {', '.join(KEYS)}", k)
+    pair = c.get("pair", "revolute")
+    if pair not in PAIRS:
+        raise ParameterError("pair", f"must be one of {', '.join(PAIRS)}", pair)
+    valid = sorted(joints[pair])
+    if not isinstance(c.get("joint"), str) or c["joint"] not in joints[pair]:
+        what = ("a joint point of a crank, rrr, rrp or rpr group" if pair == "revolute"
+                else "an rrp, rpr or spatial_slider group")
+        raise ParameterError("joint", f"must name {what}: {', '.join(valid) or 'none in this file'}",
+                             c.get("joint"))
+    width = "radial_mm" if pair == "revolute" else "gap_mm"
+    other = "gap_mm" if pair == "revolute" else "radial_mm"
+    if other in c:
+        raise ParameterError(other, f"is not a key of a {pair} pair (give {width})", c[other])
+    given = [k for k in (width, "fit") if k in c]
+    if len(given) != 1:
+        raise ParameterError(width, f"give exactly one of {width}, fit", given)
+    if ("diameter_mm" in c) != ("fit" in c):
+        raise ParameterError("diameter_mm", "goes with fit, and fit needs it", c.get("diameter_mm"))
+    length = c.get("length_mm")
+    if pair == "revolute" and length is not None:
+        raise ParameterError("length_mm", "is a key of a prismatic pair only", length)
+    if pair == "prismatic" and length is None:
+        raise ParameterError("length_mm", "is required for a prismatic pair (the guide's "
+                                          "length, mm)", None)
+    doc = c.get("doc", "")
+    if not isinstance(doc, str):
+        raise ParameterError("doc", "must be a string", doc)
+    fit = diameter = None
+    if "fit" in c:
+        diameter = check_diameter(c["diameter_mm"])
+        f = iso_fit(c["fit"], diameter)
+        if f.kind != "clearance":
+            raise ParameterError("fit", f"must be a clearance fit for a pair that moves (this is "
+                                        f"{f.kind}: {f.clearance_min_um:g} to "
+                                        f"{f.clearance_max_um:g} um)", c["fit"])
+        fit, lo, hi = c["fit"], f.clearance_min_um / 1000, f.clearance_max_um / 1000
+    else:
+        lo, hi = _range(c[width], width)
+        if pair == "revolute":
+            lo, hi = 2 * lo, 2 * hi
+    return Clearance(joint=c["joint"], pair=pair, clearance_min_mm=lo, clearance_max_mm=hi,
+                     length_mm=None if length is None else _length(length), fit=fit,
+                     diameter_mm=diameter, doc=doc, line=line)
+
+
+def _length(v) -> float:
+    if not (_finite(v) and v > 0):
+        raise ParameterError("length_mm", "must be a positive length in mm", v)
+    return float(v)
