@@ -14,6 +14,7 @@ Prints max |generic - brute| of the minimised quantity, max (generic - brute) (h
 generic search stops above the brute force's best), the certificate's largest gap bound and
 the time, after every chunk of machines (a running report). Run:
 python benchmarks/validate_generic_adjuster.py [--n 2000] [--seed 2026] [--only needle|rocker]
+    [--part I/P]
 """
 
 from __future__ import annotations
@@ -111,11 +112,22 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--chunk", type=int, default=100)
     ap.add_argument("--only", choices=("needle", "rocker"), default=None)
+    ap.add_argument("--part", default="0/1", help="I/P: run the I-th of P equal slices of the n "
+                    "machines (the same draws whatever P), so P processes share one run")
     args = ap.parse_args(argv)
+    i, p = (int(x) for x in args.part.split("/"))
+    if not 0 <= i < p:
+        ap.error(f"--part: must be I/P with 0 <= I < P, got {args.part}")
+
+    def part(vals):
+        n = len(next(iter(vals.values())))
+        a, b = n * i // p, n * (i + 1) // p
+        return {k: v[a:b] for k, v in vals.items()}
+
     needle = load("examples/needle_208.toml")
     if args.only != "rocker":
         run("needle_208 beta,guide_shift minimise SumDelta_um", needle,
-            machines(needle, "base", args.n, args.seed), "SumDelta_um", "beta,guide_shift",
+            part(machines(needle, "base", args.n, args.seed)), "SumDelta_um", "beta,guide_shift",
             None, lambda v: needle_brute_force(needle, v)[0], args.chunk)
     if args.only == "needle":
         return
@@ -123,7 +135,7 @@ def main(argv=None):
     goal = f"target={SWING_TARGET_DEG}"
     comps = "rocker_arm,rocker_collar"
     run(f"spatial_crank_rocker {comps} {goal} rocker_swing_deg", rocker,
-        machines(rocker, "illustrative", args.n, args.seed), "rocker_swing_deg", comps, goal,
+        part(machines(rocker, "illustrative", args.n, args.seed)), "rocker_swing_deg", comps, goal,
         lambda v: A.brute_force(rocker, v, "rocker_swing_deg", comps, goal, points=31, zoom=9,
                                 zooms=4)[0], args.chunk)
 
