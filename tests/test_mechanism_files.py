@@ -432,14 +432,14 @@ def test_run_flags_tolerance_files_and_out(tmp_path):
 # --- adjustment over a compensator ---------------------------------------------------------------
 
 def test_adjusted_case_matches_the_builtin_beta_optimum(nominal):
-    from sewtol.mechanisms.needle_208.evaluate import evaluate
+    from cli_helpers import beta_adjusted
     from sewtol.tolerances import NEEDLE_208_SETS
 
     mech = load(NEEDLE)
     dev = NEEDLE_208_SETS["base"].sample(np.random.default_rng(1), 30)
     got = adjust(mech, {k: mech.nominal_values()[k] + v for k, v in dev.items()},
                  "SumDelta_um", "beta")
-    exact = evaluate(nominal, dev, adjust=True, range_deg=(10.0, 35.0)).total_adjusted_um
+    exact = beta_adjusted(nominal, dev, (10.0, 35.0)).total_um
     d = got.value - exact
     # sampled extremes sit at most ~1 nm inside the exact ones (docs/mechanism_files.md)
     assert d.min() > -2e-3 and d.max() < 2e-3
