@@ -135,15 +135,12 @@ def resolve_tolerances(mech, spec):
 
 
 def _check_flags(args) -> None:
-    used = USES[args.study]
-    for key, flag in (("output", "--output"), ("tolerances", "--tolerances"), ("n", "--n"),
-                      ("seed", "--seed"), ("limit", "--limit"), ("n_jobs", "--n-jobs"),
-                      ("adjust", "--adjust"), ("lower_limit", "--lower-limit"),
-                      ("method", "--method"), ("target", "--target"), ("weight", "--weight"),
-                      ("strategy", "--strategy")):
+    for key in ("output", "tolerances", "n", "seed", "limit", "n_jobs", "adjust", "lower_limit",
+                "method", "target", "weight", "strategy"):
         value = getattr(args, key)
-        if value is not None and key not in used:
-            raise ParameterError(flag, f"is not used by `run {args.study}`", value)
+        if value is not None and key not in USES[args.study]:
+            raise ParameterError("--" + key.replace("_", "-"), f"is not used by `run "
+                                 f"{args.study}`", value)
     if args.n is None and args.study in DEFAULT_N:
         args.n = DEFAULT_N[args.study]
     args.seed = 0 if args.seed is None else args.seed
@@ -326,16 +323,10 @@ FAST_PATH_STUDIES = ("scan", "worst-case", "montecarlo", "sobol", "ppm", "alloca
 BOTH_CASES = ("worst-case", "montecarlo", "sobol")
 
 
-def sumdelta_outputs(mech) -> list[str]:
-    """The file's SumDelta outputs (a line_deviation of E, sum_extremes): the loader checked
-    each equals the built-in SumDelta, so the fast path answers --output NAME for these."""
-    return [o.name for o in mech.outputs if o.type == "line_deviation"
-            and o.fields["point"] == "E" and o.fields["measure"] == "sum_extremes"]
-
-
 def _fast_path_refusal(args, mech) -> str | None:
     """None when `run FILE STUDY` runs on the needle_208 fast path, else why it does not."""
     from sewtol.mechanisms.needle_208 import beta as sb
+    from sewtol.mechanisms.needle_208.fast_path import sumdelta_outputs
 
     if args.path == "generic":
         return "--path generic"

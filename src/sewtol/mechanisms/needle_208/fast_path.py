@@ -139,7 +139,9 @@ def _batch(mech, values):
     return {k: np.broadcast_to(v, (n, 1)).copy() for k, v in c.items()}, n
 
 
-def _sumdelta_names(mech) -> list[str]:
+def sumdelta_outputs(mech) -> list[str]:
+    """The file's SumDelta outputs (a line_deviation of E, sum_extremes): the loader checked
+    each equals the built-in SumDelta, so the fast path answers for these."""
     return [o.name for o in mech.outputs if o.type == "line_deviation"
             and o.fields.get("point") == "E" and o.fields.get("measure") == "sum_extremes"]
 
@@ -167,7 +169,7 @@ def needle_kernel(mech, values) -> dict[str, np.ndarray]:
     fused kernel, for every SumDelta output of the file; NaN where a machine does not run."""
     c, _ = _batch(mech, values)
     total = fixed_sumdelta_um(c)
-    return {name: total for name in _sumdelta_names(mech)}
+    return {name: total for name in sumdelta_outputs(mech)}
 
 
 def needle_kernel_bound(mech, values) -> dict[str, np.ndarray]:
@@ -186,7 +188,7 @@ def needle_kernel_bound(mech, values) -> dict[str, np.ndarray]:
         window = (k[:, None] + np.arange(-w, w + 1)[None, :]) % FINE
         bound += np.max(d2[rows, window], axis=1)
     bound = (h / 2) ** 2 / 2 * bound + POSITIONS_UM
-    return {name: bound for name in _sumdelta_names(mech)}
+    return {name: bound for name in sumdelta_outputs(mech)}
 
 
 def needle_adjuster(mech, values, boxes: dict) -> dict:
