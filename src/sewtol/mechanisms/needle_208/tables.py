@@ -1099,17 +1099,6 @@ def allocate_for_strategy(nominal, reference: ToleranceSet | str, strategy: Stra
 
 
 # --- guide settings compared (the needle's instance of sewtol.studies.settings) ------------
-#
-# Guide settings compared in one table: beta*, SumDelta, window and the Monte-Carlo yields (an
-# instance of sewtol.studies.settings: each guide placement a named setting of the design).
-#
-# With `strategy=` every variant's machines (the same n machines for every variant, and the
-# same ones `montecarlo` draws from the seed: common random numbers) are adjusted by the
-# strategy's exact joint optimum (needle_208.adjustment.adjust), its compensators acting on
-# top of the variant's guide; the
-# row then gives the yield after the strategy with its counts (ok + out_of_spec +
-# cannot_assemble + dead_point = n) and the yield with beta fixed at the variant's beta* on the
-# same machines.
 
 DEFAULT_VARIANTS = (
     ("nominal", 0.0, 0.0),
@@ -1163,7 +1152,8 @@ def compare_guides(nominal: Needle208, tolerances: ToleranceSet | str, n: int, s
     pandas.DataFrame
         Per setting: ``guide``, ``shift_um``, ``angle_from_vertical_deg``, ``beta_opt_deg``,
         ``total_um`` (nominal SumDelta at beta*), the beta window (deg) and the yields with
-        beta fixed and adjusted (or after the strategy, with its counts).
+        beta fixed at the setting's beta* and adjusted (or after the strategy, with its counts:
+        ok + out_of_spec + cannot_assemble + dead_point = n).
     """
     tolerances = needle_set(tolerances)
     settings = [Setting(label, {"guide_shift_um": nominal.guide_shift_um + shift_um,
