@@ -35,7 +35,7 @@ from sewtol.mechanisms.needle_208.montecarlo import montecarlo
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.needle_208 import adjust as ad
 from sewtol.mechanisms.needle_208 import metrics as nm
-from sewtol.mechanisms.needle_208.evaluate import evaluate
+from sewtol.mechanisms.needle_208.fast_path import fixed_sumdelta_um
 from sewtol.mechanisms.needle_208.kernels import fused as KB
 from sewtol.mechanisms.needle_208.kernels import positions as K
 from sewtol.mechanisms.needle_208.model import Needle208
@@ -77,6 +77,15 @@ def timed_cpu(fn, repeats):
     return statistics.median(walls), statistics.median(cpus), out
 
 
+def evaluate(p, dev, compensators=None):
+    """SumDelta of machines p + dev with beta fixed (the fused kernel) and adjusted (exact)."""
+    m = len(next(iter(dev.values())))
+    c, _ = nm.columns(P.with_deviations(p, dev))
+    c = {k: np.broadcast_to(v, (m, 1)).copy() for k, v in c.items()}
+    fixed_sumdelta_um(c)
+    return ad.optimise(c, compensators or {"beta": (10.0, 35.0)}, feas=nm.feasibility(c))
+
+
 def million_adjusted(p, ts, n, compensators, chunk=100_000):
     """evaluate() over n machines in chunks (deviations drawn per chunk): fixed and adjusted."""
     rng = np.random.default_rng(11)
@@ -84,7 +93,7 @@ def million_adjusted(p, ts, n, compensators, chunk=100_000):
     for a in range(0, n, chunk):
         dev = ts.sample(rng, min(chunk, n - a))
         out = evaluate(p, dev, compensators=compensators)
-        worst = max(worst, float(np.nanmax(out.total_adjusted_um)))
+        worst = max(worst, float(np.nanmax(out.total_um)))
     return worst
 
 

@@ -40,3 +40,27 @@ def stretched_CD(p: Needle208) -> float:
     t = np.linspace(float(lo), float(hi), 200_001)
     B = complex(p.Ax, p.Ay) + p.AB * np.exp(1j * (t + p.beta_sense * np.radians(p.beta)))
     return float(np.max(np.abs(complex(p.Dx, p.Dy) - B)) - p.BC)
+
+
+def needle_columns(nominal, dev):
+    """The machines nominal + dev as the needle's parameter columns, each (n, 1)."""
+    from sewtol.mechanisms import params as P
+    from sewtol.mechanisms.needle_208 import metrics as nm
+
+    n = len(next(iter(dev.values())))
+    c, _ = nm.columns(P.with_deviations(nominal, dev))
+    return {k: np.broadcast_to(v, (n, 1)).copy() for k, v in c.items()}
+
+
+def fixed_um(nominal, dev):
+    """SumDelta (um) of nominal + dev, beta as given, by the fast path's fused kernel."""
+    from sewtol.mechanisms.needle_208.fast_path import fixed_sumdelta_um
+
+    return fixed_sumdelta_um(needle_columns(nominal, dev))
+
+
+def beta_adjusted(nominal, dev, range_deg=(10.0, 35.0), engine="numba"):
+    """The exact beta optimum (needle_208.adjust.optimise) of nominal + dev in range_deg."""
+    from sewtol.mechanisms.needle_208.adjust import optimise
+
+    return optimise(needle_columns(nominal, dev), {"beta": tuple(range_deg)}, engine=engine)

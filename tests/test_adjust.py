@@ -10,6 +10,7 @@ um at 0.002 deg) and feasibility from needle_208.metrics.feasibility at each bet
 import numpy as np
 import pytest
 
+from cli_helpers import beta_adjusted
 from sewtol import engine
 from sewtol.errors import ParameterError
 from sewtol.mechanisms import params as P
@@ -17,7 +18,6 @@ from sewtol.mechanisms.needle_208 import adjust as ad
 from sewtol.mechanisms.needle_208 import beta as sb
 from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208 import model as nd
-from sewtol.mechanisms.needle_208.evaluate import evaluate
 from sewtol.mechanisms.needle_208.kernels import fused as KB
 from sewtol.mechanisms.needle_208.kernels import window as KW
 from sewtol.studies.parallel import child_generators, chunk_bounds
@@ -259,16 +259,16 @@ def test_bad_compensators_are_refused(nominal):
         ad.optimise(c, {"guide_shift_um": (-5, 5)})
 
 
-def test_evaluate_uses_the_exact_optimum(chunk, nominal):
+def test_beta_adjusted_batch_is_the_exact_optimum(chunk, nominal):
     tol = NEEDLE_208_SETS["recommended"].active()
     rngs = child_generators(2026, len(chunk_bounds(10000, 500)))
     dev = tol.sample(rngs[12], 500)
     dev = {k: v[150:160] for k, v in dev.items()}
-    out = evaluate(nominal, dev)
-    assert out.total_adjusted_um[5] == pytest.approx(11.3185, abs=1e-3)
-    assert out.beta_low_deg[5] <= out.beta_opt_deg[5] <= out.beta_high_deg[5]
+    out = beta_adjusted(nominal, dev)
+    assert out.total_um[5] == pytest.approx(11.3185, abs=1e-3)
+    assert out.low["beta"][5] <= out.settings["beta"][5] <= out.high["beta"][5]
     opt = sb.optimise_beta_columns(_row(chunk, 155), window=False)
-    assert opt.beta_deg[0] == pytest.approx(out.beta_opt_deg[5], abs=1e-9)
+    assert opt.beta_deg[0] == pytest.approx(out.settings["beta"][5], abs=1e-9)
     assert not opt.at_bound[0]
 
 

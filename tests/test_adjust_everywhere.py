@@ -91,7 +91,7 @@ def test_sobol_adjust_beta_matches_todays_adjusted_case():
 
 
 def test_sobol_model_chunk_calls_adjust():
-    from sewtol.mechanisms.needle_208.evaluate import evaluate
+    from cli_helpers import beta_adjusted, fixed_um
     from sewtol.mechanisms.needle_208.tables import as_mechanism, fixed_beta_of
     from sewtol.studies.sobol import case_values, problem_of, sample
 
@@ -107,10 +107,9 @@ def test_sobol_model_chunk_calls_adjust():
                                   options={"limit_um": 10.0, "plateaus": False})
     ref = adjust(columns_of(nom, dev), st, 10.0)
     np.testing.assert_allclose(adjusted, ref.total_um, rtol=0, atol=1e-9)
-    np.testing.assert_array_equal(fixed, evaluate(nom, dev, adjust=False).total_fixed_um)
+    np.testing.assert_array_equal(fixed, fixed_um(nom, dev))
     # the beta+shift optimum against today's beta alone: never worse (0.01 um precision)
-    e = evaluate(nom, dev)
-    assert np.all(adjusted <= e.total_adjusted_um + 0.01)
+    assert np.all(adjusted <= beta_adjusted(nom, dev).total_um + 0.01)
 
 
 def test_sobol_adjust_names_its_case_and_refuses():

@@ -290,10 +290,10 @@ def test_fixed_beta_is_the_nominal_optimum_everywhere(nominal):
     given = montecarlo(shifted, NEEDLE_208_SETS["base"], 200, seed=0, fixed_beta="as_given")
     assert given.nominal_beta_deg == nominal.beta
     # the fixed case is a machine at beta*: its nominal-deviation machine gives the nominal total
-    from sewtol.mechanisms.needle_208.evaluate import evaluate
+    from cli_helpers import fixed_um
 
-    zero = evaluate(shifted.override(beta=beta_star), {"LF": np.zeros(1)})
-    assert abs(zero.total_fixed_um[0] - strict_loads(run(
+    zero = fixed_um(shifted.override(beta=beta_star), {"LF": np.zeros(1)})
+    assert abs(zero[0] - strict_loads(run(
         "needle", "nominal", "--set", "guide_shift_um=20", "--format", "json")[1])["total_um"]) < 1e-6
     with pytest.raises(ParameterError, match="fixed_beta: must be one of optimum, as_given"):
         montecarlo(shifted, NEEDLE_208_SETS["base"], 200, seed=0, fixed_beta="stored")

@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from cli_helpers import beta_adjusted, fixed_um
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.needle_208 import adjust
 from sewtol.mechanisms.needle_208 import metrics as nm
-from sewtol.mechanisms.needle_208.evaluate import evaluate
 from sewtol.mechanisms.needle_208.model import Needle208
 
 DATA = Path(__file__).parent / "data"
@@ -32,22 +32,22 @@ def _read(name):
 
 def test_adjusted_sum_delta_is_the_independent_global_minimum():
     ref, dev = _read("independent_beta_reference.csv")
-    out = evaluate(Needle208.nominal("sewtol-0.1"), dev, adjust=True, range_deg=(10.0, 35.0))
-    excess = out.total_adjusted_um - ref["best_sum_delta_um"].to_numpy()
+    out = beta_adjusted(Needle208.nominal("sewtol-0.1"), dev, (10.0, 35.0))
+    excess = out.total_um - ref["best_sum_delta_um"].to_numpy()
     assert np.all(excess <= 0.01), ref["machine"][excess > 0.01].tolist()
     assert np.all(excess >= -2 * SURROGATE_UM)
     # machine 6155, where sewtol 0.1 stopped in the other dip at 13.0 deg (11.50 um)
     i = int(np.flatnonzero(ref["machine"].to_numpy() == 6155)[0])
-    assert abs(out.total_adjusted_um[i] - 11.31804) < 0.01
-    assert ref["range_lo_deg"][i] - 0.01 <= out.beta_opt_deg[i] <= ref["range_hi_deg"][i] + 0.01
+    assert abs(out.total_um[i] - 11.31804) < 0.01
+    assert ref["range_lo_deg"][i] - 0.01 <= out.settings["beta"][i] <= ref["range_hi_deg"][i] + 0.01
 
 
 def test_fixed_beta_sum_delta_equals_the_independent_crank_sampling():
     ref, dev = _read("independent_beta_reference.csv")
     nominal = Needle208.nominal("sewtol-0.1")
     assert nominal.beta == 22.584880336093065  # the beta the reference was computed at
-    out = evaluate(nominal, dev, adjust=False)
-    assert np.max(np.abs(out.total_fixed_um - ref["sum_delta_at_nominal_beta_um"])) < 1e-6
+    out = fixed_um(nominal, dev)
+    assert np.max(np.abs(out - ref["sum_delta_at_nominal_beta_um"])) < 1e-6
 
 
 def test_joint_optimum_with_guide_shift_and_angle_is_the_independent_minimum():

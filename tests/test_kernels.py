@@ -4,11 +4,11 @@ import dataclasses
 
 import numpy as np
 
+from cli_helpers import beta_adjusted, fixed_um, needle_columns
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.needle_208 import beta as sb
 from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208 import model as nd
-from sewtol.mechanisms.needle_208.evaluate import evaluate
 from sewtol.mechanisms.needle_208.kernels import fused as KB
 from sewtol.mechanisms.needle_208.kernels import positions as KP
 from sewtol.tolerances import NEEDLE_208_SETS
@@ -42,9 +42,9 @@ def test_chunked_positions_cover_every_machine(nominal):
 
 def test_fixed_beta_kernel_equals_reference(nominal):
     dev = NEEDLE_208_SETS["recommended"].sample(np.random.default_rng(8), 300)
-    a = evaluate(nominal, dev, adjust=False, engine="numba")
-    b = evaluate(nominal, dev, adjust=False, engine="numpy")
-    assert np.max(np.abs(a.total_fixed_um - b.total_fixed_um)) < 1e-9
+    a = fixed_um(nominal, dev)
+    b = nm.deviation_figures(needle_columns(nominal, dev)).total_um
+    assert np.max(np.abs(a - b)) < 1e-9
 
 
 def test_beta_kernel_matches_reference_on_small_deviations(nominal, rng):
@@ -53,17 +53,18 @@ def test_beta_kernel_matches_reference_on_small_deviations(nominal, rng):
     sharp: where both extreme touches lie inside the rocker window SumDelta does not depend on
     beta over a plateau, and each engine reports the plateau's range, which must overlap."""
     dev = {k: rng.uniform(-0.004, 0.004, 60) for k in ("LF", "AM", "BC", "CD")}
-    a = evaluate(nominal, dev, engine="numba")
-    b = evaluate(nominal, dev, engine="numpy")
-    assert np.max(np.abs(a.adjusted.min_total_um - b.adjusted.min_total_um)) < 3e-3
-    assert np.all(a.beta_low_deg <= b.beta_high_deg + 1e-6)
-    assert np.all(b.beta_low_deg <= a.beta_high_deg + 1e-6)
+    a = beta_adjusted(nominal, dev, engine="numba")
+    b = beta_adjusted(nominal, dev, engine="numpy")
+    assert np.max(np.abs(a.min_total_um - b.min_total_um)) < 3e-3
+    assert np.all(a.low["beta"] <= b.high["beta"] + 1e-6)
+    assert np.all(b.low["beta"] <= a.high["beta"] + 1e-6)
     c, _ = nm.columns(P.with_deviations(nominal, dev))
-    rise = np.minimum(sb.total_at(c, b.beta_opt_deg - 0.05), sb.total_at(c, b.beta_opt_deg + 0.05))
-    sharp = rise - b.total_adjusted_um > 1e-3
+    b_opt = b.settings["beta"]
+    rise = np.minimum(sb.total_at(c, b_opt - 0.05), sb.total_at(c, b_opt + 0.05))
+    sharp = rise - b.total_um > 1e-3
     assert sharp.sum() >= 10 and (~sharp).sum() >= 1  # both kinds occur in this sample
     # a sharp optimum has a short plateau (SumDelta within 1e-3 um), both engines inside it
-    assert np.max(np.abs(a.beta_opt_deg - b.beta_opt_deg)[sharp]) < 0.02
+    assert np.max(np.abs(a.settings["beta"] - b_opt)[sharp]) < 0.02
 
 
 def test_beta_kernel_reports_global_minima(nominal):
@@ -72,14 +73,14 @@ def test_beta_kernel_reports_global_minima(nominal):
     from the recommended set, many with multimodal SumDelta(beta); the dense brute force is in
     tests/test_adjust.py)."""
     dev = NEEDLE_208_SETS["recommended"].sample(np.random.default_rng(9), 60)
-    out = evaluate(nominal, dev, engine="numba")
+    out = beta_adjusted(nominal, dev)
     c, _ = nm.columns(P.with_deviations(nominal, dev))
-    ok = np.isfinite(out.beta_opt_deg)
+    ok = np.isfinite(out.settings["beta"])
     assert ok.all()
-    ref = sb.total_at(c, out.beta_opt_deg)
-    assert np.max(np.abs(ref - out.total_adjusted_um)) < 1e-3
+    ref = sb.total_at(c, out.settings["beta"])
+    assert np.max(np.abs(ref - out.total_um)) < 1e-3
     grid = sb.totals_on_grid(c, np.linspace(10, 35, 251))
-    assert np.all(out.adjusted.min_total_um <= np.nanmin(grid, axis=1) + 1e-3)
+    assert np.all(out.min_total_um <= np.nanmin(grid, axis=1) + 1e-3)
 
 
 def test_kernel_packs_fields_in_order(nominal):

@@ -361,11 +361,12 @@ def test_generic_worst_case_equals_builtin_fixed_beta_worst_case(nominal):
 
     built = worst_case(nominal, NEEDLE_208_SETS["base"], adjust=False)
     mech = load(NEEDLE)
-    assert mech.nominal_values()["beta"] == built.beta_deg  # both keep the nominal beta
+    assert mech.nominal_values()["beta"] == built["beta_deg"]  # both keep the nominal beta
     rows = W.worst_case(mech, mech.tolerance_sets["base"], "SumDelta_um", fast=False).rows
     top = rows.set_index("extreme").loc["max"]
-    assert top["value"] == pytest.approx(built.total_um, abs=1e-3)  # 720 samples vs exact
-    assert {k: top[f"{k}_dev"] for k in built.point} == built.point
+    assert top["value"] == pytest.approx(built["total_um"], abs=1e-3)  # 720 samples vs exact
+    params = NEEDLE_208_SETS["base"].active().params
+    assert {k: top[f"{k}_dev"] for k in params} == {k: built[f"{k}_mm"] for k in params}
 
 
 def test_tolerances_breaking_a_rule_are_refused_before_running():
@@ -432,14 +433,14 @@ def test_run_flags_tolerance_files_and_out(tmp_path):
 # --- adjustment over a compensator ---------------------------------------------------------------
 
 def test_adjusted_case_matches_the_builtin_beta_optimum(nominal):
-    from sewtol.mechanisms.needle_208.evaluate import evaluate
+    from cli_helpers import beta_adjusted
     from sewtol.tolerances import NEEDLE_208_SETS
 
     mech = load(NEEDLE)
     dev = NEEDLE_208_SETS["base"].sample(np.random.default_rng(1), 30)
     got = adjust(mech, {k: mech.nominal_values()[k] + v for k, v in dev.items()},
                  "SumDelta_um", "beta")
-    exact = evaluate(nominal, dev, adjust=True, range_deg=(10.0, 35.0)).total_adjusted_um
+    exact = beta_adjusted(nominal, dev, (10.0, 35.0)).total_um
     d = got.value - exact
     # sampled extremes sit at most ~1 nm inside the exact ones (docs/mechanism_files.md)
     assert d.min() > -2e-3 and d.max() < 2e-3

@@ -10,13 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cli_helpers import run, strict_loads
+from cli_helpers import beta_adjusted, run, strict_loads
 from sewtol import adjuster as ADJ
 from sewtol.mechanism import load
 from sewtol.mechanisms.needle_208 import Needle208
 from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208.adjust import PLATEAU_TOL_UM
-from sewtol.mechanisms.needle_208.evaluate import evaluate
 
 NEEDLE = str(Path(__file__).resolve().parents[1] / "examples" / "needle_208.toml")
 # three tolerances (8 corners) keep the worst-case studies fast; same widths as the base set
@@ -180,8 +179,8 @@ def test_generic_worst_case_agrees_with_the_exact_worst_case(small):
     # bound B: the generic corner's exact adjusted value is the exact worst to within B
     mech = load(NEEDLE)
     corner = {k: float(getattr(nominal, k)) + ga[f"{k}_dev"] for k in ("LF", "AB", "BE")}
-    exact_there = float(evaluate(nominal, {k: np.array([ga[f"{k}_dev"]]) for k in corner},
-                                 adjust=True, range_deg=(10.0, 35.0)).total_adjusted_um[0])
+    exact_there = float(beta_adjusted(nominal, {k: np.array([ga[f"{k}_dev"]]) for k in corner},
+                                      (10.0, 35.0)).total_um[0])
     adj = ADJ.adjust(mech, {k: np.array([v]) for k, v in corner.items()}, "SumDelta_um", "beta")
     assert float(adj.value[0]) == ga["value"]
     b = sampling_bound_um(nominal.override(**corner, beta=float(adj.settings["beta"][0])))

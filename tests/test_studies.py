@@ -114,8 +114,8 @@ def test_worst_case_bounds_every_sampled_machine(nominal):
                                 Tolerance("CD", -0.01, 0.01)))
     wc = worst_case(nominal, ts, adjust=False)
     mc = montecarlo(nominal, ts, 500, seed=9)
-    assert wc.total_um >= mc.machines["total_fixed_um"].max() - 1e-9
-    assert wc.total_um >= wc.corner_total_um - 1e-12
+    assert wc["total_um"] >= mc.machines["total_fixed_um"].max() - 1e-9
+    assert wc["total_um"] >= wc["worst_corner_total_um"] - 1e-12
 
 
 def test_tolerance_rules():

@@ -96,7 +96,7 @@ def test_needle_tables_are_the_generic_studies_on_the_needle_as_a_mechanism(need
     wc = W.worst_case(mech, NEEDLE_208_SETS["base"], "SumDelta_um", extremes=("max",),
                       search=W.Search(starts=3, maxiter=200, step=None, failures="worst"),
                       axes=False)
-    assert wc.rows["value"][0] == T.worst_case(nominal, "base", adjust=False).total_um
+    assert wc.rows["value"][0] == T.worst_case(nominal, "base", adjust=False)["total_um"]
 
 
 def test_worst_case_bounds_every_corner_and_counts_failures_as_the_policy_says(khujand):

@@ -135,15 +135,12 @@ def resolve_tolerances(mech, spec):
 
 
 def _check_flags(args) -> None:
-    used = USES[args.study]
-    for key, flag in (("output", "--output"), ("tolerances", "--tolerances"), ("n", "--n"),
-                      ("seed", "--seed"), ("limit", "--limit"), ("n_jobs", "--n-jobs"),
-                      ("adjust", "--adjust"), ("lower_limit", "--lower-limit"),
-                      ("method", "--method"), ("target", "--target"), ("weight", "--weight"),
-                      ("strategy", "--strategy")):
+    for key in ("output", "tolerances", "n", "seed", "limit", "n_jobs", "adjust", "lower_limit",
+                "method", "target", "weight", "strategy"):
         value = getattr(args, key)
-        if value is not None and key not in used:
-            raise ParameterError(flag, f"is not used by `run {args.study}`", value)
+        if value is not None and key not in USES[args.study]:
+            raise ParameterError("--" + key.replace("_", "-"), f"is not used by `run "
+                                 f"{args.study}`", value)
     if args.n is None and args.study in DEFAULT_N:
         args.n = DEFAULT_N[args.study]
     args.seed = 0 if args.seed is None else args.seed
@@ -326,16 +323,10 @@ FAST_PATH_STUDIES = ("scan", "worst-case", "montecarlo", "sobol", "ppm", "alloca
 BOTH_CASES = ("worst-case", "montecarlo", "sobol")
 
 
-def sumdelta_outputs(mech) -> list[str]:
-    """The file's SumDelta outputs (a line_deviation of E, sum_extremes): the loader checked
-    each equals the built-in SumDelta, so the fast path answers --output NAME for these."""
-    return [o.name for o in mech.outputs if o.type == "line_deviation"
-            and o.fields["point"] == "E" and o.fields["measure"] == "sum_extremes"]
-
-
 def _fast_path_refusal(args, mech) -> str | None:
     """None when `run FILE STUDY` runs on the needle_208 fast path, else why it does not."""
     from sewtol.mechanisms.needle_208 import beta as sb
+    from sewtol.mechanisms.needle_208.fast_path import sumdelta_outputs
 
     if args.path == "generic":
         return "--path generic"
@@ -395,58 +386,51 @@ def _tolerances_refusal(tolerances) -> str | None:
 
 
 def _needle_namespace(args, mech, tolerances=None):
-    """`run`'s flags as the arguments of `sewtol needle STUDY` (the file's nominal machine and
-    tolerance set ride along as nominal_params and tolerance_set)."""
+    """`run`'s flags as the arguments of `sewtol needle STUDY`: that command's own defaults (its
+    parser's), with the flags `run` maps onto it; the file's nominal machine and tolerance set
+    ride along as nominal_params and tolerance_set."""
     from sewtol.mechanisms.needle_208 import beta as sb
     from sewtol.mechanisms.needle_208.fast_path import needle_params
 
     study = args.study
-    beta_range = None
-    if args.adjust is not None:
+    parser = argparse.ArgumentParser(prog="sewtol")
+    N.add_needle(parser.add_subparsers(dest="group"))
+    ns = parser.parse_args(["needle", study])
+    if study != "allocation" and args.adjust is not None:
         comp = mech.compensators[args.adjust]
-        beta_range = [float(comp.low), float(comp.high)]
+        ns.beta_range = [float(comp.low), float(comp.high)]
     if study in BOTH_CASES:
-        adjust = None  # the needle command's default: fixed and adjusted
+        ns.adjust = None  # the needle command's default: fixed and adjusted
     elif args.adjust is None:
-        adjust = "none"
+        ns.adjust = "none"
     else:  # beta adjusted: the default of needle scan and allocation, --adjust beta of ppm
-        adjust = "beta" if study == "ppm" else None
-    draws = study in ("montecarlo", "sobol", "ppm", "allocation")
-    # the limit in force; the file's spec of the needle's own default 10 um is passed as the
-    # default, so `run` and `needle` print the same bytes
-    limit = None if args.spec is None or (args.limit is None
-                                          and args.spec.upper == sb.DEFAULT_LIMIT_UM) \
-        else args.spec.upper
-    ns = argparse.Namespace(
-        set=None, frame=None, guide_shift_um=None, tolerances=None,
-        format="table" if args.format == "text" else args.format,
-        seed=args.seed if draws else None,
-        n=args.n if study in ("montecarlo", "sobol", "allocation") else None,
-        n_jobs=args.n_jobs if study in ("montecarlo", "ppm") else 1,
-        scheduler=None, progress=args.progress, out=args.out, resume=False, plot=None,
-        beta_range=None if study == "allocation" else beta_range,
-        limit_um=limit if study in ("montecarlo", "ppm") else None,
-        spec_source=args.spec_source if limit is not None and study in ("montecarlo", "ppm")
-        else None,
-        adjust=adjust, range=None, step=None, resolution=None, second_order=False,
-        method=args.method, target=args.target, budget=args.n if study == "ppm" else None,
-        nominal_params=needle_params(mech), tolerance_set=tolerances,
-        file_inputs={"mechanism_file": str(args.file), "fast_path": "needle_208"})
-    if study != "ppm":
-        ns.budget = ns.method = None
-        if study != "allocation":
-            ns.target = None
+        ns.adjust = "beta" if study == "ppm" else None
+    if study in ("montecarlo", "sobol", "ppm", "allocation"):
+        ns.seed = args.seed
+    if study in ("montecarlo", "sobol", "allocation"):
+        ns.n = args.n
+    if study in ("montecarlo", "ppm"):
+        # the limit in force; the file's spec of the needle's own default 10 um is passed as
+        # the default, so `run` and `needle` print the same bytes
+        ns.n_jobs, ns.limit_um = args.n_jobs, None if args.spec is None or (
+            args.limit is None and args.spec.upper == sb.DEFAULT_LIMIT_UM) else args.spec.upper
+        ns.spec_source = None if ns.limit_um is None else args.spec_source
+    if study == "ppm":
+        ns.method, ns.target, ns.budget = args.method, args.target, args.n
+    if study == "allocation":
+        ns.target = args.target
+    ns.format = "table" if args.format == "text" else args.format
+    ns.progress, ns.out = args.progress, args.out
+    ns.nominal_params, ns.tolerance_set = needle_params(mech), tolerances
+    ns.file_inputs = {"mechanism_file": str(args.file), "fast_path": "needle_208"}
     return ns
 
 
 def _needle_study(args, mech, tolerances) -> None:
-    """The needle_208 fast path: `sewtol needle STUDY` itself (cli.needle.cmd_needle_*), on the file's
-    nominal machine and tolerance set; see docs/mechanism_files.md for the flag mapping."""
+    """The needle_208 fast path: `sewtol needle STUDY` itself (cli.needle.cmd_needle_*), on the
+    file's nominal machine and tolerance set; see docs/mechanism_files.md for the flag mapping."""
     ns = _needle_namespace(args, mech, tolerances)
-    cmd = {"scan": N.cmd_needle_scan, "worst-case": N.cmd_needle_worst_case,
-           "montecarlo": N.cmd_needle_montecarlo, "sobol": N.cmd_needle_sobol,
-           "ppm": N.cmd_needle_ppm, "allocation": N.cmd_needle_allocation}[args.study]
-    cmd(ns)
+    ns.func(ns)
 
 
 def _yield_study(args, fmt, mech, tolerances) -> None:

@@ -18,13 +18,6 @@ import pandas as pd
 from sewtol.errors import AssemblyError
 
 
-def deviated_values(mech, dev: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    nominal = mech.nominal_values()
-    return {k: nominal[k] + np.asarray(v, float) for k, v in dev.items()}
-
-
-# --- nominal -------------------------------------------------------------------------------
-
 @dataclass(frozen=True)
 class NominalResult:
     mechanism: str

@@ -6,8 +6,8 @@ Data and topology: ``mechanism.toml`` (the file `sewtol run needle_208 ...` runs
 the reconstructed frames with their provenance: ``frames.py`` and ``data/``.
 
 Outputs and their exact evaluation: ``metrics.py`` (d(phi), Delta+, Delta-, SumDelta on the
-exact rocker interval), ``single.py`` (one machine's figures), ``evaluate.py`` (a batch's
-SumDelta with beta fixed and adjusted), ``status.py`` (what became of each machine).
+exact rocker interval), ``single.py`` (one machine's figures), ``status.py`` (what became of
+each machine).
 
 Compensators, exactly: ``beta.py`` (beta* by the sliding-window optimum), ``adjust.py`` (the
 joint optimum of beta and the guide), ``adjustment.py`` (any strategy's compensators, batched),

@@ -11,7 +11,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pandas as pd
 
 from sewtol.errors import ParameterError
 from sewtol.mechanisms.needle_208 import metrics as nm
@@ -43,19 +42,6 @@ class BetaOptimum:
     beta_low_deg: np.ndarray | None = None
     beta_high_deg: np.ndarray | None = None
     at_bound: np.ndarray | None = None
-
-    def to_dataframe(self) -> pd.DataFrame:
-        return pd.DataFrame({
-            "beta_opt_deg": np.atleast_1d(self.beta_deg),
-            "plus_um": np.atleast_1d(self.plus_um),
-            "minus_um": np.atleast_1d(self.minus_um),
-            "total_um": np.atleast_1d(self.total_um),
-            "window_low_deg": np.atleast_1d(self.window_low_deg),
-            "window_high_deg": np.atleast_1d(self.window_high_deg),
-            "beta_low_deg": np.atleast_1d(self.beta_low_deg),
-            "beta_high_deg": np.atleast_1d(self.beta_high_deg),
-            "at_bound": np.atleast_1d(self.at_bound),
-        })
 
 
 def total_at(c: dict, beta_deg) -> np.ndarray:

@@ -139,19 +139,37 @@ def _batch(mech, values):
     return {k: np.broadcast_to(v, (n, 1)).copy() for k, v in c.items()}, n
 
 
-def _sumdelta_names(mech) -> list[str]:
+def sumdelta_outputs(mech) -> list[str]:
+    """The file's SumDelta outputs (a line_deviation of E, sum_extremes): the loader checked
+    each equals the built-in SumDelta, so the fast path answers for these."""
     return [o.name for o in mech.outputs if o.type == "line_deviation"
             and o.fields.get("point") == "E" and o.fields.get("measure") == "sum_extremes"]
+
+
+def fixed_sumdelta_um(c: dict[str, np.ndarray]) -> np.ndarray:
+    """SumDelta (um) of machines given as parameter columns (n, 1), beta as it is: the exact
+    extremes on the rocker interval by the fused kernel; NaN where a machine does not run (the
+    numpy reference: needle_208.metrics.deviation_figures)."""
+    from sewtol.mechanisms.needle_208 import metrics as nm
+    from sewtol.mechanisms.needle_208.kernels import fused as K
+    from sewtol.mechanisms.needle_208.kernels import window as KW
+    from sewtol.mechanisms.needle_208.model import DEAD_POINT_DEG
+
+    rocker = nm.feasibility(c)
+    # the rocker interval depends on the first four-bar only (not on beta)
+    first_ok = (rocker.miss_LMA_mm == 0) & (rocker.transmission_LMA_deg >= DEAD_POINT_DEG)
+    r_lo = np.where(first_ok & rocker.ok, rocker.lo, np.nan)
+    r_hi = np.where(np.isnan(r_lo), np.nan, rocker.hi)
+    dev = KW.fixed_batch(K.pack(c), c["beta"][:, 0].copy(), r_lo, r_hi)
+    return dev[:, 0] + dev[:, 1]
 
 
 def needle_kernel(mech, values) -> dict[str, np.ndarray]:
     """SumDelta (um) of machines `values` (parameter -> array; the rest nominal), exact, by the
     fused kernel, for every SumDelta output of the file; NaN where a machine does not run."""
-    from sewtol.mechanisms.needle_208.evaluate import fixed_sumdelta_um
-
     c, _ = _batch(mech, values)
     total = fixed_sumdelta_um(c)
-    return {name: total for name in _sumdelta_names(mech)}
+    return {name: total for name in sumdelta_outputs(mech)}
 
 
 def needle_kernel_bound(mech, values) -> dict[str, np.ndarray]:
@@ -170,7 +188,7 @@ def needle_kernel_bound(mech, values) -> dict[str, np.ndarray]:
         window = (k[:, None] + np.arange(-w, w + 1)[None, :]) % FINE
         bound += np.max(d2[rows, window], axis=1)
     bound = (h / 2) ** 2 / 2 * bound + POSITIONS_UM
-    return {name: bound for name in _sumdelta_names(mech)}
+    return {name: bound for name in sumdelta_outputs(mech)}
 
 
 def needle_adjuster(mech, values, boxes: dict) -> dict:

@@ -66,16 +66,6 @@ class Frame:
         """+1 where beta* moves with LM as the study's Table 4.1 says (24 at UL, 19 at LL)."""
         return self.params["branch_M"] * self.params["beta_sense"]
 
-    def residual_frame(self) -> pd.DataFrame:
-        """Residual per calibration target (achieved - source)."""
-        p = self.provenance
-        return pd.DataFrame([{"target": k, "source": t, "achieved": p["achieved"][k],
-                              "residual": p["residuals"][k]}
-                             for k, t in p["targets"].items()])
-
-    def published_frame(self) -> pd.DataFrame:
-        return pd.DataFrame(list(self.published))
-
     def to_dict(self) -> dict:
         return {"name": self.name, "version": self.version, "summary": self.summary,
                 "default": self.name == DEFAULT_FRAME, "family": self.family,

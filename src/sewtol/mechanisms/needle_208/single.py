@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 import pandas as pd
@@ -51,24 +51,10 @@ class NominalFigures:
         return out
 
     def to_dict(self) -> dict:
-        """The figures as plain data (the JSON of ``sewtol needle nominal``)."""
-        return {
-            "beta_opt_deg": self.beta_opt_deg,
-            "total_um": self.total_um,
-            "plus_um": self.plus_um,
-            "minus_um": self.minus_um,
-            "window_deg": list(self.window_deg),
-            "guide": self.guide,
-            "fitted_guide": self.fitted_guide,
-            "stroke_mm": self.stroke_mm,
-            "A_mm": list(self.A_mm),
-            "D_mm": list(self.D_mm),
-            "limit_um": self.limit_um,
-            "beta_search_range_deg": list(self.beta_search_range_deg),
-            "beta_at_bound": self.beta_at_bound,
-            "window_clipped": {"low": self.window_clipped[0], "high": self.window_clipped[1]},
-            "notes": self.notes(),
-        }
+        """The figures as plain data (the JSON of ``sewtol needle nominal``), in field order."""
+        d = {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
+        d["window_clipped"] = {"low": self.window_clipped[0], "high": self.window_clipped[1]}
+        return {**d, "notes": self.notes()}
 
     def to_dataframe(self) -> pd.DataFrame:
         """The figures as quantity/value rows (the table of ``sewtol needle nominal``)."""
@@ -144,7 +130,7 @@ def nominal_figures(params: Needle208, range_deg: tuple[float, float] = sb.DEFAU
         total_um=float(opt.total_um[0]),
         plus_um=float(opt.plus_um[0]),
         minus_um=float(opt.minus_um[0]),
-        window_deg=(float(opt.window_low_deg[0]), float(opt.window_high_deg[0])),
+        window_deg=(w_lo, w_hi),
         guide={"x_mm": gx, "y_mm": gy, "angle_from_vertical_deg": float(params.guide_angle)},
         fitted_guide={"x_mm": float(fx[0]), "y_mm": float(fy[0]),
                       "angle_from_vertical_deg": float(zone.angle_from_vertical_deg[0]),

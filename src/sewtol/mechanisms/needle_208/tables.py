@@ -99,22 +99,19 @@ class ScanResult:
         return self.rows.copy()
 
     def to_records(self) -> list[dict]:
-        """The rows as dicts, the fixed columns first (the JSON rows of ``sewtol needle scan``)."""
-        cols = ["param", "side", "delta_mm", "value_mm", "beta_deg", "plus_um", "minus_um",
-                "total_um"]
-        cols += [c for c in self.rows.columns if c not in cols]
-        return self.rows[cols].to_dict(orient="records")
+        """The rows as dicts (the JSON rows of ``sewtol needle scan``)."""
+        return self.rows.to_dict(orient="records")
 
 
 def _figures(a, base, strategy) -> dict:
     """The needle's columns of an adjusted batch (sewtol.studies.adjusting.Adjusted)."""
-    n = len(a.value)
-    if strategy is None:
-        return {"beta_deg": a.settings["beta"], **{k: a.extras[k] for k in FIGURES},
-                "beta_at_bound": np.asarray(a.at_bound["beta"], bool)}
-    f = {"beta_deg": a.settings["beta"] if "beta" in strategy.names else np.full(n, base.beta),
+    n, sets_beta = len(a.value), strategy is None or "beta" in strategy.names
+    f = {"beta_deg": a.settings["beta"] if sets_beta else np.full(n, base.beta),
          **{k: a.extras[k] for k in FIGURES},
-         "beta_at_bound": a.at_bound["beta"] if "beta" in strategy.names else np.zeros(n, bool)}
+         "beta_at_bound": (np.asarray(a.at_bound["beta"], bool) if strategy is None
+                           else a.at_bound["beta"]) if sets_beta else np.zeros(n, bool)}
+    if strategy is None:
+        return f
     f.update({f"{k}_setting": a.settings[k] for k in strategy.names if k != "beta"})
     f["status"] = a.status
     return f
@@ -219,31 +216,16 @@ def largest_tolerances(nominal: Needle208, params: list[str],
     return t.rename(columns={"largest_deviation": "largest_delta_mm"})
 
 
-@dataclass(frozen=True)
-class WorstCase:
-    case: str
-    total_um: float
-    corner_total_um: float
-    point: dict  # deviation per parameter (mm)
-    beta_deg: float
-    interior: bool  # True when the worst point is not a corner
-    # the worst machine's adjusted beta*: its plateau reaches an end of the searched range
-    beta_at_bound: bool = False
-
-    def to_row(self) -> dict:
-        row = {"case": self.case, "total_um": self.total_um,
-               "worst_corner_total_um": self.corner_total_um, "beta_deg": self.beta_deg,
-               "beta_at_bound": self.beta_at_bound, "interior": self.interior}
-        row.update({f"{k}_mm": v for k, v in self.point.items()})
-        return row
-
-
 def worst_case(nominal, tolerances: ToleranceSet | str, adjust: bool,
-               range_deg=sb.DEFAULT_RANGE_DEG, starts: int = 3, strategy=None) -> WorstCase:
+               range_deg=sb.DEFAULT_RANGE_DEG, starts: int = 3, strategy=None) -> dict:
     """The worst SumDelta over the tolerance box (sewtol.studies.worst_case, the best `starts`
     corners polished, a machine that cannot run counting as the worst): beta fixed as in
     `nominal` (adjust=False), beta re-optimised per trial machine (adjust=True), or, with
-    adjust=True and a strategy, the joint optimum over the strategy's compensators."""
+    adjust=True and a strategy, the joint optimum over the strategy's compensators.
+
+    Returns the row of `worst_case_table`: case, total_um, worst_corner_total_um, beta_deg,
+    beta_at_bound (the worst machine's adjusted beta* on an end of the searched range),
+    interior (the worst point is not a corner) and the deviation NAME_mm per parameter."""
     from sewtol.studies import worst_case as W
 
     tolerances = needle_set(tolerances)
@@ -263,7 +245,9 @@ def worst_case(nominal, tolerances: ToleranceSet | str, adjust: bool,
     at_bound = bool(e.adjusted.at_bound["beta"][0]) if sets_beta else False
     case = "fixed_beta" if not adjust else \
         "adjusted_beta" if strategy is None else f"adjusted_{strategy.name}"
-    return WorstCase(case, e.value, e.corner_value, e.point, beta, e.interior, at_bound)
+    return {"case": case, "total_um": e.value, "worst_corner_total_um": e.corner_value,
+            "beta_deg": beta, "beta_at_bound": at_bound, "interior": e.interior,
+            **{f"{k}_mm": v for k, v in e.point.items()}}
 
 
 def worst_case_table(nominal: Needle208, tolerances: ToleranceSet | str,
@@ -294,8 +278,7 @@ def worst_case_table(nominal: Needle208, tolerances: ToleranceSet | str,
     """
     tolerances = needle_set(tolerances)
     return pd.DataFrame([worst_case(nominal, tolerances, a, range_deg,
-                                    strategy=strategy if a else None).to_row()
-                         for a in (False, True)])
+                                    strategy=strategy if a else None) for a in (False, True)])
 
 
 def summary_row(strategy: Strategy, limit_um: float, total, status, at_limit: dict,
@@ -1116,17 +1099,6 @@ def allocate_for_strategy(nominal, reference: ToleranceSet | str, strategy: Stra
 
 
 # --- guide settings compared (the needle's instance of sewtol.studies.settings) ------------
-#
-# Guide settings compared in one table: beta*, SumDelta, window and the Monte-Carlo yields (an
-# instance of sewtol.studies.settings: each guide placement a named setting of the design).
-#
-# With `strategy=` every variant's machines (the same n machines for every variant, and the
-# same ones `montecarlo` draws from the seed: common random numbers) are adjusted by the
-# strategy's exact joint optimum (needle_208.adjustment.adjust), its compensators acting on
-# top of the variant's guide; the
-# row then gives the yield after the strategy with its counts (ok + out_of_spec +
-# cannot_assemble + dead_point = n) and the yield with beta fixed at the variant's beta* on the
-# same machines.
 
 DEFAULT_VARIANTS = (
     ("nominal", 0.0, 0.0),
@@ -1180,7 +1152,8 @@ def compare_guides(nominal: Needle208, tolerances: ToleranceSet | str, n: int, s
     pandas.DataFrame
         Per setting: ``guide``, ``shift_um``, ``angle_from_vertical_deg``, ``beta_opt_deg``,
         ``total_um`` (nominal SumDelta at beta*), the beta window (deg) and the yields with
-        beta fixed and adjusted (or after the strategy, with its counts).
+        beta fixed at the setting's beta* and adjusted (or after the strategy, with its counts:
+        ok + out_of_spec + cannot_assemble + dead_point = n).
     """
     tolerances = needle_set(tolerances)
     settings = [Setting(label, {"guide_shift_um": nominal.guide_shift_um + shift_um,
@@ -1215,7 +1188,6 @@ def _guide_figures(p, range_deg, limit_um=sb.DEFAULT_LIMIT_UM):
 
 def _adjusted_figures(nominal, tolerances, n, seed, range_deg, strategy, limit_um):
     """Each setting's figures with the strategy's joint optimum on the same machines."""
-    from sewtol.mechanisms.needle_208.adjustment import adjust, columns_of
     from sewtol.mechanisms.needle_208.compensators import Strategy
 
     check_sampling(nominal, tolerances, n, seed)  # as montecarlo checks the same machines
