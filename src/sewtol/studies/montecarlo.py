@@ -7,10 +7,8 @@ machine k is row k % CHUNK of the standard uniforms drawn from child k // CHUNK 
 for any number of workers and any evaluation chunk size, and a study that scales the set
 (allocation) keeps every machine's uniforms, hence its rank, for every scale.
 `sample_machines` evaluates any vectorised model on those machines; `draw_deviations` gives the
-deviations alone; `record` is the JSON shape every Monte-Carlo shares (docs/studies.md, "One
-Monte-Carlo JSON"); `contributors` and `with_remainder` give each
-tolerance's eta^2 (correlation ratio) as a share of the output's variance, the rest named as
-interaction.
+deviations alone; `contributors` and `with_remainder` give each tolerance's eta^2 (correlation
+ratio) as a share of the output's variance, the rest named as interaction.
 
 `montecarlo` is the study: n machines of the one sampler, every output and each machine's status
 (ok + out_of_spec + cannot_close + dead_point = n, out_of_spec by the mechanism's [[specs]]
@@ -44,7 +42,7 @@ QUANTILES_MEAN = ("p50, p95 and p99 of the spec'd output over all n machines, fa
                   "ranked as infinitely bad (numpy method 'higher': always a machine's value)")
 # bytes per machine and column of a study table (float64) plus pandas' working copies
 BYTES_PER_CELL = 8 * 4
-# the protocol's status words for a plug-in's (the needle's adjusters speak with spaces); a
+# the protocol's status words for a plug-in's (an adjuster may speak with spaces); a
 # machine out of spec still runs: the study's spec decides
 WORDS = {"cannot assemble": "cannot_close", "dead point": "dead_point", "out of spec": "ok",
          "out_of_spec": "ok"}
@@ -63,27 +61,6 @@ CAPABILITY_DEFINITION = {
     "Cpu": "one-sided (limit_{unit} - mean) / (3 sd) of {name} over the machines that run "
            "(failed machines are in counts, not in Cpu)",
     "Cpu_percentile": "(limit_{unit} - p50) / (p99.865 - p50) over the machines that run"}
-
-
-def record(*, mechanism: str, n: int, seed: int, tolerances: str, output: str, unit: str,
-           spec, counts: dict[str, dict], quantiles: dict[str, dict], extra: dict) -> dict:
-    """The JSON of a Monte-Carlo, the same keys whatever the path (docs/studies.md): per case
-    (e.g. fixed_beta, adjusted_beta) its counts (ok + out_of_spec + failed = n), yield ok / n
-    with its Clopper-Pearson interval and quantiles; `spec` the limits in force (None: every
-    machine that runs is ok); `extra` what only this path computes."""
-    ci = {}
-    for case, k in counts.items():
-        c = stats.binomtest(k["ok"], k["n"]).proportion_ci(0.95, method="exact")
-        ci[case] = [float(c.low), float(c.high)]
-    first = next(iter(counts.values()))
-    return {"mechanism": mechanism, "n": int(n), "seed": int(seed), "tolerances": tolerances,
-            "output": output, "unit": unit,
-            "spec": None if spec is None else spec.to_dict(),
-            "cases": list(counts), "failed": first["failed"], "counts": counts,
-            "yields": {case: k["ok"] / k["n"] for case, k in counts.items()},
-            "yield_ci": {"method": YIELD_CI_METHOD, "level": 0.95, **ci},
-            "quantiles": {"definition": QUANTILES_MEAN, **quantiles},
-            "extra": extra}
 
 
 def check_seed(seed) -> int:
@@ -506,10 +483,9 @@ class MonteCarloResult:
                                          float("nan")))
             spec = self.spec(name)
             if spec is not None:
-                k = c["ok"]
-                ci = stats.binomtest(k, c["n"]).proportion_ci(0.95, method="exact")
-                row.update({"limit": spec.upper, "lower_limit": spec.lower, "yield": k / c["n"],
-                            "yield_ci_low": float(ci.low), "yield_ci_high": float(ci.high)})
+                lo, hi = self.yield_ci(name)
+                row.update({"limit": spec.upper, "lower_limit": spec.lower,
+                            "yield": c["ok"] / c["n"], "yield_ci_low": lo, "yield_ci_high": hi})
             rows.append(row)
         return pd.DataFrame(rows)
 
@@ -533,10 +509,12 @@ class MonteCarloResult:
         return pd.DataFrame(rows)
 
     def to_dict(self) -> dict:
-        """The Monte-Carlo JSON every path shares (`record`); extra: the compensator, the groups
-        that failed per case and the summary of every output, or with summary="cases" the
-        capability of both cases, each compensator's range of settings and its machines at a
-        bound, and the mechanism's `extra`."""
+        """The Monte-Carlo JSON every path shares (docs/studies.md, "One Monte-Carlo JSON"): per
+        case its counts (ok + out_of_spec + failed = n), yield ok / n with its Clopper-Pearson
+        interval and quantiles; `spec` the limits in force (None: every machine that runs is
+        ok); extra: the compensator, the groups that failed per case and the summary of every
+        output, or with summary="cases" the capability of both cases, each compensator's range
+        of settings and its machines at a bound, and the mechanism's `extra`."""
         cases = self.cases()
         if self.summary == "cases":
             name = self.limit_output.removesuffix(f"_{self.unit}")
@@ -554,11 +532,17 @@ class MonteCarloResult:
                      **({} if self.adjust is None else {
                          "failed_groups_adjusted": self.failed_groups(adjusted=True)}),
                      "summary": self.summary_frame().to_dict("records")}
-        return record(
-            mechanism=self.mechanism, n=self.n, seed=self.seed, tolerances=self.tolerances,
-            output=self.limit_output, unit=self.unit, spec=self.spec(),
-            counts={c: self.counts(o) for c, o in cases.items()},
-            quantiles={c: self.quantiles(c) for c in cases}, extra=extra)
+        counts, spec = {c: self.counts(o) for c, o in cases.items()}, self.spec()
+        return {"mechanism": self.mechanism, "n": self.n, "seed": int(self.seed),
+                "tolerances": self.tolerances, "output": self.limit_output, "unit": self.unit,
+                "spec": None if spec is None else spec.to_dict(), "cases": list(cases),
+                "failed": next(iter(counts.values()))["failed"], "counts": counts,
+                "yields": {c: k["ok"] / k["n"] for c, k in counts.items()},
+                "yield_ci": {"method": YIELD_CI_METHOD, "level": 0.95,
+                             **{c: list(self.yield_ci(c)) for c in cases}},
+                "quantiles": {"definition": QUANTILES_MEAN,
+                              **{c: self.quantiles(c) for c in cases}},
+                "extra": extra}
 
 
 def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,

@@ -513,8 +513,6 @@ def fixed_beta_of(nominal, fixed_beta: str, range_deg, limit_um) -> float:
         return float(nominal.beta)
     if fixed_beta != "optimum":
         raise ParameterError("fixed_beta", f"must be one of {', '.join(FIXED_BETA)}", fixed_beta)
-    from sewtol.mechanisms.needle_208.single import nominal_figures
-
     return float(nominal_figures(nominal, tuple(range_deg), limit_um).beta_opt_deg)
 
 
