@@ -25,7 +25,7 @@ from sewtol.mechanisms.needle_208 import adjust as ad
 from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208.kernels import fused as KB
 from sewtol.mechanisms.needle_208.model import Needle208
-from sewtol.studies.parallel import child_generators, chunk_bounds
+from sewtol.studies.parallel import chunk_bounds
 from sewtol.tolerances import NEEDLE_208_SETS
 
 
@@ -104,7 +104,7 @@ def brute_batch(Pm, lo, hi, blo, bhi, step_deg, shift_active, slo, shi):
 def machines(n: int, seed: int = 2026, tset: str = "recommended"):
     tol = NEEDLE_208_SETS[tset].active()
     bounds = chunk_bounds(n, 500)
-    rngs = child_generators(seed, len(bounds))
+    rngs = np.random.default_rng(seed).spawn(len(bounds))
     devs = [tol.sample(r, b - a) for r, (a, b) in zip(rngs, bounds, strict=True)]
     dev = {k: np.concatenate([d[k] for d in devs]) for k in devs[0]}
     c, _ = nm.columns(P.with_deviations(Needle208.nominal(), dev))

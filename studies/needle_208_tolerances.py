@@ -110,13 +110,14 @@ def main(argv=None) -> int:
         mc = montecarlo(p, ts, args.n_mc, args.seed, n_jobs=args.n_jobs, progress=args.progress)
         mset = {**base, "machines": mc.n, "seed": args.seed, "failed (cannot assemble)": mc.failed,
                 "limit": "SumDelta <= 10 um", "beta range searched": "10 ... 35 deg",
-                "fixed beta": f"{mc.nominal_beta_deg:.4f} deg (the nominal machine's beta*)"}
-        low, high = plots.at_bound(mc.machines["beta_opt_deg"], mc.range_deg)
+                "fixed beta": f"{mc.extra['nominal_beta_deg']:.4f} deg (the nominal machine's beta*)"}
+        rng = mc.extra["beta_search_range_deg"]
+        low, high = plots.at_bound(mc.machines["beta_opt_deg"], rng)
         mset["beta* at a search bound"] = (
-            f"{low} machines at {mc.range_deg[0]:g} deg, {high} at {mc.range_deg[1]:g} deg (their "
+            f"{low} machines at {rng[0]:g} deg, {high} at {rng[1]:g} deg (their "
             "optimum may lie beyond: adjusted as far as the range goes); columns beta_at_bound: "
-            f"{mc.beta_at_bound()} machines whose optimum plateau reaches a bound, "
-            f"beta_pinned_at_bound: {mc.beta_at_bound(pinned=True)} of them with a plateau "
+            f"{mc.at_bound('beta')} machines whose optimum plateau reaches a bound, "
+            f"beta_pinned_at_bound: {mc.at_bound('beta', pinned=True)} of them with a plateau "
             "narrower than 0.1 deg (the others sit on a flat plateau)")
         # beta is only searched in the adjusted case; the fixed case never sits at a bound
         summary_table = mc.summary_frame()
@@ -131,7 +132,7 @@ def main(argv=None) -> int:
                                     10.0, (mc.yield_of("fixed"), mc.yield_of("adjusted")), axes[0])
         axes[0].set_title(f"\u03a3\u0394 of {mc.n} machines, {name} tolerances, seed "
                           f"{args.seed}", fontsize=9)
-        plots.beta_histogram(mc.machines["beta_opt_deg"], mc.range_deg, axes[1])
+        plots.beta_histogram(mc.machines["beta_opt_deg"], rng, axes[1])
         axes[1].set_title(f"\u03b2* per machine ({mc.n - mc.counts('adjusted')['failed']} that "
                           "run; red: at a bound of the searched range)", fontsize=9)
         plots.save(fig, out / f"montecarlo_{name}.png", args.figure_format)

@@ -20,7 +20,7 @@ from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208 import model as nd
 from sewtol.mechanisms.needle_208.kernels import fused as KB
 from sewtol.mechanisms.needle_208.kernels import window as KW
-from sewtol.studies.parallel import child_generators, chunk_bounds
+from sewtol.studies.parallel import chunk_bounds
 from sewtol.tolerances import NEEDLE_208_SETS
 
 DEG = np.pi / 180
@@ -89,7 +89,7 @@ def machines_6155_chunk(nominal):
     """Chunk 12 of `sewtol needle montecarlo --n 10000 --seed 2026 --tolerances recommended`
     (machines 6000..6499): chunk i draws from child i of the seed (studies/montecarlo.py)."""
     tol = NEEDLE_208_SETS["recommended"].active()
-    rngs = child_generators(2026, len(chunk_bounds(10000, 500)))
+    rngs = np.random.default_rng(2026).spawn(len(chunk_bounds(10000, 500)))
     return _columns(nominal, tol.sample(rngs[12], 500))
 
 
@@ -261,7 +261,7 @@ def test_bad_compensators_are_refused(nominal):
 
 def test_beta_adjusted_batch_is_the_exact_optimum(chunk, nominal):
     tol = NEEDLE_208_SETS["recommended"].active()
-    rngs = child_generators(2026, len(chunk_bounds(10000, 500)))
+    rngs = np.random.default_rng(2026).spawn(len(chunk_bounds(10000, 500)))
     dev = tol.sample(rngs[12], 500)
     dev = {k: v[150:160] for k, v in dev.items()}
     out = beta_adjusted(nominal, dev)

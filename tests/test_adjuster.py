@@ -16,7 +16,7 @@ from sewtol.mechanism import load, loads
 from sewtol.mechanisms.needle_208 import Needle208
 from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208.adjust import optimise
-from sewtol.studies import montecarlo_study as MC
+from sewtol.studies import montecarlo as MC
 from test_needle_file_paths import POSITIONS_UM, sampling_bound_um
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -126,7 +126,7 @@ def test_flags_reach_the_library_with_the_same_numbers(mc_out, nominal):
                      range_deg=(15.0, 30.0))
     assert res.to_dict()["yields"]["adjusted_beta"] == d["yields"]["adjusted_beta"]
     for name in ("fixed", "fixed_beta", "adjusted", "adjusted_beta"):
-        assert res.yield_of(name) == d["yields"][f"{res.case_of(name)}_beta"]
+        assert res.yield_of(name) == d["yields"][res.case_of(name)]
     with pytest.raises(ParameterError, match="case: must be fixed, adjusted"):
         res.yield_of("fixed beta")
 
@@ -443,7 +443,7 @@ def test_montecarlo_and_compare_guides_agree_on_the_same_machine(nominal):
     table = compare_guides(shifted, NEEDLE_208_SETS["base"], 150, 3,
                            variants=(("nominal", 0.0, 0.0),))
     res = montecarlo(shifted, NEEDLE_208_SETS["base"], 150, seed=3)
-    assert table.loc[0, "beta_opt_deg"] == res.nominal_beta_deg
+    assert table.loc[0, "beta_opt_deg"] == res.extra["nominal_beta_deg"]
     assert table.loc[0, "yield_fixed_beta"] == res.yield_of("fixed_beta")
     assert table.loc[0, "yield_adjusted_beta"] == res.yield_of("adjusted_beta")
 

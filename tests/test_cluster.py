@@ -18,8 +18,7 @@ from sewtol.cli import main
 from sewtol.mechanisms.needle_208.tables import as_mechanism, montecarlo, needle_sobol
 from sewtol.studies import parallel
 from sewtol.studies.checkpoint import ChunkStore
-from sewtol.studies.montecarlo import sample_machines
-from sewtol.studies.montecarlo_study import _file_model
+from sewtol.studies.montecarlo import _file_model, sample_machines
 from sewtol.tolerances import NEEDLE_208_SETS
 
 distributed = pytest.importorskip("distributed")

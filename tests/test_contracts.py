@@ -281,14 +281,14 @@ def test_fixed_beta_is_the_nominal_optimum_everywhere(nominal):
     beta_star = strict_loads(out)["beta_opt_deg"]
     assert abs(beta_star - nominal.beta) > 0.5  # the shifted guide's beta* is elsewhere
     res = montecarlo(shifted, NEEDLE_208_SETS["base"], 200, seed=0)
-    assert res.nominal_beta_deg == beta_star and res.fixed_beta == "optimum"
+    assert res.extra["nominal_beta_deg"] == beta_star and res.extra["fixed_beta"] == "optimum"
     code, out, _ = run("needle", "montecarlo", "--n", "200", "--set", "guide_shift_um=20",
                        "--format", "json")
     d = strict_loads(out)
     assert d["extra"]["nominal_beta_deg"] == beta_star and d["extra"]["fixed_beta"] == "optimum"
     assert d["yields"]["fixed_beta"] == res.yield_of("fixed_beta")  # the output names work too
     given = montecarlo(shifted, NEEDLE_208_SETS["base"], 200, seed=0, fixed_beta="as_given")
-    assert given.nominal_beta_deg == nominal.beta
+    assert given.extra["nominal_beta_deg"] == nominal.beta
     # the fixed case is a machine at beta*: its nominal-deviation machine gives the nominal total
     from cli_helpers import fixed_um
 

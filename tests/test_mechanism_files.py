@@ -15,7 +15,7 @@ from sewtol.mechanism import ExpressionError, load, loads, parse_expression
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.feed_131.model import Feed131, chains
 from sewtol.mechanisms.needle_208.fast_path import needle_perturbations, needle_positions_residual
-from sewtol.studies import montecarlo_study as MC
+from sewtol.studies import montecarlo as MC
 from sewtol.studies import scan as S
 from sewtol.studies import sobol as so
 from sewtol.studies import worst_case as W

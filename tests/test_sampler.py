@@ -18,7 +18,6 @@ from sewtol.studies import allocation as AL
 from sewtol.studies import montecarlo as mc
 from sewtol.studies import ppm as PPM
 from sewtol.studies import rare_event as R
-from sewtol.studies.montecarlo_study import montecarlo as montecarlo_study
 from sewtol.tolerances import NEEDLE_208_SETS
 
 FILE = str(Path(__file__).parent / "data" / "crank_slider.toml")
@@ -84,7 +83,7 @@ def test_file_studies_draw_the_same_machines(monkeypatch):
     mech = load(FILE)
     tol = mech.tolerance_sets["normal"]
     want = mc.draw_deviations(tol, N, SEED)
-    m = montecarlo_study(mech, tol, N, SEED).machines
+    m = mc.montecarlo(mech, tol, N, SEED).machines
     _same({k: m[k] for k in want}, want)
     _same(_ppm_machines(PPM.limit_state(mech, tol, "stroke_mm", upper=20.02)), want,
           rtol=1e-12)

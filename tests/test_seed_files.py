@@ -66,7 +66,7 @@ def test_m6_file_equals_the_module():
 @pytest.mark.parametrize("name", ["spatial_crank_rocker", "m6_needle", "khujand_feed",
                                   "presser_foot"])
 def test_every_seed_file_runs_a_tolerance_study_with_counts_that_add_up(name):
-    from sewtol.studies import montecarlo_study as MC
+    from sewtol.studies import montecarlo as MC
 
     mech = load(EXAMPLES / f"{name}.toml")
     tol = next(iter(mech.tolerance_sets.values()))
@@ -84,7 +84,7 @@ FOOT_NAMES = {"r": "crank_mm", "L": "rod_mm", "a": "offset_mm", "omega_rad_s": "
 
 def test_presser_file_equals_the_module_and_counts_machines_that_never_lose_contact():
     from sewtol.mechanisms.presser_foot import model as pf
-    from sewtol.studies import montecarlo_study as MC
+    from sewtol.studies import montecarlo as MC
 
     mech = load(EXAMPLES / "presser_foot.toml")
     nominal = {p.name: p.nominal for p in mech.parameters}

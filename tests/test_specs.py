@@ -17,7 +17,7 @@ from cli_helpers import run, strict_loads
 from sewtol.errors import ParameterError
 from sewtol.mechanism import load, loads
 from sewtol.mechanism.spec import Spec
-from sewtol.studies import montecarlo_study as MC
+from sewtol.studies import montecarlo as MC
 from sewtol.studies import ppm as PPM
 
 DATA = Path(__file__).parent / "data" / "crank_slider.toml"

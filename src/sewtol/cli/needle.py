@@ -241,6 +241,11 @@ def cmd_needle_scan(args):
 
 
 def cmd_needle_montecarlo(args):
+    """Beta fixed and adjusted per machine (needle_208.tables.montecarlo), or with --adjust the
+    per-machine table of one strategy, each with its study folder and cluster. `run FILE
+    montecarlo` on the needle fast path runs this command itself (args.file_inputs names the
+    file in run.json), so both print the same bytes."""
+    from sewtol.mechanisms.needle_208.tables import montecarlo
     from sewtol.studies.montecarlo import CHUNK, check_sampling
 
     check_n(args.n)
@@ -255,61 +260,57 @@ def cmd_needle_montecarlo(args):
             raise ParameterError("--plot", "is not offered with --adjust (the histograms show "
                                  "beta fixed against beta adjusted)", args.plot)
         return _adjusted_montecarlo(args, params, tolerances, strategy, limit)
-    res, record = run_montecarlo(args, params, tolerances, limit, rng)
+    inputs = study_inputs(args, "montecarlo", params, tolerances, limit_um=limit,
+                          beta_search_range_deg=list(rng), chunk_size=CHUNK,
+                          strategy="beta fixed at the nominal's beta* (fixed_beta=optimum) and "
+                          "beta re-optimised per machine")
+
+    def study(store, client):
+        res = montecarlo(params, tolerances, args.n, args.seed, limit_um=limit, range_deg=rng,
+                         n_jobs=args.n_jobs, progress=args.progress, store=store,
+                         chunk_size=CHUNK, scheduler=client)
+        record = res.to_dict()
+        record["extra"]["fixed_beta_at_bound"] = _beta_star_figures(args, params).beta_at_bound
+        record["context"] = _context(args, params, tolerances, None)
+        return res, record, {"machines": deviation_columns(res.machines, res.params),
+                             "summary": res.summary_frame()}
+
+    res, record = _in_study_folder(args, inputs, study)
     emit(args.format, obj=record, frame=res.summary_frame())
-    print_notes(args, _montecarlo_notes(res, record))
+    print_notes(args, _montecarlo_notes(record))
     save_plot(args, lambda ax: plots().montecarlo_histograms(
-        res.machines["total_fixed_um"], res.machines["total_adjusted_um"], res.limit_um,
+        res.machines["total_fixed_um"], res.machines["total_adjusted_um"], limit,
         (res.yield_of("fixed"), res.yield_of("adjusted")), ax=ax))
 
 
-def run_montecarlo(args, params, tolerances, limit, rng, **inputs_extra):
-    """The Monte-Carlo of `needle montecarlo` (beta fixed and adjusted), with its study folder
-    (--out/--resume) and cluster: the result and its JSON record. `run FILE montecarlo` on the
-    needle fast path runs cmd_needle_montecarlo itself (args.file_inputs names the file in
-    run.json), so both print the same bytes."""
-    from sewtol.mechanisms.needle_208.tables import montecarlo
+def _in_study_folder(args, inputs, study):
+    """(result, record) of study(store, client) -> (result, record, tables), run in its study
+    folder (--out/--resume: chunks, runs.json, the tables, montecarlo.json, run.json) and on
+    its cluster (--scheduler)."""
     from sewtol.provenance import now
-    from sewtol.studies.montecarlo import CHUNK
 
     started = now()
-    inputs = study_inputs(args, "montecarlo", params, tolerances, limit_um=limit,
-                     beta_search_range_deg=list(rng), chunk_size=CHUNK,
-                     strategy="beta fixed at the nominal's beta* (fixed_beta=optimum) and beta "
-                     "re-optimised per machine", **inputs_extra)
     store = open_store(args, inputs)
     try:
         runs = run_history(store, started)
         with cluster(args) as client:
-            res = montecarlo(params, tolerances, args.n, args.seed, limit_um=limit,
-                             range_deg=rng, n_jobs=args.n_jobs, progress=args.progress,
-                             store=store, chunk_size=CHUNK, scheduler=client)
-        record = _montecarlo_record(args, params, tolerances, res)
-        write_outputs(args, "montecarlo", inputs, started, record,
-                       {"machines": deviation_columns(res.machines, res.params),
-                        "summary": res.summary_frame()}, runs)
+            res, record, tables = study(store, client)
+        write_outputs(args, "montecarlo", inputs, started, record, tables, runs)
     finally:
         if store is not None:
             store.close()
     return res, record
 
 
-def _montecarlo_record(args, params, tolerances, res) -> dict:
-    """The JSON of `needle montecarlo` (and of `run FILE montecarlo` on the needle fast path):
-    the result, its context and whether the fixed case's beta* lies on a range bound."""
-    d = res.to_dict()
-    d["extra"]["fixed_beta_at_bound"] = _beta_star_figures(args, params).beta_at_bound
-    return {**d, "context": _context(args, params, tolerances, None)}
-
-
-def _montecarlo_notes(res, record) -> list[str]:
-    k, pinned = res.beta_at_bound(), res.beta_at_bound(pinned=True)
+def _montecarlo_notes(record) -> list[str]:
+    extra = record["extra"]
+    k, pinned = extra["beta_at_bound"], extra["beta_pinned_at_bound"]
     return ([f"yield intervals: {record['yield_ci']['method']}, 95 %"]
-            + _fixed_notes({**record["extra"], "fixed_beta_deg": res.nominal_beta_deg})
-            + ([f"{k} of {res.n} machines have an adjusted beta* whose optimum reaches a bound "
-                f"of the searched range {list(res.range_deg)} deg; {pinned} of them are pinned "
-                "there (SumDelta still falling: the optimum lies outside the range), the others "
-                "sit on a flat plateau"] if k else []))
+            + _fixed_notes({**extra, "fixed_beta_deg": extra["nominal_beta_deg"]})
+            + ([f"{k} of {record['n']} machines have an adjusted beta* whose optimum reaches a "
+                f"bound of the searched range {extra['beta_search_range_deg']} deg; {pinned} of "
+                "them are pinned there (SumDelta still falling: the optimum lies outside the "
+                "range), the others sit on a flat plateau"] if k else []))
 
 
 def _strategy(args):
@@ -346,33 +347,27 @@ def _strategy_record(strategy) -> dict:
 def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
     """needle montecarlo --adjust: the per-machine table of one strategy and its summary."""
     from sewtol.mechanisms.needle_208.tables import adjusted_montecarlo_model, summarise_frame
-    from sewtol.provenance import now
     from sewtol.studies.montecarlo import CHUNK, sample_machines
 
     params = _at_beta_star(args, params, strategy)
-    started = now()
     inputs = study_inputs(args, "montecarlo_adjusted", params, tolerances, limit_um=limit,
-                     chunk_size=CHUNK, strategy=strategy.name,
-                     compensators=_strategy_record(strategy))
-    store = open_store(args, inputs)
-    try:
-        runs = run_history(store, started)
-        with cluster(args) as client:
-            machines = sample_machines(adjusted_montecarlo_model, params, tolerances, args.n,
-                                       args.seed, args.n_jobs, args.progress, store=store,
-                                       chunk_size=CHUNK, scheduler=client, strategy=strategy,
-                                       limit_um=limit)
+                          chunk_size=CHUNK, strategy=strategy.name,
+                          compensators=_strategy_record(strategy))
+
+    def study(store, client):
+        machines = sample_machines(adjusted_montecarlo_model, params, tolerances, args.n,
+                                   args.seed, args.n_jobs, args.progress, store=store,
+                                   chunk_size=CHUNK, scheduler=client, strategy=strategy,
+                                   limit_um=limit)
         summary = summarise_frame(machines, strategy, limit)
         record = {**summary.iloc[0].to_dict(), "seed": args.seed, "tolerances": tolerances.name,
                   "compensators": _strategy_record(strategy),
                   **_fixed_record(args, params, strategy),
                   "context": _context(args, params, tolerances, strategy)}
-        write_outputs(args, "montecarlo", inputs, started, record,
-                       {"machines": deviation_columns(machines, tolerances.active().params),
-                        "summary": summary}, runs)
-    finally:
-        if store is not None:
-            store.close()
+        return summary, record, {"machines": deviation_columns(
+            machines, tolerances.active().params), "summary": summary}
+
+    summary, record = _in_study_folder(args, inputs, study)
     emit(args.format, obj=record, frame=summary)
     print_notes(args, _fixed_notes(record))
 

@@ -255,7 +255,7 @@ def cmd_run(args) -> None:
         return _yield_study(args, fmt, mech, tolerances)
     if args.study == "strategies":
         return _strategies(args, fmt, mech, tolerances)
-    from sewtol.studies import montecarlo_study as MC
+    from sewtol.studies import montecarlo as MC
 
     res = _as_flags(MC.montecarlo, mech, tolerances, args.n, args.seed, outputs, args.limit,
                     args.output, args.n_jobs, False, MC.CHUNK, args.adjust, args.lower_limit)

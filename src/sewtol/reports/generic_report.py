@@ -25,7 +25,7 @@ from sewtol.errors import ParameterError
 from sewtol.io import write_bytes_atomic, write_text_atomic
 from sewtol.reports.tables import to_csv, to_markdown
 from sewtol.studies import generic as G
-from sewtol.studies import montecarlo_study as MC
+from sewtol.studies import montecarlo as MC
 from sewtol.studies import scan as S
 from sewtol.studies import worst_case as W
 from sewtol.studies.ppm import check_limits, limits_text

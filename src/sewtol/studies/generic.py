@@ -3,7 +3,7 @@
 Nothing here names a mechanism: a study takes the mechanism, a tolerance set and the output(s)
 it looks at, and returns a frozen result with to_dataframe() and to_dict(). The scan, the
 worst case, the Monte-Carlo and the Sobol indices are sewtol.studies.scan, worst_case,
-montecarlo_study and sobol.
+montecarlo and sobol.
 
 - nominal: every output of the nominal machine.
 """

@@ -1,5 +1,4 @@
-"""Monte-Carlo machinery shared by every mechanism: reproducible sampling of machines, checks,
-and the contributors to an output's variance.
+"""THE Monte-Carlo of any mechanism, and the sampling machinery every study shares.
 
 The one sampler of every study (Monte-Carlo, strategies, ppm by plain Monte-Carlo, allocation):
 machine k is row k % CHUNK of the standard uniforms drawn from child k // CHUNK of the seed
@@ -8,21 +7,31 @@ machine k is row k % CHUNK of the standard uniforms drawn from child k // CHUNK 
 for any number of workers and any evaluation chunk size, and a study that scales the set
 (allocation) keeps every machine's uniforms, hence its rank, for every scale.
 `sample_machines` evaluates any vectorised model on those machines; `draw_deviations` gives the
-deviations alone; `record` is the JSON shape every Monte-Carlo shares (docs/studies.md, "One
-Monte-Carlo JSON"); `contributors` and `with_remainder` give each
-tolerance's eta^2 (correlation ratio) as a share of the output's variance, the rest named as
-interaction. `montecarlo` is THE Monte-Carlo of any mechanism (every output, its status, and with
-a compensator the adjusted case through sewtol.studies.adjusting); the needle's beta fixed and
-adjusted table is sewtol.mechanisms.needle_208.tables.
+deviations alone; `contributors` and `with_remainder` give each tolerance's eta^2 (correlation
+ratio) as a share of the output's variance, the rest named as interaction.
+
+`montecarlo` is the study: n machines of the one sampler, every output and each machine's status
+(ok + out_of_spec + cannot_close + dead_point = n, out_of_spec by the mechanism's [[specs]]
+unless limits are given) and, with a compensator, the adjusted case through
+sewtol.studies.adjusting.adjusted (the generic optimiser; with fast=True the mechanism's
+plug-ins: its kernel for the outputs it gives, its exact adjuster). Its `MonteCarloResult` is the
+one result of every Monte-Carlo: one summary row per output, or (summary="cases") one row per
+case of the spec'd output with its capability and the compensators' plateaus; a mechanism whose
+tables name the columns otherwise passes its column map (`MonteCarloResult.columns`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
 import numpy as np
 import pandas as pd
+from scipy import stats
 
 from sewtol.errors import ParameterError
 from sewtol.law import STREAM, InputLaw, draw_units, stream_window, unit_streams
+from sewtol.mechanism.spec import Spec
 from sewtol.studies.parallel import chunk_bounds, run_chunks
 from sewtol.tolerances import ToleranceSet
 
@@ -33,7 +42,7 @@ QUANTILES_MEAN = ("p50, p95 and p99 of the spec'd output over all n machines, fa
                   "ranked as infinitely bad (numpy method 'higher': always a machine's value)")
 # bytes per machine and column of a study table (float64) plus pandas' working copies
 BYTES_PER_CELL = 8 * 4
-# the protocol's status words for a plug-in's (the needle's adjusters speak with spaces); a
+# the protocol's status words for a plug-in's (an adjuster may speak with spaces); a
 # machine out of spec still runs: the study's spec decides
 WORDS = {"cannot assemble": "cannot_close", "dead point": "dead_point", "out of spec": "ok",
          "out_of_spec": "ok"}
@@ -45,27 +54,13 @@ def quantiles(values) -> dict[str, float]:
     return {f"p{q}": float(np.quantile(x, q / 100, method="higher")) for q in (50, 95, 99)}
 
 
-def record(*, mechanism: str, n: int, seed: int, tolerances: str, output: str, unit: str,
-           spec, counts: dict[str, dict], quantiles: dict[str, dict], extra: dict) -> dict:
-    """The JSON of a Monte-Carlo, the same keys whatever the path (docs/studies.md): per case
-    (e.g. fixed_beta, adjusted_beta) its counts (ok + out_of_spec + failed = n), yield ok / n
-    with its Clopper-Pearson interval and quantiles; `spec` the limits in force (None: every
-    machine that runs is ok); `extra` what only this path computes."""
-    from scipy import stats
-
-    ci = {}
-    for case, k in counts.items():
-        c = stats.binomtest(k["ok"], k["n"]).proportion_ci(0.95, method="exact")
-        ci[case] = [float(c.low), float(c.high)]
-    first = next(iter(counts.values()))
-    return {"mechanism": mechanism, "n": int(n), "seed": int(seed), "tolerances": tolerances,
-            "output": output, "unit": unit,
-            "spec": None if spec is None else spec.to_dict(),
-            "cases": list(counts), "failed": first["failed"], "counts": counts,
-            "yields": {case: k["ok"] / k["n"] for case, k in counts.items()},
-            "yield_ci": {"method": YIELD_CI_METHOD, "level": 0.95, **ci},
-            "quantiles": {"definition": QUANTILES_MEAN, **quantiles},
-            "extra": extra}
+# an adjusted optimum whose plateau reaches a bound and is narrower than this (in the
+# compensator's unit: deg for an angle) is pinned there
+PINNED_PLATEAU = 0.1
+CAPABILITY_DEFINITION = {
+    "Cpu": "one-sided (limit_{unit} - mean) / (3 sd) of {name} over the machines that run "
+           "(failed machines are in counts, not in Cpu)",
+    "Cpu_percentile": "(limit_{unit} - p50) / (p99.865 - p50) over the machines that run"}
 
 
 def check_seed(seed) -> int:
@@ -255,3 +250,342 @@ def with_remainder(frame: pd.DataFrame, top: int | None = None) -> pd.DataFrame:
                          {"param": REMAINDER, "eta2": 1 - explained / 100,
                           "variance_pct": 100.0 - explained}])
     return pd.concat([frame, rows], ignore_index=True)
+
+
+def _file_model(record, dev, mech, outputs, compensator=None, target=None, fast=False):
+    """One chunk of `montecarlo`: the outputs of machines nominal + dev as built (the plug-in
+    kernel where it gives every output, the status of the machines it cannot run from
+    mech.evaluate) and, with a compensator, the adjusted case."""
+    from sewtol.protocol import NO_PLUGINS, machines, plugins
+    from sewtol.studies.adjusting import adjusted
+
+    values = machines(mech, dev)
+    pl = plugins(mech) if fast else NO_PLUGINS
+    if pl.kernel is not None and set(outputs) <= set(pl.kernel_outputs):
+        got = pl.kernel(mech, values)
+        out = {o: got[o] for o in outputs}
+        m = len(got[outputs[0]])
+        status, group = np.full(m, "ok", object), np.full(m, "", object)
+        bad = ~np.all([np.isfinite(v) for v in out.values()], axis=0)
+        if bad.any():
+            ev = mech.evaluate({k: v[bad] for k, v in values.items()}, outputs)
+            status[bad], group[bad] = ev.status, ev.failed_group
+        out.update({"status": status, "failed_group": group})
+    else:
+        ev = mech.evaluate(values, outputs)
+        out = {**ev.outputs, "status": ev.status, "failed_group": ev.failed_group}
+    if compensator is not None:
+        comps = [compensator] if isinstance(compensator, str) else compensator
+        a = adjusted(mech, values, comps, target, fast=fast)
+        out[f"{target}_adjusted"] = a.value
+        for param, setting in a.settings.items():
+            out[f"{param}_setting"] = setting
+            if a.path != "generic":  # a plug-in's plateau of optimal settings and its bound
+                out[f"{param}_low"] = a.extras["low"][param]
+                out[f"{param}_high"] = a.extras["high"][param]
+                out[f"{param}_at_bound"] = np.asarray(a.at_bound[param], float)
+        out["status_adjusted"] = np.array([WORDS.get(w, w) for w in a.status], object)
+        out["failed_group_adjusted"] = a.extras.get("failed_group", np.full(len(a.value), ""))
+    return out
+
+
+@dataclass(frozen=True)
+class MonteCarloResult:
+    """The machines of a Monte-Carlo and what they give (see `montecarlo`).
+
+    Cases: ``fixed`` (every machine as drawn, compensators at their nominal), and with a
+    compensator C ``fixed_C`` and ``adjusted_C`` (C set per machine); ``counts``, ``yield_of``,
+    ``yield_ci``, ``quantiles``, ``capability`` and ``pareto`` take a case (its full name or
+    ``"fixed"``/``"adjusted"``) or an output. ``summary_frame()`` has one row per output, or with
+    summary="cases" one row per case of the spec'd output: counts (``ok + out_of_spec + failed =
+    n``), the yield with its Clopper-Pearson interval, quantiles, capability and the machines
+    whose optimum reaches a bound of the compensator's range. ``machines`` has every machine's
+    deviations, outputs and status; `columns` maps the generic column names (OUTPUT,
+    OUTPUT_adjusted, PARAM_setting, PARAM_low, PARAM_high, PARAM_at_bound, status,
+    status_adjusted, and the JSON key PARAM_picks) to the mechanism's where its table names them
+    otherwise; `extra` is what the mechanism adds to the JSON's extra (summary="cases").
+    """
+
+    mechanism: str
+    machines: pd.DataFrame  # machine, deviations, outputs, status, failed_group
+    outputs: tuple[str, ...]
+    tolerances: str
+    seed: int
+    limit_output: str  # the spec'd output of the JSON's cases (its spec may be None)
+    specs: tuple[Spec, ...] = ()  # the limits in force, at most one per output
+    spec_source: str | None = None  # of limit_output's spec: "file", "command line" or None
+    adjust: str | None = None  # the compensator of the adjusted case (column NAME_adjusted)
+    unit: str = ""  # limit_output's unit
+    params: tuple[str, ...] = ()  # the tolerances that scatter (deviation columns)
+    summary: str = "outputs"  # summary_frame and JSON: one row per "outputs" or per "cases"
+    columns: Mapping[str, str] = field(default_factory=dict)
+    extra: Mapping = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        """The number of machines drawn."""
+        return len(self.machines)
+
+    @property
+    def failed(self) -> int:
+        """Machines that cannot run in the fixed case (see `counts`)."""
+        return self.counts(next(iter(self.cases())))["failed"]
+
+    @property
+    def adjusted_output(self) -> str | None:
+        return None if self.adjust is None else f"{self.limit_output}_adjusted"
+
+    def column(self, name: str) -> str:
+        """The machines' column (or JSON key) of a generic name, by the mechanism's `columns`."""
+        return self.columns.get(name, name)
+
+    def values(self, name: str) -> pd.Series:
+        return self.machines[self.column(name)]
+
+    def spec(self, output: str | None = None) -> Spec | None:
+        """The limits in force for an output (its adjusted case keeps the output's limits)."""
+        if output is None or output == self.adjusted_output:
+            output = self.limit_output
+        return next((s for s in self.specs if s.output == output), None)
+
+    def cases(self) -> dict[str, str]:
+        """Case name -> output: "fixed" (every machine as drawn), or with a compensator C the
+        cases "fixed_C" (C at its nominal) and "adjusted_C" (C set per machine)."""
+        if self.adjust is None:
+            return {"fixed": self.limit_output}
+        return {f"fixed_{self.adjust}": self.limit_output,
+                f"adjusted_{self.adjust}": self.adjusted_output}
+
+    def case_of(self, case: str) -> str:
+        """The full name of a case; "fixed" and "adjusted" name the cases with a compensator."""
+        names = list(self.cases())
+        for name in names:
+            if case in (name, name.split("_", 1)[0]):
+                return name
+        words = list(dict.fromkeys([k.split("_", 1)[0] for k in names] + names))
+        raise ParameterError("case", f"must be {', '.join(words[:-1])} or {words[-1]}"
+                             if len(words) > 1 else f"must be {words[0]}", case)
+
+    def output_of(self, key: str | None) -> str | None:
+        """An output studied, or the output of a case (`case_of`)."""
+        return key if key is None or key in self.outputs else self.cases()[self.case_of(key)]
+
+    def status(self, output: str | None = None) -> np.ndarray:
+        """Per machine: ok, out_of_spec (outside the output's spec; no value fails a spec),
+        cannot_close, dead_point (the adjusted case: at the machine's chosen setting), or
+        unexplained (a mechanism's status that finds no reason)."""
+        output = self.output_of(output)
+        adjusted = output is not None and output == self.adjusted_output
+        s = self.values("status_adjusted" if adjusted else "status").to_numpy(object).copy()
+        spec = self.spec(output) if output is not None else None
+        if spec is not None:
+            s[(s == "ok") & ~spec.passes(self.values(output).to_numpy(float))] = "out_of_spec"
+        return s
+
+    def counts(self, output: str | None = None) -> dict[str, int]:
+        """ok + out_of_spec + failed = n, failed = cannot_close + dead_point + unexplained, of
+        an output or a case."""
+        s = self.status(output)
+        c = {k: int(np.sum(s == k)) for k in ("ok", "out_of_spec", "cannot_close", "dead_point",
+                                              "unexplained")}
+        c["failed"] = c["cannot_close"] + c["dead_point"] + c["unexplained"]
+        c["n"] = int(s.size)
+        return c
+
+    def yield_of(self, case: str) -> float:
+        """The share of machines that pass (ok) in a case or for an output."""
+        return self.counts(case)["ok"] / self.n
+
+    def yield_ci(self, case: str = "adjusted", level: float = 0.95) -> tuple[float, float]:
+        """Clopper-Pearson interval of the yield."""
+        ci = stats.binomtest(self.counts(case)["ok"], self.n).proportion_ci(
+            confidence_level=level, method="exact")
+        return float(ci.low), float(ci.high)
+
+    def quantiles(self, case: str) -> dict:
+        """p50, p95 and p99 of a case's output; failed machines rank as infinitely bad, so they
+        are not hidden by the quantiles (`quantiles`)."""
+        return quantiles(self.values(self.output_of(case)))
+
+    def capability(self, case: str) -> dict:
+        """Cpu = (USL - mean) / 3 sigma, and the percentile form (USL - p50) / (p99.865 - p50),
+        of the spec's upper limit (USL) over the machines that run."""
+        output = self.output_of(case)
+        x = self.values(output).dropna().to_numpy()
+        if x.size < 2:  # (almost) every machine failed: no scatter to speak of
+            return {"Cpu": float("nan"), "Cpu_percentile": float("nan")}
+        limit = self.spec(output).upper
+        mean, sd = float(np.mean(x)), float(np.std(x, ddof=1))
+        p50, p99865 = np.quantile(x, [0.5, 0.99865])
+        return {"Cpu": (limit - mean) / (3 * sd) if sd > 0 else float("inf"),
+                "Cpu_percentile": float((limit - p50) / (p99865 - p50))
+                if p99865 > p50 else float("inf")}
+
+    def pareto(self, case: str = "adjusted", bins: int = 20) -> pd.DataFrame:
+        """Contributors to a case's scatter (`contributors`), with the explained sum and the
+        interaction remainder as the last two rows (`with_remainder`)."""
+        return with_remainder(contributors(self.machines, self.params,
+                                           self.column(self.output_of(case)), bins))
+
+    def compensators(self) -> list[str]:
+        return [] if self.adjust is None else [c.strip() for c in self.adjust.split(",")]
+
+    def setting_range(self, param: str) -> tuple[float, float]:
+        """The smallest and largest per-machine setting of a compensator among machines that run."""
+        b = self.values(f"{param}_setting").dropna()
+        return (float(b.min()), float(b.max())) if len(b) else (float("nan"), float("nan"))
+
+    def at_bound(self, param: str, pinned: bool = False) -> int:
+        """Machines whose adjusted optimum's plateau (the output within the plug-in's tolerance
+        of its minimum) reaches a bound of the searched range; pinned=True: only those whose
+        plateau is narrower than PINNED_PLATEAU, where the output still falls at the bound and
+        the optimum likely lies outside the range (a wide plateau is flat: the setting hardly
+        matters there). 0 without the plug-in's plateau columns."""
+        if self.column(f"{param}_at_bound") not in self.machines:
+            return 0
+        at = self.values(f"{param}_at_bound").to_numpy(float) == 1.0
+        if pinned:
+            at &= (self.values(f"{param}_high") - self.values(f"{param}_low")).to_numpy() \
+                < PINNED_PLATEAU
+        return int(at.sum())
+
+    def failed_groups(self, adjusted: bool = False) -> dict[str, int]:
+        g = self.machines["failed_group_adjusted" if adjusted else "failed_group"]
+        return {str(k): int(v) for k, v in g[g != ""].value_counts().sort_index().items()}
+
+    def to_dataframe(self) -> pd.DataFrame:
+        """One row per machine: deviations, outputs, status and the group that failed."""
+        return self.machines.copy()
+
+    def summary_frame(self) -> pd.DataFrame:
+        """One row per output (or with summary="cases", per case: `case_frame`)."""
+        if self.summary == "cases":
+            return self.case_frame()
+        rows = []
+        for name in self.outputs:
+            v = self.machines[name].to_numpy(float)
+            ok = v[~np.isnan(v)]
+            c = self.counts(name)
+            row = {"output": name, **{k: c[k] for k in ("n", "ok", "out_of_spec",
+                                                         "cannot_close", "dead_point")}}
+            # machines that run but whose output has no value (e.g. the contact-loss angle of a
+            # presser foot that never loses contact): counted here, left out of the statistics
+            running = np.isin(self.status(name), ("ok", "out_of_spec"))
+            row["undefined"] = int(np.sum(running & np.isnan(v)))
+            if ok.size:
+                q = np.quantile(ok, [0.5, 0.95, 0.99])
+                row.update({"mean": float(ok.mean()),
+                            "std": float(ok.std(ddof=1)) if ok.size > 1 else float("nan"),
+                            "min": float(ok.min()), "p50": q[0], "p95": q[1], "p99": q[2],
+                            "max": float(ok.max())})
+            else:
+                row.update(dict.fromkeys(("mean", "std", "min", "p50", "p95", "p99", "max"),
+                                         float("nan")))
+            spec = self.spec(name)
+            if spec is not None:
+                lo, hi = self.yield_ci(name)
+                row.update({"limit": spec.upper, "lower_limit": spec.lower,
+                            "yield": c["ok"] / c["n"], "yield_ci_low": lo, "yield_ci_high": hi})
+            rows.append(row)
+        return pd.DataFrame(rows)
+
+    def case_frame(self) -> pd.DataFrame:
+        """One row per case of the spec'd output: counts (ok + out_of_spec + failed = n), yield
+        and interval, quantiles (p50_UNIT ...), Cpu, and per compensator its machines at a bound
+        (`at_bound`; 0 in the fixed case)."""
+        rows = []
+        suffix = f"_{self.unit}" if self.unit else ""
+        for i, case in enumerate(self.cases()):
+            q, (lo, hi), cap, k = (self.quantiles(case), self.yield_ci(case),
+                                   self.capability(case), self.counts(case))
+            rows.append({"case": case, "n": self.n,
+                         **{w: k[w] for w in ("ok", "out_of_spec", "failed", "cannot_close",
+                                              "dead_point")},
+                         "yield": self.yield_of(case), "yield_ci_low": lo, "yield_ci_high": hi,
+                         **{f"{p}{suffix}": v for p, v in q.items()}, **cap})
+            for param in self.compensators():
+                rows[-1][f"{param}_at_bound"] = self.at_bound(param) if i else 0
+                rows[-1][f"{param}_pinned_at_bound"] = self.at_bound(param, True) if i else 0
+        return pd.DataFrame(rows)
+
+    def to_dict(self) -> dict:
+        """The Monte-Carlo JSON every path shares (docs/studies.md, "One Monte-Carlo JSON"): per
+        case its counts (ok + out_of_spec + failed = n), yield ok / n with its Clopper-Pearson
+        interval and quantiles; `spec` the limits in force (None: every machine that runs is
+        ok); extra: the compensator, the groups that failed per case and the summary of every
+        output, or with summary="cases" the capability of both cases, each compensator's range
+        of settings and its machines at a bound, and the mechanism's `extra`."""
+        cases = self.cases()
+        if self.summary == "cases":
+            name = self.limit_output.removesuffix(f"_{self.unit}")
+            definition = {k: v.format(unit=self.unit, name=name)
+                          for k, v in CAPABILITY_DEFINITION.items()}
+            extra = {"capability": {"definition": definition,
+                                    **{c: self.capability(c) for c in cases}}}
+            for p in self.compensators():
+                extra[self.column(f"{p}_picks")] = list(self.setting_range(p))
+                extra[f"{p}_at_bound"] = self.at_bound(p)
+                extra[f"{p}_pinned_at_bound"] = self.at_bound(p, pinned=True)
+            extra.update(self.extra)
+        else:
+            extra = {"adjust": self.adjust, "failed_groups": self.failed_groups(),
+                     **({} if self.adjust is None else {
+                         "failed_groups_adjusted": self.failed_groups(adjusted=True)}),
+                     "summary": self.summary_frame().to_dict("records")}
+        counts, spec = {c: self.counts(o) for c, o in cases.items()}, self.spec()
+        return {"mechanism": self.mechanism, "n": self.n, "seed": int(self.seed),
+                "tolerances": self.tolerances, "output": self.limit_output, "unit": self.unit,
+                "spec": None if spec is None else spec.to_dict(), "cases": list(cases),
+                "failed": next(iter(counts.values()))["failed"], "counts": counts,
+                "yields": {c: k["ok"] / k["n"] for c, k in counts.items()},
+                "yield_ci": {"method": YIELD_CI_METHOD, "level": 0.95,
+                             **{c: list(self.yield_ci(c)) for c in cases}},
+                "quantiles": {"definition": QUANTILES_MEAN,
+                              **{c: self.quantiles(c) for c in cases}},
+                "extra": extra}
+
+
+def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
+               limit: float | None = None, limit_output: str | None = None, n_jobs: int = 1,
+               progress=False, chunk_size: int = CHUNK, adjust: str | None = None,
+               lower_limit: float | None = None, *, fast: bool = False, backend=None,
+               store=None, scheduler=None) -> MonteCarloResult:
+    """n machines of the file (see the module doc). Every output with a [[specs]] entry in the
+    file splits its ok machines into ok and out_of_spec; `limit`/`lower_limit` replace the
+    spec of limit_output (default: the first output studied with limits given, else the first
+    output of the file's specs, else the first output). `adjust` (a compensator of the file)
+    adds the adjusted case: limit_output minimised over the compensator on each machine
+    (`sewtol.studies.adjusting.adjusted`: the generic optimiser, or with fast=True the
+    mechanism's plug-in where it takes the compensator), columns NAME_adjusted, PARAM_setting,
+    status_adjusted, failed_group_adjusted; `adjust` may also map one parameter to its box (a
+    plug-in's search range). fast=True: the plug-in kernel for the outputs it gives. backend,
+    store, scheduler: as `sample_machines` (joblib backend, study folder, Dask cluster)."""
+    names = tuple(mech.output_names if outputs is None else outputs)
+    for name in names:
+        mech.output(name)
+    for name in adjust.split(",") if isinstance(adjust, str) else ():
+        if name.strip() not in mech.compensators:
+            raise ParameterError("adjust", "must name a compensator of the file ("
+                                 + (", ".join(mech.compensators) or "it has none") + ")", adjust)
+    given = limit is not None or lower_limit is not None
+    if limit_output is None and (given or not mech.specs):
+        limit_output = names[0]
+    limit_output, spec, source = mech.resolve_spec(limit_output, limit, lower_limit)
+    if limit_output not in names:
+        names = (*names, limit_output)
+    specs = tuple(s for s in mech.specs if s.output in names and s.output != limit_output)
+    specs += () if spec is None else (spec,)
+    nominal = mech.parameter_record()
+    check_seed(seed)
+    check_sampling(nominal, tolerances, n, seed, chunk_size,
+                   columns=len(tolerances.items) + len(names) + 3)
+    machines = sample_machines(_file_model, nominal, tolerances, n, seed, n_jobs, progress,
+                               backend, chunk_size, desc=f"Monte-Carlo {mech.name}",
+                               store=store, scheduler=scheduler, mech=mech, outputs=list(names),
+                               compensator=adjust, target=limit_output, fast=fast)
+    if adjust is not None:
+        names = (*names, f"{limit_output}_adjusted")
+        adjust = adjust if isinstance(adjust, str) else ",".join(adjust)
+    return MonteCarloResult(mech.name, machines, names, tolerances.name, int(seed), limit_output,
+                            specs, source, adjust, mech.output(limit_output).unit,
+                            tuple(tolerances.active().params))

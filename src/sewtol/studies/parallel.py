@@ -19,7 +19,6 @@ import time
 from collections.abc import Callable, Sequence
 
 import joblib
-import numpy as np
 from tqdm.auto import tqdm
 
 from sewtol.errors import ParameterError
@@ -30,10 +29,6 @@ CONNECT_TIMEOUT_S = 10
 
 def chunk_bounds(n: int, chunk_size: int) -> list[tuple[int, int]]:
     return [(i, min(i + chunk_size, n)) for i in range(0, n, chunk_size)]
-
-
-def child_generators(seed: int | np.random.SeedSequence, n: int) -> list[np.random.Generator]:
-    return np.random.default_rng(seed).spawn(n)
 
 
 def connect(address: str, timeout: float = CONNECT_TIMEOUT_S):

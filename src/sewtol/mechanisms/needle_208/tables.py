@@ -1,6 +1,6 @@
 """The needle's tables of the generic studies: a `Needle208` as a protocol mechanism, and the
 scan, worst case and largest tolerances (sewtol.studies.scan, sewtol.studies.worst_case), the
-Monte-Carlo (sewtol.studies.montecarlo_study: beta fixed at the nominal's beta* and re-optimised
+Monte-Carlo (sewtol.studies.montecarlo: beta fixed at the nominal's beta* and re-optimised
 per machine, each failure named by needle_208.status), the strategies table
 (sewtol.studies.strategies), Sobol indices, the rare-event limit state and the allocation
 (sewtol.studies.sobol, ppm, allocation) in the source study's columns and words.
@@ -17,7 +17,7 @@ an end of its range), NAME_mm (deviations).
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cache
 from typing import TYPE_CHECKING
 
@@ -31,17 +31,15 @@ from sewtol.mechanisms.needle_208 import beta as sb
 from sewtol.mechanisms.needle_208 import status as ns
 from sewtol.mechanisms.needle_208.adjustment import STATUSES, Adjustment, adjust, columns_of
 from sewtol.mechanisms.needle_208.single import nominal_figures
-from sewtol.studies import montecarlo_study as MC
+from sewtol.studies import montecarlo as MC
 from sewtol.studies.montecarlo import (
     CHUNK,
+    MonteCarloResult,
     check_sampling,
     contributors,
     draw_deviations,
     draw_units,
-    quantiles,
-    record,
     unit_streams,
-    with_remainder,
 )
 from sewtol.studies.settings import Setting, compare
 from sewtol.tolerances import Tolerance, ToleranceSet, needle_set
@@ -475,173 +473,16 @@ def adjusted_montecarlo_model(nominal, dev, strategy: Strategy, limit_um: float)
     return {k: f[k].to_numpy() for k in f.columns}
 
 
-@dataclass(frozen=True)
-class MonteCarloResult:
-    """The machines of a needle Monte-Carlo and what they give (see `montecarlo`).
-
-    Two cases: ``fixed`` (every machine at the fixed beta) and ``adjusted`` (beta re-optimised
-    per machine). ``summary_frame()`` has per case the counts (``ok + out_of_spec + failed =
-    n``), the yield with its Clopper-Pearson interval, SumDelta quantiles and capability;
-    ``yield_of(case)``, ``yield_ci(case)``, ``counts(case)``, ``quantiles(case)`` and
-    ``capability(case)`` give them one by one; ``machines`` has every machine's deviations
-    (mm), outputs (um, deg) and status.
-    """
-
-    machines: pd.DataFrame  # deviations (mm) and outputs per machine
-    params: tuple[str, ...]
-    tolerances: str
-    seed: int
-    limit_um: float
-    nominal_beta_deg: float  # the beta of the fixed case (see `montecarlo`'s fixed_beta)
-    range_deg: tuple[float, float]
-    fixed_beta: str = "optimum"
-
-    @property
-    def n(self) -> int:
-        """The number of machines drawn."""
-        return len(self.machines)
-
-    @property
-    def failed(self) -> int:
-        """Machines that cannot run at the nominal beta (the fixed case; see `counts`)."""
-        return self.counts("fixed")["failed"]
-
-    @staticmethod
-    def case_of(case: str) -> str:
-        """'fixed' or 'adjusted'; the output names 'fixed_beta' and 'adjusted_beta' work too."""
-        c = case[: -len("_beta")] if isinstance(case, str) and case.endswith("_beta") else case
-        if c not in ("fixed", "adjusted"):
-            raise ParameterError("case", "must be fixed, adjusted, fixed_beta or adjusted_beta",
-                                 case)
-        return c
-
-    def status(self, case: str) -> np.ndarray:
-        """Per machine: ok, out_of_spec, cannot_close, dead_point or unexplained."""
-        case = self.case_of(case)
-        col = f"status_{case}"
-        if col in self.machines:
-            return self.machines[col].to_numpy(object)
-        total = self.machines[f"total_{case}_um"].to_numpy(float)
-        return np.where(np.isnan(total), "unexplained",
-                        np.where(total <= self.limit_um, "ok", "out_of_spec")).astype(object)
-
-    def counts(self, case: str) -> dict[str, int]:
-        """ok, out_of_spec, failed (= cannot_close + dead_point + unexplained) and n of a case."""
-        return ns.counts(self.status(case))
-
-    def passed(self, case: str) -> np.ndarray:
-        """Per machine: True where SumDelta <= limit_um (a failed machine never passes)."""
-        case = self.case_of(case)
-        return (self.machines[f"total_{case}_um"] <= self.limit_um).to_numpy()
-
-    def yield_of(self, case: str) -> float:
-        """The share of machines that pass in a case (``"fixed"`` or ``"adjusted"``)."""
-        return float(self.passed(case).mean())
-
-    def yield_ci(self, case: str = "adjusted", level: float = 0.95) -> tuple[float, float]:
-        """Clopper-Pearson interval of the yield."""
-        case = self.case_of(case)
-        k = int(self.passed(case).sum())
-        ci = stats.binomtest(k, self.n).proportion_ci(confidence_level=level, method="exact")
-        return float(ci.low), float(ci.high)
-
-    def quantiles(self, case: str) -> dict:
-        """p50, p95 and p99 of SumDelta (um); failed machines rank as infinitely bad, so they
-        are not hidden by the quantiles (studies.montecarlo.quantiles)."""
-        return quantiles(self.machines[f"total_{self.case_of(case)}_um"])
-
-    def beta_range(self) -> tuple[float, float]:
-        """The smallest and largest per-machine beta* (deg) among machines that assemble."""
-        b = self.machines["beta_opt_deg"].dropna()
-        return (float(b.min()), float(b.max())) if len(b) else (float("nan"), float("nan"))
-
-    def capability(self, case: str) -> dict:
-        """Cpu = (USL - mean) / 3 sigma, and the percentile form (USL - p50) / (p99.865 - p50)."""
-        case = self.case_of(case)
-        x = self.machines[f"total_{case}_um"].dropna().to_numpy()
-        if x.size < 2:  # (almost) every machine failed: no scatter to speak of
-            return {"Cpu": float("nan"), "Cpu_percentile": float("nan")}
-        mean, sd = float(np.mean(x)), float(np.std(x, ddof=1))
-        p50, p99865 = np.quantile(x, [0.5, 0.99865])
-        return {"Cpu": (self.limit_um - mean) / (3 * sd) if sd > 0 else float("inf"),
-                "Cpu_percentile": float((self.limit_um - p50) / (p99865 - p50))
-                if p99865 > p50 else float("inf")}
-
-    def pareto(self, case: str = "adjusted", bins: int = 20) -> pd.DataFrame:
-        """Contributors to SumDelta's scatter (see `contributors`), with the explained sum and
-        the interaction remainder as the last two rows (`with_remainder`)."""
-        case = self.case_of(case)
-        return with_remainder(contributors(self.machines, self.params, f"total_{case}_um", bins))
-
-    def beta_at_bound(self, pinned: bool = False) -> int:
-        """Machines whose adjusted beta*'s plateau (SumDelta within 1e-3 um of its minimum)
-        reaches a bound of the searched range; pinned=True: only those whose plateau is narrower
-        than PINNED_PLATEAU_DEG, where SumDelta still falls at the bound and the optimum likely
-        lies outside the range (a wide plateau is flat: beta hardly matters there)."""
-        col = self.machines.get("beta_at_bound")
-        if col is None:
-            return 0
-        at = col.to_numpy(float) == 1.0
-        if pinned:
-            width = (self.machines["beta_high_deg"] - self.machines["beta_low_deg"]).to_numpy()
-            at &= width < PINNED_PLATEAU_DEG
-        return int(at.sum())
-
-    def to_dict(self) -> dict:
-        """The JSON of ``sewtol needle montecarlo``, the shape every Monte-Carlo shares
-        (studies.montecarlo.record: counts, yields, labelled intervals and quantiles of both
-        cases); extra: capability, beta* picks and their at-bound counts, the fixed case's
-        beta and the searched range."""
-        from sewtol.mechanism.spec import Spec
-
-        cases = {"fixed_beta": "fixed", "adjusted_beta": "adjusted"}
-        return record(
-            mechanism="needle_208", n=self.n, seed=self.seed, tolerances=self.tolerances,
-            output="SumDelta_um", unit="um", spec=Spec("SumDelta_um", self.limit_um),
-            counts={k: self.counts(c) for k, c in cases.items()},
-            quantiles={k: self.quantiles(c) for k, c in cases.items()},
-            extra={"capability": {"definition": CAPABILITY_DEFINITION,
-                                  **{k: self.capability(c) for k, c in cases.items()}},
-                   "beta_picks_deg": list(self.beta_range()),
-                   "beta_at_bound": self.beta_at_bound(),
-                   "beta_pinned_at_bound": self.beta_at_bound(pinned=True),
-                   "limit_um": self.limit_um,
-                   "nominal_beta_deg": self.nominal_beta_deg,
-                   "fixed_beta": self.fixed_beta,
-                   "fixed_beta_means": FIXED_BETA_MEANS[self.fixed_beta],
-                   "beta_search_range_deg": list(self.range_deg)})
-
-    def summary_frame(self) -> pd.DataFrame:
-        """One row per case: counts (ok + out_of_spec + failed = n), yield and interval, quantiles, Cpu."""
-        rows = []
-        for case in ("fixed", "adjusted"):
-            q = self.quantiles(case)
-            lo, hi = self.yield_ci(case)
-            cap = self.capability(case)
-            k = self.counts(case)
-            rows.append({"case": f"{case}_beta", "n": self.n, "ok": k["ok"],
-                         "out_of_spec": k["out_of_spec"], "failed": k["failed"],
-                         "cannot_close": k["cannot_close"], "dead_point": k["dead_point"],
-                         "yield": self.yield_of(case), "yield_ci_low": lo, "yield_ci_high": hi,
-                         "p50_um": q["p50"], "p95_um": q["p95"], "p99_um": q["p99"],
-                         "Cpu": cap["Cpu"], "Cpu_percentile": cap["Cpu_percentile"],
-                         "beta_at_bound": self.beta_at_bound() if case == "adjusted" else 0,
-                         "beta_pinned_at_bound": self.beta_at_bound(True)
-                         if case == "adjusted" else 0})
-        return pd.DataFrame(rows)
-
-
 FIXED_BETA = ("optimum", "as_given")
 FIXED_BETA_MEANS = {
     "optimum": "every machine keeps the nominal machine's beta* in the searched range (as "
                "`sewtol needle nominal` prints it for the same parameters)",
     "as_given": "every machine keeps the nominal's own beta parameter"}
-# an adjusted optimum whose plateau reaches a bound and is narrower than this is pinned there
-PINNED_PLATEAU_DEG = 0.1
-CAPABILITY_DEFINITION = {
-    "Cpu": "one-sided (limit_um - mean) / (3 sd) of SumDelta over the machines that run "
-           "(failed machines are in counts, not in Cpu)",
-    "Cpu_percentile": "(limit_um - p50) / (p99.865 - p50) over the machines that run"}
+# the needle's names of the Monte-Carlo's columns (MonteCarloResult.columns), as the source
+MONTECARLO_COLUMNS = {OUTPUT: "total_fixed_um", f"{OUTPUT}_adjusted": "total_adjusted_um",
+                      "beta_setting": "beta_opt_deg", "beta_low": "beta_low_deg",
+                      "beta_high": "beta_high_deg", "status": "status_fixed",
+                      "beta_picks": "beta_picks_deg"}
 
 
 def fixed_beta_of(nominal, fixed_beta: str, range_deg, limit_um) -> float:
@@ -655,8 +496,6 @@ def fixed_beta_of(nominal, fixed_beta: str, range_deg, limit_um) -> float:
         return float(nominal.beta)
     if fixed_beta != "optimum":
         raise ParameterError("fixed_beta", f"must be one of {', '.join(FIXED_BETA)}", fixed_beta)
-    from sewtol.mechanisms.needle_208.single import nominal_figures
-
     return float(nominal_figures(nominal, tuple(range_deg), limit_um).beta_opt_deg)
 
 
@@ -712,8 +551,11 @@ def montecarlo(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed:
     Returns
     -------
     MonteCarloResult
-        Every machine with its deviations, SumDelta (um) in both cases, beta* (deg) and status;
-        yields, counts, quantiles and capability per case.
+        Every machine with its deviations, SumDelta (um) in both cases (total_fixed_um,
+        total_adjusted_um), beta* (beta_opt_deg) and status (MONTECARLO_COLUMNS); yields,
+        counts, quantiles and capability per case (fixed_beta, adjusted_beta; "fixed" and
+        "adjusted" name them too); ``extra`` holds limit_um, nominal_beta_deg (the fixed case's
+        beta), fixed_beta and beta_search_range_deg.
 
     Raises
     ------
@@ -746,10 +588,11 @@ def montecarlo(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed:
         total_adjusted_um=m[f"{OUTPUT}_adjusted"], beta_low_deg=m["beta_low"],
         beta_high_deg=m["beta_high"], beta_at_bound=m["beta_at_bound"])
     status = ns.machine_status(nominal, machines, params, float(limit_um))
-    machines = pd.concat([machines, status], axis=1)
-    return MonteCarloResult(machines, params, tolerances.name,
-                            int(seed), float(limit_um), float(nominal.beta),
-                            tuple(map(float, range_deg)), fixed_beta)
+    return replace(r, machines=pd.concat([machines, status], axis=1), summary="cases",
+                   columns=MONTECARLO_COLUMNS,
+                   extra={"limit_um": float(limit_um), "nominal_beta_deg": float(nominal.beta),
+                          "fixed_beta": fixed_beta, "fixed_beta_means": FIXED_BETA_MEANS[fixed_beta],
+                          "beta_search_range_deg": list(map(float, range_deg))})
 
 
 def _failure_reasons(mech, values, output) -> tuple[np.ndarray, np.ndarray]:
