@@ -23,7 +23,7 @@ from sewtol.errors import ParameterError
 from sewtol.mechanism.groups import GROUPS
 from sewtol.mechanism.outputs import OUTPUT_TYPES, provide
 from sewtol.mechanism.spec import Compensator, Group, Header, Output, Parameter, Spec
-from sewtol.mechanisms.params import check_rule
+from sewtol.mechanisms.params import check_names, check_rule
 from sewtol.tolerances import ToleranceSet
 
 DEAD_POINT_DEG = 1.0
@@ -98,11 +98,7 @@ class FileMechanism:
 
     def override(self, **changes) -> FileMechanism:
         """A copy with new nominal values (checked by each parameter's rule)."""
-        names = self.parameter_names
-        for k in changes:
-            if k not in names:
-                raise ParameterError(k, f"unknown parameter; valid names are {', '.join(names)}",
-                                     k)
+        check_names(changes, self.parameter_names)
         params = []
         for p in self.parameters:
             if p.name in changes:
@@ -151,11 +147,7 @@ class FileMechanism:
     def columns(self, values: dict | None = None) -> tuple[dict, int]:
         """Every parameter as an (m, 1) column: the given values, nominal for the rest."""
         values = dict(values or {})
-        names = self.parameter_names
-        for k in values:
-            if k not in names:
-                raise ParameterError(k, f"unknown parameter; valid names are {', '.join(names)}",
-                                     k)
+        check_names(values, self.parameter_names)
         sizes = {np.size(v) for v in values.values() if np.ndim(v) > 0}
         if len(sizes) > 1:
             raise ParameterError("values", "all arrays must have the same length", sorted(sizes))
@@ -178,18 +170,7 @@ class FileMechanism:
         points, angles, closures = {}, {}, {}
         for g in self.groups:
             gt = GROUPS[g.type]
-            kwargs = {}
-            for k, v in g.fields.items():
-                kind = gt.fields[k][0]
-                if kind == "point":
-                    kwargs[k] = points[v]
-                elif kind == "angle":
-                    kwargs[k] = angles[v]
-                elif kind == "direction":
-                    kwargs[k] = engine.direction(points[v[0]], points[v[1]])
-                else:
-                    kwargs[k] = np.asarray(v(cols), float)
-            made, closure = gt.builder(q, **kwargs)
+            made, closure = gt.builder(q, **_resolved(g.fields, gt.fields, points, angles, cols))
             if gt.produces == "point":
                 points[g.name] = _broadcast_motion(made, shape)
             else:
@@ -242,23 +223,30 @@ class FileMechanism:
             for o in chosen:
                 # provide: a worker process that unpickled the file imports the kind's module
                 ot = provide(o.kind) if o.type == "custom" else OUTPUT_TYPES[o.type]
-                kwargs = {}
-                for k, v in o.fields.items():
-                    kind = ot.fields[k][0]
-                    if kind == "point":
-                        kwargs[k] = state.points[v]
-                    elif kind == "angle":
-                        kwargs[k] = state.angles[v]
-                    elif kind == "direction":
-                        kwargs[k] = engine.direction(state.points[v[0]], state.points[v[1]])
-                    elif kind == "expr":
-                        kwargs[k] = np.asarray(v(state.values), float)
-                    else:
-                        kwargs[k] = v
+                kwargs = _resolved(o.fields, ot.fields, state.points, state.angles, state.values)
                 y = np.asarray(ot.fn(state, **kwargs), float).reshape(-1)
                 y = np.broadcast_to(y, (state.shape[0],))
                 out[o.name] = np.where(ok, y, np.nan)
         return out, status, failed
+
+
+def _resolved(fields: dict, kinds: dict, points: dict, angles: dict, values: dict) -> dict:
+    """A group's or an output's fields as its function takes them: points and angles by name,
+    a direction as the angle of P -> Q, expressions evaluated on `values`, choices as given."""
+    out = {}
+    for k, v in fields.items():
+        kind = kinds[k][0]
+        if kind == "point":
+            out[k] = points[v]
+        elif kind == "angle":
+            out[k] = angles[v]
+        elif kind == "direction":
+            out[k] = engine.direction(points[v[0]], points[v[1]])
+        elif kind in ("expr", "branch"):
+            out[k] = np.asarray(v(values), float)
+        else:
+            out[k] = v
+    return out
 
 
 def _broadcast_motion(mo, shape):

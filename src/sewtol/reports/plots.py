@@ -19,24 +19,6 @@ FIGURE_FORMATS = ("png", "svg", "pdf")
 MICRO = "\u00b5m"  # every label says µm; data columns keep _um
 
 
-def figure_texts(fig) -> list[str]:
-    """Every string a reader sees on a figure: titles, axis labels, tick labels, legend entries,
-    annotations (what the label tests check instead of pixels)."""
-    out = [t.get_text() for t in fig.texts]
-    for ax in fig.axes:
-        if not ax.get_visible():
-            continue
-        out += [ax.get_title(loc) for loc in ("left", "center", "right")]
-        out += [ax.get_xlabel(), ax.get_ylabel()]
-        out += [t.get_text() for t in ax.get_xticklabels() + ax.get_yticklabels()]
-        out += [t.get_text() for t in ax.texts]
-        leg = ax.get_legend()
-        if leg is not None:
-            out += [t.get_text() for t in leg.get_texts()]
-            out.append(leg.get_title().get_text())
-    return [t for t in out if t]
-
-
 def deviation_vs_crank(curves: dict, ax=None, limit_um: float | None = None):
     """d(phi) in µm against crank angle for each labelled frame (columns phi_deg, d_um), with the
     sign convention on the axis and, if limit_um is given, each curve's SumDelta against it."""

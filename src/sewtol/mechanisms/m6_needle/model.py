@@ -520,11 +520,8 @@ def alternatives() -> list[Reconstruction]:
 
 
 def _check_tolerances(params: M6Needle, tolerances: dict) -> None:
-    valid = P.field_names(type(params))
+    P.check_names(tolerances, P.field_names(type(params)))
     for name, t in tolerances.items():
-        if name not in valid:
-            raise ParameterError(name, f"unknown parameter; valid names are {', '.join(valid)}",
-                                 name)
         if not np.isfinite(t) or t <= 0:
             raise ParameterError(name, "a tolerance must be a positive number (+/- limit)", t)
 

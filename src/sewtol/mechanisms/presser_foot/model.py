@@ -361,15 +361,6 @@ def holding_m_s2(params: PresserFoot):
         / np.asarray(params.mass_kg)
 
 
-def scaled_family(params: PresserFoot, factors) -> PresserFoot:
-    """Machines with mass, spring rate and preload all times each factor: one point of the
-    family the contact cycle cannot tell apart (k/m and (F + m g)/m unchanged)."""
-    f = np.asarray(factors, float)
-    return dataclasses.replace(params, mass_kg=params.mass_kg * f,
-                               stiffness_n_per_mm=params.stiffness_n_per_mm * f,
-                               preload_n=params.preload_n * f)
-
-
 # --- the "presser_contact" output kind of mechanism files (type = "custom") -----------------
 # Each field names a parameter of the file (or is a number); measure picks the output.
 MEASURES = ("loss_deg", "regain_deg", "lost_deg", "separation_mm")
