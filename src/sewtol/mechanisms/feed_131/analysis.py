@@ -37,18 +37,6 @@ def trajectory(params: Feed131, step_deg: float = 1.0) -> pd.DataFrame:
                          "upper_y_mm": out["Q2"].p.imag})
 
 
-def velocities(params: Feed131, step_deg: float = 1.0) -> pd.DataFrame:
-    """Tooth velocities per unit main-shaft speed (mm/rad) and accelerations (mm/rad^2)."""
-    phi = np.arange(0.0, 360.0, step_deg)
-    fd.check_assembly(params, np.radians(phi))
-    out = fd.chains(P.column(params, None), np.radians(phi))
-    return pd.DataFrame({"phi_deg": phi,
-                         "lower_vx": out["Q1"].dp.real, "lower_vy": out["Q1"].dp.imag,
-                         "upper_vx": out["Q2"].dp.real, "upper_vy": out["Q2"].dp.imag,
-                         "lower_ax": out["Q1"].ddp.real, "lower_ay": out["Q1"].ddp.imag,
-                         "upper_ax": out["Q2"].ddp.real, "upper_ay": out["Q2"].ddp.imag})
-
-
 @dataclass(frozen=True)
 class FeedMetrics:
     lower: dict
