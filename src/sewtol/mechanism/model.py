@@ -180,24 +180,7 @@ class FileMechanism:
         return State(points, angles, closures, cols, q_rad, self.header.rpm, shape)
 
     def status_of(self, state: State) -> tuple[np.ndarray, np.ndarray]:
-        m = state.shape[0]
-        status = np.full(m, "ok", dtype=object)
-        failed = np.full(m, "", dtype=object)
-        for g in self.groups:  # a group that cannot close, first in assembly order
-            cl = state.closures.get(g.name)
-            if cl is None:
-                continue
-            miss = np.broadcast_to(cl.miss_mm, state.shape)
-            bad = ~np.all(miss == 0.0, axis=-1) & (status == "ok")
-            status[bad], failed[bad] = "cannot_close", g.name
-        for g in self.groups:
-            cl = state.closures.get(g.name)
-            if cl is None or cl.transmission_deg is None:
-                continue
-            t = np.broadcast_to(cl.transmission_deg, state.shape)
-            dead = (np.min(t, axis=-1) < DEAD_POINT_DEG) & (status == "ok")
-            status[dead], failed[dead] = "dead_point", g.name
-        return status, failed
+        return statuses(state.closures, state.shape)  # built in assembly order
 
     def evaluate(self, values: dict | None = None, outputs=None) -> Evaluation:
         """Outputs (one number per machine), status and failed group of the machines given by
@@ -228,6 +211,24 @@ class FileMechanism:
                 y = np.broadcast_to(y, (state.shape[0],))
                 out[o.name] = np.where(ok, y, np.nan)
         return out, status, failed
+
+
+def statuses(closures: dict, shape: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """Each machine's status and the group that failed ("" when ok), over (machines..., angles)
+    `shape`, from `closures` (group name -> engine.Closure, in assembly order): the first group
+    that misses at some angle makes it "cannot_close", else the first whose transmission angle
+    falls below DEAD_POINT_DEG makes it "dead_point"."""
+    status = np.full(shape[:-1], "ok", dtype=object)
+    failed = np.full(shape[:-1], "", dtype=object)
+    for name, cl in closures.items():
+        bad = ~np.all(np.broadcast_to(cl.miss_mm, shape) == 0.0, axis=-1) & (status == "ok")
+        status[bad], failed[bad] = "cannot_close", name
+    for name, cl in closures.items():
+        if cl.transmission_deg is not None:
+            t = np.broadcast_to(cl.transmission_deg, shape)
+            dead = (np.min(t, axis=-1) < DEAD_POINT_DEG) & (status == "ok")
+            status[dead], failed[dead] = "dead_point", name
+    return status, failed
 
 
 def _resolved(fields: dict, kinds: dict, points: dict, angles: dict, values: dict) -> dict:

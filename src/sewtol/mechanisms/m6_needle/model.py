@@ -27,12 +27,13 @@ from scipy import optimize
 
 from sewtol import engine
 from sewtol.errors import ParameterError
+from sewtol.mechanism.model import statuses
 from sewtol.mechanisms import params as P
 
 DEG = np.pi / 180.0
 G_M_S2 = 9.81
-# a group closer than this to its dead position (rod perpendicular to the guide) is a dead point
-DEAD_POINT_DEG = 1.0
+# in assembly order; a group closer than mechanism.model.DEAD_POINT_DEG to its dead position (rod
+# perpendicular to the guide) is at a dead point
 GROUPS = ("O2-slot-A", "B-J-guide")
 
 # published figures (other_seed_mechanisms.md, "M6"); used as targets and in residual tables
@@ -200,22 +201,6 @@ class M6Motion:
                              "a_along_m_s2": self.a_along_m_s2})
 
 
-def _status(c: dict, out: dict, shape):
-    status = np.full(shape, "ok", dtype=object)
-    failed = np.full(shape, "", dtype=object)
-    for name in GROUPS:
-        miss = np.broadcast_to(out["closure"][name], shape + (np.shape(out["J"].p)[-1],))
-        bad = np.any(~(miss == 0.0), axis=-1)  # NaN (no geometry) counts as not closing
-        new = bad & (status == "ok")
-        status[new], failed[new] = "cannot_close", name
-    for name, g in out["transmission"].items():
-        g = np.broadcast_to(g, shape + (np.shape(out["J"].p)[-1],))
-        dead = np.nanmin(np.where(np.isnan(g), np.inf, g), axis=-1) < DEAD_POINT_DEG
-        new = dead & (status == "ok")
-        status[new], failed[new] = "dead_point", name
-    return status, failed
-
-
 def motion(params: M6Needle, samples: int = 720) -> M6Motion:
     """J along the guide, its speed and acceleration at `samples` crank angles of one turn."""
     if int(samples) != samples or samples < 8:
@@ -231,8 +216,9 @@ def motion(params: M6Needle, samples: int = 720) -> M6Motion:
     w = c["rpm"] * 2 * np.pi / 60.0
     speed = np.abs(J.dp) * w * 1e-3
     accel = np.abs(J.ddp) * w * w * 1e-3  # uniform crank speed: a = J'' w^2
-    shape = () if n is None else (n,)
-    status, failed = _status(c, out, shape)
+    # a NaN miss (no geometry) counts as not closing; the rod's transmission is NaN only there
+    closures = {g: engine.Closure(out["closure"][g], out["transmission"].get(g)) for g in GROUPS}
+    status, failed = statuses(closures, (() if n is None else (n,)) + q.shape)
     v_along = (J.dp * u.conjugate()).real * w * 1e-3
     a_along = (J.ddp * u.conjugate()).real * w * w * 1e-3
     return M6Motion(np.degrees(q), s, speed, accel, v_along, a_along, status, failed)
