@@ -479,13 +479,11 @@ def _tolerance_sets(ctx, table, pnames) -> dict[str, ToleranceSet]:
                 if isinstance(spec, list):
                     if len(spec) != 2:
                         raise ParameterError(param, "must be [lower, upper]", spec)
-                    lo = _number(ctx, path + (param,), where, spec[0])
-                    hi = _number(ctx, path + (param,), where, spec[1])
-                    items.append(Tolerance(param, lo, hi))
+                    items.append(Tolerance(param, *(_number(ctx, path + (param,), where, v)
+                                                    for v in spec)))
                 else:
                     items.append(parse_item(set_name, param, spec))
             except ParameterError as exc:
                 ctx.fail(path + (param,), where, exc.rule, spec)
-        ts = ToleranceSet(set_name, tuple(items), desc)
-        out[set_name] = ts
+        out[set_name] = ToleranceSet(set_name, tuple(items), desc)
     return out

@@ -23,7 +23,7 @@ from sewtol.errors import ParameterError
 from sewtol.mechanism.groups import GROUPS
 from sewtol.mechanism.outputs import OUTPUT_TYPES, provide
 from sewtol.mechanism.spec import Compensator, Group, Header, Output, Parameter, Spec
-from sewtol.mechanisms.params import check_names, check_rule
+from sewtol.mechanisms import params as P
 from sewtol.tolerances import ToleranceSet
 
 DEAD_POINT_DEG = 1.0
@@ -98,11 +98,11 @@ class FileMechanism:
 
     def override(self, **changes) -> FileMechanism:
         """A copy with new nominal values (checked by each parameter's rule)."""
-        check_names(changes, self.parameter_names)
+        P.check_names(changes, self.parameter_names)
         params = []
         for p in self.parameters:
             if p.name in changes:
-                check_rule(p.name, p.rule, float(changes[p.name]))
+                P.check_rule(p.name, p.rule, float(changes[p.name]))
                 p = dataclasses.replace(p, nominal=float(changes[p.name]))
             params.append(p)
         return dataclasses.replace(self, parameters=tuple(params))
@@ -147,7 +147,7 @@ class FileMechanism:
     def columns(self, values: dict | None = None) -> tuple[dict, int]:
         """Every parameter as an (m, 1) column: the given values, nominal for the rest."""
         values = dict(values or {})
-        check_names(values, self.parameter_names)
+        P.check_names(values, self.parameter_names)
         sizes = {np.size(v) for v in values.values() if np.ndim(v) > 0}
         if len(sizes) > 1:
             raise ParameterError("values", "all arrays must have the same length", sorted(sizes))
@@ -155,7 +155,7 @@ class FileMechanism:
         cols = {}
         for p in self.parameters:
             v = np.asarray(values.get(p.name, p.nominal), float)
-            check_rule(p.name, p.rule, v)
+            P.check_rule(p.name, p.rule, v)
             cols[p.name] = np.broadcast_to(v.reshape(-1, 1) if v.ndim else v, (m, 1))
         return cols, m
 
@@ -171,10 +171,10 @@ class FileMechanism:
         for g in self.groups:
             gt = GROUPS[g.type]
             made, closure = gt.builder(q, **_resolved(g.fields, gt.fields, points, angles, cols))
-            if gt.produces == "point":
-                points[g.name] = _broadcast_motion(made, shape)
-            else:
-                angles[g.name] = _broadcast_angle(made, shape)
+            # a Motion's arrays are complex, an Angle's float; each shaped (machines, angles)
+            dtype = complex if gt.produces == "point" else float
+            (points if gt.produces == "point" else angles)[g.name] = type(made)(
+                *(np.broadcast_to(np.asarray(a, dtype), shape) for a in vars(made).values()))
             if closure is not None:
                 closures[g.name] = closure
         return State(points, angles, closures, cols, q_rad, self.header.rpm, shape)
@@ -250,16 +250,6 @@ def _resolved(fields: dict, kinds: dict, points: dict, angles: dict, values: dic
     return out
 
 
-def _broadcast_motion(mo, shape):
-    return engine.Motion(*(np.broadcast_to(np.asarray(a, complex), shape)
-                           for a in (mo.p, mo.dp, mo.ddp)))
-
-
-def _broadcast_angle(an, shape):
-    return engine.Angle(*(np.broadcast_to(np.asarray(a, float), shape)
-                          for a in (an.a, an.da, an.dda)))
-
-
 _CLASSES: dict = {}
 
 
@@ -268,14 +258,12 @@ def parameter_class(mech: FileMechanism):
     key = (mech.name, tuple((p.name, p.rule) for p in mech.parameters))
     if key in _CLASSES:
         return _CLASSES[key]
-    from sewtol.mechanisms import params as P
-
     rules = {p.name: p.rule for p in mech.parameters}
 
     def __post_init__(self):
         P.freeze(self)
         for name, rule in rules.items():
-            check_rule(name, rule, getattr(self, name))
+            P.check_rule(name, rule, getattr(self, name))
 
     def override(self, **changes):
         return P.override(self, changes)

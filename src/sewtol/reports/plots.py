@@ -12,6 +12,7 @@ matplotlib.rcParams["svg.hashsalt"] = "sewtol"  # fixed SVG ids: reruns are byte
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from sewtol.errors import ParameterError  # noqa: E402
 from sewtol.io import write_bytes_atomic  # noqa: E402
 
 FIGURE_DPI = 200  # print resolution: a 7 in wide figure is 1400 px, sharp at 100 % in a report
@@ -73,7 +74,6 @@ def save(fig, path: Path, fmt: str | None = None) -> Path:
     path = Path(path)
     fmt = fmt or path.suffix.lstrip(".") or "png"
     if fmt not in FIGURE_FORMATS:
-        from sewtol.errors import ParameterError
         raise ParameterError("--figure-format", f"must be one of {', '.join(FIGURE_FORMATS)}", fmt)
     path = path.with_suffix("." + fmt)
     for f in (fmt, "png") if fmt == "pdf" else (fmt,):

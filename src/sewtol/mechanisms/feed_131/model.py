@@ -193,8 +193,7 @@ def check_assembly(params: Feed131, phi_rad) -> None:
     out = chains(c, np.asarray(phi_rad, float))
     for name, miss in out["closure"].items():
         miss = np.broadcast_to(miss, np.shape(phi_rad))
-        bad = np.where(miss > 0)[0] if np.ndim(miss) else ([0] if miss > 0 else [])
-        if len(bad):
+        if np.any(miss > 0):
             k = int(np.argmax(miss))
             phi = float(np.degrees(np.ravel(phi_rad)[k]))
             raise AssemblyError(name, phi, float(np.ravel(miss)[k]), P.as_dict(params),

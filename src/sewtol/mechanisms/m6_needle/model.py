@@ -29,6 +29,7 @@ from sewtol import engine
 from sewtol.errors import ParameterError
 from sewtol.mechanism.model import statuses
 from sewtol.mechanisms import params as P
+from sewtol.tolerances import Tolerance, ToleranceSet
 
 DEG = np.pi / 180.0
 G_M_S2 = 9.81
@@ -519,12 +520,9 @@ def scan_travel(params: M6Needle, tolerances: dict) -> pd.DataFrame:
     """
     _check_tolerances(params, tolerances)
     names = list(tolerances)
-    k = len(names)
-    batch = {f: np.full(2 * k, float(getattr(params, f))) for f in P.field_names(type(params))}
-    for i, name in enumerate(names):
-        batch[name][2 * i] += tolerances[name]
-        batch[name][2 * i + 1] -= tolerances[name]
-    fig = evaluate(M6Needle(**batch), samples=72)
+    # machine 2i at +tol of parameter i, 2i + 1 at -tol, the others nominal
+    dev = ToleranceSet("scan", tuple(Tolerance(k, -t, t) for k, t in tolerances.items()))
+    fig = evaluate(P.with_deviations(params, dev.limit_variants()[3]), samples=72)
     nominal = float(travel_mm(params))
     up, lo = fig.travel_mm[0::2], fig.travel_mm[1::2]
     frame = pd.DataFrame({
