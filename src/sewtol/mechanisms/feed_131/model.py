@@ -24,10 +24,6 @@ DEG = np.pi / 180.0
 # sampled cycle (single runs: every 0.5 deg; studies: the 720-point grid)
 DEAD_POINT_DEG = 1.0
 
-# dyads in the order of the chain: name, (first point, its link), (second point, its link), branch
-DYADS = ("O4-K-F", "D-B-A1", "O3-C-B", "M-N-E", "O6-R-C", "O8-V-S", "X-L-W", "O7-H-A2", "U-J-I")
-
-
 # the folder's mechanism file holds the parameters once: names, nominal values and rules
 PARAMETERS = tomllib.loads(Path(__file__).with_name("mechanism.toml").read_text())["parameters"]
 
