@@ -88,11 +88,17 @@ def _rrp(q, p1, r, x, y, angle_deg, branch):
 
 
 def _spatial_rocker(q, a, b, c, e, f, g, alpha_deg, branch):
-    return engine.spatial_rocker(q, a, b, c, e, f, g, alpha_deg * DEG, branch)
+    # the spatial crank-rocker lives in engine/spatial.py (another module); imported here so
+    # the table can name it before that module exists in a build
+    from sewtol.engine import spatial  # type: ignore[attr-defined]
+
+    return spatial.spatial_rocker(q, a, b, c, e, f, g, alpha_deg * DEG, branch)
 
 
 def _spatial_slider(q, a, b, e, f, alpha_deg, branch):
-    return engine.spatial_slider(q, a, b, e, f, alpha_deg * DEG, branch)
+    from sewtol.engine import spatial  # type: ignore[attr-defined]
+
+    return spatial.spatial_slider(q, a, b, e, f, alpha_deg * DEG, branch)
 
 
 register_group("point", _point, fields={"x": ("expr", None), "y": ("expr", None)},

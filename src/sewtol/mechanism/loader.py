@@ -76,8 +76,7 @@ def read_text(path) -> str:
 
 def load(path, overrides: dict | None = None):
     """The FileMechanism of a file; `overrides` (name -> value) replace nominal values."""
-    text = read_text(path)
-    return loads(text, str(path), overrides)
+    return loads(read_text(path), str(path), overrides)
 
 
 def loads(text: str, path: str = "<text>", overrides: dict | None = None):
@@ -131,9 +130,7 @@ def _known(ctx, table, path, prefix, allowed, what="unknown key"):
 
 
 def _str(ctx, path, where, v, pattern=None, what="a string"):
-    if not isinstance(v, str):
-        ctx.fail(path, where, f"must be {what}", v)
-    if pattern is not None and not pattern.match(v):
+    if not isinstance(v, str) or (pattern is not None and not pattern.match(v)):
         ctx.fail(path, where, f"must be {what}", v)
     return v
 

@@ -32,10 +32,8 @@ def freeze(params) -> None:
 
 
 def positive(name: str, value) -> None:
-    v = np.asarray(value, float)
-    if not np.all(np.isfinite(v)):
-        raise ParameterError(name, "must be a finite number", show(value))
-    if np.any(v <= 0.0):
+    finite(name, value)
+    if np.any(np.asarray(value, float) <= 0.0):
         raise ParameterError(name, "must be a positive length in mm", show(value))
 
 
