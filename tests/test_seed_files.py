@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import spatial_rocker_reference as scr
 from sewtol import engine
 from sewtol.mechanism import load
 from sewtol.mechanisms.m6_needle import model as m6
-from sewtol.mechanisms.spatial_crank_rocker import model as scr
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 

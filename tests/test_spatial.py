@@ -14,9 +14,9 @@ from hypothesis import strategies as st
 from scipy.optimize import minimize_scalar
 from scipy.spatial.transform import Rotation
 
+import spatial_rocker_reference as scr
 from sewtol import engine
 from sewtol.errors import ParameterError
-from sewtol.mechanisms.spatial_crank_rocker import model as scr
 
 ROOT = Path(__file__).resolve().parents[1]
 # illustrative perpendicular-axes machine (the example file's nominal)

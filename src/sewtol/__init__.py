@@ -84,13 +84,10 @@ def tolerance_set(name_or_path: str | os.PathLike | ToleranceSet) -> ToleranceSe
     >>> sewtol.tolerance_set("recommended").params
     ['LF', 'LM', 'AM', 'AB', 'BC', 'BE', 'CD']
     """
-    from sewtol.mechanisms.needle_208.model import Needle208
-    from sewtol.mechanisms.params import field_names
-    from sewtol.tolerances import NEEDLE_208_SETS, ToleranceSet, resolve
+    from sewtol.tolerances import needle_set
 
-    if isinstance(name_or_path, ToleranceSet):
-        return name_or_path
-    return resolve(str(name_or_path), NEEDLE_208_SETS, field_names(Needle208))
+    return needle_set(os.fspath(name_or_path) if isinstance(name_or_path, os.PathLike)
+                      else name_or_path)
 
 
 def __getattr__(name: str):

@@ -134,7 +134,7 @@ def check_specs(mech) -> None:
     """Specs name outputs, limits are finite and ordered, and the nominal machine meets them."""
     outputs = {o.name for o in mech.outputs}
     ev = None
-    for s in pr.specs(mech):
+    for s in mech.specs:
         if s.output not in outputs:
             _fail("check_specs", f"spec on {s.output!r}, not an output")
         lo, hi = s.lower, s.upper

@@ -138,12 +138,6 @@ def plugins(mech) -> Plugins:
     return getattr(fp, "plugins", None) or NO_PLUGINS
 
 
-def specs(mech) -> tuple:
-    """The mechanism's specs (`sewtol.mechanism.Spec`: limits on outputs), () where it
-    declares none."""
-    return tuple(mech.specs)
-
-
 def tolerance_set(mech, tolerances: ToleranceSet | str) -> ToleranceSet:
     """A tolerance set of the mechanism, by name (one of its file's sets) or as given, its
     parameters checked against the mechanism's."""

@@ -178,17 +178,21 @@ def spatial_rocker_third(phi_rad, a, b, c, e, f, g, alpha_rad, branch) -> np.nda
     return _solve(np.asarray(phi_rad, float), a, b, c, e, f, g, alpha_rad, branch)[3]
 
 
+def _crank_pin(phi_rad, a, f, alpha_rad) -> np.ndarray:
+    """The crank's ball joint B(phi) (mm, last axis x, y, z) in the X, Y, Z frame."""
+    phi = np.asarray(phi_rad, float)
+    sa, ca = np.sin(alpha_rad), np.cos(alpha_rad)
+    return np.stack(np.broadcast_arrays(a * np.cos(phi), f * sa + a * ca * np.sin(phi),
+                                        f * ca - a * sa * np.sin(phi)), -1)
+
+
 def spatial_joints(phi_rad, psi_rad, a, c, e, f, g, alpha_rad) -> tuple[np.ndarray, np.ndarray]:
     """3-D positions (mm, last axis x, y, z) of the ball joints B(phi) and C(psi) in the X, Y, Z frame."""
-    phi, psi = np.asarray(phi_rad, float), np.asarray(psi_rad, float)
-    sa, ca = np.sin(alpha_rad), np.cos(alpha_rad)
-    bx = a * np.cos(phi)
-    by = f * sa + a * ca * np.sin(phi)
-    bz = f * ca - a * sa * np.sin(phi)
+    psi = np.asarray(psi_rad, float)
     cx = e + c * np.cos(psi)
     cy = c * np.sin(psi)
     cz = g + 0.0 * psi
-    return np.stack(np.broadcast_arrays(bx, by, bz), -1), np.stack(np.broadcast_arrays(cx, cy, cz), -1)
+    return _crank_pin(phi_rad, a, f, alpha_rad), np.stack(np.broadcast_arrays(cx, cy, cz), -1)
 
 
 PARAMETERS = ("a", "b", "c", "e", "f", "g", "alpha_rad")
@@ -222,6 +226,15 @@ def rocker_sensitivities(phi_rad, a, b, c, e, f, g, alpha_rad, branch) -> dict[s
         "alpha_rad": (-2.0 * c * (f * ca - a * sa * s), 0.0, 2.0 * a * g * ca * s + 2.0 * f * g * sa),
     }
     return {name: -(da * sp + db * cp + dc) / f_psi for name, (da, db, dc) in parts.items()}
+
+
+def _quartic_roots(low_first: np.ndarray) -> np.ndarray:
+    """The roots of z^4 + c3 z^3 + ... + c0, one quartic per row of low_first = (c0 ... c3):
+    the eigenvalues of its companion matrix (complex or real, as the coefficients)."""
+    companion = np.zeros((low_first.shape[0], 4, 4), low_first.dtype)
+    companion[:, 1:, :-1] = np.eye(3)
+    companion[:, :, -1] = -low_first
+    return np.linalg.eigvals(companion)
 
 
 @dataclass(frozen=True)
@@ -275,10 +288,7 @@ def rocker_extremes(a, b, c, e, f, g, alpha_rad, branch) -> RockerExtremes:
     lead = coef[:, 4]
     degenerate = np.abs(lead) <= 1e-12 * np.abs(coef).max(-1)
     lead = np.where(degenerate, 1.0, lead)
-    companion = np.zeros((len(coef), 4, 4), complex)
-    companion[:, 1:, :-1] = np.eye(3)
-    companion[:, :, -1] = -coef[:, :4] / lead[:, None]
-    z = np.linalg.eigvals(companion)
+    z = _quartic_roots(coef[:, :4] / lead[:, None])
     on_circle = np.abs(np.abs(z) - 1.0) < 1e-6
     psi = np.angle(z)
     for _ in range(4):
@@ -404,14 +414,9 @@ def spatial_slider_displacement(phi_rad, a, b, e, f, alpha_rad, branch) -> tuple
 
 def slider_joints(phi_rad, s, a, e, f, alpha_rad) -> tuple[np.ndarray, np.ndarray]:
     """3-D positions (mm, last axis x, y, z) of the ball joints B(phi) and C(s) of the slider."""
-    sa, ca = np.sin(alpha_rad), np.cos(alpha_rad)
-    phi, s = np.asarray(phi_rad, float), np.asarray(s, float)
-    bx = a * np.cos(phi)
-    by = f * sa + a * ca * np.sin(phi)
-    bz = f * ca - a * sa * np.sin(phi)
+    s = np.asarray(s, float)
     z = 0.0 * s
-    return (np.stack(np.broadcast_arrays(bx, by, bz), -1),
-            np.stack(np.broadcast_arrays(e + z, s, z), -1))
+    return _crank_pin(phi_rad, a, f, alpha_rad), np.stack(np.broadcast_arrays(e + z, s, z), -1)
 
 
 @dataclass(frozen=True)
@@ -449,11 +454,8 @@ def _largest_guide_distance(a, e, f, alpha):
     ok = np.abs(lead) > 1e-12 * (np.abs(r1) + np.abs(q1) + np.abs(r2) + 1e-300)
     lead = np.where(ok, lead, 1.0)
     n = lead.shape[0]
-    companion = np.zeros((n, 4, 4), complex)
-    companion[:, 1:, :-1] = np.eye(3)
     coef = np.concatenate([2.0 * r2 + 0j, r1 + 1j * q1, 0.0 * r1 + 0j, 1j * q1 - r1], -1)
-    companion[:, :, -1] = -coef / lead
-    roots = np.where(ok, np.angle(np.linalg.eigvals(companion)), 0.0)
+    roots = np.where(ok, np.angle(_quartic_roots(coef / lead)), 0.0)
     grid = 2.0 * np.pi * np.arange(64) / 64.0
     cand = np.concatenate([roots, np.broadcast_to(grid, (n, 64))], -1)
     for _ in range(3):  # Newton steps on d rho^2 / d phi = 0 (they keep a root a root)
@@ -490,11 +492,7 @@ def slider_extremes(a, b, e, f, alpha_rad, branch) -> SliderExtremes:
     k = a * a + f * f + e * e - b * b
     coef = np.concatenate([-4.0 * p, 4.0 * p * p + 2.0 * k - 4.0 * a * a * ca * ca,
                            -4.0 * p * k, k * k - 4.0 * a * a * e * e], -1)  # s^3 ... s^0
-    n = coef.shape[0]
-    companion = np.zeros((n, 4, 4))
-    companion[:, 1:, :-1] = np.eye(3)
-    companion[:, :, -1] = -coef[:, ::-1]
-    z = np.linalg.eigvals(companion)
+    z = _quartic_roots(coef[:, ::-1])
     scale = 1.0 + np.abs(z)
     real = np.abs(z.imag) < 1e-6 * scale
     s = z.real

@@ -32,7 +32,7 @@ from sewtol.mechanism.spec import (
     Parameter,
     Spec,
 )
-from sewtol.mechanisms.params import check_rule
+from sewtol.mechanisms.params import check_names, check_rule
 from sewtol.tolerances import Tolerance, ToleranceSet, parse_item
 
 MAX_BYTES = 1 << 20
@@ -77,8 +77,7 @@ def read_text(path) -> str:
 
 def load(path, overrides: dict | None = None):
     """The FileMechanism of a file; `overrides` (name -> value) replace nominal values."""
-    text = read_text(path)
-    return loads(text, str(path), overrides)
+    return loads(read_text(path), str(path), overrides)
 
 
 def loads(text: str, path: str = "<text>", overrides: dict | None = None):
@@ -91,9 +90,7 @@ def loads(text: str, path: str = "<text>", overrides: dict | None = None):
         m = re.search(r"line (\d+)", str(exc))
         raise ParameterError(f"{path}:{m.group(1) if m else 1}", "is not valid TOML",
                              str(exc)) from None
-    for k in data:
-        if k not in TOP_KEYS:
-            ctx.fail((k,), k, f"unknown key; allowed: {', '.join(TOP_KEYS)}", k)
+    _known(ctx, data, (), "", TOP_KEYS)
     if data.get("format") != FORMAT:
         ctx.fail(("format",), "format", f'must be "{FORMAT}"', data.get("format"))
     header = _header(ctx, data.get("mechanism"))
@@ -128,10 +125,15 @@ def loads(text: str, path: str = "<text>", overrides: dict | None = None):
     return mech
 
 
+def _known(ctx, table, path, prefix, allowed, what="unknown key"):
+    """Refuse the first key of `table` not in `allowed` (its place reads prefix + key)."""
+    for k in table:
+        if k not in allowed:
+            ctx.fail(path + (k,), f"{prefix}{k}", f"{what}; allowed: {', '.join(allowed)}", k)
+
+
 def _str(ctx, path, where, v, pattern=None, what="a string"):
-    if not isinstance(v, str):
-        ctx.fail(path, where, f"must be {what}", v)
-    if pattern is not None and not pattern.match(v):
+    if not isinstance(v, str) or (pattern is not None and not pattern.match(v)):
         ctx.fail(path, where, f"must be {what}", v)
     return v
 
@@ -145,10 +147,7 @@ def _number(ctx, path, where, v):
 def _header(ctx, m) -> Header:
     if not isinstance(m, dict):
         ctx.fail(("mechanism",), "[mechanism]", "must be a table with at least name", m)
-    for k in m:
-        if k not in MECH_KEYS:
-            ctx.fail(("mechanism", k), f"[mechanism] {k}",
-                     f"unknown key; allowed: {', '.join(MECH_KEYS)}", k)
+    _known(ctx, m, ("mechanism",), "[mechanism] ", MECH_KEYS)
     if "name" not in m:
         ctx.fail(("mechanism",), "[mechanism] name", "is required", None)
     name = _str(ctx, ("mechanism", "name"), "[mechanism] name", m["name"], MECH_NAME,
@@ -192,10 +191,7 @@ def _parameters(ctx, table, overrides) -> list[Parameter]:
         if not isinstance(spec, dict):
             ctx.fail(path, where, "must be a table { nominal = ..., unit = ..., rule = ..., "
                      "doc = ... }", spec)
-        for k in spec:
-            if k not in PARAM_KEYS:
-                ctx.fail(path + (k,), f"{where}.{k}",
-                         f"unknown key; allowed: {', '.join(PARAM_KEYS)}", k)
+        _known(ctx, spec, path, f"{where}.", PARAM_KEYS)
         if "nominal" not in spec:
             ctx.fail(path, f"{where}.nominal", "is required", None)
         nominal = _number(ctx, path + ("nominal",), f"{where}.nominal", spec["nominal"])
@@ -214,11 +210,7 @@ def _parameters(ctx, table, overrides) -> list[Parameter]:
         except ParameterError as exc:
             ctx.fail(path + ("nominal",), f"{where}.nominal", exc.rule, nominal)
         out.append(Parameter(name, nominal, unit, rule, doc, ctx.loc.line(*path)))
-    names = [p.name for p in out]
-    for name in overrides:
-        if name not in names:
-            raise ParameterError(name, f"unknown parameter; valid names are {', '.join(names)}",
-                                 name)
+    check_names(overrides, [p.name for p in out])
     fixed = []
     for p in out:
         if p.name in overrides:
@@ -242,6 +234,45 @@ def _expr(ctx, path, where, v, pnames, kind="expr"):
         if e.constant and e({}) not in (1.0, -1.0):
             ctx.fail(path, where, "must be +1 (left) or -1 (right)", v)
     return e
+
+
+def _reference(ctx, fpath, where, kind, v, defined, earlier):
+    """A point, angle or direction field: names `defined` (name -> "point" | "angle") by the
+    groups (`earlier`: by the groups before this one)."""
+    by, many = ("an earlier group", "earlier groups") if earlier else ("a group", "groups")
+    if kind == "direction":
+        if not (isinstance(v, list) and len(v) == 2
+                and all(isinstance(s, str) and defined.get(s) == "point" for s in v)):
+            ctx.fail(fpath, where, f"must be [P, Q], two points defined by {many}", v)
+        if earlier and v[0] == v[1]:
+            ctx.fail(fpath, where, "must join two different points", v)
+        return tuple(v)
+    if not isinstance(v, str) or defined.get(v) != kind:
+        what = ""
+        if earlier:
+            what = (f" (no earlier group defines {v!r})" if not isinstance(v, str) or v not in defined
+                    else f" ({v} is a {defined[v]}, not a {kind})")
+        ctx.fail(fpath, where, f"must name a {kind} defined by {by}{what}", v)
+    return v
+
+
+def _fields(ctx, path, where, entry, type_name, spec, one_of, value) -> dict:
+    """The fields of a [[groups]] or [[outputs]] entry by its type's `spec` (name -> (kind,
+    default[, choices])): exactly one of each `one_of`, every required one given, defaults
+    filled in; value(path, where, kind, v[, choices]) checks and resolves a given one."""
+    for group_of in one_of:
+        given = [k for k in group_of if k in entry]
+        if len(given) != 1:
+            ctx.fail(path, where, f"give exactly one of {', '.join(group_of)}", given)
+    fields = {}
+    for k, (kind, default, *choices) in spec.items():
+        if k in entry:
+            fields[k] = value(path + (k,), f"{where}.{k}", kind, entry[k], *choices)
+        elif default is None and not any(k in o for o in one_of):
+            ctx.fail(path, f"{where}.{k}", f"is required for type {type_name}", None)
+        elif default is not None:
+            fields[k] = X.parse(default) if kind in ("expr", "branch") else default
+    return fields
 
 
 def _groups(ctx, table, pnames) -> list[Group]:
@@ -273,41 +304,15 @@ def _groups(ctx, table, pnames) -> list[Group]:
         if name in points or name in pnames:
             ctx.fail(path + ("name",), f"{where}.name", "is already defined (point, angle or "
                      "parameter names must be unique)", name)
-        for k in g:
-            if k not in ("type", "name") and k not in gt.fields:
-                ctx.fail(path + (k,), f"{where}.{k}", f"unknown key for type {gtype}; allowed: "
-                         f"{', '.join(('type', 'name', *gt.fields))}", k)
-        for group_of in gt.one_of:
-            given = [k for k in group_of if k in g]
-            if len(given) != 1:
-                ctx.fail(path, where, f"give exactly one of {', '.join(group_of)}", given)
-        fields = {}
-        for k, (kind, default) in gt.fields.items():
-            if k not in g:
-                if default is None and not any(k in o for o in gt.one_of):
-                    ctx.fail(path, f"{where}.{k}", f"is required for type {gtype}", None)
-                if default is not None:
-                    fields[k] = X.parse(default)
-                continue
-            v = g[k]
-            fpath = path + (k,)
-            if kind in ("point", "angle"):
-                if not isinstance(v, str) or points.get(v) != kind:
-                    what = (f"no earlier group defines {v!r}" if v not in points
-                            else f"{v} is a {points[v]}, not a {kind}")
-                    ctx.fail(fpath, f"{where}.{k}", f"must name a {kind} defined by an earlier "
-                             f"group ({what})", v)
-                fields[k] = v
-            elif kind == "direction":
-                if not (isinstance(v, list) and len(v) == 2
-                        and all(isinstance(s, str) and points.get(s) == "point" for s in v)):
-                    ctx.fail(fpath, f"{where}.{k}", "must be [P, Q], two points defined by "
-                             "earlier groups", v)
-                if v[0] == v[1]:
-                    ctx.fail(fpath, f"{where}.{k}", "must join two different points", v)
-                fields[k] = tuple(v)
-            else:
-                fields[k] = _expr(ctx, fpath, f"{where}.{k}", v, pnames, kind)
+        _known(ctx, g, path, f"{where}.", ("type", "name", *gt.fields),
+               f"unknown key for type {gtype}")
+
+        def value(fpath, fwhere, kind, v):
+            if kind in ("point", "angle", "direction"):
+                return _reference(ctx, fpath, fwhere, kind, v, points, earlier=True)
+            return _expr(ctx, fpath, fwhere, v, pnames, kind)
+
+        fields = _fields(ctx, path, where, g, gtype, gt.fields, gt.one_of, value)
         if gtype == "crank":
             cranks += 1
         out.append(Group(gtype, name, fields, ctx.loc.line(*path)))
@@ -354,52 +359,26 @@ def _outputs(ctx, table, pnames, groups, header) -> list[Output]:
             ctx.fail(path + ("type",), f"{where}.type",
                      f"must be one of {', '.join((*OUTPUT_TYPES, 'custom'))}", otype)
         base = ("name", "unit", "type", "doc") + (("kind",) if otype == "custom" else ())
-        for k in o:
-            if k not in base and k not in ot.fields:
-                ctx.fail(path + (k,), f"{where}.{k}", f"unknown key for type {otype}; allowed: "
-                         f"{', '.join((*base, *ot.fields))}", k)
+        _known(ctx, o, path, f"{where}.", (*base, *ot.fields), f"unknown key for type {otype}")
         unit = _str(ctx, path + ("unit",), f"{where}.unit", o.get("unit"),
                     what="a string (the unit)")
         doc = o.get("doc", "")
         _str(ctx, path + ("doc",), f"{where}.doc", doc)
         if ot.needs_rpm and header.rpm is None:
             ctx.fail(path + ("type",), f"{where}.type", "needs rpm in [mechanism]", otype)
-        for group_of in ot.one_of:
-            given = [k for k in group_of if k in o]
-            if len(given) != 1:
-                ctx.fail(path, where, f"give exactly one of {', '.join(group_of)}", given)
-        fields = {}
-        for k, (fkind, default, choices) in ot.fields.items():
-            fpath = path + (k,)
-            if k not in o:
-                if default is None and not any(k in g for g in ot.one_of):
-                    ctx.fail(path, f"{where}.{k}", f"is required for type {otype}", None)
-                if default is not None:
-                    fields[k] = X.parse(default) if fkind == "expr" else default
-                continue
-            v = o[k]
-            if fkind in ("point", "angle"):
-                if not isinstance(v, str) or defined.get(v) != fkind:
-                    ctx.fail(fpath, f"{where}.{k}", f"must name a {fkind} defined by a group", v)
-                fields[k] = v
-            elif fkind == "direction":
-                if not (isinstance(v, list) and len(v) == 2
-                        and all(isinstance(s, str) and defined.get(s) == "point" for s in v)):
-                    ctx.fail(fpath, f"{where}.{k}", "must be [P, Q], two points defined by "
-                             "groups", v)
-                fields[k] = tuple(v)
-            elif fkind == "group":
-                if v not in closures:
-                    ctx.fail(fpath, f"{where}.{k}", "must name a group with a transmission "
-                             "angle, an rrr, spatial_rocker or spatial_slider group ("
-                             f"{', '.join(sorted(closures))})", v)
-                fields[k] = v
-            elif fkind == "choice":
-                if v not in choices:
-                    ctx.fail(fpath, f"{where}.{k}", f"must be one of {', '.join(choices)}", v)
-                fields[k] = v
-            else:
-                fields[k] = _expr(ctx, fpath, f"{where}.{k}", v, pnames)
+
+        def value(fpath, fwhere, kind, v, choices):
+            if kind in ("point", "angle", "direction"):
+                return _reference(ctx, fpath, fwhere, kind, v, defined, earlier=False)
+            if kind == "group" and v not in closures:
+                ctx.fail(fpath, fwhere, "must name a group with a transmission angle, an rrr, "
+                         f"spatial_rocker or spatial_slider group ({', '.join(sorted(closures))})",
+                         v)
+            if kind == "choice" and v not in choices:
+                ctx.fail(fpath, fwhere, f"must be one of {', '.join(choices)}", v)
+            return v if kind in ("group", "choice") else _expr(ctx, fpath, fwhere, v, pnames)
+
+        fields = _fields(ctx, path, where, o, otype, ot.fields, ot.one_of, value)
         out.append(Output(name, unit, otype, doc, fields, kind, ctx.loc.line(*path)))
     return out
 
@@ -413,10 +392,7 @@ def _specs(ctx, table, outputs) -> tuple[Spec, ...]:
         path = ("specs", i)
         if not isinstance(s, dict):
             ctx.fail(path, f"[[specs]] #{i + 1}", "must be a table", s)
-        for k in s:
-            if k not in SPEC_KEYS:
-                ctx.fail(path + (k,), f"[[specs]] #{i + 1}.{k}",
-                         f"unknown key; allowed: {', '.join(SPEC_KEYS)}", k)
+        _known(ctx, s, path, f"[[specs]] #{i + 1}.", SPEC_KEYS)
         output = s.get("output")
         if output not in names:
             ctx.fail(path + ("output",), f"[[specs]] #{i + 1}.output", "must name an output of "
@@ -448,10 +424,7 @@ def _compensators(ctx, table, pnames) -> dict[str, Compensator]:
         where = f"[compensators.{name}]"
         if not isinstance(c, dict):
             ctx.fail(path, where, "must be a table with parameter, low, high", c)
-        for k in c:
-            if k not in COMP_KEYS:
-                ctx.fail(path + (k,), f"{where} {k}",
-                         f"unknown key; allowed: {', '.join(COMP_KEYS)}", k)
+        _known(ctx, c, path, f"{where} ", COMP_KEYS)
         p = c.get("parameter")
         if p not in pnames:
             ctx.fail(path + ("parameter",), f"{where} parameter", "must name a parameter", p)
@@ -506,13 +479,11 @@ def _tolerance_sets(ctx, table, pnames) -> dict[str, ToleranceSet]:
                 if isinstance(spec, list):
                     if len(spec) != 2:
                         raise ParameterError(param, "must be [lower, upper]", spec)
-                    lo = _number(ctx, path + (param,), where, spec[0])
-                    hi = _number(ctx, path + (param,), where, spec[1])
-                    items.append(Tolerance(param, lo, hi))
+                    items.append(Tolerance(param, *(_number(ctx, path + (param,), where, v)
+                                                    for v in spec)))
                 else:
                     items.append(parse_item(set_name, param, spec))
             except ParameterError as exc:
                 ctx.fail(path + (param,), where, exc.rule, spec)
-        ts = ToleranceSet(set_name, tuple(items), desc)
-        out[set_name] = ts
+        out[set_name] = ToleranceSet(set_name, tuple(items), desc)
     return out

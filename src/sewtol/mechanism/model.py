@@ -24,7 +24,7 @@ from sewtol.mechanism.clearance import Clearance
 from sewtol.mechanism.groups import GROUPS
 from sewtol.mechanism.outputs import OUTPUT_TYPES, provide
 from sewtol.mechanism.spec import Compensator, Group, Header, Output, Parameter, Spec
-from sewtol.mechanisms.params import check_rule
+from sewtol.mechanisms import params as P
 from sewtol.tolerances import ToleranceSet
 
 DEAD_POINT_DEG = 1.0
@@ -100,15 +100,11 @@ class FileMechanism:
 
     def override(self, **changes) -> FileMechanism:
         """A copy with new nominal values (checked by each parameter's rule)."""
-        names = self.parameter_names
-        for k in changes:
-            if k not in names:
-                raise ParameterError(k, f"unknown parameter; valid names are {', '.join(names)}",
-                                     k)
+        P.check_names(changes, self.parameter_names)
         params = []
         for p in self.parameters:
             if p.name in changes:
-                check_rule(p.name, p.rule, float(changes[p.name]))
+                P.check_rule(p.name, p.rule, float(changes[p.name]))
                 p = dataclasses.replace(p, nominal=float(changes[p.name]))
             params.append(p)
         return dataclasses.replace(self, parameters=tuple(params))
@@ -153,11 +149,7 @@ class FileMechanism:
     def columns(self, values: dict | None = None) -> tuple[dict, int]:
         """Every parameter as an (m, 1) column: the given values, nominal for the rest."""
         values = dict(values or {})
-        names = self.parameter_names
-        for k in values:
-            if k not in names:
-                raise ParameterError(k, f"unknown parameter; valid names are {', '.join(names)}",
-                                     k)
+        P.check_names(values, self.parameter_names)
         sizes = {np.size(v) for v in values.values() if np.ndim(v) > 0}
         if len(sizes) > 1:
             raise ParameterError("values", "all arrays must have the same length", sorted(sizes))
@@ -165,7 +157,7 @@ class FileMechanism:
         cols = {}
         for p in self.parameters:
             v = np.asarray(values.get(p.name, p.nominal), float)
-            check_rule(p.name, p.rule, v)
+            P.check_rule(p.name, p.rule, v)
             cols[p.name] = np.broadcast_to(v.reshape(-1, 1) if v.ndim else v, (m, 1))
         return cols, m
 
@@ -180,45 +172,17 @@ class FileMechanism:
         points, angles, closures = {}, {}, {}
         for g in self.groups:
             gt = GROUPS[g.type]
-            kwargs = {}
-            for k, v in g.fields.items():
-                kind = gt.fields[k][0]
-                if kind == "point":
-                    kwargs[k] = points[v]
-                elif kind == "angle":
-                    kwargs[k] = angles[v]
-                elif kind == "direction":
-                    kwargs[k] = engine.direction(points[v[0]], points[v[1]])
-                else:
-                    kwargs[k] = np.asarray(v(cols), float)
-            made, closure = gt.builder(q, **kwargs)
-            if gt.produces == "point":
-                points[g.name] = _broadcast_motion(made, shape)
-            else:
-                angles[g.name] = _broadcast_angle(made, shape)
+            made, closure = gt.builder(q, **_resolved(g.fields, gt.fields, points, angles, cols))
+            # a Motion's arrays are complex, an Angle's float; each shaped (machines, angles)
+            dtype = complex if gt.produces == "point" else float
+            (points if gt.produces == "point" else angles)[g.name] = type(made)(
+                *(np.broadcast_to(np.asarray(a, dtype), shape) for a in vars(made).values()))
             if closure is not None:
                 closures[g.name] = closure
         return State(points, angles, closures, cols, q_rad, self.header.rpm, shape)
 
     def status_of(self, state: State) -> tuple[np.ndarray, np.ndarray]:
-        m = state.shape[0]
-        status = np.full(m, "ok", dtype=object)
-        failed = np.full(m, "", dtype=object)
-        for g in self.groups:  # a group that cannot close, first in assembly order
-            cl = state.closures.get(g.name)
-            if cl is None:
-                continue
-            miss = np.broadcast_to(cl.miss_mm, state.shape)
-            bad = ~np.all(miss == 0.0, axis=-1) & (status == "ok")
-            status[bad], failed[bad] = "cannot_close", g.name
-        for g in self.groups:
-            cl = state.closures.get(g.name)
-            if cl is None or cl.transmission_deg is None:
-                continue
-            t = np.broadcast_to(cl.transmission_deg, state.shape)
-            dead = (np.min(t, axis=-1) < DEAD_POINT_DEG) & (status == "ok")
-            status[dead], failed[dead] = "dead_point", g.name
-        return status, failed
+        return statuses(state.closures, state.shape)  # built in assembly order
 
     def evaluate(self, values: dict | None = None, outputs=None) -> Evaluation:
         """Outputs (one number per machine), status and failed group of the machines given by
@@ -244,33 +208,48 @@ class FileMechanism:
             for o in chosen:
                 # provide: a worker process that unpickled the file imports the kind's module
                 ot = provide(o.kind) if o.type == "custom" else OUTPUT_TYPES[o.type]
-                kwargs = {}
-                for k, v in o.fields.items():
-                    kind = ot.fields[k][0]
-                    if kind == "point":
-                        kwargs[k] = state.points[v]
-                    elif kind == "angle":
-                        kwargs[k] = state.angles[v]
-                    elif kind == "direction":
-                        kwargs[k] = engine.direction(state.points[v[0]], state.points[v[1]])
-                    elif kind == "expr":
-                        kwargs[k] = np.asarray(v(state.values), float)
-                    else:
-                        kwargs[k] = v
+                kwargs = _resolved(o.fields, ot.fields, state.points, state.angles, state.values)
                 y = np.asarray(ot.fn(state, **kwargs), float).reshape(-1)
                 y = np.broadcast_to(y, (state.shape[0],))
                 out[o.name] = np.where(ok, y, np.nan)
         return out, status, failed
 
 
-def _broadcast_motion(mo, shape):
-    return engine.Motion(*(np.broadcast_to(np.asarray(a, complex), shape)
-                           for a in (mo.p, mo.dp, mo.ddp)))
+def statuses(closures: dict, shape: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """Each machine's status and the group that failed ("" when ok), over (machines..., angles)
+    `shape`, from `closures` (group name -> engine.Closure, in assembly order): the first group
+    that misses at some angle makes it "cannot_close", else the first whose transmission angle
+    falls below DEAD_POINT_DEG makes it "dead_point"."""
+    status = np.full(shape[:-1], "ok", dtype=object)
+    failed = np.full(shape[:-1], "", dtype=object)
+    for name, cl in closures.items():
+        bad = ~np.all(np.broadcast_to(cl.miss_mm, shape) == 0.0, axis=-1) & (status == "ok")
+        status[bad], failed[bad] = "cannot_close", name
+    for name, cl in closures.items():
+        if cl.transmission_deg is not None:
+            t = np.broadcast_to(cl.transmission_deg, shape)
+            dead = (np.min(t, axis=-1) < DEAD_POINT_DEG) & (status == "ok")
+            status[dead], failed[dead] = "dead_point", name
+    return status, failed
 
 
-def _broadcast_angle(an, shape):
-    return engine.Angle(*(np.broadcast_to(np.asarray(a, float), shape)
-                          for a in (an.a, an.da, an.dda)))
+def _resolved(fields: dict, kinds: dict, points: dict, angles: dict, values: dict) -> dict:
+    """A group's or an output's fields as its function takes them: points and angles by name,
+    a direction as the angle of P -> Q, expressions evaluated on `values`, choices as given."""
+    out = {}
+    for k, v in fields.items():
+        kind = kinds[k][0]
+        if kind == "point":
+            out[k] = points[v]
+        elif kind == "angle":
+            out[k] = angles[v]
+        elif kind == "direction":
+            out[k] = engine.direction(points[v[0]], points[v[1]])
+        elif kind in ("expr", "branch"):
+            out[k] = np.asarray(v(values), float)
+        else:
+            out[k] = v
+    return out
 
 
 _CLASSES: dict = {}
@@ -281,14 +260,12 @@ def parameter_class(mech: FileMechanism):
     key = (mech.name, tuple((p.name, p.rule) for p in mech.parameters))
     if key in _CLASSES:
         return _CLASSES[key]
-    from sewtol.mechanisms import params as P
-
     rules = {p.name: p.rule for p in mech.parameters}
 
     def __post_init__(self):
         P.freeze(self)
         for name, rule in rules.items():
-            check_rule(name, rule, getattr(self, name))
+            P.check_rule(name, rule, getattr(self, name))
 
     def override(self, **changes):
         return P.override(self, changes)

@@ -72,8 +72,6 @@ class Compensator:
 
     def settings(self):
         """The allowed settings of a stepped compensator: low + k * step inside [low, high]."""
-        import numpy as np
-
         k = int(np.floor((self.high - self.low) / self.step * (1 + 1e-12)))
         return self.low + self.step * np.arange(k + 1)
 

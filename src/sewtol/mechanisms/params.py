@@ -32,10 +32,8 @@ def freeze(params) -> None:
 
 
 def positive(name: str, value) -> None:
-    v = np.asarray(value, float)
-    if not np.all(np.isfinite(v)):
-        raise ParameterError(name, "must be a finite number", show(value))
-    if np.any(v <= 0.0):
+    finite(name, value)
+    if np.any(np.asarray(value, float) <= 0.0):
         raise ParameterError(name, "must be a positive length in mm", show(value))
 
 
@@ -77,14 +75,17 @@ def field_names(cls) -> list[str]:
     return [f.name for f in dataclasses.fields(cls)]
 
 
+def check_names(names, valid: list[str]) -> None:
+    """Refuse the first of `names` that is not in `valid`, listing the valid ones."""
+    for name in names:
+        if name not in valid:
+            raise ParameterError(name, f"unknown parameter; valid names are {', '.join(valid)}",
+                                 name)
+
+
 def override(params, changes: dict[str, Any]):
     """A copy with the named fields changed; unknown names fail and list the valid ones."""
-    valid = field_names(type(params))
-    for name in changes:
-        if name not in valid:
-            raise ParameterError(
-                name, f"unknown parameter; valid names are {', '.join(valid)}", name
-            )
+    check_names(changes, field_names(type(params)))
     return dataclasses.replace(params, **changes)
 
 
@@ -129,11 +130,7 @@ def as_dict(params) -> dict[str, Any]:
 
 def with_deviations(params, deviations: dict[str, np.ndarray]):
     """A batch: nominal plus each machine's deviation (arrays of equal length) per named field."""
-    valid = field_names(type(params))
-    for name in deviations:
-        if name not in valid:
-            raise ParameterError(name, f"unknown parameter; valid names are {', '.join(valid)}",
-                                 name)
+    check_names(deviations, field_names(type(params)))
     return dataclasses.replace(params, **{
         k: np.asarray(getattr(params, k), float) + np.asarray(v, float)
         for k, v in deviations.items()})

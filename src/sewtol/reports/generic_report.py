@@ -23,7 +23,7 @@ from scipy import stats
 
 from sewtol.errors import ParameterError
 from sewtol.io import write_bytes_atomic, write_text_atomic
-from sewtol.reports.tables import to_csv, to_markdown
+from sewtol.reports.tables import to_csv, write_table
 from sewtol.studies import generic as G
 from sewtol.studies import montecarlo as MC
 from sewtol.studies import scan as S
@@ -253,10 +253,8 @@ def write(report: GenericReport, out) -> list[Path]:
     written = []
     tables = _tables(report)
     for name, title, frame in tables:
-        settings = sampled if name in ("montecarlo_summary", "yield") else base
-        write_text_atomic(out / f"{name}.csv", to_csv(frame, settings))
-        write_text_atomic(out / f"{name}.md", to_markdown(frame, title, settings))
-        written += [out / f"{name}.csv", out / f"{name}.md"]
+        written += write_table(frame, out, name, title,
+                               sampled if name in ("montecarlo_summary", "yield") else base)
     write_text_atomic(out / "machines.csv", to_csv(report.machines, sampled))
     written.append(out / "machines.csv")
     figures = {}

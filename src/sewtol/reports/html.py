@@ -15,6 +15,8 @@ import html
 import re
 from dataclasses import dataclass, field
 
+from sewtol.errors import ParameterError
+
 CSS = """
 body{font-family:"DejaVu Sans",Arial,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;
 color:#111;line-height:1.4;font-size:14px}
@@ -43,7 +45,6 @@ class Figure:
 
     def __post_init__(self):
         if self.fmt not in ("png", "svg"):
-            from sewtol.errors import ParameterError
             raise ParameterError("figure format", "must be png or svg to embed in HTML", self.fmt)
 
 

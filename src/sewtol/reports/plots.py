@@ -12,29 +12,12 @@ matplotlib.rcParams["svg.hashsalt"] = "sewtol"  # fixed SVG ids: reruns are byte
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from sewtol.errors import ParameterError  # noqa: E402
 from sewtol.io import write_bytes_atomic  # noqa: E402
 
 FIGURE_DPI = 200  # print resolution: a 7 in wide figure is 1400 px, sharp at 100 % in a report
 FIGURE_FORMATS = ("png", "svg", "pdf")
 MICRO = "\u00b5m"  # every label says µm; data columns keep _um
-
-
-def figure_texts(fig) -> list[str]:
-    """Every string a reader sees on a figure: titles, axis labels, tick labels, legend entries,
-    annotations (what the label tests check instead of pixels)."""
-    out = [t.get_text() for t in fig.texts]
-    for ax in fig.axes:
-        if not ax.get_visible():
-            continue
-        out += [ax.get_title(loc) for loc in ("left", "center", "right")]
-        out += [ax.get_xlabel(), ax.get_ylabel()]
-        out += [t.get_text() for t in ax.get_xticklabels() + ax.get_yticklabels()]
-        out += [t.get_text() for t in ax.texts]
-        leg = ax.get_legend()
-        if leg is not None:
-            out += [t.get_text() for t in leg.get_texts()]
-            out.append(leg.get_title().get_text())
-    return [t for t in out if t]
 
 
 def deviation_vs_crank(curves: dict, ax=None, limit_um: float | None = None):
@@ -91,7 +74,6 @@ def save(fig, path: Path, fmt: str | None = None) -> Path:
     path = Path(path)
     fmt = fmt or path.suffix.lstrip(".") or "png"
     if fmt not in FIGURE_FORMATS:
-        from sewtol.errors import ParameterError
         raise ParameterError("--figure-format", f"must be one of {', '.join(FIGURE_FORMATS)}", fmt)
     path = path.with_suffix("." + fmt)
     for f in (fmt, "png") if fmt == "pdf" else (fmt,):

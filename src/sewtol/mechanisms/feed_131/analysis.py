@@ -30,23 +30,10 @@ def trajectory(params: Feed131, step_deg: float = 1.0) -> pd.DataFrame:
         raise ParameterError("step_deg", "must be in (0, 90]", step_deg)
     phi = np.arange(0.0, 360.0, step_deg)
     fd.check_assembly(params, np.radians(phi))
-    c = P.column(params, None)
-    out = fd.chains(c, np.radians(phi))
+    out = fd.chains(P.column(params, None), np.radians(phi))
     return pd.DataFrame({"phi_deg": phi, "lower_x_mm": out["Q1"].p.real,
                          "lower_y_mm": out["Q1"].p.imag, "upper_x_mm": out["Q2"].p.real,
                          "upper_y_mm": out["Q2"].p.imag})
-
-
-def velocities(params: Feed131, step_deg: float = 1.0) -> pd.DataFrame:
-    """Tooth velocities per unit main-shaft speed (mm/rad) and accelerations (mm/rad^2)."""
-    phi = np.arange(0.0, 360.0, step_deg)
-    fd.check_assembly(params, np.radians(phi))
-    out = fd.chains(P.column(params, None), np.radians(phi))
-    return pd.DataFrame({"phi_deg": phi,
-                         "lower_vx": out["Q1"].dp.real, "lower_vy": out["Q1"].dp.imag,
-                         "upper_vx": out["Q2"].dp.real, "upper_vy": out["Q2"].dp.imag,
-                         "lower_ax": out["Q1"].ddp.real, "lower_ay": out["Q1"].ddp.imag,
-                         "upper_ax": out["Q2"].ddp.real, "upper_ay": out["Q2"].ddp.imag})
 
 
 @dataclass(frozen=True)
@@ -83,15 +70,9 @@ def metrics(params: Feed131) -> FeedMetrics:
                         "material_mm": float(params.material_mm)})
 
 
-def _machine_columns(nominal: Feed131, deviations: dict) -> dict:
-    c, _ = columns(P.with_deviations(nominal, deviations) if deviations else nominal)
-    m = len(next(iter(deviations.values()))) if deviations else 1
-    return {k: np.broadcast_to(v, (m, 1)).copy() for k, v in c.items()}
-
-
 def outputs(nominal: Feed131, deviations: dict) -> dict:
     """Feed steps, ratio and mismatch of machines nominal + deviations (NaN where they fail)."""
-    c = _machine_columns(nominal, deviations)
+    c, _ = columns(P.with_deviations(nominal, deviations) if deviations else nominal)
     pf = pair_figures(c)
     return {"lower_step_mm": pf.lower.feed_step_mm, "upper_step_mm": pf.upper.feed_step_mm,
             "differential_ratio": pf.differential_ratio, "mismatch_mm": pf.mismatch_mm}

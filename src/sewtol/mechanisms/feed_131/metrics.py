@@ -50,21 +50,20 @@ def _tooth(c, phi, key):
     return out[key], miss
 
 
-def _refine_crossing(c, key, phi, level, iters=6):
+def _newton(c, key, phi, level=None, iters=6):
+    """Newton steps from phi on the tooth's y = level (a crossing) or, without a level, on
+    dy/dphi = 0 (an extreme); returns phi and the tooth's motion there."""
     for _ in range(iters):
         q, _ = _tooth(c, phi, key)
-        phi = phi - (q.p.imag - level) / q.dp.imag
-    q, _ = _tooth(c, phi, key)
-    return phi, q.p.real
+        phi = phi - ((q.p.imag - level) / q.dp.imag if level is not None
+                     else q.dp.imag / q.ddp.imag)
+    return phi, _tooth(c, phi, key)[0]
 
 
 def polish_extremes(c, key, t, iters=6):
     """Newton steps on dy/dphi = 0 from grid extremes t; returns (phi, y) there."""
-    for _ in range(iters):
-        qq, _ = _tooth(c, t, key)
-        t = t - qq.dp.imag / qq.ddp.imag
-    qq, _ = _tooth(c, t, key)
-    return t, qq.p.imag
+    t, q = _newton(c, key, t, iters=iters)
+    return t, q.p.imag
 
 
 def dog_figures(c: dict, which: str, n_grid: int = N_GRID, side: str | None = None) -> DogFigures:
@@ -97,8 +96,8 @@ def dog_figures(c: dict, which: str, n_grid: int = N_GRID, side: str | None = No
     h = 2 * np.pi / n_grid
     i_in = np.argmax(entries, axis=1)
     i_out = np.argmax(exits, axis=1)
-    phi_in, x_in = _refine_crossing(c, key, (i_in[:, None] + 0.5) * h, level)
-    phi_out, x_out = _refine_crossing(c, key, (i_out[:, None] + 0.5) * h, level)
+    phi_in, q_in = _newton(c, key, (i_in[:, None] + 0.5) * h, level)
+    phi_out, q_out = _newton(c, key, (i_out[:, None] + 0.5) * h, level)
     # extreme rise on the working side and the travel, polished by Newton on y' = 0
     t, y_work = polish_extremes(c, key, np.argmax(depth, axis=1)[:, None] * h)
     _, y_other = polish_extremes(c, key, np.argmin(depth, axis=1)[:, None] * h)
@@ -110,7 +109,7 @@ def dog_figures(c: dict, which: str, n_grid: int = N_GRID, side: str | None = No
         return np.mod(np.degrees(a.ravel()), 360.0) * nan
 
     return DogFigures(
-        feed_step_mm=(x_in - x_out).ravel() * nan,
+        feed_step_mm=(q_in.p.real - q_out.p.real).ravel() * nan,
         max_rise_mm=rise.ravel() * nan,
         max_rise_phi_deg=deg(t),
         entry_phi_deg=deg(phi_in),

@@ -8,7 +8,9 @@ engine.rrr(X, XJ, Y, YJ, +1).
 
 from __future__ import annotations
 
+import tomllib
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -22,16 +24,26 @@ DEG = np.pi / 180.0
 # sampled cycle (single runs: every 0.5 deg; studies: the 720-point grid)
 DEAD_POINT_DEG = 1.0
 
-# dyads in the order of the chain: name, (first point, its link), (second point, its link), branch
-DYADS = ("O4-K-F", "D-B-A1", "O3-C-B", "M-N-E", "O6-R-C", "O8-V-S", "X-L-W", "O7-H-A2", "U-J-I")
+# the folder's mechanism file holds the parameters once: names, nominal values and rules
+PARAMETERS = tomllib.loads(Path(__file__).with_name("mechanism.toml").read_text())["parameters"]
 
 
-@dataclass(frozen=True)
+def _file_fields(cls):
+    """The dataclass of `cls` with a float field per parameter of the file, its nominal the
+    default."""
+    for name, spec in PARAMETERS.items():
+        cls.__annotations__[name] = float
+        setattr(cls, name, float(spec["nominal"]))
+    return dataclass(frozen=True)(cls)
+
+
+@_file_fields
 class Feed131:
     """Every length, pivot, phase and setting of the 131-42+3 feed chains (mm, deg).
 
-    Frozen and validated at construction. The defaults are the source's analysis-program data;
-    the field names follow the points of the chains (docs/feed_131.md lists the 23 steps): a
+    Frozen and validated at construction. The fields and their defaults are the [parameters] of
+    the folder's mechanism.toml, in its order (the source's analysis-program data, written
+    once). The names follow the points of the chains (docs/feed_131.md lists the 23 steps): a
     two-letter name is the length between two points (``O4K`` is O4 to K), ``..x``/``..y`` a
     fixed pivot's coordinates, ``.._angle`` the angle of an arm on its rocker. Frame origin O1
     (the main shaft), x to the right, y up; angles counter-clockwise from +x.
@@ -71,89 +83,7 @@ class Feed131:
         The material thickness (mm); the upper dog works below plate_mm + material_mm.
     """
 
-    # lower dog, lift chain
-    O1F: float = 1.8
-    lift_phase: float = 224.0
-    O4x: float = 56.0
-    O4y: float = 7.5
-    O4K: float = 24.0
-    FK: float = 52.0
-    O4M: float = 25.0
-    M_angle: float = -98.0
-    # lower dog, feed chain and regulator
-    O1A1: float = 4.0
-    feed_phase: float = 0.0
-    O2x: float = -37.6
-    O2y: float = -16.6
-    O2D: float = 18.0
-    b: float = 30.0
-    DB: float = 18.0
-    A1B: float = 41.3
-    O3x: float = -63.0
-    O3y: float = -1.0
-    O3C: float = 20.0
-    BC: float = 18.0
-    O3E: float = 24.0
-    E_angle: float = 88.0
-    # lower dog bar
-    MN: float = 18.0
-    EN: float = 98.66
-    EP: float = 95.7
-    PN: float = 24.0
-    tooth1_u: float = 64.1
-    tooth1_v: float = 9.3
-    # 0: the exact right triangle E-N-P of the note's step 10 (default); 1: the analysis
-    # program's arithmetic, u = ((c EP - s PN) / EN, (s EP + c PN) / EN) with the data value
-    # EN = 98.66, so u is hypot(EP, PN) / EN = 1.0000357 long and the tooth sits ~2.3 um further
-    # along the bar (docs/feed_131.md)
-    dog_bar_program: float = 0.0
-    # upper dog, horizontal chain
-    O6x: float = 25.0
-    O6y: float = 181.0
-    O6R: float = 15.0
-    CR: float = 204.0
-    O6S: float = 20.0
-    RS: float = 20.0
-    O8x: float = -55.5
-    O8y: float = 104.9
-    O8V: float = 43.0
-    SV: float = 100.0
-    O8W: float = 52.5
-    Xx: float = -32.0
-    Xy: float = 72.0
-    XL: float = 20.0
-    WL: float = 23.25
-    # upper dog, lift chain
-    O5x: float = 0.0
-    O5y: float = 220.0
-    O5A2: float = 0.6
-    upper_phase: float = 87.0
-    # sense of the upper lift eccentric: -1 (the note): A2 = O5 + O5A2 e(upper_phase - phi);
-    # +1: e(upper_phase + phi), the shaft turning with the main shaft (a convention tested
-    # against the source's read-offs in feed.readoff_residuals)
-    upper_sense: float = -1.0
-    O7x: float = -70.0
-    O7y: float = 160.9
-    O7H: float = 66.5
-    A2H: float = 69.0
-    O7I: float = 73.0
-    Ux: float = -36.0
-    Uy: float = 62.0
-    UJ: float = 26.0
-    IJ: float = 33.5
-    UY: float = 19.4
-    Y_angle: float = -99.56
-    # dog holder (RPR) and upper tooth
-    slot_offset: float = 8.0
-    tooth2_u: float = 29.0
-    tooth2_v: float = 27.9
-    # working settings
-    plate_mm: float = 32.5
-    material_mm: float = 0.0
-
-    LENGTHS = ("O1F", "O4K", "FK", "O4M", "O1A1", "O2D", "DB", "A1B", "O3C", "BC", "O3E", "MN",
-               "EN", "EP", "PN", "O6R", "CR", "O6S", "RS", "O8V", "SV", "O8W", "XL", "WL", "O5A2",
-               "O7H", "A2H", "O7I", "UJ", "IJ", "UY")
+    LENGTHS = tuple(k for k, spec in PARAMETERS.items() if spec.get("rule") == "positive")
 
     def __post_init__(self):
         P.freeze(self)
@@ -259,8 +189,7 @@ def check_assembly(params: Feed131, phi_rad) -> None:
     out = chains(c, np.asarray(phi_rad, float))
     for name, miss in out["closure"].items():
         miss = np.broadcast_to(miss, np.shape(phi_rad))
-        bad = np.where(miss > 0)[0] if np.ndim(miss) else ([0] if miss > 0 else [])
-        if len(bad):
+        if np.any(miss > 0):
             k = int(np.argmax(miss))
             phi = float(np.degrees(np.ravel(phi_rad)[k]))
             raise AssemblyError(name, phi, float(np.ravel(miss)[k]), P.as_dict(params),

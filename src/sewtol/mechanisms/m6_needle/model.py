@@ -27,12 +27,14 @@ from scipy import optimize
 
 from sewtol import engine
 from sewtol.errors import ParameterError
+from sewtol.mechanism.model import statuses
 from sewtol.mechanisms import params as P
+from sewtol.tolerances import Tolerance, ToleranceSet
 
 DEG = np.pi / 180.0
 G_M_S2 = 9.81
-# a group closer than this to its dead position (rod perpendicular to the guide) is a dead point
-DEAD_POINT_DEG = 1.0
+# in assembly order; a group closer than mechanism.model.DEAD_POINT_DEG to its dead position (rod
+# perpendicular to the guide) is at a dead point
 GROUPS = ("O2-slot-A", "B-J-guide")
 
 # published figures (other_seed_mechanisms.md, "M6"); used as targets and in residual tables
@@ -200,22 +202,6 @@ class M6Motion:
                              "a_along_m_s2": self.a_along_m_s2})
 
 
-def _status(c: dict, out: dict, shape):
-    status = np.full(shape, "ok", dtype=object)
-    failed = np.full(shape, "", dtype=object)
-    for name in GROUPS:
-        miss = np.broadcast_to(out["closure"][name], shape + (np.shape(out["J"].p)[-1],))
-        bad = np.any(~(miss == 0.0), axis=-1)  # NaN (no geometry) counts as not closing
-        new = bad & (status == "ok")
-        status[new], failed[new] = "cannot_close", name
-    for name, g in out["transmission"].items():
-        g = np.broadcast_to(g, shape + (np.shape(out["J"].p)[-1],))
-        dead = np.nanmin(np.where(np.isnan(g), np.inf, g), axis=-1) < DEAD_POINT_DEG
-        new = dead & (status == "ok")
-        status[new], failed[new] = "dead_point", name
-    return status, failed
-
-
 def motion(params: M6Needle, samples: int = 720) -> M6Motion:
     """J along the guide, its speed and acceleration at `samples` crank angles of one turn."""
     if int(samples) != samples or samples < 8:
@@ -231,8 +217,9 @@ def motion(params: M6Needle, samples: int = 720) -> M6Motion:
     w = c["rpm"] * 2 * np.pi / 60.0
     speed = np.abs(J.dp) * w * 1e-3
     accel = np.abs(J.ddp) * w * w * 1e-3  # uniform crank speed: a = J'' w^2
-    shape = () if n is None else (n,)
-    status, failed = _status(c, out, shape)
+    # a NaN miss (no geometry) counts as not closing; the rod's transmission is NaN only there
+    closures = {g: engine.Closure(out["closure"][g], out["transmission"].get(g)) for g in GROUPS}
+    status, failed = statuses(closures, (() if n is None else (n,)) + q.shape)
     v_along = (J.dp * u.conjugate()).real * w * 1e-3
     a_along = (J.ddp * u.conjugate()).real * w * w * 1e-3
     return M6Motion(np.degrees(q), s, speed, accel, v_along, a_along, status, failed)
@@ -520,11 +507,8 @@ def alternatives() -> list[Reconstruction]:
 
 
 def _check_tolerances(params: M6Needle, tolerances: dict) -> None:
-    valid = P.field_names(type(params))
+    P.check_names(tolerances, P.field_names(type(params)))
     for name, t in tolerances.items():
-        if name not in valid:
-            raise ParameterError(name, f"unknown parameter; valid names are {', '.join(valid)}",
-                                 name)
         if not np.isfinite(t) or t <= 0:
             raise ParameterError(name, "a tolerance must be a positive number (+/- limit)", t)
 
@@ -536,12 +520,9 @@ def scan_travel(params: M6Needle, tolerances: dict) -> pd.DataFrame:
     """
     _check_tolerances(params, tolerances)
     names = list(tolerances)
-    k = len(names)
-    batch = {f: np.full(2 * k, float(getattr(params, f))) for f in P.field_names(type(params))}
-    for i, name in enumerate(names):
-        batch[name][2 * i] += tolerances[name]
-        batch[name][2 * i + 1] -= tolerances[name]
-    fig = evaluate(M6Needle(**batch), samples=72)
+    # machine 2i at +tol of parameter i, 2i + 1 at -tol, the others nominal
+    dev = ToleranceSet("scan", tuple(Tolerance(k, -t, t) for k, t in tolerances.items()))
+    fig = evaluate(P.with_deviations(params, dev.limit_variants()[3]), samples=72)
     nominal = float(travel_mm(params))
     up, lo = fig.travel_mm[0::2], fig.travel_mm[1::2]
     frame = pd.DataFrame({

@@ -90,11 +90,9 @@ class PresserFoot:
 
     def __post_init__(self):
         P.freeze(self)
-        for name in ("crank_mm", "rod_mm", "offset_mm"):
-            if name == "offset_mm":
-                P.finite(name, self.offset_mm)
-            else:
-                P.positive(name, getattr(self, name))
+        for name in ("crank_mm", "rod_mm"):
+            P.positive(name, getattr(self, name))
+        P.finite("offset_mm", self.offset_mm)
         for name, rule in (("speed_rad_s", "must be a positive speed in rad/s"),
                            ("mass_kg", "must be a positive mass in kg"),
                            ("stiffness_n_per_mm", "must be a positive stiffness in N/mm")):
@@ -170,13 +168,11 @@ class ContactResult:
 def evaluate(params: PresserFoot) -> ContactResult:
     """The contact cycle of every machine of `params` (a single machine gives arrays of 1)."""
     n = P.batch_size(params) or 1
+    # the kernel's arguments in its order (nu and x_eq_mm are properties), then the phase
+    names = ("crank_mm", "rod_mm", "offset_mm", "nu", "damping_ratio", "x_eq_mm", "material_mm")
     cols = {f: np.broadcast_to(np.asarray(getattr(params, f), float), (n,)).astype(float)
-            for f in ("crank_mm", "rod_mm", "offset_mm", "damping_ratio", "phase_deg",
-                      "material_mm")}
-    nu = np.broadcast_to(np.asarray(params.nu, float), (n,)).astype(float)
-    x_eq = np.broadcast_to(np.asarray(params.x_eq_mm, float), (n,)).astype(float)
-    out = K.batch(cols["crank_mm"], cols["rod_mm"], cols["offset_mm"], nu,
-                  cols["damping_ratio"], x_eq, cols["material_mm"])
+            for f in (*names, "phase_deg")}
+    out = K.batch(*(cols[f] for f in names))
     status = np.array(STATUS, dtype=object)[out[:, 6].astype(int)]
     phase = cols["phase_deg"]
     loss = (out[:, 0] + phase) % 360.0
@@ -359,15 +355,6 @@ def holding_m_s2(params: PresserFoot):
     """(F + m g) / m of the machine(s), m/s^2."""
     return (np.asarray(params.preload_n) + np.asarray(params.mass_kg) * GRAVITY_M_S2) \
         / np.asarray(params.mass_kg)
-
-
-def scaled_family(params: PresserFoot, factors) -> PresserFoot:
-    """Machines with mass, spring rate and preload all times each factor: one point of the
-    family the contact cycle cannot tell apart (k/m and (F + m g)/m unchanged)."""
-    f = np.asarray(factors, float)
-    return dataclasses.replace(params, mass_kg=params.mass_kg * f,
-                               stiffness_n_per_mm=params.stiffness_n_per_mm * f,
-                               preload_n=params.preload_n * f)
 
 
 # --- the "presser_contact" output kind of mechanism files (type = "custom") -----------------

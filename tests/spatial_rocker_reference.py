@@ -1,8 +1,9 @@
 """Polukhin's spatial crank-rocker (RSSR) evaluated for a batch of machines, in Python.
 
-The same mechanism, parameters, tolerances and outputs as the folder's
-mechanism.toml (a mechanism file): this module is the reference the file path is checked against once the
-file loader is in place. Model and conventions: engine/spatial.py and
+The same mechanism, parameters, tolerances and outputs as
+src/sewtol/mechanisms/spatial_crank_rocker/mechanism.toml, written a second time without the file
+loader: the independent reference the tests check the file path against (test_spatial.py,
+test_seed_files.py). Model and conventions: engine/spatial.py and
 docs/spatial_crank_rocker.md. The nominal dimensions are illustrative (no machine's dimensions
 are published).
 
