@@ -30,7 +30,6 @@ import sys
 import time
 
 import numpy as np
-from sewtol.mechanisms.needle_208.montecarlo import montecarlo
 
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.needle_208 import adjust as ad
@@ -39,7 +38,7 @@ from sewtol.mechanisms.needle_208.fast_path import fixed_sumdelta_um
 from sewtol.mechanisms.needle_208.kernels import fused as KB
 from sewtol.mechanisms.needle_208.kernels import positions as K
 from sewtol.mechanisms.needle_208.model import Needle208
-from sewtol.mechanisms.needle_208.tables import needle_sobol
+from sewtol.mechanisms.needle_208.tables import montecarlo, needle_sobol
 from sewtol.studies.sobol import problem_of, sample
 from sewtol.tolerances import NEEDLE_208_SETS
 
