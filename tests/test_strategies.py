@@ -8,10 +8,8 @@ from cli_helpers import run as _run
 from sewtol.errors import ParameterError
 from sewtol.mechanisms.needle_208 import compensators as C
 from sewtol.mechanisms.needle_208 import metrics as nm
-from sewtol.mechanisms.needle_208 import model as nd
 from sewtol.mechanisms.needle_208.adjustment import adjust, columns_of, shift_optimum
 from sewtol.mechanisms.needle_208.kernels import positions as KP
-from sewtol.mechanisms.needle_208.kernels.path import band_kernel, pack
 from sewtol.mechanisms.needle_208.tables import strategies_table, summarise
 from sewtol.studies.montecarlo import draw_deviations
 from sewtol.tolerances import NEEDLE_208_SETS
@@ -150,20 +148,6 @@ def test_joint_optimum_equals_brute_force(nominal, names):
         at, _ = brute(one(c, i), np.array([s["beta"]]), "guide_shift_um" in names,
                       np.array([s.get("guide_angle", 0.0)]), np.array([s.get("CD", 0.0)]))
         assert at == pytest.approx(got, abs=0.01)
-
-
-def test_band_kernel_matches_exact_extremes(nominal):
-    c = machines(nominal, 50, seed=5)
-    c["beta"] = c["beta"] + np.random.default_rng(6).uniform(-8, 8, (50, 1))
-    feas = nm.feasibility(c)
-    _, n, _ = nd.guide_frame(c)
-    ext = nm.projection_extremes(c, n, feas.lo, feas.hi)
-    b = band_kernel(pack(c), np.where(feas.ok, feas.lo, 0), np.where(feas.ok, feas.hi, 0), 129,
-                    n.real.ravel(), n.imag.ravel())
-    ok = feas.ok
-    assert ok.sum() >= 40
-    assert np.max(np.abs(b[ok, 0] - ext.fmax.ravel()[ok])) * 1e3 < 1e-3
-    assert np.max(np.abs(b[ok, 1] - ext.fmin.ravel()[ok])) * 1e3 < 1e-3
 
 
 def test_shift_closed_form_against_a_grid():
