@@ -249,7 +249,7 @@ def test_resolution_model_is_the_worst_within_half_a_resolution(nominal):
                                                    abs=1e-9)
 
 
-def test_parse_cli_and_toml(tmp_path):
+def test_parse_cli():
     s = C.parse_cli("beta,guide_shift_um", ["guide_shift_um=-50,50"], ["beta=0.5"],
                     ["guide_shift_um=5"])
     assert s.names == ("beta", "guide_shift_um")
@@ -274,18 +274,6 @@ def test_parse_cli_and_toml(tmp_path):
         C.parse_cli(None, steps=["beta=1"])
     with pytest.raises(ParameterError, match="unknown parameter"):
         C.parse_cli("XX", ranges=["XX=0,1"], valid=["beta", "CD"])
-    f = tmp_path / "c.toml"
-    f.write_text('[compensators.beta]\nstep = 0.5\n[compensators.AB]\nlow = -0.1\nhigh = 0.1\n'
-                 'resolution = 0.01\n')
-    table = C.load_toml(f, valid=["beta", "AB"])
-    assert table["beta"].low == 10.0 and table["beta"].step == 0.5
-    assert table["beta"].mode == "absolute" and table["AB"].mode == "offset"
-    f.write_text('[compensators.AB]\nlow = 0.1\nhigh = -0.1\n')
-    with pytest.raises(ParameterError, match="AB.range"):
-        C.load_toml(f)
-    f.write_text('[compensators.AB]\nlow = -0.1\n')
-    with pytest.raises(ParameterError, match="needs low and high"):
-        C.load_toml(f)
 
 
 def test_cli_adjust_flags_refuse_bad_input_in_one_line(tmp_path):
