@@ -10,7 +10,7 @@ from sewtol.mechanisms.needle_208 import compensators as C
 from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208.adjustment import adjust, columns_of, shift_optimum
 from sewtol.mechanisms.needle_208.kernels import positions as KP
-from sewtol.mechanisms.needle_208.tables import strategies_table, summarise
+from sewtol.mechanisms.needle_208.tables import strategies_table, summarise_frame
 from sewtol.studies.montecarlo import draw_deviations
 from sewtol.tolerances import NEEDLE_208_SETS
 
@@ -223,7 +223,7 @@ def test_machine_that_cannot_assemble_keeps_its_row(nominal):
     assert np.isnan(adj.total_um[1]) and np.isnan(adj.settings["beta"][1])
     frame = adj.to_dataframe()
     assert len(frame) == 3 and frame.loc[1, "status"] == "cannot assemble"
-    row = summarise(adj)
+    row = summarise_frame(adj.to_dataframe(), adj.strategy, adj.limit_um).iloc[0]
     assert row["ok"] + row["out_of_spec"] + row["cannot_assemble"] + row["dead_point"] == 3
     assert row["cannot_assemble"] == 1
     assert row["p99_um"] == np.inf
@@ -253,8 +253,9 @@ def test_parse_cli():
     s = C.parse_cli("beta,guide_shift_um", ["guide_shift_um=-50,50"], ["beta=0.5"],
                     ["guide_shift_um=5"])
     assert s.names == ("beta", "guide_shift_um")
-    assert (s.get("guide_shift_um").low, s.get("guide_shift_um").high) == (-50.0, 50.0)
-    assert s.get("beta").step == 0.5 and s.get("guide_shift_um").resolution == 5.0
+    comp = dict(zip(s.names, s.compensators, strict=True))
+    assert (comp["guide_shift_um"].low, comp["guide_shift_um"].high) == (-50.0, 50.0)
+    assert comp["beta"].step == 0.5 and comp["guide_shift_um"].resolution == 5.0
     assert C.parse_cli(None) is None
     bad = [
         (("beta", ["CD=1,2"]), "--range"),

@@ -46,7 +46,6 @@ STATUSES = ("ok", "out of spec", "cannot assemble", "dead point")
 OUTER_GRID_STEP = {"beta": 1.0}
 MAX_DISCRETE = 5001
 DISCRETE_BATCH = 20000  # machines per call when every allowed setting is tried
-WARM_SPAN = 2  # grid cells each side of the inner optimum searched while the outer is polished
 EXACT_INNER = ("beta", "guide_shift_um", "guide_angle")  # what the exact optimum sets itself
 
 
@@ -168,34 +167,21 @@ def _plateau(fun, x_opt, best, comp: Compensator, xtol=None):
 # --- outer 1-D searches -------------------------------------------------------------------
 
 
-def _search(c: dict, outer: list[Compensator], plateaus: bool, leaf, held=(),
-            bracket=None) -> _Inner:
+def _search(c: dict, outer: list[Compensator], plateaus: bool, leaf, held=()) -> _Inner:
     """Nested 1-D searches over `outer` (outermost first) around `leaf` (columns -> _Inner, the
     inner optimum; `held` are the compensators it sets, held at its settings when an outer
-    plateau is measured). `bracket` (lo, hi arrays) replaces the grid of outer[0] by a golden
-    section on that bracket (warm start, see below)."""
+    plateau is measured)."""
     if not outer:
         return leaf(c)
     comp, rest = outer[0], outer[1:]
     n = next(iter(c.values())).shape[0]
-    warm = None
-    if bracket is None and rest and not rest[0].discrete:
-        # While this setting is polished inside its best grid cell, the next inner setting is
-        # searched by golden section within WARM_SPAN grid cells of its optimum at the grid
-        # point instead of by its whole grid again (the inner optimum moves continuously).
-        warm = rest[0]
 
-    def sub(cc, plat=False, inner_bracket=None):
-        return _search(cc, rest, plat, leaf, held, inner_bracket)
+    def sub(cc, plat=False):
+        return _search(cc, rest, plat, leaf, held)
 
-    def score(x, inner_bracket=None):
-        return _finite(sub(_apply(c, comp, x), False, inner_bracket).total)
+    def score(x):
+        return _finite(sub(_apply(c, comp, x)).total)
 
-    if bracket is not None:
-        x, _ = golden_min(score, bracket[0], bracket[1], xtol=_xtol(comp))
-        res = sub(_apply(c, comp, x))
-        res.settings[comp.name] = x
-        return res
     grid = _grid(comp)
     if comp.discrete:
         # every allowed setting of every machine in batches of repeated machines
@@ -213,15 +199,7 @@ def _search(c: dict, outer: list[Compensator], plateaus: bool, leaf, held=(),
         x = grid[i]
     else:
         a, b = grid[np.maximum(i - 1, 0)], grid[np.minimum(i + 1, grid.size - 1)]
-        inner_bracket = None
-        if warm is not None:
-            at_grid = sub(_apply(c, comp, grid[i]))
-            y = at_grid.settings[warm.name]
-            span = WARM_SPAN * (_grid(warm)[1] - _grid(warm)[0])
-            y = np.where(np.isfinite(y), y, 0.5 * (warm.low + warm.high))
-            inner_bracket = (np.clip(y - span, warm.low, warm.high),
-                             np.clip(y + span, warm.low, warm.high))
-        x, _ = golden_min(lambda z: score(z, inner_bracket), a, b, xtol=_xtol(comp))
+        x, _ = golden_min(score, a, b, xtol=_xtol(comp))
         # never worse than the grid (golden section can stall on an infinite bracket end)
         better_grid = vals[np.arange(n), i] < score(x)
         x = np.where(better_grid, grid[i], x)
@@ -303,6 +281,8 @@ def _joint_optimum(c: dict, strategy: Strategy, plateaus: bool = True) -> _Inner
     settings; beta, then the angle innermost).
     """
     comps = list(strategy.compensators)
+    if not comps:  # the machine as built
+        return _Inner(total=None)
     boxes = _exact_boxes(c, comps)
     if boxes is not None:
         return _exact(c, comps, boxes)
@@ -363,11 +343,6 @@ class Adjustment:
         return f
 
 
-def _status(feas: nm.Feasibility, total, limit_um) -> np.ndarray:
-    return np.where(np.isfinite(total), np.where(total <= limit_um, "ok", "out of spec"),
-                    np.where(feas.dead_point, "dead point", "cannot assemble")).astype(object)
-
-
 def adjust(c: dict[str, np.ndarray], strategy: Strategy, limit_um: float = 10.0,
            plateaus: bool = True) -> Adjustment:
     """The assembler's adjustment of each machine (parameter columns c, shape (n, 1)).
@@ -401,11 +376,6 @@ def adjust(c: dict[str, np.ndarray], strategy: Strategy, limit_um: float = 10.0,
     strategy.check_names(list(c))
     before_feas = nm.feasibility(c)
     before = nm.deviation_figures(c, before_feas).total_um
-    if not strategy.compensators:
-        figs = nm.deviation_figures(c, before_feas)
-        return Adjustment(strategy, float(limit_um), before, figs.total_um, figs.plus_um,
-                          figs.minus_um, figs.total_um, _status(before_feas, before, limit_um),
-                          {}, {}, {}, {})
     res = _joint_optimum(c, strategy, plateaus)
     final = c
     for comp in strategy.compensators:
@@ -427,13 +397,12 @@ def adjust(c: dict[str, np.ndarray], strategy: Strategy, limit_um: float = 10.0,
             top, eps = comp.high, 1e-6 * (comp.high - comp.low)
         at_limit[comp.name] = (x <= comp.low + eps) | (x >= top - eps)
     # a machine no setting can run: classify it at its as-built settings
-    status_feas = nm.Feasibility(*(np.where(dead_everywhere, getattr(before_feas, f),
-                                            getattr(feas, f))
-                                   for f in ("ok", "miss_LMA_mm", "miss_BCD_mm", "lo", "hi",
-                                             "transmission_LMA_deg", "transmission_BCD_deg")))
-    achieved = _achieved(c, strategy, settings, figs.total_um)
+    dead_point = np.where(dead_everywhere, before_feas.dead_point, feas.dead_point)
+    status = np.where(np.isfinite(figs.total_um),
+                      np.where(figs.total_um <= limit_um, "ok", "out of spec"),
+                      np.where(dead_point, "dead point", "cannot assemble")).astype(object)
     return Adjustment(strategy, float(limit_um), before, figs.total_um, figs.plus_um,
-                      figs.minus_um, achieved, _status(status_feas, figs.total_um, limit_um),
+                      figs.minus_um, _achieved(c, strategy, settings, figs.total_um), status,
                       settings, p_lo, p_hi, at_limit)
 
 

@@ -141,14 +141,6 @@ class Strategy:
         """The compensators' names, in order."""
         return tuple(c.name for c in self.compensators)
 
-    def get(self, name: str) -> Compensator:
-        """The compensator of that name; ParameterError naming the ones there are otherwise."""
-        for c in self.compensators:
-            if c.name == name:
-                return c
-        raise ParameterError(name, f"is not a compensator of strategy {self.name}; it has "
-                             f"{', '.join(self.names) or 'none'}", name)
-
     def check_names(self, valid) -> Strategy:
         for c in self.compensators:
             if c.name not in valid:
