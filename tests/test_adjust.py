@@ -18,6 +18,8 @@ from sewtol.mechanisms.needle_208 import adjust as ad
 from sewtol.mechanisms.needle_208 import beta as sb
 from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208 import model as nd
+from sewtol.mechanisms.needle_208.adjustment import adjust
+from sewtol.mechanisms.needle_208.compensators import Compensator, Strategy
 from sewtol.mechanisms.needle_208.kernels import fused as KB
 from sewtol.mechanisms.needle_208.kernels import window as KW
 from sewtol.studies.parallel import chunk_bounds
@@ -307,19 +309,29 @@ def test_beta_sense_mirrors_the_range(nominal):
     assert b.min_total_um[0] <= best + 0.01
 
 
+def _discrete(c, steps, box=None):
+    """The strategy optimum (needle_208.adjustment.adjust) with these compensators on steps."""
+    box = box or {"beta": (10.0, 35.0)}
+    comps = []
+    for name, (lo, hi) in box.items():
+        mode = "absolute" if name in ("beta", "guide_shift_um") else "offset"
+        comps.append(Compensator(name, lo, hi, steps.get(name), mode=mode))
+    return adjust(c, Strategy("discrete", tuple(comps)))
+
+
 def test_discrete_beta_equals_a_search_over_its_steps(nominal):
     """A graduated clamp (beta in steps of 0.5 deg): the exact figures at every allowed beta
     (the engine's deviation_figures) give the same minimum; it never beats the continuous one,
     and a fine step comes close to it."""
     dev = NEEDLE_208_SETS["recommended"].sample(np.random.default_rng(38), 15)
     c = _columns(nominal, dev)
-    disc = ad.optimise_discrete(c, {"beta": (10.0, 35.0)}, {"beta": 0.5})
+    disc = _discrete(c, {"beta": 0.5})
     cont = ad.optimise(c, {"beta": (10.0, 35.0)})
     grid = sb.totals_on_grid(c, np.arange(10.0, 35.0 + 1e-9, 0.5))
     assert np.max(np.abs(disc.total_um - np.nanmin(grid, axis=1))) < 1e-6
     assert np.all(np.isin(np.round(disc.settings["beta"], 9), np.round(np.arange(10, 35.01, 0.5), 9)))
     assert np.all(disc.total_um >= cont.min_total_um - 3e-3)
-    fine = ad.optimise_discrete(c, {"beta": (10.0, 35.0)}, {"beta": 0.01})
+    fine = _discrete(c, {"beta": 0.01})
     assert np.all(fine.total_um >= cont.min_total_um - 3e-3)
     assert np.all(fine.total_um <= cont.min_total_um + 0.02)
     assert np.all(fine.total_um <= disc.total_um + 1e-9)  # the 0.5 steps are among the 0.01
@@ -330,9 +342,9 @@ def test_discrete_shift_and_beta_never_beat_continuous(nominal):
     c = _columns(nominal, dev)
     box = {"beta": (10.0, 35.0), "guide_shift_um": (-50.0, 50.0)}
     cont = ad.optimise(c, box)
-    shim = ad.optimise_discrete(c, box, {"guide_shift_um": 10.0})
-    both = ad.optimise_discrete(c, box, {"beta": 0.5, "guide_shift_um": 10.0})
-    beta_steps = ad.optimise_discrete(c, box, {"beta": 0.5})
+    shim = _discrete(c, {"guide_shift_um": 10.0}, box)
+    both = _discrete(c, {"beta": 0.5, "guide_shift_um": 10.0}, box)
+    beta_steps = _discrete(c, {"beta": 0.5}, box)
     for r in (shim, both, beta_steps):
         assert np.all(r.total_um >= cont.min_total_um - 3e-3)
         assert np.all(np.abs(r.total_um - r.plus_um - r.minus_um) < 1e-9)
@@ -349,7 +361,7 @@ def test_discrete_shift_and_beta_never_beat_continuous(nominal):
     c1 = nm.with_values(c, beta=both.settings["beta"], guide_shift_um=both.settings["guide_shift_um"])
     assert np.max(np.abs(nm.deviation_figures(c1).total_um - both.total_um)) < 1e-6
     with pytest.raises(ParameterError, match="positive"):
-        ad.optimise_discrete(c, box, {"beta": 0.0})
+        _discrete(c, {"beta": 0.0}, box)
 
 
 def test_resolution_worst_case(nominal):
@@ -357,10 +369,10 @@ def test_resolution_worst_case(nominal):
     the optimum at r = 0 and equals a direct evaluation at the interval's ends."""
     dev = NEEDLE_208_SETS["recommended"].sample(np.random.default_rng(40), 10)
     c = _columns(nominal, dev)
-    r = ad.optimise(c, {"beta": (10.0, 35.0)})
-    w0 = ad.worst_within_resolution(c, r, 0.0)
-    w1 = ad.worst_within_resolution(c, r, 0.2)
-    w2 = ad.worst_within_resolution(c, r, 1.0)
+    beta = Compensator("beta", 10.0, 35.0, mode="absolute")
+    r = adjust(c, Strategy("r", (beta,)))
+    w0, w1, w2 = (adjust(c, Strategy("r", (beta.with_changes(resolution=res),))).achieved_um
+                  for res in (0.0, 0.2, 1.0))
     assert np.max(np.abs(w0 - r.total_um)) < 1e-3  # the surrogate's bound
     assert np.all(w1 >= w0 - 1e-9) and np.all(w2 >= w1 - 1e-9)
     ends = np.maximum(sb.total_at(c, r.settings["beta"] - 0.5), sb.total_at(c, r.settings["beta"] + 0.5))

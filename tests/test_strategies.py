@@ -8,11 +8,9 @@ from cli_helpers import run as _run
 from sewtol.errors import ParameterError
 from sewtol.mechanisms.needle_208 import compensators as C
 from sewtol.mechanisms.needle_208 import metrics as nm
-from sewtol.mechanisms.needle_208 import model as nd
 from sewtol.mechanisms.needle_208.adjustment import adjust, columns_of, shift_optimum
 from sewtol.mechanisms.needle_208.kernels import positions as KP
-from sewtol.mechanisms.needle_208.kernels.path import band_kernel, pack
-from sewtol.mechanisms.needle_208.tables import strategies_table, summarise
+from sewtol.mechanisms.needle_208.tables import strategies_table, summarise_frame
 from sewtol.studies.montecarlo import draw_deviations
 from sewtol.tolerances import NEEDLE_208_SETS
 
@@ -152,20 +150,6 @@ def test_joint_optimum_equals_brute_force(nominal, names):
         assert at == pytest.approx(got, abs=0.01)
 
 
-def test_band_kernel_matches_exact_extremes(nominal):
-    c = machines(nominal, 50, seed=5)
-    c["beta"] = c["beta"] + np.random.default_rng(6).uniform(-8, 8, (50, 1))
-    feas = nm.feasibility(c)
-    _, n, _ = nd.guide_frame(c)
-    ext = nm.projection_extremes(c, n, feas.lo, feas.hi)
-    b = band_kernel(pack(c), np.where(feas.ok, feas.lo, 0), np.where(feas.ok, feas.hi, 0), 129,
-                    n.real.ravel(), n.imag.ravel())
-    ok = feas.ok
-    assert ok.sum() >= 40
-    assert np.max(np.abs(b[ok, 0] - ext.fmax.ravel()[ok])) * 1e3 < 1e-3
-    assert np.max(np.abs(b[ok, 1] - ext.fmin.ravel()[ok])) * 1e3 < 1e-3
-
-
 def test_shift_closed_form_against_a_grid():
     rng = np.random.default_rng(1)
     M = rng.uniform(-150, 150, 200)
@@ -239,7 +223,7 @@ def test_machine_that_cannot_assemble_keeps_its_row(nominal):
     assert np.isnan(adj.total_um[1]) and np.isnan(adj.settings["beta"][1])
     frame = adj.to_dataframe()
     assert len(frame) == 3 and frame.loc[1, "status"] == "cannot assemble"
-    row = summarise(adj)
+    row = summarise_frame(adj.to_dataframe(), adj.strategy, adj.limit_um).iloc[0]
     assert row["ok"] + row["out_of_spec"] + row["cannot_assemble"] + row["dead_point"] == 3
     assert row["cannot_assemble"] == 1
     assert row["p99_um"] == np.inf
@@ -265,12 +249,13 @@ def test_resolution_model_is_the_worst_within_half_a_resolution(nominal):
                                                    abs=1e-9)
 
 
-def test_parse_cli_and_toml(tmp_path):
+def test_parse_cli():
     s = C.parse_cli("beta,guide_shift_um", ["guide_shift_um=-50,50"], ["beta=0.5"],
                     ["guide_shift_um=5"])
     assert s.names == ("beta", "guide_shift_um")
-    assert (s.get("guide_shift_um").low, s.get("guide_shift_um").high) == (-50.0, 50.0)
-    assert s.get("beta").step == 0.5 and s.get("guide_shift_um").resolution == 5.0
+    comp = dict(zip(s.names, s.compensators, strict=True))
+    assert (comp["guide_shift_um"].low, comp["guide_shift_um"].high) == (-50.0, 50.0)
+    assert comp["beta"].step == 0.5 and comp["guide_shift_um"].resolution == 5.0
     assert C.parse_cli(None) is None
     bad = [
         (("beta", ["CD=1,2"]), "--range"),
@@ -290,18 +275,6 @@ def test_parse_cli_and_toml(tmp_path):
         C.parse_cli(None, steps=["beta=1"])
     with pytest.raises(ParameterError, match="unknown parameter"):
         C.parse_cli("XX", ranges=["XX=0,1"], valid=["beta", "CD"])
-    f = tmp_path / "c.toml"
-    f.write_text('[compensators.beta]\nstep = 0.5\n[compensators.AB]\nlow = -0.1\nhigh = 0.1\n'
-                 'resolution = 0.01\n')
-    table = C.load_toml(f, valid=["beta", "AB"])
-    assert table["beta"].low == 10.0 and table["beta"].step == 0.5
-    assert table["beta"].mode == "absolute" and table["AB"].mode == "offset"
-    f.write_text('[compensators.AB]\nlow = 0.1\nhigh = -0.1\n')
-    with pytest.raises(ParameterError, match="AB.range"):
-        C.load_toml(f)
-    f.write_text('[compensators.AB]\nlow = -0.1\n')
-    with pytest.raises(ParameterError, match="needs low and high"):
-        C.load_toml(f)
 
 
 def test_cli_adjust_flags_refuse_bad_input_in_one_line(tmp_path):

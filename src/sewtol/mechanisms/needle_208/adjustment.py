@@ -1,20 +1,20 @@
-"""Adjustment at assembly: the joint optimum of the needle's SumDelta over a strategy's
-compensators, per machine, batched.
+"""Adjustment at assembly: a strategy's joint optimum of the needle's SumDelta over its
+compensators, per machine, batched, on the exact optimiser of mechanisms/needle_208/adjust.py.
 
 Structure used, innermost first:
-- guide_shift_um: with the band of n.(E - G) over the cycle [m, M] (um), a guide shift t gives
-  SumDelta(t) = max(0, M - t) + max(0, t - m), so over t in [T0, T1] the minimum is
-  max(M - m, M - T1, T0 - m) in closed form, a plateau [max(m, T0), min(M, T1)] when the band
-  can be centred (the setting is the plateau's centre). A discrete shift takes the better of the
-  two allowed settings around that centre (SumDelta is convex in t, so that is exact).
-- guide_angle (turned about the guide point): SumDelta with the shift optimised is a maximum of
-  support functions of the path, convex in the guide normal; over +/-0.1 deg the normal's arc
-  is almost straight, so a 5-point grid and golden section find it. The path is sampled
-  at N_DENSE rocker angles and its extremes refined by parabolic interpolation (measured error
-  below 2e-4 um against the exact extremes, tests/test_strategies.py).
-- every other compensator (beta, CD, any parameter declared one): an outer 1-D search, nested,
-  beta innermost: a grid over the range, then golden section on the best grid cell. A discrete
-  compensator is searched over all its allowed settings (exact given the inner optimum).
+- the exact optimum (needle_208.adjust.optimise): beta (absolute, continuous) with the guide
+  shift and the guide angle when they are continuous; an exact sliding-window solution, the
+  angle an outer search around it (tests/test_adjust.py, tests/test_independent_reference.py).
+- without such a beta, the guide shift alone in closed form on the exact band of the path:
+  with the band of n.(E - G) over the cycle [m, M] (um, needle_208.metrics.projection_extremes),
+  a shift t gives SumDelta(t) = max(0, M - t) + max(0, t - m), so over t in [T0, T1] the minimum
+  is max(M - m, M - T1, T0 - m), a plateau [max(m, T0), min(M, T1)] when the band can be centred
+  (the setting is the plateau's centre). A discrete shift takes the better of the two allowed
+  settings around that centre (SumDelta is convex in t, so that is exact).
+- every other compensator (CD, any parameter declared one, a discrete beta or shift, the angle
+  without beta): an outer 1-D search around that inner optimum, nested: a grid over the range,
+  then golden section on the best grid cell. A discrete compensator is searched over all its
+  allowed settings (exact given the inner optimum).
 
 Every reported SumDelta is recomputed at the chosen settings with the exact extremes
 (needle_208.metrics.deviation_figures), so it is the machine's true SumDelta at those settings.
@@ -23,9 +23,6 @@ Resolution model: the assembler aims at the chosen setting but lands anywhere wi
 (clipped to the range). `achieved_um` is the worst SumDelta over the 3^k points (each resolved
 compensator at -r/2, 0, +r/2, the others at their settings); exact wherever SumDelta is convex
 in the settings over that small box (it is piecewise linear and convex in the shift).
-
-The exact beta (and beta + shift) optimum is in mechanisms/needle_208/adjust.py; `_joint_optimum` is
-the one function to switch to it.
 """
 
 from __future__ import annotations
@@ -39,18 +36,17 @@ from sewtol.errors import ParameterError
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.needle_208 import adjust as exact
 from sewtol.mechanisms.needle_208 import metrics as nm
+from sewtol.mechanisms.needle_208 import model as nd
 from sewtol.mechanisms.needle_208.compensators import Compensator, Strategy
-from sewtol.mechanisms.needle_208.kernels.path import band_kernel, pack
 from sewtol.optimize import bisect_root, golden_min
 
-N_DENSE = 129
 PLATEAU_TOL_UM = 1e-3  # settings within this of the optimum form its plateau (centre chosen)
-ANGLE_GRID = 5
 STATUSES = ("ok", "out of spec", "cannot assemble", "dead point")
 # grid spacing of the outer search per compensator (default: 12 cells over the range)
 OUTER_GRID_STEP = {"beta": 1.0}
-MAX_DISCRETE = 2001
-WARM_SPAN = 2  # grid cells each side of the inner optimum searched while the outer is polished
+MAX_DISCRETE = 5001
+DISCRETE_BATCH = 20000  # machines per call when every allowed setting is tried
+EXACT_INNER = ("beta", "guide_shift_um", "guide_angle")  # what the exact optimum sets itself
 
 
 def _grid(comp: Compensator) -> np.ndarray:
@@ -69,6 +65,10 @@ def _xtol(comp: Compensator) -> float:
     return 5e-6 * (comp.high - comp.low)
 
 
+def _finite(v):
+    return np.where(np.isnan(v), np.inf, v)
+
+
 def _apply(c: dict, comp: Compensator, setting) -> dict:
     out = dict(c)
     s = np.asarray(setting, float).reshape(-1, 1)
@@ -76,7 +76,14 @@ def _apply(c: dict, comp: Compensator, setting) -> dict:
     return out
 
 
-# --- innermost: guide shift (closed form) and guide angle (dense path) ---------------------
+@dataclass
+class _Inner:
+    total: np.ndarray
+    settings: dict = field(default_factory=dict)
+    plateaus: dict = field(default_factory=dict)
+
+
+# --- innermost without beta: the guide shift in closed form on the exact band --------------
 
 
 def shift_optimum(M, m, s0, comp: Compensator | None):
@@ -121,80 +128,20 @@ def shift_optimum(M, m, s0, comp: Compensator | None):
     return np.where(np.isnan(M), np.nan, total), t - s0, pl - s0, ph - s0
 
 
-class _Path:
-    """One machine batch at fixed outer settings: its rocker interval and the projection band of
-    its needle path on any trial guide (needle_208.kernels.path.band_kernel, N_DENSE samples refined
-    by parabolic interpolation; measured error below 2e-4 um against the exact extremes)."""
-
-    def __init__(self, c: dict):
-        self.c = c
-        feas = nm.feasibility(c)
-        self.ok = feas.ok
-        self.lo = np.where(feas.ok, feas.lo, 0.0)
-        self.hi = np.where(feas.ok, feas.hi, 0.0)
-        self.P = pack(c)
-
-    def band(self, angle_setting=None, angle_comp=None):
-        """max and min of n.(E - G) (um, G without shift) for the guide turned by the setting."""
-        c = self.c
-        a = c["guide_angle"][:, 0]
-        if angle_comp is not None:
-            a = angle_comp.value(a, angle_setting)
-        a = np.radians(a)
-        nx, ny = np.cos(a), -np.sin(a)
-        b = band_kernel(self.P, self.lo, self.hi, N_DENSE, nx, ny)
-        g = nx * c["guide_x"][:, 0] + ny * c["guide_y"][:, 0]
-        M = np.where(self.ok, (b[:, 0] - g) * 1e3, np.nan)
-        m = np.where(self.ok, (b[:, 1] - g) * 1e3, np.nan)
-        return M, m
-
-
-@dataclass
-class _Inner:
-    total: np.ndarray
-    settings: dict = field(default_factory=dict)
-    plateaus: dict = field(default_factory=dict)
-
-
-def _inner(c: dict, angle: Compensator | None, shift: Compensator | None,
-           plateaus: bool = False) -> _Inner:
-    """Optimum over the guide angle and shift for fixed outer settings (dense path)."""
-    path = _Path(c)
+def _shift_leaf(c: dict, shift: Compensator | None) -> _Inner:
+    """The guide shift's optimum (or none) on the exact band of the path, beta as in c."""
+    feas = nm.feasibility(c)
     s0 = c["guide_shift_um"][:, 0]
-
-    def total_at(a):
-        M, m = path.band(a, angle)
-        return shift_optimum(M, m, s0, shift)[0]
-
-    out = _Inner(total=None)
-    if angle is None:
-        M, m = path.band()
-    else:
-        n = s0.size
-        grid = angle.settings() if angle.discrete else np.linspace(angle.low, angle.high,
-                                                                    ANGLE_GRID)
-        vals = np.stack([total_at(np.full(n, g)) for g in grid], axis=1)
-        score = np.where(np.isnan(vals), np.inf, vals)
-        i = np.argmin(score, axis=1)
-        if angle.discrete:
-            a_opt = grid[i]
-        else:
-            a_opt, _ = golden_min(total_at, grid[np.maximum(i - 1, 0)],
-                                  grid[np.minimum(i + 1, grid.size - 1)], xtol=_xtol(angle))
-            if plateaus:
-                # the plateau of the angle: where SumDelta stays within PLATEAU_TOL_UM
-                best = total_at(a_opt)
-                lo_p, hi_p = _plateau(total_at, a_opt, best, angle)
-                out.plateaus[angle.name] = (lo_p, hi_p)
-                a_mid = 0.5 * (lo_p + hi_p)
-                a_opt = np.where(total_at(a_mid) <= best + PLATEAU_TOL_UM, a_mid, a_opt)
-        out.settings[angle.name] = a_opt
-        M, m = path.band(a_opt, angle)
+    _, n, G = nd.guide_frame(nm.with_values(c, guide_shift_um=np.zeros(s0.size)))
+    ext = nm.projection_extremes(c, n, feas.lo, feas.hi)
+    g = nd.project(n, G).ravel()
+    M = np.where(feas.ok, (ext.fmax - g) * 1e3, np.nan)
+    m = np.where(feas.ok, (ext.fmin - g) * 1e3, np.nan)
     total, t, pl, ph = shift_optimum(M, m, s0, shift)
+    out = _Inner(total=total)
     if shift is not None:
         out.settings[shift.name] = t
         out.plateaus[shift.name] = (pl, ph)
-    out.total = total
     return out
 
 
@@ -220,51 +167,39 @@ def _plateau(fun, x_opt, best, comp: Compensator, xtol=None):
 # --- outer 1-D searches -------------------------------------------------------------------
 
 
-def _search(c: dict, outer: list[Compensator], angle, shift, plateaus: bool,
-            bracket=None, leaf=None, held=()) -> _Inner:
-    """Nested 1-D searches over `outer` (outermost first). `bracket` (lo, hi arrays) replaces
-    the grid of outer[0] by a golden section on that bracket (warm start, see below). `leaf`
-    (columns, plateaus) -> _Inner replaces the innermost optimum over angle and shift; `held`
-    are the compensators it sets (held at its settings when an outer plateau is measured)."""
+def _search(c: dict, outer: list[Compensator], plateaus: bool, leaf, held=()) -> _Inner:
+    """Nested 1-D searches over `outer` (outermost first) around `leaf` (columns -> _Inner, the
+    inner optimum; `held` are the compensators it sets, held at its settings when an outer
+    plateau is measured)."""
     if not outer:
-        return leaf(c, plateaus) if leaf is not None else _inner(c, angle, shift, plateaus)
+        return leaf(c)
     comp, rest = outer[0], outer[1:]
     n = next(iter(c.values())).shape[0]
-    warm = None
-    if bracket is None and rest and not rest[0].discrete:
-        # While this setting is polished inside its best grid cell, the next inner setting is
-        # searched by golden section within WARM_SPAN grid cells of its optimum at the grid
-        # point instead of by its whole grid again (the inner optimum moves continuously).
-        warm = rest[0]
 
-    def sub(cc, plat=False, inner_bracket=None):
-        return _search(cc, rest, angle, shift, plat, inner_bracket, leaf, held)
+    def sub(cc, plat=False):
+        return _search(cc, rest, plat, leaf, held)
 
-    def score(x, inner_bracket=None):
-        v = sub(_apply(c, comp, x), False, inner_bracket).total
-        return np.where(np.isnan(v), np.inf, v)
+    def score(x):
+        return _finite(sub(_apply(c, comp, x)).total)
 
-    if bracket is not None:
-        x, _ = golden_min(score, bracket[0], bracket[1], xtol=_xtol(comp))
-        res = sub(_apply(c, comp, x))
-        res.settings[comp.name] = x
-        return res
     grid = _grid(comp)
-    vals = np.stack([score(np.full(n, g)) for g in grid], axis=1)
+    if comp.discrete:
+        # every allowed setting of every machine in batches of repeated machines
+        vals = np.empty((n, grid.size))
+        per = max(1, DISCRETE_BATCH // n)
+        for j in range(0, grid.size, per):
+            g = grid[j:j + per]
+            cc = {k: np.repeat(v, g.size, axis=0) for k, v in c.items()}
+            vals[:, j:j + g.size] = _finite(sub(_apply(cc, comp, np.tile(g, n))).total
+                                            ).reshape(n, g.size)
+    else:
+        vals = np.stack([score(np.full(n, g)) for g in grid], axis=1)
     i = np.argmin(vals, axis=1)
     if comp.discrete:
         x = grid[i]
     else:
         a, b = grid[np.maximum(i - 1, 0)], grid[np.minimum(i + 1, grid.size - 1)]
-        inner_bracket = None
-        if warm is not None:
-            at_grid = sub(_apply(c, comp, grid[i]))
-            y = at_grid.settings[warm.name]
-            span = WARM_SPAN * (_grid(warm)[1] - _grid(warm)[0])
-            y = np.where(np.isfinite(y), y, 0.5 * (warm.low + warm.high))
-            inner_bracket = (np.clip(y - span, warm.low, warm.high),
-                             np.clip(y + span, warm.low, warm.high))
-        x, _ = golden_min(lambda z: score(z, inner_bracket), a, b, xtol=_xtol(comp))
+        x, _ = golden_min(score, a, b, xtol=_xtol(comp))
         # never worse than the grid (golden section can stall on an infinite bracket end)
         better_grid = vals[np.arange(n), i] < score(x)
         x = np.where(better_grid, grid[i], x)
@@ -275,10 +210,7 @@ def _search(c: dict, outer: list[Compensator], angle, shift, plateaus: bool,
 
         def at(y):
             cc = _apply(c, comp, y)
-            for r in rest:
-                cc = _apply(cc, r, inner_settings[r.name])
-            cc = _held(cc, angle, shift, inner_settings)
-            for k in held:
+            for k in (*rest, *held):
                 cc = _apply(cc, k, inner_settings[k.name])
             return nm.deviation_figures(cc).total_um
 
@@ -290,13 +222,6 @@ def _search(c: dict, outer: list[Compensator], angle, shift, plateaus: bool,
         x = np.where(use_mid & np.isfinite(best), mid, x)
     res.settings[comp.name] = x
     return res
-
-
-def _held(c, angle, shift, settings):
-    for comp in (angle, shift):
-        if comp is not None:
-            c = _apply(c, comp, settings[comp.name])
-    return c
 
 
 def _exact_boxes(c: dict, comps) -> dict | None:
@@ -350,30 +275,30 @@ def _joint_optimum(c: dict, strategy: Strategy, plateaus: bool = True) -> _Inner
 
     Where it applies (beta with the guide shift and one of guide angle or CD, continuous), the
     exact sliding-window optimum of needle_208.adjust does it all (tests/test_adjust.py,
-    tests/test_independent_reference.py). With more outer compensators (e.g. guide angle and
-    CD together) the extra ones are nested 1-D searches around that exact inner optimum; discrete
-    or non-standard compensators go through this module's nested searches alone.
+    tests/test_independent_reference.py). Otherwise the inner optimum is the exact one over
+    the continuous beta, shift and angle where that applies, else the guide shift's closed form,
+    and every other compensator is a nested 1-D search around it (a discrete one over all its
+    settings; beta, then the angle innermost).
     """
     comps = list(strategy.compensators)
+    if not comps:  # the machine as built
+        return _Inner(total=None)
     boxes = _exact_boxes(c, comps)
     if boxes is not None:
         return _exact(c, comps, boxes)
-    angle = next((k for k in comps if k.name == "guide_angle"), None)
-    shift = next((k for k in comps if k.name == "guide_shift_um"), None)
-    # the exact optimum as the innermost step of the nested search: beta, the shift and the
-    # angle when they qualify, every other compensator an outer search around it
-    inner = [k for k in comps if k.name in ("beta", "guide_shift_um", "guide_angle")]
-    inner_boxes = _exact_boxes(c, inner)
-    if inner_boxes is not None:
-        outer = [k for k in comps if k not in inner]
-
-        def leaf(cc, _plateaus):
+    inner = [k for k in comps if k.name in EXACT_INNER and not k.discrete]
+    if _exact_boxes(c, inner) is not None:
+        def leaf(cc):
             return _exact(cc, inner, _exact_boxes(cc, inner))
+    else:
+        inner = [k for k in comps if k.name == "guide_shift_um"]
 
-        return _search(c, outer, None, None, plateaus, leaf=leaf, held=inner)
-    outer = [k for k in comps if k.name not in ("guide_angle", "guide_shift_um", "beta")]
-    outer += [k for k in comps if k.name == "beta"]
-    return _search(c, outer, angle, shift, plateaus)
+        def leaf(cc):
+            return _shift_leaf(cc, inner[0] if inner else None)
+    outer = sorted((k for k in comps if k not in inner),
+                   key=lambda k: ("beta", "guide_angle").index(k.name) + 1
+                   if k.name in ("beta", "guide_angle") else 0)
+    return _search(c, outer, plateaus, leaf, inner)
 
 
 # --- the result ---------------------------------------------------------------------------
@@ -418,11 +343,6 @@ class Adjustment:
         return f
 
 
-def _status(feas: nm.Feasibility, total, limit_um) -> np.ndarray:
-    return np.where(np.isfinite(total), np.where(total <= limit_um, "ok", "out of spec"),
-                    np.where(feas.dead_point, "dead point", "cannot assemble")).astype(object)
-
-
 def adjust(c: dict[str, np.ndarray], strategy: Strategy, limit_um: float = 10.0,
            plateaus: bool = True) -> Adjustment:
     """The assembler's adjustment of each machine (parameter columns c, shape (n, 1)).
@@ -456,11 +376,6 @@ def adjust(c: dict[str, np.ndarray], strategy: Strategy, limit_um: float = 10.0,
     strategy.check_names(list(c))
     before_feas = nm.feasibility(c)
     before = nm.deviation_figures(c, before_feas).total_um
-    if not strategy.compensators:
-        figs = nm.deviation_figures(c, before_feas)
-        return Adjustment(strategy, float(limit_um), before, figs.total_um, figs.plus_um,
-                          figs.minus_um, figs.total_um, _status(before_feas, before, limit_um),
-                          {}, {}, {}, {})
     res = _joint_optimum(c, strategy, plateaus)
     final = c
     for comp in strategy.compensators:
@@ -482,13 +397,12 @@ def adjust(c: dict[str, np.ndarray], strategy: Strategy, limit_um: float = 10.0,
             top, eps = comp.high, 1e-6 * (comp.high - comp.low)
         at_limit[comp.name] = (x <= comp.low + eps) | (x >= top - eps)
     # a machine no setting can run: classify it at its as-built settings
-    status_feas = nm.Feasibility(*(np.where(dead_everywhere, getattr(before_feas, f),
-                                            getattr(feas, f))
-                                   for f in ("ok", "miss_LMA_mm", "miss_BCD_mm", "lo", "hi",
-                                             "transmission_LMA_deg", "transmission_BCD_deg")))
-    achieved = _achieved(c, strategy, settings, figs.total_um)
+    dead_point = np.where(dead_everywhere, before_feas.dead_point, feas.dead_point)
+    status = np.where(np.isfinite(figs.total_um),
+                      np.where(figs.total_um <= limit_um, "ok", "out of spec"),
+                      np.where(dead_point, "dead point", "cannot assemble")).astype(object)
     return Adjustment(strategy, float(limit_um), before, figs.total_um, figs.plus_um,
-                      figs.minus_um, achieved, _status(status_feas, figs.total_um, limit_um),
+                      figs.minus_um, _achieved(c, strategy, settings, figs.total_um), status,
                       settings, p_lo, p_hi, at_limit)
 
 

@@ -8,14 +8,7 @@ A compensator is either `absolute` (the setting replaces the parameter: beta, th
 or `offset` (the setting is added to the machine's as-built value: a guide moved by +/-100 um, a
 guide turned by +/-0.1 deg about its point, a sliding head giving CD +/-0.3 mm of travel).
 
-TOML form (any parameter of the mechanism may be declared):
-
-    [compensators.beta]
-    low = 10.0
-    high = 35.0
-    step = 0.5          # optional: a graduated clamp, settings low + k * step
-    resolution = 0.2    # optional: the assembler hits the setting only within +/- 0.1
-    mode = "absolute"   # or "offset" (default for every name but beta)
+A mechanism file declares its own as [compensators.NAME] tables (docs/mechanism_files.md).
 
 CLI form: --adjust beta,guide_shift_um --range NAME=LOW,HIGH --step NAME=VALUE
 --resolution NAME=VALUE (each validated; errors name the flag, the rule and the value).
@@ -24,9 +17,7 @@ CLI form: --adjust beta,guide_shift_um --range NAME=LOW,HIGH --step NAME=VALUE
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 import numpy as np
 
@@ -150,14 +141,6 @@ class Strategy:
         """The compensators' names, in order."""
         return tuple(c.name for c in self.compensators)
 
-    def get(self, name: str) -> Compensator:
-        """The compensator of that name; ParameterError naming the ones there are otherwise."""
-        for c in self.compensators:
-            if c.name == name:
-                return c
-        raise ParameterError(name, f"is not a compensator of strategy {self.name}; it has "
-                             f"{', '.join(self.names) or 'none'}", name)
-
     def check_names(self, valid) -> Strategy:
         for c in self.compensators:
             if c.name not in valid:
@@ -174,7 +157,7 @@ def strategy_of(names, table: dict[str, Compensator] | None = None, name: str | 
     for n in names:
         if n not in table:
             raise ParameterError(n, "has no built-in compensator range; declare it with "
-                                 f"--range {n}=LOW,HIGH or in a TOML file (built in: "
+                                 f"--range {n}=LOW,HIGH (built in: "
                                  f"{', '.join(table)})", n)
         comps.append(table[n])
     return Strategy(name or ("+".join(names) if names else "none"), tuple(comps))
@@ -270,58 +253,6 @@ def parse_cli(adjust: str | None, ranges=(), steps=(), resolutions=(), valid=Non
             comp = comp.with_changes(resolution=r)
         comps.append(comp)
     return Strategy("+".join(names) if names else "none", tuple(comps))
-
-
-def _from_table(where: str, name: str, body) -> Compensator:
-    if not isinstance(body, dict):
-        raise ParameterError(where, "must be a table with low and high", body)
-    allowed = {"low", "high", "step", "resolution", "mode", "unit"}
-    extra = set(body) - allowed
-    if extra:
-        raise ParameterError(where, f"unknown keys {sorted(extra)}; allowed: {sorted(allowed)}",
-                             body)
-    base = NEEDLE_COMPENSATORS.get(name)
-    if ("low" not in body or "high" not in body) and base is None:
-        raise ParameterError(where, "needs low and high (no built-in range for this name)", body)
-
-    def num(key, default):
-        if key not in body:
-            return default
-        v = body[key]
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise ParameterError(f"{where}.{key}", "must be a number", v)
-        return float(v)
-
-    mode = body.get("mode", base.mode if base else "offset")
-    if not isinstance(mode, str):
-        raise ParameterError(f"{where}.mode", f"must be one of {', '.join(MODES)}", mode)
-    return Compensator(name, num("low", base.low if base else None),
-                       num("high", base.high if base else None),
-                       num("step", base.step if base else None),
-                       num("resolution", base.resolution if base else 0.0), mode,
-                       str(body.get("unit", base.unit if base else "")))
-
-
-def load_toml(path: str | Path, valid=None) -> dict[str, Compensator]:
-    """[compensators.NAME] tables of a TOML file; syntax errors give line and column."""
-    path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise ParameterError(str(path), "is not valid TOML", str(exc)) from None
-    except OSError as exc:
-        raise ParameterError(str(path), "cannot be read", exc.strerror) from None
-    body = data.get("compensators")
-    if not isinstance(body, dict) or not body:
-        raise ParameterError(str(path), "must hold at least one [compensators.NAME] table",
-                             list(data))
-    out = {}
-    for name, spec in body.items():
-        if valid is not None and name not in valid:
-            raise ParameterError(f"compensators.{name}", "unknown parameter; valid names are "
-                                 f"{', '.join(valid)}", name)
-        out[name] = _from_table(f"compensators.{name}", name, spec)
-    return out
 
 
 # the rows of the default strategies table, in order

@@ -279,10 +279,14 @@ def worst_case_table(nominal: Needle208, tolerances: ToleranceSet | str,
                                     strategy=strategy if a else None) for a in (False, True)])
 
 
-def summary_row(strategy: Strategy, limit_um: float, total, status, at_limit: dict,
-                achieved, settings: dict) -> dict:
-    """One row of the strategies table (see the module docstring) from per-machine arrays."""
-    total, status, achieved = np.asarray(total, float), np.asarray(status), np.asarray(achieved)
+def summarise_frame(machines: pd.DataFrame, strategy: Strategy, limit_um: float) -> pd.DataFrame:
+    """The row of the strategies table (counts, yield and interval, SumDelta quantiles, Cpk,
+    at-limit shares, achieved yield, distinct settings) of a per-machine table written by
+    Adjustment.to_dataframe()."""
+    total = machines["total_after_um"].to_numpy(float)
+    status, achieved = machines["status"].to_numpy(), machines["achieved_um"].to_numpy(float)
+    at_limit = {c.name: machines[f"{c.name}_at_limit"].to_numpy(bool)
+                for c in strategy.compensators}
     n = total.size
     counts = {s: int(np.sum(status == s)) for s in STATUSES}
     if sum(counts.values()) != n:
@@ -304,32 +308,16 @@ def summary_row(strategy: Strategy, limit_um: float, total, status, at_limit: di
     ok = status == "ok"
     any_limit = np.zeros(n, bool)
     for comp in strategy.compensators:
-        any_limit |= np.asarray(at_limit[comp.name], bool)
+        any_limit |= at_limit[comp.name]
     row["at_limit_share"] = float(any_limit.mean())
     row["at_limit"] = ", ".join(f"{c.name} {np.mean(at_limit[c.name]):.1%}"
                                 for c in strategy.compensators)
     row["achieved_yield"] = float(np.mean(achieved <= limit_um))
+    setting = {c.name: next(k for k in machines.columns if k.startswith(f"{c.name}_setting"))
+               for c in strategy.compensators}
     row["distinct_settings"] = ", ".join(
-        f"{c.name} {np.unique(np.round(np.asarray(settings[c.name])[ok], 9)).size}"
+        f"{c.name} {np.unique(np.round(machines[setting[c.name]].to_numpy(float)[ok], 9)).size}"
         for c in strategy.compensators if c.discrete)
-    return row
-
-
-def summarise(adj: Adjustment) -> dict:
-    return summary_row(adj.strategy, adj.limit_um, adj.total_um, adj.status, adj.at_limit,
-                       adj.achieved_um, adj.settings)
-
-
-def summarise_frame(machines: pd.DataFrame, strategy: Strategy, limit_um: float) -> pd.DataFrame:
-    """The summary row of a per-machine table written by Adjustment.to_dataframe()."""
-    cols = {c.name: [k for k in machines.columns if k.startswith(f"{c.name}_setting")][0]
-            for c in strategy.compensators}
-    row = summary_row(strategy, limit_um, machines["total_after_um"].to_numpy(),
-                      machines["status"].to_numpy(),
-                      {c.name: machines[f"{c.name}_at_limit"].to_numpy(bool)
-                       for c in strategy.compensators},
-                      machines["achieved_um"].to_numpy(),
-                      {k: machines[v].to_numpy() for k, v in cols.items()})
     return pd.DataFrame([row])
 
 
@@ -350,7 +338,8 @@ class StrategiesResult:
         return len(self.deviations)
 
     def to_dataframe(self) -> pd.DataFrame:
-        return pd.DataFrame([summarise(a) for a in self.adjustments])
+        return pd.concat([summarise_frame(a.to_dataframe(), a.strategy, a.limit_um)
+                          for a in self.adjustments], ignore_index=True)
 
     def machines(self, strategy: str) -> pd.DataFrame:
         """Deviations, criterion before and after, settings, at-limit flags and status."""
@@ -389,16 +378,11 @@ class StrategiesResult:
             out["share_failing_pct"] = out.param.map(f_c["share_pct"])
         else:
             out["share_failing_pct"] = np.nan
-        for p in self.params:
-            x = frame[p].to_numpy()
-            lo, hi = self.limits[p]
-            half = 0.5 * (hi - lo)
-            z = (x - 0.5 * (hi + lo)) / half
-            out.loc[out.param == p, "mean_z_failing"] = float(z[fail].mean()) if fail.any() \
-                else np.nan
-            out.loc[out.param == p, "mean_abs_z_failing"] = float(np.abs(z[fail]).mean()) \
-                if fail.any() else np.nan
-            out.loc[out.param == p, "mean_abs_z_all"] = float(np.abs(z).mean())
+        lo, hi = np.array([self.limits[p] for p in self.params]).T[:, :, None]
+        z = (frame[list(self.params)].to_numpy().T.copy() - 0.5 * (hi + lo)) / (0.5 * (hi - lo))
+        out["mean_z_failing"] = z[:, fail].mean(axis=1) if fail.any() else np.nan
+        out["mean_abs_z_failing"] = np.abs(z[:, fail]).mean(axis=1) if fail.any() else np.nan
+        out["mean_abs_z_all"] = np.abs(z).mean(axis=1)
         out.insert(1, "n_failing", int(fail.sum()))
         return out.sort_values("mean_abs_z_failing", ascending=False, na_position="last") \
             .reset_index(drop=True)

@@ -526,39 +526,3 @@ def fixed_batch(P, beta, lo, hi, h_deg=2.0):
         out[i, 0] = max(fmax, 0.0) * 1e3
         out[i, 1] = max(-fmin, 0.0) * 1e3
     return out
-
-
-@nb.njit(cache=True, parallel=True)
-def window_extremes_batch(P, lo, hi, betas, h_deg=2.0):
-    """(F, G) in mm of d with the guide shift removed over the window of each beta in row i of
-    `betas` (n, k): exact (_fixed_one: surrogate to locate, Newton to polish); NaN where the
-    window is not feasible (B-C-D open or within 1 deg of a dead point, closed form)."""
-    n = P.shape[0]
-    nb_ = betas.shape[1]
-    out = np.full((n, nb_, 2), np.nan)
-    deg = math.pi / 180.0
-    for i in nb.prange(n):
-        if math.isnan(lo[i]) or math.isnan(hi[i]):
-            continue
-        p = P[i]
-        s = p[10]
-        w = hi[i] - lo[i]
-        bmin = betas[i].min()
-        bmax = betas[i].max()
-        u0 = lo[i] + min(s * bmin, s * bmax) * deg
-        u1 = lo[i] + max(s * bmin, s * bmax) * deg
-        seg = np.empty((12, 2))
-        ns = feasible_segments(p, u0 - 1e-9, u1 + w + 1e-9, DEAD_POINT_DEG, seg)
-        shift = p[14] * 1e-3
-        for k in range(nb_):
-            u = lo[i] + s * betas[i, k] * deg
-            inside = False
-            for r in range(ns):
-                if seg[r, 0] - 1e-12 <= u and u + w <= seg[r, 1] + 1e-12:
-                    inside = True
-            if not inside:
-                continue
-            fmax, fmin = _fixed_one(p, betas[i, k], lo[i], hi[i], h_deg * deg)
-            out[i, k, 0] = fmax + shift
-            out[i, k, 1] = fmin + shift
-    return out
