@@ -102,7 +102,7 @@ def main(argv=None) -> int:
     allocated = alloc.as_tolerance_set("allocated")
     allocated = ToleranceSet("allocated", allocated.items,
                              f"allocation for 99.73 % after beta adjustment ({args.n_alloc} "
-                             f"machines, seed {args.seed}; yield there {alloc.yield_adjusted:.4f})")
+                             f"machines, seed {args.seed}; yield there {alloc.yield_:.4f})")
     write_text_atomic(out / "allocated_tolerances.toml", toml_of(allocated))
     sets = {"base": NEEDLE_208_SETS["base"], "recommended": NEEDLE_208_SETS["recommended"],
             "allocated": allocated, "allocated_x0.8": scaled(allocated, 0.8, "allocated_x0.8"),
