@@ -9,8 +9,8 @@ exact beta optimum). A machine fails when its value lies beyond a limit or when 
 value; a machine without a value is counted under a named failure mode, never dropped: by
 default each group that can fail gives two modes, "cannot_close at G" and "dead_point at G" (the
 group that failed first, in assembly order, at the nominal compensators); a mechanism's adapter
-may name its failures in its own words (`modes`, `failures`: the needle's "cannot assemble",
-"dead point"). Limits default to the output's [[specs]] entry in the file.
+may name its failures in its own words (`modes`, a status -> word map, and `failures`: the
+needle's "cannot assemble", "dead point"). Limits default to the output's [[specs]] entry.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import numpy as np
 from sewtol.errors import ParameterError
 from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
-from sewtol.studies.adjusting import adjusted, evaluated
+from sewtol.studies.adjusting import adjusted, evaluated, evaluated_failures
 from sewtol.studies.rare_event import LimitState, StandardNormalMap
 from sewtol.studies.scan import checked
 from sewtol.tolerances import ToleranceSet
@@ -80,17 +80,9 @@ def output_of(mech, values: dict, output: str, adjust=None, fast: bool = True,
     return adjusted(mech, values, adjust, output, fast=fast, **options).value
 
 
-def group_failures(mech, values: dict, output: str) -> np.ndarray:
-    """Per machine: "STATUS at GROUP" where the mechanism's evaluation fails, else ""."""
-    ev = mech.evaluate(values, [output])
-    failed = np.asarray(ev.status, object) != "ok"
-    return np.where(failed, np.asarray(ev.status, object) + " at "
-                    + np.asarray(ev.failed_group, object), "")
-
-
 def group_modes(mech) -> tuple[str, ...]:
-    """The failure modes of `group_failures`: every status of FAILURE_STATUSES at every group
-    that can fail (it carries a closure), in assembly order."""
+    """The failure modes "STATUS at GROUP": every status of FAILURE_STATUSES at every group that
+    can fail (it carries a closure), in assembly order."""
     state = mech.state(q_rad=np.zeros(1))
     return tuple(f"{s} at {g.name}" for g in mech.groups if g.name in state.closures
                  for s in FAILURE_STATUSES)
@@ -107,6 +99,7 @@ class _Response:
     lower: float | None
     adjust: object
     modes: tuple[str, ...]
+    words: dict | None  # status -> mode (None: "STATUS at GROUP")
     failures: Callable
     fast: bool
     options: dict = field(default_factory=dict)
@@ -117,17 +110,18 @@ class _Response:
         mode = np.zeros(y.size, dtype=int)
         bad = ~np.isfinite(y)
         if bad.any():
-            label = self.failures(self.mech, {k: v[bad] for k, v in values.items()},
-                                  self.output)
+            status, group = self.failures(self.mech, {k: v[bad] for k, v in values.items()},
+                                          self.output)
             code = {m: k for k, m in enumerate(self.modes, start=1)}
-            mode[bad] = [code.get(s, 0) for s in label]
+            mode[bad] = [code.get(f"{s} at {g}" if self.words is None else self.words.get(s), 0)
+                         for s, g in zip(status, group, strict=True)]
         value = y if self.lower is None else Spec(self.output, self.upper, self.lower).excess(y)
         return np.where(mode == 0, value, np.nan), mode
 
 
 def limit_state(mech, tolerances: ToleranceSet, output: str, upper: float | None = None,
                 lower: float | None = None, adjust=None, *, name: str | None = None,
-                modes: tuple[str, ...] | None = None, failures: Callable | None = None,
+                modes: dict[str, str] | None = None, failures: Callable | None = None,
                 fast: bool = True, **options) -> LimitState:
     """One output of a protocol mechanism as a LimitState (see the module docstring).
 
@@ -135,18 +129,19 @@ def limit_state(mech, tolerances: ToleranceSet, output: str, upper: float | None
     default OUTPUT or OUTPUT_adjusted) and its limit the upper limit; with a lower limit, its
     value is the excess beyond the limits (output units, NAME_excess) and its limit 0.
     adjust: compensators as `adjusting.adjusted` takes them (a name, names, boxes or
-    objects); options go to the mechanism's strategy adjuster. modes and failures
-    (``failures(mech, values, output)`` -> a label of `modes` per machine without a value):
-    default `group_modes` and `group_failures`. fast=False: the generic reference path.
+    objects); options go to the mechanism's strategy adjuster. failures(mech, values, output)
+    -> (status, group) of the machines without a value, as every study takes it (default
+    adjusting.evaluated_failures); the failure mode of a machine is "STATUS at GROUP"
+    (`group_modes`), or, with `modes` (status -> the mechanism's word for it), modes[STATUS].
+    fast=False: the generic reference path.
     """
     mech.output(output)
     check_adjust(mech, adjust)
     upper, lower = limits_of(mech, output, upper, lower)
     zmap = StandardNormalMap(checked(mech, tolerances))
-    if failures is None:
-        modes, failures = group_modes(mech), group_failures
     name = name or (output if adjust is None else f"{output}_adjusted")
     limit, name = (upper, name) if lower is None else (0.0, f"{name}_excess")
-    return LimitState(_Response(mech, zmap, output, upper, lower, adjust, tuple(modes), failures,
-                                fast, dict(options)),
-                      zmap.dim, float(limit), tuple(modes), name, zmap.to_physical)
+    names = group_modes(mech) if modes is None else tuple(dict.fromkeys(modes.values()))
+    return LimitState(_Response(mech, zmap, output, upper, lower, adjust, names, modes,
+                                failures or evaluated_failures, fast, dict(options)),
+                      zmap.dim, float(limit), names, name, zmap.to_physical)

@@ -844,20 +844,11 @@ def needle_sobol(nominal: Needle208, tolerances: ToleranceSet | str, n: int, see
                    store=store, scheduler=scheduler, failures=_failure_reasons, **options)
 
 
-NEEDLE_MODES = ("cannot assemble", "dead point")
 ADJUSTMENTS = ("none", "beta")
-
-
-def _needle_failures(mech, values, output) -> np.ndarray:
-    """Per machine without a value: "cannot assemble" (a dyad misses at the mechanism's beta),
-    else "dead point" (a dyad passes within the dead-point angle, or no beta assembles it)."""
-    from sewtol.mechanisms.needle_208 import metrics as nm
-    from sewtol.mechanisms.needle_208.fast_path import needle_params
-
-    c, _ = nm.columns(needle_params(mech, values))
-    m = len(next(iter(values.values())))
-    f = nm.feasibility({k: np.broadcast_to(v, (m, 1)).copy() for k, v in c.items()})
-    return np.where((f.miss_LMA_mm > 0) | (f.miss_BCD_mm > 0), *NEEDLE_MODES)
+# the rare-event failure modes in the needle's words: a dyad misses at the mechanism's beta, or
+# else a dyad passes within the dead-point angle (or no beta in the range assembles it)
+LIMIT_STATE_MODES = {"cannot_close": "cannot assemble", "dead_point": "dead point",
+                     "unexplained": "dead point"}
 
 
 def needle_limit_state(nominal: Needle208, tolerances: ToleranceSet | str, limit_um: float = 10.0,
@@ -911,7 +902,7 @@ def needle_limit_state(nominal: Needle208, tolerances: ToleranceSet | str, limit
     return limit_state(as_mechanism(nominal), tolerances, OUTPUT, float(limit_um),
                        adjust={"beta": range_deg} if beta else None,
                        name="total_adjusted_um" if beta else "total_fixed_um",
-                       modes=NEEDLE_MODES, failures=_needle_failures)
+                       modes=LIMIT_STATE_MODES, failures=_failure_reasons)
 
 
 # the needle's names of the allocation's columns (studies.allocation.Allocation.to_dataframe)
