@@ -21,7 +21,7 @@ from cli_helpers import run, strict_loads  # noqa: E402
 from sewtol.mechanism import load  # noqa: E402
 from sewtol.reports import generic_report as GR  # noqa: E402
 from sewtol.studies import allocation as AL  # noqa: E402
-from sewtol.studies import ppm as PPM  # noqa: E402
+from sewtol.studies import rare_event as PPM  # noqa: E402
 from sewtol.studies import rare_event as R  # noqa: E402
 from sewtol.studies import sobol as SO  # noqa: E402
 from sewtol.studies.montecarlo import draw_units, unit_streams  # noqa: E402

@@ -31,7 +31,7 @@ from sewtol.law import draw_units, unit_streams
 from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
 from sewtol.studies.adjusting import evaluated_failures
-from sewtol.studies.ppm import check_adjust, limits_of, output_of
+from sewtol.studies.rare_event import check_adjust, limits_of, output_of
 from sewtol.studies.scan import checked
 from sewtol.tolerances import Tolerance, ToleranceSet
 

@@ -855,7 +855,7 @@ def needle_limit_state(nominal: Needle208, tolerances: ToleranceSet | str, limit
                        adjust: str = "beta",
                        range_deg: tuple[float, float] | None = None) -> LimitState:
     """SumDelta of the 208 needle drive after the assembly adjustment, as a LimitState
-    (sewtol.studies.ppm.limit_state on `as_mechanism`).
+    (sewtol.studies.rare_event.limit_state on `as_mechanism`).
 
     adjust "beta": beta re-optimised per machine in range_deg (total_adjusted_um); "none": beta
     left at the nominal beta* (total_fixed_um). A machine without a value is "cannot assemble"
@@ -887,7 +887,7 @@ def needle_limit_state(nominal: Needle208, tolerances: ToleranceSet | str, limit
     ParameterError
         For an unknown adjustment, a non-positive limit, or a set without any tolerance.
     """
-    from sewtol.studies.ppm import limit_state
+    from sewtol.studies.rare_event import limit_state
 
     tolerances = needle_set(tolerances)
     if adjust not in ADJUSTMENTS:
