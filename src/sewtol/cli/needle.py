@@ -631,11 +631,8 @@ def cmd_needle_ppm(args):
     _check_beta_range(args)
     not_offered(args, "needle ppm", resume="it keeps no checkpoints; rerun with the same seed",
                  scheduler="its levels run on this machine; use --n-jobs")
-    if not (np.isfinite(args.target) and 0 < args.target < 1):
-        raise ParameterError("--target", "must be a probability in (0, 1)", args.target)
-    if args.budget < 100:
-        raise ParameterError("--budget", "must be a whole number of model calls >= 100",
-                             args.budget)
+    as_flags(R.choose_method, args.target, args.budget,
+             flags={"target": "--target", "budget": "--budget"})
     params, tolerances = _study_nominal(args), _tolerances(args)
     ls = NR.needle_limit_state(params, tolerances, args.limit_um, args.adjust,
                               tuple(args.beta_range))

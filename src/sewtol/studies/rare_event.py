@@ -313,6 +313,17 @@ def _examples(ls: LimitState, z, value, labels, per_mode: int) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def _binomial(k: int, n: int) -> tuple[float, float, float, float, float]:
+    """k failures in n plain Monte-Carlo samples: p = k/n, c.o.v. sqrt((1-p)/(n p)), the
+    Clopper-Pearson 95 % interval and the 95 % upper bound (one-sided when k = 0)."""
+    ci = stats.binomtest(k, n).proportion_ci(confidence_level=0.95, method="exact")
+    upper = float(ci.high) if k > 0 else \
+        float(stats.binomtest(k, n).proportion_ci(confidence_level=0.90, method="exact").high)
+    p = k / n
+    return (p, float(np.sqrt((1 - p) / (n * p))) if k > 0 else float("nan"), float(ci.low),
+            float(ci.high), upper)
+
+
 def _check_common(rng, n, name="n", minimum=2):
     if not isinstance(rng, np.random.Generator):
         raise ParameterError("rng", "must be a numpy Generator (np.random.default_rng(seed))",
@@ -361,16 +372,11 @@ def monte_carlo(ls: LimitState, n: int, rng: np.random.Generator, chunk_size: in
     el = np.concatenate([p[4] for p in parts])
     n = value.size
     k = int(np.sum(labels > 0))
-    p = k / n
-    ci = stats.binomtest(k, n).proportion_ci(confidence_level=0.95, method="exact")
-    upper = float(stats.binomtest(k, n).proportion_ci(confidence_level=0.90,
-                                                      method="exact").high) if k == 0 else \
-        float(ci.high)
-    cov = float(np.sqrt((1 - p) / (n * p))) if k > 0 else float("nan")
+    p, cov, lo, hi, upper = _binomial(k, n)
     counts, shares = _shares(labels, np.ones(n), ls.mode_names)
     levels = pd.DataFrame([{"level": 0, "threshold": ls.limit, "samples": n,
                             "conditional_probability": p, "gamma": 0.0, "cov": cov}])
-    return RareEventResult("montecarlo", p, cov, float(ci.low), float(ci.high), upper, n, k,
+    return RareEventResult("montecarlo", p, cov, lo, hi, upper, n, k,
                            counts, shares, ls.limit, ls.output,
                            _examples(ls, ez, ev, el, examples_per_mode), levels,
                            (value,), (1.0,), (0.0,), (0.0,), (-np.inf,),
@@ -516,12 +522,7 @@ def subset_simulation(ls: LimitState, n_per_level: int, rng: np.random.Generator
     if len(rows) == 1 and down_to is None:
         # the limit lies within the first, plain Monte-Carlo level: report it as that
         method = "subset (level 0 = Monte-Carlo)"
-        ci = stats.binomtest(k, n).proportion_ci(confidence_level=0.95, method="exact")
-        ci90 = stats.binomtest(k, n).proportion_ci(confidence_level=0.90, method="exact")
-        p = k / n
-        cov = float(np.sqrt((1 - p) / (n * p))) if k > 0 else float("nan")
-        lo, hi = float(ci.low), float(ci.high)
-        upper = hi if k > 0 else float(ci90.high)
+        p, cov, lo, hi, upper = _binomial(k, n)
         cov_ind = cov
     elif k > 0:
         frac = float(np.mean(labels > 0)) if down_to is None else float(np.mean(margin > 0))
