@@ -81,13 +81,15 @@ class Allocation:
             for r in self.table.to_dict("records")), "allocated by sewtol (studies.allocation)")
 
     def to_dict(self) -> dict:
+        # yield NaN: no scale down to 2**-20 reaches the target (no interval either)
         ci = stats.binomtest(int(round(self.yield_ * self.n)), self.n).proportion_ci(
-            0.95, method="exact")
+            0.95, method="exact") if np.isfinite(self.yield_) else None
         return {"mechanism": self.mechanism, "output": self.output, "limit": self.upper,
                 "lower_limit": self.lower, "adjust": self.adjust,
                 "tolerances": self.tolerances, "target": self.target, "n": self.n,
                 "seed": self.seed, "scale": self.scale, "yield": self.yield_,
-                "yield_ci95": [float(ci.low), float(ci.high)], "capped": self.capped,
+                "yield_ci95": [float(ci.low), float(ci.high)] if ci else [None, None],
+                "capped": self.capped,
                 "method": self.method, "rows": self.table.to_dict("records"),
                 "trials": self.trials.to_dict("records")}
 
