@@ -895,9 +895,6 @@ def needle_limit_state(nominal: Needle208, tolerances: ToleranceSet | str, limit
     if not (np.isfinite(limit_um) and limit_um > 0):
         raise ParameterError("limit_um", "must be a positive number of um", limit_um)
     range_deg = sb.DEFAULT_RANGE_DEG if range_deg is None else tuple(map(float, range_deg))
-    if not tolerances.active().items:
-        raise ParameterError("tolerances", "has no tolerance with a non-zero width",
-                             tolerances.name)
     beta = adjust == "beta"
     return limit_state(as_mechanism(nominal), tolerances, OUTPUT, float(limit_um),
                        adjust={"beta": range_deg} if beta else None,
