@@ -3,7 +3,7 @@ scan, worst case and largest tolerances (sewtol.studies.scan, sewtol.studies.wor
 Monte-Carlo (sewtol.studies.montecarlo_study: beta fixed at the nominal's beta* and re-optimised
 per machine, each failure named by needle_208.status), the strategies table
 (sewtol.studies.strategies), Sobol indices, the rare-event limit state and the allocation
-(sewtol.studies.sobol, ppm, allocation) in the source study's columns and words.
+(sewtol.studies.sobol, rare_event, allocation) in the source study's columns and words.
 
 The studies run on `as_mechanism(nominal)` (the folder's mechanism.toml with the machine's
 values as nominals) and so on the needle's plug-ins (fast_path.py): SumDelta exactly by the
