@@ -39,7 +39,7 @@ from sewtol.provenance import now, run_record  # noqa: E402
 from sewtol.reports import plots  # noqa: E402
 from sewtol.reports.tables import write_table  # noqa: E402
 from sewtol.studies import rare_event as R  # noqa: E402
-from sewtol.tolerances import NEEDLE_208_SETS, Tolerance, ToleranceSet  # noqa: E402
+from sewtol.tolerances import NEEDLE_208_SETS, ToleranceSet  # noqa: E402
 
 LIMIT_UM = 10.0
 TARGET = 1e-6
@@ -48,11 +48,6 @@ STRATEGIES = {"none": "beta fixed (nominal beta*)", "beta": "beta adjusted per m
 
 def tol_text(ts) -> str:
     return "; ".join(f"{t.param} {t.lower:+.5g}/{t.upper:+.5g} mm {t.dist}" for t in ts.items)
-
-
-def scaled(ts: ToleranceSet, k: float, name: str) -> ToleranceSet:
-    return ToleranceSet(name, tuple(Tolerance(t.param, t.lower * k, t.upper * k, t.dist)
-                                    for t in ts.items), f"{ts.name} x {k:g}")
 
 
 def toml_of(ts: ToleranceSet) -> str:
@@ -102,11 +97,12 @@ def main(argv=None) -> int:
     allocated = alloc.as_tolerance_set("allocated")
     allocated = ToleranceSet("allocated", allocated.items,
                              f"allocation for 99.73 % after beta adjustment ({args.n_alloc} "
-                             f"machines, seed {args.seed}; yield there {alloc.yield_adjusted:.4f})")
+                             f"machines, seed {args.seed}; yield there {alloc.yield_:.4f})")
     write_text_atomic(out / "allocated_tolerances.toml", toml_of(allocated))
     sets = {"base": NEEDLE_208_SETS["base"], "recommended": NEEDLE_208_SETS["recommended"],
-            "allocated": allocated, "allocated_x0.8": scaled(allocated, 0.8, "allocated_x0.8"),
-            "allocated_x0.6": scaled(allocated, 0.6, "allocated_x0.6")}
+            "allocated": allocated,
+            **{f"allocated_x{k:g}": allocated.scaled(dict.fromkeys(allocated.params, k),
+                                                     f"allocated_x{k:g}") for k in (0.8, 0.6)}}
 
     rows, examples, results = [], [], {}
     child = iter(seeds.spawn(len(sets) * len(STRATEGIES) + 4))

@@ -175,7 +175,7 @@ def main(argv=None) -> int:
                 {"cost model": "sum of 1/t_i (equal weights), RSS shape t_i ~ (c_i/s_i^2)^(1/3)",
                  "yield check": f"Monte-Carlo, {args.n_alloc} machines, seed {args.seed}, "
                  "uniform within +/- t_i",
-                 "achieved yield": f"{alloc.yield_adjusted:.4f}", "guide": guide,
+                 "achieved yield": f"{alloc.yield_:.4f}", "guide": guide,
                  "reference set": f"{alloc_set} ({tol_text(sets[alloc_set])})",
                  "units": "tolerance mm, slope um per mm"}, floatfmt=".5f")
 

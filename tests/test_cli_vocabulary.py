@@ -14,7 +14,7 @@ from cli_helpers import run, strict_loads
 from sewtol.cli import resolve_progress
 from sewtol.errors import ParameterError
 from sewtol.mechanisms.needle_208.tables import montecarlo
-from sewtol.studies.sobol import sample, sobol_pairs
+from sewtol.studies.sobol import case_indices, sample
 from sewtol.tolerances import NEEDLE_208_SETS, Tolerance, ToleranceSet, load_toml
 
 
@@ -160,7 +160,9 @@ def test_second_order_indices_of_ishigami():
     """Analytic (a=7, b=0.1): S1 = 0.3139, 0.4424, 0; S13 = 0.2437, S12 = S23 = 0; the
     variance decomposes exactly into S1 + S2 + S3 + S13 = 1."""
     problem = {"num_vars": 3, "names": ["x1", "x2", "x3"], "bounds": [[-np.pi, np.pi]] * 3}
-    both, conv, pairs = sobol_pairs(ishigami, problem, 4096, seed=3)
+    X = sample(problem, 4096, 3, second_order=True)
+    c = case_indices(problem, X, ishigami(X), 4096, 3, second_order=True)
+    both, conv, pairs = c.indices, c.convergence, c.pairs
     s1 = both[both["n"] == 4096].set_index("param")
     assert s1.loc["x1", "S1"] == pytest.approx(0.3139, abs=0.01)
     assert s1.loc["x2", "S1"] == pytest.approx(0.4424, abs=0.01)

@@ -283,7 +283,7 @@ def test_fitted_upper_phase_is_the_brute_force_optimum(readoffs):
 
 def test_feed_sobol_each_output_over_its_own_parameters():
     from sewtol.studies.montecarlo import contributors
-    from sewtol.studies.sobol import problem_of, sobol_indices
+    from sewtol.studies.sobol import case_indices, problem_of, sample
 
     p = Feed131()
     ts = T.default_tolerances()
@@ -302,9 +302,9 @@ def test_feed_sobol_each_output_over_its_own_parameters():
         sub = type(sub)(sub.name, tuple(t for t in sub.items if t.param in names),
                         sub.description)
         problem = problem_of(sub)
-        ref, conv, _ = sobol_indices(
-            lambda X, o=output, pn=problem["names"]: feed.outputs(
-                p, {k: X[:, i] for i, k in enumerate(pn)})[o], problem, 16, 5, case=output)
+        X = sample(problem, 16, 5)
+        y = feed.outputs(p, {k: X[:, i] for i, k in enumerate(problem["names"])})[output]
+        ref = case_indices(problem, X, y, 16, 5, output).indices
         got = res.indices[res.indices.case == output].reset_index(drop=True)
         assert np.allclose(got[["S1", "ST"]].to_numpy(), ref[["S1", "ST"]].to_numpy(),
                            atol=1e-12, equal_nan=True)

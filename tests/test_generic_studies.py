@@ -21,7 +21,7 @@ from cli_helpers import run, strict_loads  # noqa: E402
 from sewtol.mechanism import load  # noqa: E402
 from sewtol.reports import generic_report as GR  # noqa: E402
 from sewtol.studies import allocation as AL  # noqa: E402
-from sewtol.studies import ppm as PPM  # noqa: E402
+from sewtol.studies import rare_event as PPM  # noqa: E402
 from sewtol.studies import rare_event as R  # noqa: E402
 from sewtol.studies import sobol as SO  # noqa: E402
 from sewtol.studies.montecarlo import draw_units, unit_streams  # noqa: E402
@@ -272,6 +272,12 @@ def test_cli_ppm_allocation_report(tmp_path):
     obj = strict_loads(out)
     k = _order_statistic_scale(2000, 0, 0.9973, 0.01, 0.03)
     assert k * (1 - 2 * AL.SCALE_RTOL) <= obj["scale"] <= k * (1 + 1e-9)
+    # a limit the nominal itself misses: no scale reaches the target, said as a null yield
+    code, out, err = run("run", FILE, "allocation", "--tolerances", "uniform", "--limit",
+                         "19.9", "--n", "50", "--format", "json")
+    assert code == 0, err
+    obj = strict_loads(out)
+    assert obj["scale"] == 0.0 and obj["yield"] is None and obj["yield_ci95"] == [None, None]
     code, out, err = run("run", FILE, "report", "--tolerances", "uniform", "--n", "200",
                          "--limit", "20.05", "--out", str(tmp_path / "rep"))
     assert code == 0, err

@@ -16,7 +16,7 @@ from sewtol.mechanisms.needle_208.tables import (
 )
 from sewtol.studies import allocation as AL
 from sewtol.studies import montecarlo as mc
-from sewtol.studies import ppm as PPM
+from sewtol.studies import rare_event as PPM
 from sewtol.studies import rare_event as R
 from sewtol.tolerances import NEEDLE_208_SETS
 

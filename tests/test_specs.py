@@ -18,7 +18,7 @@ from sewtol.errors import ParameterError
 from sewtol.mechanism import load, loads
 from sewtol.mechanism.spec import Spec
 from sewtol.studies import montecarlo as MC
-from sewtol.studies import ppm as PPM
+from sewtol.studies import rare_event as PPM
 
 DATA = Path(__file__).parent / "data" / "crank_slider.toml"
 TEXT = DATA.read_text()

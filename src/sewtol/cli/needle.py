@@ -521,24 +521,18 @@ def cmd_needle_guides(args):
 
 
 def cmd_needle_allocation(args):
-    from sewtol.mechanisms.needle_208.tables import allocate, allocate_for_strategy
+    from sewtol.mechanisms.needle_208.tables import allocate
 
     if not (np.isfinite(args.target) and 0 < args.target < 1):
         raise ParameterError("--target", "must be a yield strictly between 0 and 1",
                              args.target)
     strategy, params, tolerances = _small_study(args)
+    res = allocate(params, tolerances, args.target, args.n, args.seed, strategy=strategy)
+    table = res.to_dataframe()
     if strategy is None:
-        res = allocate(params, tolerances, args.target, args.n, args.seed)
-        name = "beta"
-        table = res.to_dataframe()
         table["lower_mm"], table["upper_mm"] = -table["tolerance_mm"], table["tolerance_mm"]
-    else:
-        res = allocate_for_strategy(params, tolerances, strategy, args.target, args.n,
-                                    args.seed)
-        name = strategy.name
-        table = res.to_dataframe()
-    obj = {"tolerances": tolerances.name, "strategy": name, "target": res.target,
-           "yield_adjusted": res.yield_adjusted, "n": res.n, "seed": res.seed,
+    obj = {"tolerances": tolerances.name, "strategy": res.adjust, "target": res.target,
+           "yield_adjusted": res.yield_, "n": res.n, "seed": res.seed,
            "scale": res.scale,
            "cost_model": "reciprocal: sum c_i / width_i; shape (c_i / s_i^2)^(1/3), common "
                          "scale by bisection on the Monte-Carlo yield (common random numbers)",
@@ -632,11 +626,8 @@ def cmd_needle_ppm(args):
     _check_beta_range(args)
     not_offered(args, "needle ppm", resume="it keeps no checkpoints; rerun with the same seed",
                  scheduler="its levels run on this machine; use --n-jobs")
-    if not (np.isfinite(args.target) and 0 < args.target < 1):
-        raise ParameterError("--target", "must be a probability in (0, 1)", args.target)
-    if args.budget < 100:
-        raise ParameterError("--budget", "must be a whole number of model calls >= 100",
-                             args.budget)
+    as_flags(R.choose_method, args.target, args.budget,
+             flags={"target": "--target", "budget": "--budget"})
     params, tolerances = _study_nominal(args), _tolerances(args)
     ls = NR.needle_limit_state(params, tolerances, args.limit_um, args.adjust,
                               tuple(args.beta_range))

@@ -434,11 +434,11 @@ def _needle_study(args, mech, tolerances) -> None:
 
 
 def _yield_study(args, fmt, mech, tolerances) -> None:
-    """ppm, allocation and report (sewtol.studies.ppm, allocation, sewtol.reports.generic_report)."""
+    """ppm, allocation and report (sewtol.studies.rare_event, allocation, sewtol.reports.generic_report)."""
     import numpy as np
 
     from sewtol.studies import allocation as AL
-    from sewtol.studies import ppm as PPM
+    from sewtol.studies import rare_event as PPM
     from sewtol.studies import rare_event as R
 
     output, spec = args.spec_output, args.spec

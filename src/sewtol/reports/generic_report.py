@@ -28,7 +28,7 @@ from sewtol.studies import generic as G
 from sewtol.studies import montecarlo as MC
 from sewtol.studies import scan as S
 from sewtol.studies import worst_case as W
-from sewtol.studies.ppm import check_limits, limits_text
+from sewtol.studies.rare_event import check_limits, limits_text
 
 # the histogram's range: these quantiles of the machines that run, widened to show the limits;
 # machines outside are counted as "beyond the plot" in the legend

@@ -3,10 +3,10 @@ and name no mechanism.
 
 scan.py (the per-parameter scan, largest tolerances), worst_case.py, settings.py (named settings
 compared), adjusting.py (the one adjustment dispatch: a mechanism's plug-in, else the generic
-optimiser), sobol.py (Sobol indices), ppm.py (the limit state of failures per million),
-allocation.py (the largest common scale of a set), all on the mechanism protocol; generic.py:
-nominal and Monte-Carlo of any file; montecarlo.py, rare_event.py: the sampling and rare-event
-machinery every mechanism's studies share; parallel.py,
+optimiser), sobol.py (Sobol indices), rare_event.py (failures per million: the limit state of
+any output and its estimators), allocation.py (the largest common scale of a set), all on the
+mechanism protocol; generic.py: nominal and Monte-Carlo of any file; montecarlo.py: the
+sampling every mechanism's studies share; parallel.py,
 checkpoint.py: chunked, reproducible, resumable execution. A mechanism's own studies (the
 needle's exact beta optimiser) live in its folder under sewtol.mechanisms.
 """

@@ -31,7 +31,7 @@ from sewtol.law import draw_units, unit_streams
 from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
 from sewtol.studies.adjusting import evaluated_failures
-from sewtol.studies.ppm import check_adjust, limits_of, output_of
+from sewtol.studies.rare_event import check_adjust, limits_of, output_of
 from sewtol.studies.scan import checked
 from sewtol.tolerances import Tolerance, ToleranceSet
 
@@ -62,13 +62,17 @@ class Allocation:
     table: pd.DataFrame
     trials: pd.DataFrame
     adjust: str | None = None
+    # a mechanism's names for to_dataframe(): table column -> its name (None: the table as is)
+    columns: dict | None = None
 
     method = ("common scale k of the set (limits times k times each weight), bisection on the "
               "Monte-Carlo yield with common random numbers (one matrix of uniforms for every "
               "k): exact for the sample when the pass region is star-shaped about the nominal")
 
     def to_dataframe(self) -> pd.DataFrame:
-        return self.table.copy()
+        if self.columns is None:
+            return self.table.copy()
+        return self.table[list(self.columns)].rename(columns=self.columns)
 
     def as_tolerance_set(self, name: str | None = None) -> ToleranceSet:
         """The allocated limits as a ToleranceSet (each tolerance keeps its distribution)."""
@@ -77,13 +81,15 @@ class Allocation:
             for r in self.table.to_dict("records")), "allocated by sewtol (studies.allocation)")
 
     def to_dict(self) -> dict:
+        # yield NaN: no scale down to 2**-20 reaches the target (no interval either)
         ci = stats.binomtest(int(round(self.yield_ * self.n)), self.n).proportion_ci(
-            0.95, method="exact")
+            0.95, method="exact") if np.isfinite(self.yield_) else None
         return {"mechanism": self.mechanism, "output": self.output, "limit": self.upper,
                 "lower_limit": self.lower, "adjust": self.adjust,
                 "tolerances": self.tolerances, "target": self.target, "n": self.n,
                 "seed": self.seed, "scale": self.scale, "yield": self.yield_,
-                "yield_ci95": [float(ci.low), float(ci.high)], "capped": self.capped,
+                "yield_ci95": [float(ci.low), float(ci.high)] if ci else [None, None],
+                "capped": self.capped,
                 "method": self.method, "rows": self.table.to_dict("records"),
                 "trials": self.trials.to_dict("records")}
 
@@ -92,8 +98,9 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
              upper: float | None = None, lower: float | None = None, n: int = 2000,
              seed: int = 0, weights: dict[str, float] | None = None,
              adjust=None, *, bracket: tuple[float, float] | None = None,
-             steps: int | None = None, failures: Callable | None = None, fast: bool = True,
-             **options) -> Allocation:
+             steps: int | None = None, geometric: bool = False,
+             limits: Callable[[float], ToleranceSet] | None = None,
+             failures: Callable | None = None, fast: bool = True, **options) -> Allocation:
     """The largest common scale k of `tolerances` (each limit times k times its weight, default
     weight 1) at which the fraction of n machines that run and keep `output` within the limits
     is at least `target` (limits default to the file's [[specs]] entry; see the module doc:
@@ -103,7 +110,10 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
 
     adjust: compensators as `adjusting.adjusted` takes them; options go to the mechanism's
     strategy adjuster. bracket (low, high): search k there (k = high when its yield reaches the
-    target) instead of doubling from 1; steps: that many bisection steps instead of SCALE_RTOL.
+    target) instead of doubling from 1; steps: that many bisection steps instead of SCALE_RTOL;
+    geometric: bisect at sqrt(max(lo, 1e-6 hi) hi) (k spans decades). limits(k): the trial set
+    at scale k instead of each limit times k times its weight (e.g. the needle's shapes capped
+    at a largest tolerance); the table's limits are then those of limits(scale).
     failures(mech, values, output) -> (status, group) of machines without a value (default
     adjusting.evaluated_failures), counted per trial. fast=False: the generic reference path."""
     mech.output(output)
@@ -134,7 +144,8 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
 
     def yield_at(k):
         try:
-            trial = tol.scaled({p: k * w[i] for i, p in enumerate(tol.params)})
+            trial = limits(k) if limits is not None else \
+                tol.scaled({p: k * w[i] for i, p in enumerate(tol.params)})
             trial.check_against(record)
         except ParameterError as exc:
             trials.append({"scale": k, "yield": np.nan, "ok": 0, "out_of_limits": 0,
@@ -179,7 +190,7 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
         else:
             lo = 0.0
     def bisect(lo, hi):
-        mid = 0.5 * (lo + hi)
+        mid = np.sqrt(max(lo, hi * 1e-6) * hi) if geometric else 0.5 * (lo + hi)
         return (mid, hi) if yield_at(mid) >= target else (lo, mid)
 
     if not capped and steps is not None:
@@ -190,10 +201,13 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
             lo, hi = bisect(lo, hi)
     done = {t["scale"]: t["yield"] for t in trials}
     y_lo = done.get(lo, float("nan"))  # nan: no scale down to 2**-20 reaches the target
+    final = limits(lo).items if limits is not None else None
     rows = [{"param": t.param, "unit": next(p.unit for p in mech.parameters
                                             if p.name == t.param),
              "weight": w[i], "reference_lower": t.lower, "reference_upper": t.upper,
-             "lower": t.lower * lo * w[i], "upper": t.upper * lo * w[i], "dist": t.dist}
+             "lower": t.lower * lo * w[i] if final is None else final[i].lower,
+             "upper": t.upper * lo * w[i] if final is None else final[i].upper,
+             "dist": t.dist if final is None else final[i].dist}
             for i, t in enumerate(tol.items)]
     trials_frame = pd.DataFrame(trials).sort_values("scale", kind="stable").reset_index(drop=True)
     return Allocation(mech.name, output, upper, lower, tolerances.name, float(target), int(n),

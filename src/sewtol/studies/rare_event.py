@@ -20,24 +20,35 @@ in the standard-normal space of the tolerances:
 Every estimate carries its coefficient of variation, a 95 % interval, the model calls, the
 failures found per mode, and the most probable failing samples of each mode. Where nothing failed
 the result says "< X at 95 %". See docs/rare_event.md for the methods and their assumptions.
+
+Failures per million of any mechanism: `limit_state(mech, tolerances, output, upper, lower,
+adjust)` maps the tolerance set's standard normals to machines of the protocol mechanism and
+gives their output: as evaluated (the plug-in kernel where the mechanism has one) or minimised
+over the compensators `adjust` (`sewtol.studies.adjusting.adjusted`: the needle's exact beta
+optimum). A machine fails when its value lies beyond a limit or when it gives no value; a
+machine without a value is counted under a named failure mode, never dropped: by default each
+group that can fail gives two modes, "cannot_close at G" and "dead_point at G" (the group that
+failed first, in assembly order, at the nominal compensators); a mechanism's adapter may name
+its failures in its own words (`modes`, a status -> word map, and `failures`: the needle's
+"cannot assemble", "dead point"). Limits default to the output's [[specs]] entry.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 from scipy import special, stats
 
 from sewtol.errors import ParameterError
+from sewtol.mechanism.spec import Spec
+from sewtol.protocol import machines
+from sewtol.studies.adjusting import adjusted, evaluated, evaluated_failures
 from sewtol.studies.montecarlo import draw_units, stream_window, unit_streams
+from sewtol.studies.scan import checked
 from sewtol.tolerances import ToleranceSet
-
-if TYPE_CHECKING:
-    pass
 
 METHODS = ("auto", "montecarlo", "subset", "nais")
 PASS = "pass"
@@ -302,6 +313,17 @@ def _examples(ls: LimitState, z, value, labels, per_mode: int) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def _binomial(k: int, n: int) -> tuple[float, float, float, float, float]:
+    """k failures in n plain Monte-Carlo samples: p = k/n, c.o.v. sqrt((1-p)/(n p)), the
+    Clopper-Pearson 95 % interval and the 95 % upper bound (one-sided when k = 0)."""
+    ci = stats.binomtest(k, n).proportion_ci(confidence_level=0.95, method="exact")
+    upper = float(ci.high) if k > 0 else \
+        float(stats.binomtest(k, n).proportion_ci(confidence_level=0.90, method="exact").high)
+    p = k / n
+    return (p, float(np.sqrt((1 - p) / (n * p))) if k > 0 else float("nan"), float(ci.low),
+            float(ci.high), upper)
+
+
 def _check_common(rng, n, name="n", minimum=2):
     if not isinstance(rng, np.random.Generator):
         raise ParameterError("rng", "must be a numpy Generator (np.random.default_rng(seed))",
@@ -350,16 +372,11 @@ def monte_carlo(ls: LimitState, n: int, rng: np.random.Generator, chunk_size: in
     el = np.concatenate([p[4] for p in parts])
     n = value.size
     k = int(np.sum(labels > 0))
-    p = k / n
-    ci = stats.binomtest(k, n).proportion_ci(confidence_level=0.95, method="exact")
-    upper = float(stats.binomtest(k, n).proportion_ci(confidence_level=0.90,
-                                                      method="exact").high) if k == 0 else \
-        float(ci.high)
-    cov = float(np.sqrt((1 - p) / (n * p))) if k > 0 else float("nan")
+    p, cov, lo, hi, upper = _binomial(k, n)
     counts, shares = _shares(labels, np.ones(n), ls.mode_names)
     levels = pd.DataFrame([{"level": 0, "threshold": ls.limit, "samples": n,
                             "conditional_probability": p, "gamma": 0.0, "cov": cov}])
-    return RareEventResult("montecarlo", p, cov, float(ci.low), float(ci.high), upper, n, k,
+    return RareEventResult("montecarlo", p, cov, lo, hi, upper, n, k,
                            counts, shares, ls.limit, ls.output,
                            _examples(ls, ez, ev, el, examples_per_mode), levels,
                            (value,), (1.0,), (0.0,), (0.0,), (-np.inf,),
@@ -505,12 +522,7 @@ def subset_simulation(ls: LimitState, n_per_level: int, rng: np.random.Generator
     if len(rows) == 1 and down_to is None:
         # the limit lies within the first, plain Monte-Carlo level: report it as that
         method = "subset (level 0 = Monte-Carlo)"
-        ci = stats.binomtest(k, n).proportion_ci(confidence_level=0.95, method="exact")
-        ci90 = stats.binomtest(k, n).proportion_ci(confidence_level=0.90, method="exact")
-        p = k / n
-        cov = float(np.sqrt((1 - p) / (n * p))) if k > 0 else float("nan")
-        lo, hi = float(ci.low), float(ci.high)
-        upper = hi if k > 0 else float(ci90.high)
+        p, cov, lo, hi, upper = _binomial(k, n)
         cov_ind = cov
     elif k > 0:
         frac = float(np.mean(labels > 0)) if down_to is None else float(np.mean(margin > 0))
@@ -715,3 +727,125 @@ def estimate(ls: LimitState, rng: np.random.Generator, method: str = "auto",
     n = int(budget / (levels + 2)) // 10 * 10
     return nais(ls, max(n, 100), rng, n_final=max(n, 100) * 2,
                 examples_per_mode=examples_per_mode)
+
+
+# --------------------------------------------------------------------------- any mechanism
+
+
+FAILURE_STATUSES = ("cannot_close", "dead_point")
+
+
+def check_limits(upper: float | None, lower: float | None) -> tuple[float | None, float | None]:
+    """At least one finite limit; lower below upper when both are given (mechanism.spec.Spec's
+    rules, named by the command line's flags)."""
+    if upper is None and lower is None:
+        raise ParameterError("limit", "give an upper limit (--limit) and/or a lower limit "
+                             "(--lower-limit), or a [[specs]] entry of the output in the file",
+                             None)
+    try:
+        spec = Spec("", upper, lower)
+    except ParameterError as exc:
+        raise ParameterError({"upper": "limit", "lower": "lower_limit"}[exc.field], exc.rule,
+                             exc.value) from None
+    return spec.upper, spec.lower
+
+
+def limits_of(mech, output: str, upper: float | None, lower: float | None):
+    """The limits of a study of `output`: those given, else the file's [[specs]] entry of it."""
+    spec = mech.spec_of(output) if upper is None and lower is None else None
+    if spec is not None:
+        return spec.upper, spec.lower
+    return check_limits(upper, lower)
+
+
+def limits_text(output: str, upper: float | None, lower: float | None, unit: str = "") -> str:
+    """The pass condition in words, e.g. "4.2 mm <= stroke_mm <= 4.4 mm"."""
+    u = f" {unit}" if unit and unit != "1" else ""
+    if lower is None:
+        return f"{output} <= {upper:g}{u}"
+    if upper is None:
+        return f"{output} >= {lower:g}{u}"
+    return f"{lower:g}{u} <= {output} <= {upper:g}{u}"
+
+
+def check_adjust(mech, adjust) -> None:
+    """A compensator given by name must be one of the mechanism's."""
+    if isinstance(adjust, str) and adjust not in mech.compensators:
+        raise ParameterError("adjust", "must name a compensator of the file ("
+                             + (", ".join(mech.compensators) or "it has none") + ")", adjust)
+
+
+def output_of(mech, values: dict, output: str, adjust=None, fast: bool = True,
+              **options) -> np.ndarray:
+    """`output` of machines `values`: as evaluated, or minimised over the compensators
+    `adjust` (as `adjusting.adjusted` takes them); NaN where a machine gives no value."""
+    if adjust is None:
+        return evaluated(mech, values, output, fast=fast)
+    return adjusted(mech, values, adjust, output, fast=fast, **options).value
+
+
+def group_modes(mech) -> tuple[str, ...]:
+    """The failure modes "STATUS at GROUP": every status of FAILURE_STATUSES at every group that
+    can fail (it carries a closure), in assembly order."""
+    state = mech.state(q_rad=np.zeros(1))
+    return tuple(f"{s} at {g.name}" for g in mech.groups if g.name in state.closures
+                 for s in FAILURE_STATUSES)
+
+
+@dataclass(frozen=True)
+class _Response:
+    """z (n, dim) -> (value, mode) of one output (picklable: joblib workers receive it)."""
+
+    mech: object
+    zmap: StandardNormalMap
+    output: str
+    upper: float | None
+    lower: float | None
+    adjust: object
+    modes: tuple[str, ...]
+    words: dict | None  # status -> mode (None: "STATUS at GROUP")
+    failures: Callable
+    fast: bool
+    options: dict = field(default_factory=dict)
+
+    def __call__(self, z):
+        values = machines(self.mech, self.zmap.to_physical(z))
+        y = output_of(self.mech, values, self.output, self.adjust, self.fast, **self.options)
+        mode = np.zeros(y.size, dtype=int)
+        bad = ~np.isfinite(y)
+        if bad.any():
+            status, group = self.failures(self.mech, {k: v[bad] for k, v in values.items()},
+                                          self.output)
+            code = {m: k for k, m in enumerate(self.modes, start=1)}
+            mode[bad] = [code.get(f"{s} at {g}" if self.words is None else self.words.get(s), 0)
+                         for s, g in zip(status, group, strict=True)]
+        value = y if self.lower is None else Spec(self.output, self.upper, self.lower).excess(y)
+        return np.where(mode == 0, value, np.nan), mode
+
+
+def limit_state(mech, tolerances: ToleranceSet, output: str, upper: float | None = None,
+                lower: float | None = None, adjust=None, *, name: str | None = None,
+                modes: dict[str, str] | None = None, failures: Callable | None = None,
+                fast: bool = True, **options) -> LimitState:
+    """One output of a protocol mechanism as a LimitState (see the module docstring).
+
+    With an upper limit only, the LimitState's value is the output itself (named `name`,
+    default OUTPUT or OUTPUT_adjusted) and its limit the upper limit; with a lower limit, its
+    value is the excess beyond the limits (output units, NAME_excess) and its limit 0.
+    adjust: compensators as `adjusting.adjusted` takes them (a name, names, boxes or
+    objects); options go to the mechanism's strategy adjuster. failures(mech, values, output)
+    -> (status, group) of the machines without a value, as every study takes it (default
+    adjusting.evaluated_failures); the failure mode of a machine is "STATUS at GROUP"
+    (`group_modes`), or, with `modes` (status -> the mechanism's word for it), modes[STATUS].
+    fast=False: the generic reference path.
+    """
+    mech.output(output)
+    check_adjust(mech, adjust)
+    upper, lower = limits_of(mech, output, upper, lower)
+    zmap = StandardNormalMap(checked(mech, tolerances))
+    name = name or (output if adjust is None else f"{output}_adjusted")
+    limit, name = (upper, name) if lower is None else (0.0, f"{name}_excess")
+    names = group_modes(mech) if modes is None else tuple(dict.fromkeys(modes.values()))
+    return LimitState(_Response(mech, zmap, output, upper, lower, adjust, names, modes,
+                                failures or evaluated_failures, fast, dict(options)),
+                      zmap.dim, float(limit), names, name, zmap.to_physical)

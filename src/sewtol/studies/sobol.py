@@ -4,9 +4,10 @@
 one output, as evaluated (the plug-in kernel where the mechanism has one) and/or adjusted per
 machine (`sewtol.studies.adjusting.adjusted`: the needle's exact beta optimum), one case each,
 run in chunks (`sewtol.studies.parallel.run_chunks`: workers, a Dask cluster, a study folder
-that resumes). `sobol_indices` takes any vectorised model of an (N, D) matrix. The Sobol'
-sample of 2N base points starts with the sample of N base points, so one model run gives the
-indices at N and 2N, and their difference shows whether they have converged.
+that resumes). `case_indices` takes any output on the design `sample` gives (an (N, D)
+matrix of inputs). The Sobol' sample of 2N base points starts with the sample of N base points,
+so one model run gives the indices at N and 2N, and their difference shows whether they have
+converged.
 
 second_order=True (SALib's calc_second_order) runs the design of N (2D + 2) rows instead of
 N (D + 2) and adds the second-order indices S2_ij of every pair with their bootstrap intervals:
@@ -135,11 +136,6 @@ def _analyze(problem: dict, y: np.ndarray, seed: int, resamples: int, conf_level
                           for i in range(len(names)) for j in range(i + 1, len(names))],
                          columns=["param_i", "param_j", "S2", "S2_conf"])
     return first, pairs
-
-
-def analyze(problem: dict, y: np.ndarray, seed: int, resamples: int = 200,
-            conf_level: float = 0.95) -> pd.DataFrame:
-    return _analyze(problem, y, seed, resamples, conf_level, False)[0]
 
 
 @dataclass(frozen=True)
@@ -400,50 +396,6 @@ def result_of(cases: list[CaseIndices], n: int, seed: int, tolerances: str,
         pd.concat([c.outcomes for c in cases], ignore_index=True),
         pd.concat(feas, ignore_index=True) if feas else None,
         {c.case: c.complete for c in cases})
-
-
-def sobol_indices(model, problem: dict, n: int, seed: int, case: str = "y",
-                  resamples: int = 200) -> tuple[pd.DataFrame, pd.DataFrame, int]:
-    """Indices of model at n and n/2 base samples (POLICY for rows where the model gives NaN);
-    model maps (N, D) to (N,). Returns the indices, the convergence row and the failed rows."""
-    X = sample(problem, n, seed)
-    c = case_indices(problem, X, np.asarray(model(X), float), n, seed, case, resamples)
-    return c.indices, c.convergence, c.failed
-
-
-def sobol_pairs(model, problem: dict, n: int, seed: int, case: str = "y",
-                resamples: int = 200, conf_level: float = 0.95
-                ) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
-    """First, total and second-order Sobol indices of any vectorised model (SALib).
-
-    Parameters
-    ----------
-    model : callable
-        Maps an (N, D) array of inputs to N outputs (NaN where it cannot run: POLICY).
-    problem : dict
-        SALib's problem: ``num_vars``, ``names``, ``bounds`` (and optionally ``dists``).
-    n : int
-        Base samples, a power of 2 (>= 16); the model runs n (2D + 2) times.
-    seed : int
-        Seeds the scrambled Sobol' sample and the bootstrap (0 is a seed).
-    case : str
-        The label of the rows (the ``case`` column).
-    resamples : int
-        Bootstrap resamples of the confidence intervals.
-    conf_level : float
-        Their confidence level, in (0, 1).
-
-    Returns
-    -------
-    tuple of DataFrame
-        S1/ST per parameter at n and n/2 (``n`` column), the convergence row (max |dS1|,
-        |dST|, |dS2| between them) and the S2 of every pair at n (``param_i``, ``param_j``,
-        ``S2``, ``S2_conf``, ``case``).
-    """
-    X = sample(problem, n, seed, second_order=True)
-    c = case_indices(problem, X, np.asarray(model(X), float), n, seed, case, resamples,
-                     conf_level, True)
-    return c.indices, c.convergence, c.pairs
 
 
 def case_values(mech, output: str, cases: Mapping, names: list, X: np.ndarray,

@@ -3,7 +3,7 @@ scan, worst case and largest tolerances (sewtol.studies.scan, sewtol.studies.wor
 Monte-Carlo (sewtol.studies.montecarlo: beta fixed at the nominal's beta* and re-optimised
 per machine, each failure named by needle_208.status), the strategies table
 (sewtol.studies.strategies), Sobol indices, the rare-event limit state and the allocation
-(sewtol.studies.sobol, ppm, allocation) in the source study's columns and words.
+(sewtol.studies.sobol, rare_event, allocation) in the source study's columns and words.
 
 The studies run on `as_mechanism(nominal)` (the folder's mechanism.toml with the machine's
 values as nominals) and so on the needle's plug-ins (fast_path.py): SumDelta exactly by the
@@ -38,8 +38,6 @@ from sewtol.studies.montecarlo import (
     check_sampling,
     contributors,
     draw_deviations,
-    draw_units,
-    unit_streams,
 )
 from sewtol.studies.settings import Setting, compare
 from sewtol.tolerances import Tolerance, ToleranceSet, needle_set
@@ -49,6 +47,7 @@ if TYPE_CHECKING:
 
     from sewtol.mechanisms.needle_208.compensators import Strategy
     from sewtol.mechanisms.needle_208.model import Needle208
+    from sewtol.studies.allocation import Allocation
     from sewtol.studies.checkpoint import ChunkStore
     from sewtol.studies.rare_event import LimitState
     from sewtol.studies.sobol import SobolResult
@@ -655,27 +654,18 @@ def needle_sobol(nominal: Needle208, tolerances: ToleranceSet | str, n: int, see
                    store=store, scheduler=scheduler, failures=_failure_reasons, **options)
 
 
-NEEDLE_MODES = ("cannot assemble", "dead point")
 ADJUSTMENTS = ("none", "beta")
-
-
-def _needle_failures(mech, values, output) -> np.ndarray:
-    """Per machine without a value: "cannot assemble" (a dyad misses at the mechanism's beta),
-    else "dead point" (a dyad passes within the dead-point angle, or no beta assembles it)."""
-    from sewtol.mechanisms.needle_208 import metrics as nm
-    from sewtol.mechanisms.needle_208.fast_path import needle_params
-
-    c, _ = nm.columns(needle_params(mech, values))
-    m = len(next(iter(values.values())))
-    f = nm.feasibility({k: np.broadcast_to(v, (m, 1)).copy() for k, v in c.items()})
-    return np.where((f.miss_LMA_mm > 0) | (f.miss_BCD_mm > 0), *NEEDLE_MODES)
+# the rare-event failure modes in the needle's words: a dyad misses at the mechanism's beta, or
+# else a dyad passes within the dead-point angle (or no beta in the range assembles it)
+LIMIT_STATE_MODES = {"cannot_close": "cannot assemble", "dead_point": "dead point",
+                     "unexplained": "dead point"}
 
 
 def needle_limit_state(nominal: Needle208, tolerances: ToleranceSet | str, limit_um: float = 10.0,
                        adjust: str = "beta",
                        range_deg: tuple[float, float] | None = None) -> LimitState:
     """SumDelta of the 208 needle drive after the assembly adjustment, as a LimitState
-    (sewtol.studies.ppm.limit_state on `as_mechanism`).
+    (sewtol.studies.rare_event.limit_state on `as_mechanism`).
 
     adjust "beta": beta re-optimised per machine in range_deg (total_adjusted_um); "none": beta
     left at the nominal beta* (total_fixed_um). A machine without a value is "cannot assemble"
@@ -707,7 +697,7 @@ def needle_limit_state(nominal: Needle208, tolerances: ToleranceSet | str, limit
     ParameterError
         For an unknown adjustment, a non-positive limit, or a set without any tolerance.
     """
-    from sewtol.studies.ppm import limit_state
+    from sewtol.studies.rare_event import limit_state
 
     tolerances = needle_set(tolerances)
     if adjust not in ADJUSTMENTS:
@@ -715,53 +705,39 @@ def needle_limit_state(nominal: Needle208, tolerances: ToleranceSet | str, limit
     if not (np.isfinite(limit_um) and limit_um > 0):
         raise ParameterError("limit_um", "must be a positive number of um", limit_um)
     range_deg = sb.DEFAULT_RANGE_DEG if range_deg is None else tuple(map(float, range_deg))
-    if not tolerances.active().items:
-        raise ParameterError("tolerances", "has no tolerance with a non-zero width",
-                             tolerances.name)
     beta = adjust == "beta"
     return limit_state(as_mechanism(nominal), tolerances, OUTPUT, float(limit_um),
                        adjust={"beta": range_deg} if beta else None,
                        name="total_adjusted_um" if beta else "total_fixed_um",
-                       modes=NEEDLE_MODES, failures=_needle_failures)
+                       modes=LIMIT_STATE_MODES, failures=_failure_reasons)
 
 
-@dataclass(frozen=True)
-class NeedleAllocation:
-    """Allocated symmetric tolerances and the yield they give (see `allocate`).
-
-    ``to_dataframe()`` has per parameter ``cost_weight``, ``slope_um_per_mm``,
-    ``tolerance_mm`` (the allocated +/- limit) and the reference limits;
-    ``as_tolerance_set()`` turns it into a `ToleranceSet` for further studies.
-    """
-
-    table: pd.DataFrame  # param, cost_weight, slope_um_per_mm, tolerance_mm, reference_mm
-    yield_adjusted: float
-    target: float
-    n: int
-    seed: int
-    scale: float
-
-    def to_dataframe(self) -> pd.DataFrame:
-        """The allocation table (a copy)."""
-        return self.table.copy()
-
-    def as_tolerance_set(self, name: str = "allocated") -> ToleranceSet:
-        """The allocated limits as a symmetric, uniform ToleranceSet."""
-        return ToleranceSet(name, tuple(Tolerance(p, -t, t) for p, t in
-                                        zip(self.table["param"], self.table["tolerance_mm"],
-                                            strict=True)), "allocated by sewtol")
+# the needle's names of the allocation's columns (studies.allocation.Allocation.to_dataframe)
+ALLOCATION_COLUMNS = {"param": "param", "cost_weight": "cost_weight",
+                      "slope_um_per_mm": "slope_um_per_mm", "lower": "lower_mm",
+                      "upper": "upper_mm", "reference_lower": "reference_lower_mm",
+                      "reference_upper": "reference_upper_mm"}
 
 
 def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 0.9973,
              n: int = 2000, seed: int = 0, costs: dict[str, float] | None = None,
              max_mm: float = 1.0, range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
-             steps: int = 12) -> NeedleAllocation:
-    """The widest symmetric tolerances that keep the yield after beta adjustment at a target.
+             steps: int | None = None, strategy: Strategy | None = None,
+             limit_um: float = sb.DEFAULT_LIMIT_UM) -> Allocation:
+    """The widest tolerances that keep the yield after adjustment at a target.
 
     Cost is reciprocal, sum c_i / t_i; the shape t_i ~ (c_i / s_i^2)^(1/3) (s_i the slope of
-    SumDelta at beta* from the scan, um per mm) is the root-sum-square optimum; the common scale
-    of the shapes is sewtol.studies.allocation.allocate's (bisection in (0, max_mm) on the
-    yield after beta adjustment per machine, common random numbers).
+    the adjusted SumDelta at the reference limits from the scan, um per mm, each tolerance
+    alone) is the root-sum-square optimum; the common scale of the shapes is
+    sewtol.studies.allocation.allocate's (bisection on the Monte-Carlo yield after adjustment
+    per machine, common random numbers: one uniform matrix for every trial scale).
+
+    strategy None (beta re-optimised in range_deg, the source study's allocation): symmetric
+    tolerances +/- t_i, slopes per the larger side of each reference tolerance, the scale (mm,
+    the widest tolerance) bisected in (0, max_mm). A strategy: its exact joint optimum; each
+    reference tolerance keeps its own (possibly asymmetric) shape, both limits scaled by
+    min(k a_i, max_mm) / h_i (h_i its half-width, slopes per h_i), k bisected geometrically
+    (it spans decades) up to where every tolerance reaches max_mm.
 
     Parameters
     ----------
@@ -778,15 +754,22 @@ def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 
     max_mm : float
         The cap on any tolerance (mm); insensitive parameters end there.
     range_deg : tuple of float
-        The regulating range for beta, (low, high) in deg.
-    steps : int
-        Bisection steps on the scale.
+        The regulating range for beta, (low, high) in deg (strategy None).
+    steps : int or None
+        Bisection steps on the scale; None: 12 (strategy None) or 10 (a strategy).
+    strategy : Strategy or None
+        The assembler's adjustment; None: beta alone in range_deg.
+    limit_um : float
+        The SumDelta limit (um) of the yield.
 
     Returns
     -------
-    NeedleAllocation
-        The allocated +/- tolerance per parameter (mm), the yield it gives with beta adjusted,
-        the target, n, seed and the scale found.
+    sewtol.studies.allocation.Allocation
+        ``to_dataframe()`` per parameter ``cost_weight``, ``slope_um_per_mm``, the allocated
+        limits (``tolerance_mm``, the +/- limit, for strategy None; ``lower_mm`` and
+        ``upper_mm`` with a strategy) and the reference limits; ``yield_`` the yield after
+        adjustment (1 when no scale above 0 keeps the target), ``scale``, ``target``, ``n``,
+        ``seed``; ``as_tolerance_set()`` the allocated limits (uniform) for further studies.
 
     Raises
     ------
@@ -804,125 +787,46 @@ def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 
     c = np.array([float(costs.get(p, 1.0)) for p in names])
     if np.any(c <= 0):
         raise ParameterError("costs", "must be positive weights", costs)
-    sc = scan(nominal, ref, range_deg=range_deg)
-    t0 = sc.nominal_row["total_um"]
-    rows = sc.rows
+    sc = scan(nominal, ref, range_deg=range_deg, strategy=strategy, limit_um=limit_um)
     slope = []
     for t in ref.items:
-        r = rows[rows["param"] == t.param]
-        width = max(abs(t.upper), abs(t.lower))
-        slope.append(float(np.max(np.abs(r["total_um"].to_numpy() - t0))) / width)
-    s = np.maximum(np.array(slope), 1e-9)
+        width = max(abs(t.upper), abs(t.lower)) if strategy is None else 0.5 * (t.upper - t.lower)
+        r = sc.rows[sc.rows["param"] == t.param]["total_um"].to_numpy()
+        worst = np.nanmax(np.abs(r - sc.nominal_row["total_um"]))
+        slope.append(float(worst) / width if np.isfinite(worst) else np.inf)
+    s = np.clip(np.array(slope), 1e-9, 1e12)
     shape = (c / s**2) ** (1.0 / 3.0)
     shape = shape / shape.max()
-    # the scale k (mm) of the shapes (the largest 1), searched in (0, max_mm): no tolerance
-    # exceeds max_mm; the yield is SumDelta <= limit after beta adjustment per machine
-    shapes = ToleranceSet(reference.name, tuple(Tolerance(p, -a, a) for p, a in
-                                                zip(names, shape, strict=True)))
-    a = A.allocate(as_mechanism(nominal), shapes, OUTPUT, target, sc.limit_um, None, n, seed,
-                   adjust=_beta_box(range_deg), bracket=(0.0, max_mm), steps=steps,
-                   failures=_failure_reasons)
-    table = pd.DataFrame({
-        "param": names, "cost_weight": c, "slope_um_per_mm": s,
-        "tolerance_mm": a.table["upper"].to_numpy(),
-        "reference_lower_mm": [x.lower for x in ref.items],
-        "reference_upper_mm": [x.upper for x in ref.items],
-    })
-    return NeedleAllocation(table, a.yield_ if a.scale > 0 else 1.0, target, n, seed, a.scale)
-
-
-@dataclass(frozen=True)
-class StrategyAllocation:
-    """Widest tolerances for a yield target when the assembler applies `strategy`."""
-
-    table: pd.DataFrame  # param, cost_weight, slope_um_per_mm, lower_mm, upper_mm, reference_*
-    strategy: str
-    yield_adjusted: float
-    target: float
-    n: int
-    seed: int
-    scale: float
-
-    def to_dataframe(self) -> pd.DataFrame:
-        return self.table.copy()
-
-    def as_tolerance_set(self, name: str = "allocated") -> ToleranceSet:
-        return ToleranceSet(name, tuple(Tolerance(r.param, r.lower_mm, r.upper_mm)
-                                        for r in self.table.itertuples()),
-                            f"allocated by sewtol for strategy {self.strategy}")
-
-
-def allocate_for_strategy(nominal, reference: ToleranceSet | str, strategy: Strategy,
-                          target: float = 0.9973, n: int = 500, seed: int = 0,
-                          costs: dict | None = None, max_mm: float = 1.0, steps: int = 10,
-                          limit_um: float = 10.0) -> StrategyAllocation:
-    """The allocation of needle_208.allocation with the yield taken after the
-    strategy's joint adjustment.
-
-    Cost model: reciprocal in the width, cost = sum c_i / (upper_i - lower_i). Each reference
-    tolerance keeps its own (possibly asymmetric) shape: both limits are scaled by
-    f_i = min(k a_i, max_mm) / h_i, h_i its half-width, with a_i = (c_i / s_i^2)^(1/3) (the
-    root-sum-square Lagrange optimum) and s_i the slope of the ADJUSTED SumDelta at the
-    reference limits (each tolerance alone, the strategy applied). The common scale k is found
-    by bisection (geometric, k spans decades) on the Monte-Carlo yield of the real model on
-    common random numbers (one uniform matrix for every trial k), so the yield is a step
-    function of k and the result is the largest k found with yield >= target.
-    """
-    reference = needle_set(reference)
-    if not (0 < target < 1):
-        raise ParameterError("target", "must be a yield strictly between 0 and 1", target)
-    if int(n) != n or n < 2:
-        raise ParameterError("n", "must be a whole number >= 2", n)
-    ref = reference.active()
-    names = ref.params
-    costs = costs or {}
-    cw = np.array([float(costs.get(p, 1.0)) for p in names])
-    if np.any(cw <= 0):
-        raise ParameterError("costs", "must be positive weights", costs)
-    half = np.array([0.5 * (t.upper - t.lower) for t in ref.items])
-    params, _, deltas, dev = ref.limit_variants()
-    base = adjust(columns_of(nominal, {p: np.zeros(1) for p in names}), strategy, limit_um)
-    at_limits = adjust(columns_of(nominal, dev), strategy, limit_um).total_um
-    slope = []
-    for p, h in zip(names, half, strict=True):
-        rows = [i for i, q in enumerate(params) if q == p]
-        worst = np.nanmax(np.abs(at_limits[rows] - base.total_um[0]))
-        slope.append(float(worst) / h if np.isfinite(worst) else np.inf)
-    s = np.clip(np.array(slope), 1e-9, 1e12)
-    shape = (cw / s**2) ** (1.0 / 3.0)
-    shape = shape / shape.max()
-    u = draw_units(unit_streams(seed, n), len(names), 0, n)  # montecarlo's uniforms
-
-    def limits_at(k):
-        f = np.minimum(k * shape, max_mm) / half
-        return [(t.lower * fi, t.upper * fi) for t, fi in zip(ref.items, f, strict=True)]
-
-    def yield_at(k):
-        d = ToleranceSet("trial", tuple(Tolerance(p, lo, hi) for p, (lo, hi) in
-                                        zip(names, limits_at(k), strict=True))).from_unit(u)
-        a = adjust(columns_of(nominal, d), strategy, limit_um, plateaus=False)
-        return float(np.mean(a.status == "ok"))
-
-    # k up to where every tolerance reaches the cap, so the cap never ends the search early
-    lo, hi = 0.0, float(max_mm / shape.min())
-    if yield_at(hi) >= target:
-        lo = hi
+    mech = as_mechanism(nominal)
+    if strategy is None:
+        # the scale k (mm) of the shapes (the largest 1), searched in (0, max_mm): no tolerance
+        # exceeds max_mm
+        shapes = ToleranceSet(reference.name, tuple(Tolerance(p, -a, a) for p, a in
+                                                    zip(names, shape, strict=True)))
+        a = A.allocate(mech, shapes, OUTPUT, target, limit_um, None, n, seed,
+                       adjust=_beta_box(range_deg), bracket=(0.0, max_mm),
+                       steps=12 if steps is None else steps, failures=_failure_reasons)
+        columns = {**ALLOCATION_COLUMNS, "upper": "tolerance_mm"}
+        del columns["lower"]
     else:
-        for _ in range(steps):
-            mid = np.sqrt(max(lo, hi * 1e-6) * hi)  # geometric: k spans decades
-            if yield_at(mid) >= target:
-                lo = mid
-            else:
-                hi = mid
-    lim = limits_at(lo)
-    table = pd.DataFrame({
-        "param": names, "cost_weight": cw, "slope_um_per_mm": s,
-        "lower_mm": [x[0] for x in lim], "upper_mm": [x[1] for x in lim],
-        "reference_lower_mm": [t.lower for t in ref.items],
-        "reference_upper_mm": [t.upper for t in ref.items],
-    })
-    return StrategyAllocation(table, strategy.name, yield_at(lo) if lo > 0 else 1.0, target,
-                              int(n), int(seed), lo)
+        half = np.array([0.5 * (t.upper - t.lower) for t in ref.items])
+
+        def limits(k):
+            f = np.minimum(k * shape, max_mm) / half
+            return ToleranceSet("trial", tuple(Tolerance(t.param, t.lower * fi, t.upper * fi)
+                                               for t, fi in zip(ref.items, f, strict=True)))
+
+        # k up to where every tolerance reaches the cap, so the cap never ends the search early
+        a = A.allocate(mech, ref, OUTPUT, target, limit_um, None, n, seed,
+                       adjust=strategy.compensators, bracket=(0.0, float(max_mm / shape.min())),
+                       steps=10 if steps is None else steps, geometric=True, limits=limits,
+                       failures=_failure_reasons, limit_um=limit_um, plateaus=False)
+        columns = ALLOCATION_COLUMNS
+    table = a.table.assign(cost_weight=c, slope_um_per_mm=s,
+                           reference_lower=[t.lower for t in ref.items],
+                           reference_upper=[t.upper for t in ref.items])
+    return replace(a, table=table, columns=columns, yield_=a.yield_ if a.scale > 0 else 1.0,
+                   adjust="beta" if strategy is None else strategy.name)
 
 
 # --- guide settings compared (the needle's instance of sewtol.studies.settings) ------------
