@@ -14,6 +14,7 @@ import stat
 import tomllib
 from pathlib import Path
 
+from sewtol import dependence
 from sewtol.errors import ParameterError
 from sewtol.mechanism import expressions as X
 from sewtol.mechanism.groups import GROUPS
@@ -495,6 +496,8 @@ def _tolerance_sets(ctx, table, pnames) -> dict[str, ToleranceSet]:
             if param == "description":
                 desc = _str(ctx, path + (param,), where, spec)
                 continue
+            if param in dependence.KEYS:
+                continue
             if param not in pnames:
                 ctx.fail(path + (param,), where, "must name a parameter of the file", param)
             if pnames[param].rule == "branch":
@@ -510,6 +513,9 @@ def _tolerance_sets(ctx, table, pnames) -> dict[str, ToleranceSet]:
                     items.append(parse_item(set_name, param, spec))
             except ParameterError as exc:
                 ctx.fail(path + (param,), where, exc.rule, spec)
-        ts = ToleranceSet(set_name, tuple(items), desc)
-        out[set_name] = ts
+        try:
+            tied = dependence.parse(set_name, body, [t.param for t in items])
+        except ParameterError as exc:
+            ctx.fail(path, f"[tolerances.{set_name}]", f"{exc.field}: {exc.rule}", exc.value)
+        out[set_name] = ToleranceSet(set_name, tuple(items), desc, dependence=tied)
     return out

@@ -1,0 +1,129 @@
+"""Tolerance sets that declare dependence (sewtol.dependence) and mean shifts: the forms, the
+refusals, and the copula held to OpenTURNS and to closed forms."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from sewtol.dependence import Dependence
+from sewtol.errors import ParameterError
+from sewtol.mechanism import loads
+from sewtol.mechanisms.needle_208.model import Needle208
+from sewtol.mechanisms.params import field_names
+from sewtol.tolerances import Tolerance, load_toml
+
+VALID = field_names(Needle208)
+NEEDLE_FILE = Path(__file__).parents[1] / "src/sewtol/mechanisms/needle_208/mechanism.toml"
+
+
+def one_set(tmp_path, text):
+    p = tmp_path / "tol.toml"
+    p.write_text("[sets.x]\nAB = 0.05\nBE = 0.05\nBC = 0.05\nLF = 0.05\n" + text)
+    return load_toml(p, VALID)["x"]
+
+
+def test_pairs_matrix_and_setup_make_one_matrix(tmp_path):
+    ts = one_set(tmp_path, 'correlation = [["BE", "AB", 0.9]]\n'
+                 'setup = [{ params = ["BC", "LF"], share = 0.5 }]\n')
+    dep = ts.dependence
+    # the set's order, not the file's
+    assert dep.params == ("AB", "BE", "BC", "LF")
+    np.testing.assert_array_equal(dep.array, [[1, .9, 0, 0], [.9, 1, 0, 0], [0, 0, 1, .5],
+                                              [0, 0, .5, 1]])
+    full = one_set(tmp_path, 'correlation = { params = ["AB", "BE"], matrix = [[1, 0.9], '
+                   '[0.9, 1]] }\n').dependence
+    assert full.params == ("AB", "BE") and full.matrix == ((1.0, 0.9), (0.9, 1.0))
+    # a set without either key is independent; a zero-width member leaves the active copula
+    assert one_set(tmp_path, "").dependence is None
+    assert ts.scaled({"BC": 0.0}).active().dependence.params == ("AB", "BE")
+    assert ts.scaled({"AB": 0.0, "BC": 0.0}).active().dependence is None
+
+
+@pytest.mark.parametrize("text,message", [
+    ('correlation = [["AB", "BE", 0.9], ["AB", "BC", 0.9], ["BE", "BC", -0.9]]\n',
+     "x.correlation: must be positive semi-definite (no set of parameters AB, BE, BC has these "
+     "correlations); its smallest eigenvalue is -0.8"),
+    ('correlation = { params = ["AB", "BE"], matrix = [[1, 0.9], [0.8, 1]] }\n',
+     "x.correlation: must be symmetric"),
+    ('correlation = [["AB", "CD", 0.5]]\n', "x.correlation[0]: names 'CD', not a parameter of "
+     "the set (AB, BE, BC, LF)"),
+    ('correlation = [["AB", "BE", 1.2]]\n', "x.correlation[AB, BE]: must be a correlation within "
+     "[-1, 1] (got 1.2)"),
+    ('correlation = [["AB", "AB", 0.5]]\n', "x.correlation[0]: must pair two different"),
+    ('correlation = [["AB", "BE", 0.5]]\nsetup = [{ params = ["BE", "AB"] }]\n',
+     "x.setup[0]: gives the pair BE, AB a second time (first in x.correlation[0])"),
+    ('setup = [{ params = ["AB", "BE"], share = 0 }]\n', "x.setup[0].share: must be the setup"),
+    ('correlation = [["AB", 0.5]]\n', 'x.correlation[0]: must be ["A", "B", rho]'),
+])
+def test_bad_dependence_refused_in_one_line(tmp_path, text, message):
+    with pytest.raises(ParameterError) as exc:
+        one_set(tmp_path, text)
+    assert message in str(exc.value) and "\n" not in str(exc.value)
+
+
+def test_mechanism_file_sets_declare_dependence_too():
+    text = NEEDLE_FILE.read_text() + '\n[tolerances.tied]\nAB = 0.05\nBE = 0.05\n' \
+        'correlation = [["AB", "BE", 0.9]]\n'
+    assert loads(text).tolerance_sets["tied"].dependence.matrix == ((1.0, 0.9), (0.9, 1.0))
+    with pytest.raises(ParameterError, match=r"\[tolerances.bad\]: bad.correlation\[AB, BE\]: "
+                       "must be a correlation within"):
+        loads(text + '[tolerances.bad]\nAB = 0.05\nBE = 0.05\ncorrelation = [["AB", "BE", 2]]\n')
+
+
+@pytest.mark.parametrize("r", [[[1, 0.9], [0.9, 1]], [[1, .3, -.5], [.3, 1, .2], [-.5, .2, 1]],
+                               [[1, 0.999], [0.999, 1]]])
+def test_copula_equals_openturns_normal_copula(r):
+    ot = pytest.importorskip("openturns")
+    u = np.random.default_rng(4).random((2000, len(r)))
+    dep = Dependence(tuple("ABC"[:len(r)]), tuple(map(tuple, r)))
+    ref = np.array(ot.NormalCopula(ot.CorrelationMatrix(r)).getInverseIsoProbabilisticTransformation()(
+        stats.norm.ppf(u)))
+    np.testing.assert_allclose(dep.ranks(u), ref, rtol=0, atol=1e-12)
+    # the first parameter's rank is the one drawn (common random numbers with the product law)
+    np.testing.assert_allclose(dep.ranks(u)[:, 0], u[:, 0], rtol=0, atol=1e-12)
+
+
+def test_copula_closed_forms():
+    u = np.random.default_rng(7).random((200_000, 3))
+    rho = 0.9
+    ranks = Dependence(("A", "B", "C"), ((1, rho, 0), (rho, 1, 0), (0, 0, 1))).ranks(u)
+    # Gaussian copula: Spearman's rho_S = (6 / pi) arcsin(rho / 2), Kendall's tau = (2 / pi)
+    # arcsin(rho); standard error of both < 0.002 at this n
+    assert stats.spearmanr(ranks[:, 0], ranks[:, 1])[0] == pytest.approx(
+        6 / np.pi * np.arcsin(rho / 2), abs=0.004)
+    z = stats.norm.ppf(ranks)
+    assert np.corrcoef(z.T)[0, 1] == pytest.approx(rho, abs=0.002)
+    assert abs(np.corrcoef(z.T)[0, 2]) < 0.01
+    # a one-setup group with share 1 is singular: its members draw the same rank, exactly
+    same = Dependence(("A", "B", "C"), ((1, 1, 1), (1, 1, 1), (1, 1, 1))).ranks(u)
+    np.testing.assert_array_equal(same[:, 1], same[:, 0])
+    np.testing.assert_array_equal(same[:, 2], same[:, 0])
+    # share s: every pair of the group correlated s, and L L^T = R
+    dep = Dependence(("A", "B", "C"), ((1, .6, .6), (.6, 1, .6), (.6, .6, 1)))
+    np.testing.assert_allclose(dep.factor() @ dep.factor().T, dep.array, atol=1e-15)
+
+
+def test_mean_shift_and_cpk(tmp_path):
+    ts = one_set(tmp_path, 'CD = { plus_minus = 0.03, dist = "normal", shift = 0.01 }\n'
+                 'LM = { lower = -0.3, upper = 0.3, dist = "truncnorm", shift = -0.05 }\n')
+    cd, lm = ts.items[-2:]
+    assert cd.mean == pytest.approx(0.01) and cd.cpk == pytest.approx(2 / 3)
+    u = np.random.default_rng(1).random(400_000)
+    x = cd.from_unit(u)
+    assert x.mean() == pytest.approx(0.01, abs=3e-5) and x.std() == pytest.approx(0.01, rel=5e-3)
+    # truncnorm: the shifted normal cut at the limits, so its mean is the closed form
+    y = lm.from_unit(u)
+    a, b = (-0.3 + 0.05) / 0.1, (0.3 + 0.05) / 0.1
+    assert y.min() >= -0.3 and y.max() <= 0.3
+    assert y.mean() == pytest.approx(stats.truncnorm.mean(a, b, -0.05, 0.1), abs=3e-4)
+    assert ts.scaled({"CD": 2}).items[-2].shift == pytest.approx(0.02)
+    assert lm.salib_dist() == ("truncnorm", [-0.3, 0.3, -0.05, pytest.approx(0.1)])
+
+
+def test_shift_refusals():
+    with pytest.raises(ParameterError, match="CD.shift: needs dist normal or truncnorm"):
+        Tolerance("CD", -0.03, 0.03, "uniform", 0.01)
+    with pytest.raises(ParameterError, match=r"CD.shift: must keep the mean inside the limits"):
+        Tolerance("CD", -0.03, 0.03, "normal", 0.03)
