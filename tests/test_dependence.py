@@ -1,6 +1,7 @@
 """Tolerance sets that declare dependence (sewtol.dependence) and mean shifts: the forms, the
 refusals, and the copula held to OpenTURNS and to closed forms."""
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -127,3 +128,55 @@ def test_shift_refusals():
         Tolerance("CD", -0.03, 0.03, "uniform", 0.01)
     with pytest.raises(ParameterError, match=r"CD.shift: must keep the mean inside the limits"):
         Tolerance("CD", -0.03, 0.03, "normal", 0.03)
+
+
+def test_law_draws_the_joint_law_with_the_same_seed_contract():
+    from sewtol.law import InputLaw, draw_units, unit_streams
+    from sewtol.tolerances import NEEDLE_208_SETS
+
+    base = NEEDLE_208_SETS["base"]
+    n, seed = 20_000, 5
+    ind = InputLaw.of(base)
+    assert ind.independent
+    # the independent law draws today's machines, byte for byte
+    today = base.active().from_unit(draw_units(unit_streams(seed, n), len(base.items), 0, n))
+    for k, v in ind.draw(n, seed).items():
+        np.testing.assert_array_equal(v, today[k])
+    tied = replace(base, dependence=Dependence(("AB", "BE"), ((1, 0.9), (0.9, 1))))
+    law = InputLaw.of(tied)
+    assert not law.independent
+    dev = law.draw(n, seed)
+    # every parameter not tied to an earlier one keeps its draw (AB through Phi(Phi^-1(u)))
+    for k in ("LF", "LM", "AM", "BC"):
+        np.testing.assert_array_equal(dev[k], today[k])
+    np.testing.assert_allclose(dev["AB"], today["AB"], rtol=0, atol=1e-15)
+    assert stats.spearmanr(dev["AB"], dev["BE"])[0] == pytest.approx(
+        6 / np.pi * np.arcsin(0.45), abs=0.01)
+    # sample(rng) = deviations(sample_unit(rng)), the copula inside sample_unit
+    a = law.sample(np.random.default_rng(3), 50)
+    b = law.deviations(law.sample_unit(np.random.default_rng(3), 50))
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k])
+
+
+def test_monte_carlo_and_strategies_draw_the_joint_law():
+    from sewtol.mechanism import load
+    from sewtol.studies import montecarlo as mc
+    from sewtol.studies.montecarlo_study import montecarlo as montecarlo_study
+    from sewtol.studies.strategies import strategies
+
+    mech = load(Path(__file__).parent / "data" / "crank_slider.toml")
+    tol = replace(mech.tolerance_sets["normal"],
+                  dependence=Dependence(("r", "L"), ((1, -0.95), (-0.95, 1))))
+    want = mc.draw_deviations(tol, 620, 11)
+    assert np.corrcoef(want["r"], want["L"])[0, 1] == pytest.approx(-0.95, abs=0.01)
+    for chunk in (mc.CHUNK, 150):
+        m = mc.sample_machines(lambda nom, dev: {"x": dev["r"]}, mech.parameter_record(), tol,
+                               620, 11, chunk_size=chunk)
+        for k in want:
+            np.testing.assert_array_equal(m[k], want[k])
+    m = montecarlo_study(mech, tol, 620, 11).machines
+    s = strategies(mech, tol, 620, 11)
+    for k in want:
+        np.testing.assert_array_equal(m[k], want[k])
+        np.testing.assert_array_equal(s.deviations[k], want[k])

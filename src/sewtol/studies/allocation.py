@@ -27,7 +27,7 @@ import pandas as pd
 from scipy import stats
 
 from sewtol.errors import ParameterError
-from sewtol.law import draw_units, unit_streams
+from sewtol.law import InputLaw, draw_units, unit_streams
 from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
 from sewtol.studies.adjusting import evaluated_failures
@@ -140,7 +140,7 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
             trials.append({"scale": k, "yield": np.nan, "ok": 0, "out_of_limits": 0,
                            "cannot_close": 0, "dead_point": 0, "note": exc.rule})
             return -1.0
-        values = machines(mech, trial.from_unit(u))
+        values = machines(mech, InputLaw.of(trial).of_uniforms(u))
         y = output_of(mech, values, output, adjust, fast, **options)
         status = np.full(y.size, "ok", dtype=object)
         bad = ~np.isfinite(y)
