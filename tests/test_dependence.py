@@ -180,3 +180,24 @@ def test_monte_carlo_and_strategies_draw_the_joint_law():
     for k in want:
         np.testing.assert_array_equal(m[k], want[k])
         np.testing.assert_array_equal(s.deviations[k], want[k])
+
+
+def test_sobol_refuses_a_correlated_law_in_one_line(tmp_path):
+    from cli_helpers import run
+    from sewtol.mechanism import load
+    from sewtol.studies.sobol import sobol
+
+    mech = load(Path(__file__).parent / "data" / "crank_slider.toml")
+    tol = replace(mech.tolerance_sets["normal"],
+                  dependence=Dependence(("r", "L"), ((1, 0.5), (0.5, 1))))
+    with pytest.raises(ParameterError, match=r"^tolerances: ties r, L \(a correlation\); Sobol "
+                       r"indices need independent inputs: use the Shapley effects"):
+        sobol(mech, tol, mech.outputs[0].name, 16, 0)
+    p = tmp_path / "tied.toml"
+    p.write_text('[sets.tied]\nAB = 0.05\nBE = 0.05\ncorrelation = [["AB", "BE", 0.9]]\n')
+    for argv in (("run", "needle_208", "sobol"), ("needle", "sobol")):
+        code, out, err = run(*argv, "--tolerances", f"{p}:tied", "--n", "16")
+        assert code == 2 and out == ""
+        assert err == ("sewtol: error: --tolerances: ties AB, BE (a correlation); Sobol indices "
+                       "need independent inputs: use the Shapley effects (sewtol run NAME "
+                       "shapley) (got 'tied')\n")
