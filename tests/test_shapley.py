@@ -91,3 +91,18 @@ def test_same_seed_same_effects_and_nan_counted():
     _, _, _, failed = shapley_effects(lambda x: np.where(x[:, 0] > 0.02, np.nan, x.sum(1)),
                                       law, 50, 9, n_var=100)
     assert failed > 0
+
+
+def test_run_shapley_on_the_needle_with_a_correlated_set(tmp_path):
+    from cli_helpers import run, strict_loads
+
+    p = tmp_path / "tied.toml"
+    p.write_text('[sets.tied]\nAB = 0.05\nBE = 0.05\nBC = 0.05\ncorrelation = [["AB", "BE", 0.9]]\n')
+    code, out, err = run("run", "needle_208", "shapley", "--tolerances", f"{p}:tied", "--n", "30",
+                         "--seed", "2", "--adjust", "beta", "--format", "json")
+    assert code == 0, err
+    obj = strict_loads(out)
+    assert obj["independent"] is False and obj["case"] == "SumDelta_um_adjusted"
+    assert [r["param"] for r in obj["rows"]] == ["AB", "BE", "BC"]
+    assert sum(r["shapley"] for r in obj["rows"]) == pytest.approx(1.0, abs=1e-12)
+    assert obj["failed"] == 0 and obj["permutations"] == 30
