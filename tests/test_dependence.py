@@ -201,3 +201,22 @@ def test_sobol_refuses_a_correlated_law_in_one_line(tmp_path):
         assert err == ("sewtol: error: --tolerances: ties AB, BE (a correlation); Sobol indices "
                        "need independent inputs: use the Shapley effects (sewtol run NAME "
                        "shapley) (got 'tied')\n")
+
+
+def test_allocation_keeps_the_copula(monkeypatch):
+    from sewtol.mechanism import load
+    from sewtol.studies import allocation as AL
+    from sewtol.studies import montecarlo as mc
+
+    mech = load(Path(__file__).parent / "data" / "crank_slider.toml")
+    tol = replace(mech.tolerance_sets["normal"],
+                  dependence=Dependence(("r", "L"), ((1, 0.8), (0.8, 1))))
+    calls = []
+    monkeypatch.setattr(AL, "machines", lambda m, dev: calls.append(dev) or
+                        {k: m.nominal_values()[k] + v for k, v in dev.items()})
+    a = AL.allocate(mech, tol, "stroke_mm", 0.9, upper=20.02, lower=19.98, n=300, seed=4)
+    assert a.as_tolerance_set().dependence == tol.dependence
+    # one trial (the reported scale) drew the allocated set's machines, copula included
+    want = mc.draw_deviations(a.as_tolerance_set(), 300, 4)
+    assert any(all(np.allclose(d[k], v, rtol=1e-12, atol=0) for k, v in want.items())
+               for d in calls)

@@ -26,6 +26,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from sewtol.dependence import Dependence
 from sewtol.errors import ParameterError
 from sewtol.law import InputLaw, draw_units, unit_streams
 from sewtol.mechanism.spec import Spec
@@ -62,6 +63,7 @@ class Allocation:
     table: pd.DataFrame
     trials: pd.DataFrame
     adjust: str | None = None
+    dependence: Dependence | None = None  # the set's copula, kept by the allocated set
 
     method = ("common scale k of the set (limits times k times each weight), bisection on the "
               "Monte-Carlo yield with common random numbers (one matrix of uniforms for every "
@@ -74,7 +76,8 @@ class Allocation:
         """The allocated limits as a ToleranceSet (each tolerance keeps its distribution)."""
         return ToleranceSet(name or f"{self.tolerances}*allocated", tuple(
             Tolerance(r["param"], r["lower"], r["upper"], r["dist"])
-            for r in self.table.to_dict("records")), "allocated by sewtol (studies.allocation)")
+            for r in self.table.to_dict("records")), "allocated by sewtol (studies.allocation)",
+            dependence=self.dependence)
 
     def to_dict(self) -> dict:
         ci = stats.binomtest(int(round(self.yield_ * self.n)), self.n).proportion_ci(
@@ -198,4 +201,4 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
     trials_frame = pd.DataFrame(trials).sort_values("scale", kind="stable").reset_index(drop=True)
     return Allocation(mech.name, output, upper, lower, tolerances.name, float(target), int(n),
                       int(seed), float(lo), float(y_lo), capped, pd.DataFrame(rows), trials_frame,
-                      adjust)
+                      adjust, tol.dependence)
