@@ -236,12 +236,14 @@ class ToleranceSet:
         return self
 
     def sample(self, rng: np.random.Generator, n: int) -> dict[str, np.ndarray]:
-        """n machines' deviations from nominal, one array per parameter (studies draw theirs
-        with studies.montecarlo.draw_deviations, the one sampler of every study)."""
+        """n machines' deviations from nominal, one array per parameter, each drawn on its own
+        (the marginals only: the set's dependence is the input law's, sewtol.law.InputLaw,
+        whose `draw` is the one sampler of every study)."""
         return self.from_unit(rng.random((n, len(self.items))))
 
     def from_unit(self, u: np.ndarray) -> dict[str, np.ndarray]:
-        """Deviations for standard uniforms u (n, one column per tolerance, in order)."""
+        """Deviations for standard uniforms u (n, one column per tolerance, in order), each
+        column through its own marginal (no dependence: InputLaw.of_uniforms ties them)."""
         return {t.param: t.from_unit(u[:, i]) for i, t in enumerate(self.items)}
 
     def limit_variants(self) -> tuple[list[str], list[str], list[float], dict[str, np.ndarray]]:
