@@ -13,7 +13,8 @@ from sewtol.mechanisms import mechanism_file, names
 ARGS = {"nominal": [], "scan": [], "worst-case": [],
         "montecarlo": ["--n", "40", "--seed", "1"], "sobol": ["--n", "16", "--seed", "1"],
         "ppm": ["--n", "400", "--method", "mc", "--seed", "1"],
-        "allocation": ["--n", "40", "--seed", "1"], "strategies": ["--n", "20", "--seed", "1"]}
+        "allocation": ["--n", "40", "--seed", "1"], "strategies": ["--n", "20", "--seed", "1"],
+        "shapley": ["--n", "4", "--seed", "1"]}
 NEEDS_LIMIT = ("ppm", "allocation")
 
 
@@ -42,6 +43,9 @@ def test_every_study_runs_on_every_built_in(name, study):
     if study == "montecarlo":
         for case, c in obj["counts"].items():
             assert c["ok"] + c["out_of_spec"] + c["failed"] == c["n"] == 40, (case, c)
+    if study == "shapley":
+        assert [r["param"] for r in obj["rows"]] == list(load(mechanism_file(name)).tolerance_sets
+                                                         [obj["tolerances"]].active().params)
     if study == "strategies":
         for row in obj["rows"]:
             assert row["ok"] + row["out_of_spec"] + row["cannot_close"] + row["dead_point"] \

@@ -1,20 +1,21 @@
 """The input law of a study: the joint distribution of a mechanism's parameter deviations.
 
-A study never reads a tolerance set's columns one by one; it asks the law. Today's laws are
-the product of the set's marginals (every deviation drawn on its own: `independent` is True);
-the joint form (a copula over the marginals, parts made in one setup) will add a dependence
-here without changing any study's call. A study that needs independence (Sobol indices, the
-rare-event transform to standard normal space) checks `independent` and says so when it
-cannot hold, instead of assuming it.
+A study never reads a tolerance set's columns one by one; it asks the law: the set's marginals
+joined by its dependence (`sewtol.dependence`: a Gaussian copula from `correlation` and `setup`
+in the tolerance file), or their product when it declares none (`independent` is True). A study
+that needs independence (Sobol indices) checks `independent` and says so when it cannot hold,
+instead of assuming it.
 
     law = InputLaw.of(tolerance_set)
     u = law.sample_unit(rng, n)          # (n, d) numbers in (0, 1): the machines' ranks
+                                         # (law.ranks of independent uniforms)
     dev = law.deviations(u)              # parameter -> deviation from nominal (its unit)
 
 `law.draw(n, seed)` is the one sampler of every study (Monte-Carlo, strategies, ppm by plain
 Monte-Carlo, allocation): machine k is row k % STREAM of the standard uniforms drawn from child
-k // STREAM of the seed, mapped by `deviations`; so one seed and one law give the same machines
-in every study, for any number of workers. `law.sample(rng, n)` equals
+k // STREAM of the seed, tied by `ranks` (the copula; the identity for an independent law, so
+its draws are byte for byte those of the product law) and mapped by `deviations`; so one seed
+and one law give the same machines in every study, for any number of workers. `law.sample(rng, n)` equals
 `law.deviations(law.sample_unit(rng, n))` and, for the independent law,
 `ToleranceSet.sample(rng, n)` bit for bit.
 """
@@ -25,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sewtol.dependence import Dependence
 from sewtol.tolerances import Tolerance, ToleranceSet
 
 # machines per stream of the sampler: machine k draws from child k // STREAM of the seed
@@ -42,15 +44,19 @@ class InputLaw:
     marginals : tuple of Tolerance
         One per parameter that scatters (zero-width tolerances are left nominal), in the set's
         order: limits and distribution of each deviation.
+    dependence : Dependence or None
+        The copula tying some of them (None: independent).
     """
 
     name: str
     marginals: tuple[Tolerance, ...]
+    dependence: Dependence | None = None
 
     @classmethod
     def of(cls, tolerances: ToleranceSet) -> InputLaw:
-        """The law of a tolerance set: its active tolerances, drawn independently."""
-        return cls(tolerances.name, tolerances.active().items)
+        """The law of a tolerance set: its active tolerances, tied by its dependence."""
+        active = tolerances.active()
+        return cls(tolerances.name, active.items, active.dependence)
 
     @property
     def params(self) -> list[str]:
@@ -64,11 +70,26 @@ class InputLaw:
     @property
     def independent(self) -> bool:
         """True: every deviation is drawn on its own (the product of the marginals)."""
-        return True
+        return self.dependence is None
+
+    def ranks(self, u: np.ndarray) -> np.ndarray:
+        """The machines' ranks (n, dim) of independent standard uniforms u (n, dim): the
+        copula's columns replaced, the others (all of an independent law's) u itself."""
+        if self.dependence is None:
+            return u
+        cols = [self.params.index(p) for p in self.dependence.params]
+        out = np.array(u, float)
+        out[:, cols] = self.dependence.ranks(out[:, cols])
+        return out
+
+    def of_uniforms(self, u: np.ndarray) -> dict[str, np.ndarray]:
+        """The deviations of machines drawn as independent standard uniforms u (n, dim):
+        `deviations(ranks(u))`, what every study maps the sampler's uniforms with."""
+        return self.deviations(self.ranks(u))
 
     def sample_unit(self, rng: np.random.Generator, n: int) -> np.ndarray:
         """n machines as ranks in (0, 1), shape (n, dim), from the Generator `rng`."""
-        return rng.random((int(n), self.dim))
+        return self.ranks(rng.random((int(n), self.dim)))
 
     def deviations(self, u: np.ndarray) -> dict[str, np.ndarray]:
         """The deviations (parameter -> array, in the parameter's unit) of ranks u (n, dim)."""
@@ -82,7 +103,7 @@ class InputLaw:
     def draw(self, n: int, seed: int | np.random.Generator) -> dict[str, np.ndarray]:
         """Machines 0 .. n-1 of the one sampler (the module docstring): deviations per
         parameter, the same for one seed in every study."""
-        return self.deviations(draw_units(unit_streams(seed, n), self.dim, 0, n))
+        return self.of_uniforms(draw_units(unit_streams(seed, n), self.dim, 0, n))
 
     def box(self) -> dict[str, tuple[float, float]]:
         """The smallest and largest deviation each parameter can draw (its reach)."""

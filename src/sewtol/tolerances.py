@@ -12,6 +12,8 @@ TOML form (a file of one or more sets):
     description = "what it is"
     LF = { lower = -0.05, upper = 0.05, dist = "uniform" }
     CD = { plus_minus = 0.01 }
+    AB = { plus_minus = 0.05, dist = "normal", shift = 0.01 }   # process mean off centre (Cpk)
+    correlation = [["AB", "BE", 0.9]]                           # sewtol.dependence
 """
 
 from __future__ import annotations
@@ -24,6 +26,8 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
+from sewtol import dependence
+from sewtol.dependence import Dependence
 from sewtol.errors import ParameterError
 
 DISTRIBUTIONS = ("uniform", "normal", "truncnorm")
@@ -59,12 +63,17 @@ class Tolerance:
         How machines scatter inside: ``"uniform"`` over the limits, ``"normal"`` with the
         limits at +/-3 sigma around their midpoint, or ``"truncnorm"``, that normal cut at the
         limits.
+    shift : float
+        The process mean's offset from the middle of the limits (normal and truncnorm only;
+        the parameter's unit): sigma stays a sixth of the width, so Cp = 1 and
+        Cpk = 1 - |shift| / (3 sigma) (`cpk`); truncnorm is that shifted normal cut at the limits.
     """
 
     param: str
     lower: float
     upper: float
     dist: str = "uniform"
+    shift: float = 0.0
 
     def __post_init__(self):
         for side in ("lower", "upper"):
@@ -83,6 +92,28 @@ class Tolerance:
         if self.dist not in DISTRIBUTIONS:
             raise ParameterError(f"{self.param}.dist",
                                  f"must be one of {', '.join(DISTRIBUTIONS)}", self.dist)
+        self._check_shift()
+
+    def _check_shift(self):
+        if isinstance(self.shift, bool) or not isinstance(self.shift, (int, float, np.integer, np.floating)) \
+                or not np.isfinite(self.shift):
+            raise ParameterError(f"{self.param}.shift", "must be a finite number", self.shift)
+        if self.shift and self.dist == "uniform":
+            raise ParameterError(f"{self.param}.shift", "needs dist normal or truncnorm (a "
+                                 "uniform fills its limits: it has no mean to shift)", self.shift)
+        if abs(self.shift) >= 0.5 * (self.upper - self.lower) and self.shift:
+            raise ParameterError(f"{self.param}.shift", "must keep the mean inside the limits "
+                                 f"(|shift| < {0.5 * (self.upper - self.lower):g})", self.shift)
+
+    @property
+    def mean(self) -> float:
+        """The process mean: the middle of the limits plus the shift (normal, truncnorm)."""
+        return self.mid + self.shift
+
+    @property
+    def cpk(self) -> float:
+        """The process capability of a normal or truncnorm tolerance, 1 - |shift| / (3 sigma)."""
+        return 1.0 - abs(self.shift) / (3.0 * self.sigma)
 
     @property
     def mid(self) -> float:
@@ -97,8 +128,8 @@ class Tolerance:
     def reach(self) -> tuple[float, float]:
         """The smallest and largest deviation a machine can draw."""
         if self.dist == "normal":
-            return (self.mid - NORMAL_REACH_SIGMA * self.sigma,
-                    self.mid + NORMAL_REACH_SIGMA * self.sigma)
+            return (self.mean - NORMAL_REACH_SIGMA * self.sigma,
+                    self.mean + NORMAL_REACH_SIGMA * self.sigma)
         return self.lower, self.upper
 
     def from_unit(self, u: np.ndarray) -> np.ndarray:
@@ -108,16 +139,18 @@ class Tolerance:
         if self.dist == "uniform":
             return self.lower + (self.upper - self.lower) * u
         if self.dist == "normal":
-            return self.mid + self.sigma * stats.norm.ppf(u)
-        return self.mid + self.sigma * stats.truncnorm.ppf(u, -3.0, 3.0)
+            return self.mean + self.sigma * stats.norm.ppf(u)
+        cut = (-3.0, 3.0) if not self.shift else \
+            ((self.lower - self.mean) / self.sigma, (self.upper - self.mean) / self.sigma)
+        return self.mean + self.sigma * stats.truncnorm.ppf(u, *cut)
 
     def salib_dist(self) -> tuple[str, list[float]]:
         """The same distribution as SALib's problem 'dists' and 'bounds' entries."""
         if self.dist == "uniform":
             return "unif", [self.lower, self.upper]
         if self.dist == "normal":
-            return "norm", [self.mid, self.sigma]
-        return "truncnorm", [self.lower, self.upper, self.mid, self.sigma]
+            return "norm", [self.mean, self.sigma]
+        return "truncnorm", [self.lower, self.upper, self.mean, self.sigma]
 
 
 @dataclass(frozen=True)
@@ -137,12 +170,16 @@ class ToleranceSet:
         What the set is, in words.
     nominal_names : tuple of str
         The mechanism's parameter names, if known (not compared).
+    dependence : Dependence or None
+        A Gaussian copula tying some of the parameters (`sewtol.dependence`); None: every
+        deviation is drawn on its own.
     """
 
     name: str
     items: tuple[Tolerance, ...]
     description: str = ""
     nominal_names: tuple[str, ...] = field(default=(), compare=False)
+    dependence: Dependence | None = None
 
     def __post_init__(self):
         seen = set()
@@ -151,6 +188,9 @@ class ToleranceSet:
                 raise ParameterError(t.param, f"is named twice in tolerance set '{self.name}'",
                                      t.param)
             seen.add(t.param)
+        if self.dependence is not None and not set(self.dependence.params) <= seen:
+            raise ParameterError(self.dependence.where, f"ties parameters the set '{self.name}' "
+                                 "does not tolerance", sorted(set(self.dependence.params) - seen))
 
     def check_against(self, nominal) -> ToleranceSet:
         """Refuse a set that can draw a machine the parameter rules reject (a length <= 0, a
@@ -178,8 +218,10 @@ class ToleranceSet:
 
     def active(self) -> ToleranceSet:
         """Only the tolerances with a non-zero width (the ones that scatter)."""
-        return ToleranceSet(self.name, tuple(t for t in self.items if t.upper > t.lower),
-                            self.description)
+        items = tuple(t for t in self.items if t.upper > t.lower)
+        return ToleranceSet(self.name, items, self.description, dependence=None
+                            if self.dependence is None else
+                            self.dependence.restrict([t.param for t in items]))
 
     def check_names(self, valid: list[str]) -> ToleranceSet:
         """This set, if every parameter is in `valid`; otherwise ParameterError listing the valid names."""
@@ -194,12 +236,14 @@ class ToleranceSet:
         return self
 
     def sample(self, rng: np.random.Generator, n: int) -> dict[str, np.ndarray]:
-        """n machines' deviations from nominal, one array per parameter (studies draw theirs
-        with studies.montecarlo.draw_deviations, the one sampler of every study)."""
+        """n machines' deviations from nominal, one array per parameter, each drawn on its own
+        (the marginals only: the set's dependence is the input law's, sewtol.law.InputLaw,
+        whose `draw` is the one sampler of every study)."""
         return self.from_unit(rng.random((n, len(self.items))))
 
     def from_unit(self, u: np.ndarray) -> dict[str, np.ndarray]:
-        """Deviations for standard uniforms u (n, one column per tolerance, in order)."""
+        """Deviations for standard uniforms u (n, one column per tolerance, in order), each
+        column through its own marginal (no dependence: InputLaw.of_uniforms ties them)."""
         return {t.param: t.from_unit(u[:, i]) for i, t in enumerate(self.items)}
 
     def limit_variants(self) -> tuple[list[str], list[str], list[float], dict[str, np.ndarray]]:
@@ -232,13 +276,15 @@ class ToleranceSet:
             name = self.name + "".join(f"*{k}={float(f):g}" for k, f in changed.items())
         return ToleranceSet(name, tuple(
             Tolerance(t.param, t.lower * factors.get(t.param, 1.0),
-                      t.upper * factors.get(t.param, 1.0), t.dist) for t in self.items),
+                      t.upper * factors.get(t.param, 1.0), t.dist,
+                      t.shift * factors.get(t.param, 1.0)) for t in self.items),
             self.description + (f" (scaled: {', '.join(f'{k} x{float(f):g}' for k, f in changed.items())})"
-                                if changed else ""))
+                                if changed else ""), dependence=self.dependence)
 
     def as_dict(self) -> dict:
         """The set as plain data: per parameter its lower and upper limit and distribution."""
-        return {t.param: {"lower": t.lower, "upper": t.upper, "dist": t.dist} for t in self.items}
+        return {t.param: {"lower": t.lower, "upper": t.upper, "dist": t.dist,
+                          **({"shift": t.shift} if t.shift else {})} for t in self.items}
 
 
 def _sym(param, pm, dist="uniform"):
@@ -284,7 +330,7 @@ def parse_item(set_name: str, param: str, spec) -> Tolerance:
         if pm < 0:
             raise ParameterError(where, SYMMETRIC_RULE, pm)
         return _sym(param, pm)
-    allowed = {"lower", "upper", "plus_minus", "dist"}
+    allowed = {"lower", "upper", "plus_minus", "dist", "shift"}
     extra = set(spec) - allowed
     if extra:
         raise ParameterError(where, f"unknown keys {sorted(extra)}; allowed: {sorted(allowed)}",
@@ -292,6 +338,7 @@ def parse_item(set_name: str, param: str, spec) -> Tolerance:
     dist = spec.get("dist", "uniform")
     if not isinstance(dist, str):
         raise ParameterError(f"{where}.dist", f"must be one of {', '.join(DISTRIBUTIONS)}", dist)
+    shift = _number(f"{where}.shift", spec.get("shift", 0.0))
     if "plus_minus" in spec:
         if "lower" in spec or "upper" in spec:
             raise ParameterError(where, "give either plus_minus or lower and upper, not both",
@@ -299,11 +346,11 @@ def parse_item(set_name: str, param: str, spec) -> Tolerance:
         pm = _number(f"{where}.plus_minus", spec["plus_minus"])
         if pm < 0:
             raise ParameterError(f"{where}.plus_minus", SYMMETRIC_RULE, pm)
-        return Tolerance(param, -pm, pm, dist)
+        return Tolerance(param, -pm, pm, dist, shift)
     if "lower" not in spec or "upper" not in spec:
         raise ParameterError(where, "needs both lower and upper (or plus_minus)", spec)
     return Tolerance(param, _number(f"{where}.lower", spec["lower"]),
-                     _number(f"{where}.upper", spec["upper"]), dist)
+                     _number(f"{where}.upper", spec["upper"]), dist, shift)
 
 
 def load_toml(path: str | Path, valid_params: list[str] | None = None) -> dict[str, ToleranceSet]:
@@ -337,8 +384,10 @@ def load_toml(path: str | Path, valid_params: list[str] | None = None) -> dict[s
         if not isinstance(body, dict):
             raise ParameterError(f"sets.{name}", "must be a table", body)
         desc = str(body.get("description", ""))
-        items = tuple(parse_item(name, k, v) for k, v in body.items() if k != "description")
-        ts = ToleranceSet(name, items, desc)
+        items = tuple(parse_item(name, k, v) for k, v in body.items()
+                      if k != "description" and k not in dependence.KEYS)
+        ts = ToleranceSet(name, items, desc, dependence=dependence.parse(
+            name, body, [t.param for t in items]))
         if valid_params is not None:
             ts.check_names(valid_params)
         out[name] = ts

@@ -19,10 +19,10 @@ from sewtol.cli.common import FLAGS, as_flags, check_out, check_study, emit, par
 from sewtol.errors import ParameterError
 
 STUDIES = ("nominal", "scan", "montecarlo", "sobol", "worst-case", "ppm", "allocation", "report",
-           "settings", "strategies")
+           "settings", "strategies", "shapley")
 RUN_FORMATS = ("text", "table", "json", "csv")
 DEFAULT_N = {"montecarlo": 2000, "strategies": 2000, "sobol": 256, "ppm": 20000,
-             "allocation": 2000, "report": 1000}
+             "allocation": 2000, "report": 1000, "shapley": 200}
 # --target: the smallest probability ppm must resolve; the yield allocation must keep
 DEFAULT_TARGET = {"ppm": 1e-6, "allocation": 0.9973}
 # the studies whose limits default to the file's [[specs]] (--limit/--lower-limit override them)
@@ -33,6 +33,7 @@ USES = {"nominal": (), "scan": ("output", "tolerances", "adjust"),
         "montecarlo": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "n_jobs",
                        "adjust"),
         "sobol": ("output", "tolerances", "n", "seed"),
+        "shapley": ("output", "tolerances", "n", "seed", "adjust"),
         "ppm": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "method", "target",
                 "adjust", "n_jobs"),
         "allocation": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "target",
@@ -58,7 +59,8 @@ def add_run(sub) -> None:
                    help="a [tolerances.SET] of the file (default: its first) or a tolerance file")
     p.add_argument("--n", type=int, default=None,
                    help="machines (montecarlo 2000, allocation 2000 per trial scale, report "
-                        "1000), base samples (sobol, 256) or model calls (ppm, 20000)")
+                        "1000), base samples (sobol, 256), model calls (ppm, 20000) or "
+                        "permutations (shapley, 200)")
     p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
     p.add_argument("--limit", type=float, default=None,
                    help="upper limit of --output (default the first output) for the yield; "
@@ -251,6 +253,13 @@ def cmd_run(args) -> None:
                **({"assembly": res.assembly()} if res.has_failures else {})}
         return _finish(args, fmt, mech, tolerances, obj,
                        {**res.frames(), "indices": res.indices}, res.to_dataframe())
+    if args.study == "shapley":
+        from sewtol.studies.shapley import shapley
+
+        res = _as_flags(partial(shapley, adjust=args.adjust, fast=args.path != "generic"), mech,
+                        tolerances, args.output or mech.output_names[0], args.n, args.seed)
+        return _finish(args, fmt, mech, tolerances, res.to_dict(),
+                       {"shapley": res.to_dataframe()}, res.to_dataframe())
     if args.study in ("ppm", "allocation", "report"):
         return _yield_study(args, fmt, mech, tolerances)
     if args.study == "strategies":
@@ -310,7 +319,10 @@ def _finish(args, fmt, mech, tolerances, obj, frames, frame) -> None:
                      if getattr(args, k, None) is not None},
                   "params": mech.nominal_values(),
                   "tolerances": None if tolerances is None else
-                  {"name": tolerances.name, "items": tolerances.as_dict()},
+                  {"name": tolerances.name, "items": tolerances.as_dict(),
+                   **({} if tolerances.dependence is None else {"dependence": {
+                       "params": list(tolerances.dependence.params),
+                       "matrix": [list(r) for r in tolerances.dependence.matrix]}})},
                   **version_record()}
         write_outputs(args, args.study.replace("-", "_"), inputs, now(), obj, frames, None)
     emit(fmt, obj=obj, frame=frame)

@@ -14,6 +14,7 @@ import stat
 import tomllib
 from pathlib import Path
 
+from sewtol import dependence
 from sewtol.errors import ParameterError
 from sewtol.mechanism import expressions as X
 from sewtol.mechanism.clearance import parse_clearances
@@ -471,6 +472,8 @@ def _tolerance_sets(ctx, table, pnames) -> dict[str, ToleranceSet]:
             if param == "description":
                 desc = _str(ctx, path + (param,), where, spec)
                 continue
+            if param in dependence.KEYS:
+                continue
             if param not in pnames:
                 ctx.fail(path + (param,), where, "must name a parameter of the file", param)
             if pnames[param].rule == "branch":
@@ -485,5 +488,9 @@ def _tolerance_sets(ctx, table, pnames) -> dict[str, ToleranceSet]:
                     items.append(parse_item(set_name, param, spec))
             except ParameterError as exc:
                 ctx.fail(path + (param,), where, exc.rule, spec)
-        out[set_name] = ToleranceSet(set_name, tuple(items), desc)
+        try:
+            tied = dependence.parse(set_name, body, [t.param for t in items])
+        except ParameterError as exc:
+            ctx.fail(path, f"[tolerances.{set_name}]", f"{exc.field}: {exc.rule}", exc.value)
+        out[set_name] = ToleranceSet(set_name, tuple(items), desc, dependence=tied)
     return out

@@ -26,8 +26,9 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from sewtol.dependence import Dependence
 from sewtol.errors import ParameterError
-from sewtol.law import draw_units, unit_streams
+from sewtol.law import InputLaw, draw_units, unit_streams
 from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
 from sewtol.studies.adjusting import evaluated_failures
@@ -64,6 +65,7 @@ class Allocation:
     adjust: str | None = None
     # a mechanism's names for to_dataframe(): table column -> its name (None: the table as is)
     columns: dict | None = None
+    dependence: Dependence | None = None  # the set's copula, kept by the allocated set
 
     method = ("common scale k of the set (limits times k times each weight), bisection on the "
               "Monte-Carlo yield with common random numbers (one matrix of uniforms for every "
@@ -78,7 +80,8 @@ class Allocation:
         """The allocated limits as a ToleranceSet (each tolerance keeps its distribution)."""
         return ToleranceSet(name or f"{self.tolerances}*allocated", tuple(
             Tolerance(r["param"], r["lower"], r["upper"], r["dist"])
-            for r in self.table.to_dict("records")), "allocated by sewtol (studies.allocation)")
+            for r in self.table.to_dict("records")), "allocated by sewtol (studies.allocation)",
+            dependence=self.dependence)
 
     def to_dict(self) -> dict:
         # yield NaN: no scale down to 2**-20 reaches the target (no interval either)
@@ -151,7 +154,7 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
             trials.append({"scale": k, "yield": np.nan, "ok": 0, "out_of_limits": 0,
                            "cannot_close": 0, "dead_point": 0, "note": exc.rule})
             return -1.0
-        values = machines(mech, trial.from_unit(u))
+        values = machines(mech, InputLaw.of(trial).of_uniforms(u))
         y = output_of(mech, values, output, adjust, fast, **options)
         status = np.full(y.size, "ok", dtype=object)
         bad = ~np.isfinite(y)
@@ -212,4 +215,4 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
     trials_frame = pd.DataFrame(trials).sort_values("scale", kind="stable").reset_index(drop=True)
     return Allocation(mech.name, output, upper, lower, tolerances.name, float(target), int(n),
                       int(seed), float(lo), float(y_lo), capped, pd.DataFrame(rows), trials_frame,
-                      adjust)
+                      adjust, tol.dependence)

@@ -2,10 +2,11 @@
 
 The one sampler of every study (Monte-Carlo, strategies, ppm by plain Monte-Carlo, allocation):
 machine k is row k % CHUNK of the standard uniforms drawn from child k // CHUNK of the seed
-(`unit_streams`, `draw_units`), mapped through each tolerance's inverse CDF
-(Tolerance.from_unit). So one seed and one tolerance set give the same machines in every study,
-for any number of workers and any evaluation chunk size, and a study that scales the set
-(allocation) keeps every machine's uniforms, hence its rank, for every scale.
+(`unit_streams`, `draw_units`), tied by the set's dependence and mapped through each
+tolerance's inverse CDF (`InputLaw.of_uniforms`). So one seed and one tolerance set give the
+same machines in every study, for any number of workers and any evaluation chunk size, and a
+study that scales the set (allocation) keeps every machine's uniforms, hence its rank, for
+every scale.
 `sample_machines` evaluates any vectorised model on those machines; `draw_deviations` gives the
 deviations alone; `contributors` and `with_remainder` give each tolerance's eta^2 (correlation
 ratio) as a share of the output's variance, the rest named as interaction.
@@ -95,9 +96,9 @@ def check_memory(n: int, columns: int, what: str = "n", value=None) -> None:
                              f"({have / 2**30:.3g} GiB)", n if value is None else value)
 
 
-def _chunk(model, nominal, tolerances: ToleranceSet, window, kwargs):
+def _chunk(model, nominal, law: InputLaw, window, kwargs):
     streams, a, b = window
-    dev = tolerances.from_unit(draw_units(streams, len(tolerances.items), a, b))
+    dev = law.of_uniforms(draw_units(streams, law.dim, a, b))
     return dev, model(nominal, dev, **kwargs)
 
 
@@ -114,7 +115,7 @@ def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
     distributed.Client to run the chunks on (parallel.run_chunks).
     """
     check_sampling(nominal, tolerances, n, seed, chunk_size)
-    tol = tolerances.active()
+    law = InputLaw.of(tolerances)
     bounds = chunk_bounds(int(n), chunk_size)
     streams = unit_streams(seed, n)
 
@@ -123,12 +124,12 @@ def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
         try:
             dev, out = part
             m = bounds[i][1] - bounds[i][0]
-            if sorted(dev) != sorted(tol.params):
-                return f"holds deviations of {sorted(dev)}, not {sorted(tol.params)}"
+            if sorted(dev) != sorted(law.params):
+                return f"holds deviations of {sorted(dev)}, not {sorted(law.params)}"
             for k, v in list(dev.items()) + list(out.items()):
                 if np.shape(v) != (m,):
                     return f"column {k} has shape {np.shape(v)}, not ({m},)"
-            again = tol.from_unit(draw_units(streams, len(tol.items), *bounds[i]))
+            again = law.of_uniforms(draw_units(streams, law.dim, *bounds[i]))
             for k, v in again.items():
                 if not np.allclose(dev[k], v, rtol=1e-12, atol=0.0):
                     return f"its {k} deviations are not the ones chunk {i} draws from the seed"
@@ -136,7 +137,7 @@ def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
             return f"malformed ({type(exc).__name__}: {exc})"
         return None
 
-    parts = run_chunks(_chunk, [(model, nominal, tol, stream_window(streams, a, b), kwargs)
+    parts = run_chunks(_chunk, [(model, nominal, law, stream_window(streams, a, b), kwargs)
                                 for a, b in bounds],
                        n_jobs=n_jobs, progress=progress, desc=desc, backend=backend, store=store,
                        validate=validate, scheduler=scheduler)

@@ -10,7 +10,8 @@ in the standard-normal space of the tolerances:
   k >= 1 for the k-th named failure mode without a value (cannot assemble, dead point). The
   machine fails when value > limit or mode != 0: the union of the modes.
 - `StandardNormalMap`: the isoprobabilistic transform from independent standard normals to the
-  deviations of a tolerance set (uniform, normal at +/-3 sigma, truncnorm), x = F^-1(Phi(z)).
+  deviations of a tolerance set (uniform, normal at +/-3 sigma, truncnorm), x = F^-1(Phi(z));
+  with the set's copula, the Nataf transform x = F^-1(Phi(L z)).
 - `monte_carlo` (the reference), `subset_simulation` (Au & Beck 2001 with the adaptive
   conditional sampler of Papaioannou et al. 2015, a preconditioned Crank-Nicolson move, p0 = 0.1)
   and `nais` (non-parametric adaptive importance sampling, Morio 2011, with a defensive share of
@@ -61,7 +62,12 @@ Z95 = float(stats.norm.ppf(0.975))
 
 @dataclass(frozen=True)
 class StandardNormalMap:
-    """Independent standard normals z -> deviations of the tolerances that scatter."""
+    """Independent standard normals z -> deviations of the tolerances that scatter.
+
+    With a dependence (the set's Gaussian copula, sewtol.dependence) this is the Nataf
+    transform: the tied columns become L z (L L^T = R, the copula's Cholesky factor) before
+    each marginal's x = F^-1(Phi(.)), so plain Monte-Carlo draws law.draw's machines and
+    subset simulation and NAIS search the same independent z space."""
 
     tolerances: ToleranceSet
 
@@ -78,11 +84,12 @@ class StandardNormalMap:
         if z.shape[1] != self.dim:
             raise ParameterError("z", f"must have {self.dim} columns ({', '.join(self.params)})",
                                  z.shape)
+        z = self._nataf(z, lambda f: f.T)
         out = {}
         for i, t in enumerate(self.tolerances.items):
             zi = z[:, i]
             if t.dist == "normal":  # exact, no round trip through Phi in the tails
-                out[t.param] = t.mid + t.sigma * zi
+                out[t.param] = t.mean + t.sigma * zi
             else:
                 # Phi(z) for z < 0 and 1 - Phi(-z) for z > 0 keeps tail resolution on both sides
                 u = special.ndtr(zi)
@@ -95,12 +102,24 @@ class StandardNormalMap:
         for t in self.tolerances.items:
             x = np.asarray(dev[t.param], float)
             if t.dist == "normal":
-                cols.append((x - t.mid) / t.sigma)
+                cols.append((x - t.mean) / t.sigma)
             elif t.dist == "uniform":
                 cols.append(special.ndtri((x - t.lower) / (t.upper - t.lower)))
             else:
-                cols.append(special.ndtri(stats.truncnorm.cdf((x - t.mid) / t.sigma, -3, 3)))
-        return np.column_stack(cols)
+                cut = ((t.lower - t.mean) / t.sigma, (t.upper - t.mean) / t.sigma)
+                cols.append(special.ndtri(stats.truncnorm.cdf((x - t.mean) / t.sigma, *cut)))
+        # a singular copula (one setup, share 1) has no inverse: the least-squares z
+        return self._nataf(np.column_stack(cols), lambda f: np.linalg.pinv(f).T)
+
+    def _nataf(self, z: np.ndarray, side) -> np.ndarray:
+        """z with the copula's columns times side(L) (the identity without a dependence)."""
+        dep = self.tolerances.dependence
+        if dep is None:
+            return z
+        cols = [self.params.index(p) for p in dep.params]
+        z = np.array(z, float)
+        z[:, cols] = z[:, cols] @ side(dep.factor())
+        return z
 
 
 @dataclass(frozen=True)

@@ -57,7 +57,18 @@ ROWS_PER_BIN, MAX_BINS = 100, 100
 MIN_COMPLETE, MIN_GIVEN_ROWS = 8, 20
 
 
+def check_independent(tolerances: ToleranceSet) -> None:
+    """Sobol indices decompose the variance of independent inputs only: a set with a
+    dependence (`correlation`, `setup`) is refused, pointing to the Shapley effects."""
+    dep = tolerances.active().dependence
+    if dep is not None:
+        raise ParameterError("tolerances", f"ties {', '.join(dep.params)} (a correlation); Sobol "
+                             "indices need independent inputs: use the Shapley effects "
+                             "(sewtol run NAME shapley)", tolerances.name)
+
+
 def problem_of(tolerances: ToleranceSet) -> dict:
+    check_independent(tolerances)
     names, bounds, dists = [], [], []
     for t in tolerances.active().items:
         d, b = t.salib_dist()
@@ -89,6 +100,7 @@ def check_sobol(nominal, tolerances: ToleranceSet, n, seed, second_order: bool =
 
     check_power_of_two(n)
     check_seed(seed)
+    check_independent(tolerances)
     d = len(tolerances.active().items)
     if d == 0:
         raise ParameterError("tolerances", "has no tolerance with a non-zero width",

@@ -121,8 +121,9 @@ def sobol(params: Feed131, tolerances: ToleranceSet, n: int, seed: int, machines
     at n and n / 2 base samples (the convergence table). Chunks run like every study
     (n_jobs, progress, scheduler); rows that cannot run are counted (studies.sobol.POLICY)."""
     from sewtol.studies.parallel import chunk_bounds, run_chunks
-    from sewtol.studies.sobol import case_indices, problem_of, result_of, sample
+    from sewtol.studies.sobol import case_indices, check_independent, problem_of, result_of, sample
 
+    check_independent(tolerances)
     mech = as_mechanism(params)
     cases, chosen = [], {}
     for output in which:
