@@ -215,4 +215,4 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
     trials_frame = pd.DataFrame(trials).sort_values("scale", kind="stable").reset_index(drop=True)
     return Allocation(mech.name, output, upper, lower, tolerances.name, float(target), int(n),
                       int(seed), float(lo), float(y_lo), capped, pd.DataFrame(rows), trials_frame,
-                      adjust, tol.dependence)
+                      adjust, dependence=tol.dependence)
