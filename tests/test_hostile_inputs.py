@@ -41,7 +41,7 @@ MEGA_LINE = "[" + " " * ((1 << 20) - 10_000)  # under the 1 MiB file cap with th
     (NEEDLE.replace("[mechanism]", f'x = """\n{MEGA_LINE}\n"""\n[mechanism]'),
      "m.toml:6: x: unknown key"),
     ("x = " + "[" * 100_000 + "]" * 100_000 + "\n",
-     "m.toml: nests arrays or inline tables too deeply to parse"),
+     "m.toml:1: nests arrays or inline tables too deeply to parse"),
     ("\ufeff" + NEEDLE, "m.toml:1: starts with a UTF-8 byte-order mark (BOM)"),
     (NEEDLE.replace("nominal = 6.75", "nominal = 1" + "0" * 399),
      "m.toml:21: [parameters] LF.nominal: must be a finite number (got 1000"),
@@ -79,3 +79,87 @@ def test_non_finite_literal_field_is_refused_at_load(tmp_path, literal):
     err = refused("run", "m.toml", "nominal", cwd=tmp_path)
     assert err.startswith("sewtol: error: m.toml:51: [[groups]] A.x: ")
     assert "is not a finite 64-bit float" in err and "cannot close" not in err
+
+
+# --- command-line inputs ----------------------------------------------------------------------
+
+TWO_SETS = "[sets.tight]\nLF = 0.01\nLM = 0.02\n\n[sets.loose]\nLF = 0.05\n"
+
+
+def test_tolerance_set_spec_is_split_at_the_last_colon(tmp_path):
+    (tmp_path / "good.toml").write_text(TWO_SETS)
+    (tmp_path / "x.toml.d").mkdir()
+    (tmp_path / "x.toml.d" / "good.toml").write_text(TWO_SETS)
+    for spec in ("good.tomlx", "good.tomlx:tight"):  # once ran set x / tight of good.toml
+        assert refused("needle", "scan", "--tolerances", spec, cwd=tmp_path) == \
+            "sewtol: error: good.tomlx: cannot be read (got 'No such file or directory')\n"
+    code, out, err = sewtol("needle", "scan", "--tolerances", "x.toml.d/good.toml:tight",
+                            "--format", "csv", cwd=tmp_path)
+    assert code == 0 and err == ""
+    rows = [r.split(",") for r in out.splitlines()]
+    assert sorted({r[0] for r in rows[1:]}) == ["LF", "LM"]  # the two of set tight
+    assert {r[2] for r in rows[1:] if r[0] == "LF"} == {"0.01", "-0.01"}
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (("needle", "montecarlo", "--n", "50", "--out", ""), "--out: must name a folder (got '')"),
+    (("run", "needle_208", "sobol", "--out", ""), "--out: must name a folder (got '')"),
+    (("needle", "nominal", "--set", "LF=6.8", "--set", "LF=6.9"),
+     "LF: is given twice; give each name once (got 'LF=6.9')"),
+    (("needle", "nominal", "--set", "guide_shift_um=1e308"),
+     "guide_shift_um: must be a finite number in [-1e+06, 1e+06] (got '1e308')"),
+    (("needle", "nominal", "--set", "beta=nan"),
+     "beta: must be a finite number in [-1e+06, 1e+06] (got 'nan')"),
+    (("run", "needle_208", "nominal", "--set", "guide_shift_um=-inf"),
+     "guide_shift_um: must be a finite number in [-1e+06, 1e+06] (got '-inf')"),
+])
+def test_cli_value_is_refused_by_name(tmp_path, argv, expected):
+    assert refused(*argv, cwd=tmp_path) == f"sewtol: error: {expected}\n"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_folder_of_another_study_is_refused_and_kept(tmp_path):
+    """`run FILE montecarlo|sobol --out D` over another study's results: refused before
+    computing (as the needle path's manifest check does), D left as it was."""
+    base = ("run", "needle_208")
+    flags = ("--path", "generic", "--out", "D")
+    assert sewtol(*base, "montecarlo", "--n", "20", *flags, cwd=tmp_path)[0] == 0
+    before = {p.name: p.read_bytes() for p in (tmp_path / "D").iterdir()}
+    assert sewtol(*base, "montecarlo", "--n", "20", *flags, cwd=tmp_path)[0] == 0  # same study
+    err = refused(*base, "sobol", "--n", "16", *flags, cwd=tmp_path)
+    assert err == ("sewtol: error: --out: holds the results of a different study (differs in "
+                   "n, study); choose an empty folder (got 'D')\n")
+    assert refused(*base, "montecarlo", "--n", "20", "--seed", "1", *flags,
+                   cwd=tmp_path).startswith("sewtol: error: --out: holds the results of a "
+                                            "different study (differs in seed)")
+    after = {p.name: p.read_bytes() for p in (tmp_path / "D").iterdir()}
+    assert after.keys() == before.keys() and after["machines.csv"] == before["machines.csv"]
+    # an unfinished chunked study (manifest, no run.json) is not mixed with a generic one
+    (tmp_path / "E" / "chunks").mkdir(parents=True)
+    (tmp_path / "E" / "chunks" / "manifest.json").write_text("{}")
+    assert "holds the chunks of another study" in refused(
+        *base, "sobol", "--n", "16", "--path", "generic", "--out", "E", cwd=tmp_path)
+    # the needle path refuses a generic study's folder the same way
+    assert "holds the results of a different study" in refused(
+        "needle", "montecarlo", "--n", "50", "--out", "D", cwd=tmp_path)
+
+
+# --- study folders ----------------------------------------------------------------------------
+
+@pytest.mark.parametrize("make", ["fifo", "deep"])
+def test_a_hostile_manifest_is_refused_in_one_line_and_the_chunks_kept(tmp_path, make):
+    argv = ("needle", "montecarlo", "--n", "400", "--out", "D")
+    assert sewtol(*argv, cwd=tmp_path)[0] == 0
+    manifest = tmp_path / "D" / "chunks" / "manifest.json"
+    chunks = {p.name: p.read_bytes() for p in manifest.parent.glob("chunk_*.npz")}
+    assert chunks
+    manifest.unlink()
+    if make == "fifo":
+        os.mkfifo(manifest)  # a read would block forever
+    else:
+        manifest.write_text("[" * 200_000)  # json.loads: RecursionError
+    assert refused(*argv, "--resume", cwd=tmp_path) == (
+        "sewtol: error: --resume: the folder's manifest.json is not a sewtol manifest "
+        "(got 'D')\n")
+    assert refused(*argv, cwd=tmp_path).startswith("sewtol: error: --out: holds a study already")
+    assert {p.name: p.read_bytes() for p in manifest.parent.glob("chunk_*.npz")} == chunks

@@ -12,7 +12,6 @@ import importlib
 import math
 import re
 import stat
-import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +35,7 @@ from sewtol.mechanism.spec import (
     Spec,
 )
 from sewtol.mechanisms.params import check_names, check_rule
-from sewtol.tolerances import Tolerance, ToleranceSet, parse_item
+from sewtol.tolerances import Tolerance, ToleranceSet, parse_item, parse_toml
 
 MAX_BYTES = 1 << 20
 NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -91,18 +90,7 @@ def loads(text: str, path: str = "<text>", overrides: dict | None = None):
     from sewtol.mechanism.model import FileMechanism
 
     ctx = _Ctx(path, text)
-    if text.startswith("\ufeff"):
-        raise ParameterError(f"{path}:1", "starts with a UTF-8 byte-order mark (BOM); save it as "
-                             "UTF-8 without BOM", "\ufeff")
-    try:
-        data = tomllib.loads(text)
-    except RecursionError:
-        raise ParameterError(path, "nests arrays or inline tables too deeply to parse",
-                             "thousands of levels") from None
-    except ValueError as exc:  # TOMLDecodeError, or an integer of more than 4300 digits
-        m = re.search(r"line (\d+)", str(exc))
-        raise ParameterError(f"{path}:{m.group(1) if m else 1}", "is not valid TOML",
-                             str(exc)) from None
+    data = parse_toml(text, lambda line: f"{path}:{line}")
     _known(ctx, data, (), "", TOP_KEYS)
     if data.get("format") != FORMAT:
         ctx.fail(("format",), "format", f'must be "{FORMAT}"', data.get("format"))

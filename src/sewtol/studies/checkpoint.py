@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from sewtol.errors import ParameterError
-from sewtol.io import write_bytes_atomic, write_text_atomic
+from sewtol.io import read_json, write_bytes_atomic, write_text_atomic
 
 FORMAT = "sewtol-chunk-1"
 MAX_CHUNK_BYTES = 512 * 2**20  # a chunk larger than this is not one of ours
@@ -112,11 +112,8 @@ class ChunkStore:
 
     def _open(self, resume: bool) -> None:
         path = self.folder / "manifest.json"
-        if path.exists():
-            try:
-                old = json.loads(path.read_text(encoding="utf-8"))
-            except (OSError, ValueError, UnicodeDecodeError):
-                old = None
+        if path.exists() or path.is_symlink():
+            old = read_json(path)  # None for a FIFO, a dangling link or 200 000 "["
             if not resume:
                 raise ParameterError("--out", "holds a study already; add --resume to continue "
                                      "it or choose an empty folder", self.label)
