@@ -163,3 +163,12 @@ def test_a_hostile_manifest_is_refused_in_one_line_and_the_chunks_kept(tmp_path,
         "(got 'D')\n")
     assert refused(*argv, cwd=tmp_path).startswith("sewtol: error: --out: holds a study already")
     assert {p.name: p.read_bytes() for p in manifest.parent.glob("chunk_*.npz")} == chunks
+
+
+def test_a_write_failure_names_the_file_not_its_temp_file(tmp_path):
+    (tmp_path / "D" / "machines.csv" / "x").mkdir(parents=True)  # the target is a folder
+    err = refused("needle", "montecarlo", "--n", "50", "--out", "D", cwd=tmp_path)
+    assert err == ("sewtol: error: --out: cannot be written (Is a directory); the finished "
+                   "chunks are kept: fix it and rerun with --resume (got 'D/machines.csv')\n")
+    assert sorted(p.name for p in (tmp_path / "D" / "chunks").glob("chunk_*.npz")) == \
+        ["chunk_00000.npz"]

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import json
 import os
 import sys
@@ -361,18 +362,24 @@ def write_outputs(args, kind, inputs, started, result_obj, frames, runs):
     from sewtol.reports.tables import to_csv
 
     out = Path(args.out)
-    try:
-        for name, frame in frames.items():
-            write_text_atomic(out / f"{name}.csv", to_csv(frame))
-        write_text_atomic(out / f"{kind}.json", to_json(result_obj))
-        where = scheduler_address(args)
-        record = run_record(started, {**inputs, "n_jobs": args.n_jobs,
-                                      "scheduler": where[1] if where else None}, runs=runs)
-        write_text_atomic(out / "run.json", to_json(record))
-    except OSError as exc:
-        raise ParameterError("--out", f"cannot be written ({exc.strerror}); the finished chunks "
-                             "are kept: free the space and rerun with --resume",
-                             str(exc.filename or out)) from None
+
+    def put(path: Path, text: str) -> None:  # a failure names the file, never its temp file
+        try:
+            write_text_atomic(path, text)
+        except OSError as exc:
+            fix = "free the space" if exc.errno in (errno.ENOSPC, errno.EDQUOT) else "fix it"
+            kept = ("; the finished chunks are kept: " + fix + " and rerun with --resume"
+                    if (out / "chunks").is_dir() else f"; {fix} and rerun")
+            raise ParameterError("--out", f"cannot be written ({exc.strerror}){kept}",
+                                 str(path)) from None
+
+    for name, frame in frames.items():
+        put(out / f"{name}.csv", to_csv(frame))
+    put(out / f"{kind}.json", to_json(result_obj))
+    where = scheduler_address(args)
+    record = run_record(started, {**inputs, "n_jobs": args.n_jobs,
+                                  "scheduler": where[1] if where else None}, runs=runs)
+    put(out / "run.json", to_json(record))
 
 
 def resolve_progress(args, stream=None):
