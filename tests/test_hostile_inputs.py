@@ -172,3 +172,21 @@ def test_a_write_failure_names_the_file_not_its_temp_file(tmp_path):
                    "chunks are kept: fix it and rerun with --resume (got 'D/machines.csv')\n")
     assert sorted(p.name for p in (tmp_path / "D" / "chunks").glob("chunk_*.npz")) == \
         ["chunk_00000.npz"]
+
+
+def test_a_chunk_that_unpacks_beyond_the_cap_is_rejected_unread(tmp_path, monkeypatch):
+    """The size cap bounds the unpacked size too (a deflated chunk, a zip bomb in small)."""
+    import numpy as np
+
+    from sewtol.studies import checkpoint
+
+    with checkpoint.ChunkStore(tmp_path, {"study": "bomb"}, False) as store:
+        store.save(0, np.zeros(100_000))  # 800 kB unpacked
+        path = tmp_path / "chunk_00000.npz"
+        with np.load(path) as z:
+            members = {k: z[k] for k in z.files}
+        with open(path, "wb") as fh:
+            np.savez_compressed(fh, **members)
+        assert path.stat().st_size < 10_000 and store.load(0)[1] is None  # still a good chunk
+        monkeypatch.setattr(checkpoint, "MAX_CHUNK_BYTES", 100_000)
+        assert store.load(0) == (None, "unpacks to more than 100000 bytes")

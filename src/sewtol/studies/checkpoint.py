@@ -24,6 +24,7 @@ import hashlib
 import io
 import json
 import sys
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -154,6 +155,9 @@ class ChunkStore:
                 return None, "missing"
             if p.stat().st_size > MAX_CHUNK_BYTES:
                 return None, f"larger than {MAX_CHUNK_BYTES} bytes"
+            with zipfile.ZipFile(p) as zf:  # deflated members: small on disk, huge unpacked
+                if sum(i.file_size for i in zf.infolist()) > MAX_CHUNK_BYTES:
+                    return None, f"unpacks to more than {MAX_CHUNK_BYTES} bytes"
             with np.load(p, allow_pickle=False) as z:
                 names = list(z.files)
                 if "header" not in names:
