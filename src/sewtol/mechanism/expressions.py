@@ -134,7 +134,8 @@ def _eval(node, values):
     if isinstance(node, ast.Constant):
         return np.float64(node.value)
     if isinstance(node, ast.Name):
-        return CONSTANTS[node.id] if node.id in CONSTANTS else values[node.id]
+        v = CONSTANTS[node.id] if node.id in CONSTANTS else values[node.id]
+        return np.float64(v) if isinstance(v, (int, float)) else v  # a Python float: as above
     if isinstance(node, ast.BinOp):
         return _BINARY[type(node.op)](_eval(node.left, values), _eval(node.right, values))
     if isinstance(node, ast.UnaryOp):
