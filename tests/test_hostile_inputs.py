@@ -192,3 +192,13 @@ def test_a_chunk_that_unpacks_beyond_the_cap_is_rejected_unread(tmp_path, monkey
         assert path.stat().st_size < 10_000 and store.load(0)[1] is None  # still a good chunk
         monkeypatch.setattr(checkpoint, "MAX_CHUNK_BYTES", 100_000)
         assert store.load(0) == (None, "unpacks to more than 100000 bytes")
+
+
+@pytest.mark.parametrize("text, rule", [
+    ("\ufeff" + TWO_SETS, "starts with a UTF-8 byte-order mark (BOM)"),
+    ("x = " + "[" * 100_000 + "]" * 100_000 + "\n", "nests arrays or inline tables too deeply"),
+])
+def test_a_hostile_tolerance_file_is_refused_by_name(tmp_path, text, rule):
+    (tmp_path / "t.toml").write_text(text)
+    assert refused("needle", "scan", "--tolerances", "t.toml:tight", cwd=tmp_path).startswith(
+        f"sewtol: error: t.toml: {rule}")
