@@ -43,6 +43,8 @@ CASES = [
     "needle nominal --set LF",
     "needle nominal --set LF=abc",
     "needle nominal --set beta=nan",
+    "needle nominal --set guide_shift_um=1e308",
+    "needle nominal --set LF=6.8 --set LF=6.9",
     "needle nominal --set branch_C=0.5",
     "needle nominal --set CD=5",
     "needle nominal --set LM=30",

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import stat
 import tempfile
 from pathlib import Path
 
@@ -37,6 +38,19 @@ def strict(o):
 def to_json(data) -> str:
     """Strict JSON text (indent 2, a final newline) of data, as every sewtol output writes it."""
     return json.dumps(strict(data), indent=2, allow_nan=False) + "\n"
+
+
+def read_json(path, max_bytes: int = 64 << 20):
+    """The JSON value of a regular file, else None: missing, a FIFO or device (checked before
+    opening, so a read never blocks), unreadable, too large, malformed or nested too deep. A
+    study folder is data, never trusted to be well-formed."""
+    try:
+        st = os.stat(path)
+        if not stat.S_ISREG(st.st_mode) or st.st_size > max_bytes:
+            return None
+        return json.loads(Path(path).read_bytes().decode("utf-8"))
+    except (OSError, ValueError, RecursionError):
+        return None
 
 
 def umask() -> int:

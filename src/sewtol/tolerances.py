@@ -18,6 +18,7 @@ TOML form (a file of one or more sets):
 
 from __future__ import annotations
 
+import re
 import stat
 import tomllib
 from dataclasses import dataclass, field
@@ -353,6 +354,23 @@ def parse_item(set_name: str, param: str, spec) -> Tolerance:
                      _number(f"{where}.upper", spec["upper"]), dist, shift)
 
 
+def parse_toml(text: str, field) -> dict:
+    """tomllib.loads, every refusal one ParameterError; field(line) names the place (line 1
+    when the parser gives none)."""
+    if text.startswith("\ufeff"):
+        raise ParameterError(field(1), "starts with a UTF-8 byte-order mark (BOM); save it as "
+                             "UTF-8 without BOM", "\ufeff")
+    try:
+        return tomllib.loads(text)
+    except RecursionError:
+        raise ParameterError(field(1), "nests arrays or inline tables too deeply to parse",
+                             "thousands of levels") from None
+    except ValueError as exc:  # TOMLDecodeError, or an integer of more than 4300 digits
+        m = re.search(r"line (\d+)", str(exc))
+        raise ParameterError(field(int(m.group(1)) if m else 1), "is not valid TOML",
+                             str(exc)) from None
+
+
 def load_toml(path: str | Path, valid_params: list[str] | None = None) -> dict[str, ToleranceSet]:
     """Tolerance sets from a TOML file; a syntax error reports its line and column."""
     path = Path(path)
@@ -368,9 +386,7 @@ def load_toml(path: str | Path, valid_params: list[str] | None = None) -> dict[s
             raw = fh.read(MAX_TOML_BYTES + 1)
         if len(raw) > MAX_TOML_BYTES:
             raise ParameterError(str(path), f"is larger than {MAX_TOML_BYTES} bytes", len(raw))
-        data = tomllib.loads(raw.decode("utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise ParameterError(str(path), "is not valid TOML", str(exc)) from None
+        data = parse_toml(raw.decode("utf-8"), lambda line: str(path))
     except UnicodeDecodeError as exc:
         raise ParameterError(str(path), "is not UTF-8 text (TOML files are UTF-8)",
                              f"byte {exc.object[exc.start]:#04x} at offset {exc.start}") from None
@@ -403,17 +419,25 @@ def _kind(mode: int) -> str:
     return "not a regular file"
 
 
+def _file_and_set(spec: str) -> tuple[str, str]:
+    """'FILE' or 'FILE:SET' split at the last ':' (a folder may be named x.toml.d; a file
+    that exists is taken whole)."""
+    if ":" in spec and not Path(spec).is_file():
+        path, _, set_name = spec.rpartition(":")
+        return path, set_name
+    return spec, ""
+
+
 def resolve(name_or_path: str, builtin: dict[str, ToleranceSet],
             valid_params: list[str]) -> ToleranceSet:
     """A built-in set by name, or 'file.toml' (its only set) / 'file.toml:NAME'."""
     if name_or_path in builtin:
         return builtin[name_or_path]
-    path, suffix, set_name = name_or_path.partition(".toml")
-    if not suffix:
+    if ".toml" not in name_or_path:
         raise ParameterError("--tolerances", f"must be one of {', '.join(builtin)} or a .toml "
                              "file", name_or_path)
-    sets = load_toml(path + ".toml", valid_params)
-    set_name = set_name.lstrip(":")
+    path, set_name = _file_and_set(name_or_path)
+    sets = load_toml(path, valid_params)
     if not set_name:
         if len(sets) != 1:
             raise ParameterError("--tolerances", f"the file holds several sets; name one as "
@@ -433,9 +457,9 @@ def resolve_all(specs: list[str] | None, builtin: dict[str, ToleranceSet],
         return dict(builtin)
     out: dict[str, ToleranceSet] = {}
     for spec in specs:
-        path, suffix, name = spec.partition(".toml")
-        if spec not in builtin and suffix and not name:
-            found = load_toml(path + suffix, valid_params)
+        path, name = _file_and_set(spec)
+        if spec not in builtin and ".toml" in spec and not name:
+            found = load_toml(path, valid_params)
         else:
             ts = resolve(spec, builtin, valid_params)
             found = {ts.name: ts}

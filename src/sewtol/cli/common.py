@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import json
 import os
 import sys
@@ -16,6 +17,9 @@ from sewtol.io import to_json
 
 FORMATS = ("table", "json", "csv")
 MIN_STEP_DEG = 1e-3  # 360 000 angles per turn; finer steps only fill memory
+# the largest |value| --set takes: no length (mm), angle (deg) or shift (um) of a sewing
+# machine comes near it, and 1e308 would overflow to inf inside the model
+MAX_SET_VALUE = 1e6
 
 
 class Parser(argparse.ArgumentParser):
@@ -40,10 +44,15 @@ def parse_sets(items, cls=None) -> dict:
         if valid is not None and name not in valid:
             raise ParameterError(name, f"unknown parameter; valid names are {', '.join(valid)}",
                                  name)
+        if name in out:
+            raise ParameterError(name, "is given twice; give each name once", item)
         try:
             value = float(text)
         except ValueError:
             raise ParameterError(name, "must be a number", text) from None
+        if not abs(value) <= MAX_SET_VALUE:  # also nan and inf
+            raise ParameterError(name, f"must be a finite number in [-{MAX_SET_VALUE:g}, "
+                                 f"{MAX_SET_VALUE:g}]", text)
         out[name] = value
     return out
 
@@ -193,8 +202,10 @@ def as_flags(check, *a, flags=FLAGS):
 def check_out(args):
     """--out must be (or become) a writable folder; checked before anything is written."""
     out = getattr(args, "out", None)
-    if not out:
+    if out is None:
         return
+    if not out.strip():
+        raise ParameterError("--out", "must name a folder", out)
     path = Path(out)
     if path.exists() and not path.is_dir():
         raise ParameterError("--out", "must be a folder, not a file", out)
@@ -284,10 +295,43 @@ def study_inputs(args, kind, params, tolerances, **extra) -> dict:
             **version_record(), **extra, **getattr(args, "file_inputs", {})}
 
 
+RUN_ONLY = ("n_jobs", "scheduler")  # recorded in run.json, but never change the numbers
+
+
+def check_study_folder(args, inputs: dict, chunked: bool = True) -> None:
+    """--out D whose run.json records a different study is refused before anything is
+    computed, as a chunked study's manifest is (checkpoint.ChunkStore): results of two studies
+    are never mixed in one folder, and nothing already there is lost. A study that keeps no
+    chunks (chunked=False) also refuses the chunks of an unfinished one."""
+    from sewtol.io import read_json
+
+    if not args.out:
+        return
+    manifest = Path(args.out) / "chunks" / "manifest.json"
+    if not chunked and (manifest.exists() or manifest.is_symlink()):
+        raise ParameterError("--out", "holds the chunks of another study (chunks/); resume it "
+                             "with the command that started it, or choose an empty folder",
+                             args.out)
+    if not (Path(args.out) / "run.json").exists():
+        return
+    old = read_json(Path(args.out) / "run.json")
+    old = old.get("inputs") if isinstance(old, dict) else None
+    new = json.loads(to_json(inputs))
+    if not isinstance(old, dict):
+        raise ParameterError("--out", "holds a run.json that is not a sewtol record; choose "
+                             "an empty folder", args.out)
+    diff = sorted(k for k in set(old) | set(new)
+                  if k not in RUN_ONLY and old.get(k) != new.get(k))
+    if diff:
+        raise ParameterError("--out", f"holds the results of a different study (differs in "
+                             f"{', '.join(diff)}); choose an empty folder", args.out)
+
+
 def open_store(args, inputs: dict):
     """The checkpoint folder of a study run with --out (None without); takes its lock."""
     if not args.out:
         return None
+    check_study_folder(args, inputs)
     from sewtol.studies.checkpoint import ChunkStore
 
     return ChunkStore(Path(args.out) / "chunks", inputs, args.resume, label=str(args.out))
@@ -297,14 +341,11 @@ def run_history(store, started: str) -> list:
     """Start times of every run into this folder (the first, then each --resume)."""
     if store is None:
         return [{"started_utc": started, "resumed": False}]
-    from sewtol.io import write_text_atomic
+    from sewtol.io import read_json, write_text_atomic
 
     path = store.folder / "runs.json"
-    try:
-        runs = json.loads(path.read_text(encoding="utf-8")) if path.exists() else []
-        runs = [r for r in runs if isinstance(r, dict)] if isinstance(runs, list) else []
-    except (OSError, ValueError):
-        runs = []
+    runs = read_json(path)
+    runs = [r for r in runs if isinstance(r, dict)] if isinstance(runs, list) else []
     runs = [{"started_utc": str(r.get("started_utc")), "resumed": bool(r.get("resumed"))}
             for r in runs] + [{"started_utc": started, "resumed": bool(runs) or store.resumed}]
     write_text_atomic(path, json.dumps(runs, indent=2) + "\n")
@@ -321,18 +362,24 @@ def write_outputs(args, kind, inputs, started, result_obj, frames, runs):
     from sewtol.reports.tables import to_csv
 
     out = Path(args.out)
-    try:
-        for name, frame in frames.items():
-            write_text_atomic(out / f"{name}.csv", to_csv(frame))
-        write_text_atomic(out / f"{kind}.json", to_json(result_obj))
-        where = scheduler_address(args)
-        record = run_record(started, {**inputs, "n_jobs": args.n_jobs,
-                                      "scheduler": where[1] if where else None}, runs=runs)
-        write_text_atomic(out / "run.json", to_json(record))
-    except OSError as exc:
-        raise ParameterError("--out", f"cannot be written ({exc.strerror}); the finished chunks "
-                             "are kept: free the space and rerun with --resume",
-                             str(exc.filename or out)) from None
+
+    def put(path: Path, text: str) -> None:  # a failure names the file, never its temp file
+        try:
+            write_text_atomic(path, text)
+        except OSError as exc:
+            fix = "free the space" if exc.errno in (errno.ENOSPC, errno.EDQUOT) else "fix it"
+            kept = ("; the finished chunks are kept: " + fix + " and rerun with --resume"
+                    if (out / "chunks").is_dir() else f"; {fix} and rerun")
+            raise ParameterError("--out", f"cannot be written ({exc.strerror}){kept}",
+                                 str(path)) from None
+
+    for name, frame in frames.items():
+        put(out / f"{name}.csv", to_csv(frame))
+    put(out / f"{kind}.json", to_json(result_obj))
+    where = scheduler_address(args)
+    record = run_record(started, {**inputs, "n_jobs": args.n_jobs,
+                                  "scheduler": where[1] if where else None}, runs=runs)
+    put(out / "run.json", to_json(record))
 
 
 def resolve_progress(args, stream=None):

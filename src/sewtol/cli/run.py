@@ -15,7 +15,16 @@ from functools import partial
 from pathlib import Path
 
 from sewtol.cli import needle as N
-from sewtol.cli.common import FLAGS, as_flags, check_out, check_study, emit, parse_sets, write_outputs
+from sewtol.cli.common import (
+    FLAGS,
+    as_flags,
+    check_out,
+    check_study,
+    check_study_folder,
+    emit,
+    parse_sets,
+    write_outputs,
+)
 from sewtol.errors import ParameterError
 
 STUDIES = ("nominal", "scan", "montecarlo", "sobol", "worst-case", "ppm", "allocation", "report",
@@ -215,6 +224,8 @@ def cmd_run(args) -> None:
         args.spec_output, args.spec, args.spec_source = mech.resolve_spec(
             args.output, args.limit, args.lower_limit)
     args.path_reason = _fast_path_refusal(args, mech)  # None: the needle_208 fast path
+    if args.study in ("nominal", "settings"):
+        check_study_folder(args, _inputs(args, mech, None), chunked=False)
     if args.study == "nominal":
         res = G.nominal(mech)
         return _finish(args, fmt, mech, None, res.to_dict(), {"nominal": res.to_dataframe()},
@@ -227,8 +238,9 @@ def cmd_run(args) -> None:
     tolerances = resolve_tolerances(mech, args.tolerances)
     if args.path_reason is None:
         args.path_reason = _tolerances_refusal(tolerances)
-    if args.path_reason is None:
+    if args.path_reason is None:  # the needle commands check their folder (open_store)
         return _needle_study(args, mech, tolerances)
+    check_study_folder(args, _inputs(args, mech, tolerances), chunked=False)
     if mech.header.fast_path == "needle_208" and args.path == "auto" \
             and args.study in FAST_PATH_STUDIES:
         print(f"sewtol: note: `run {args.study}` takes the generic sampled path, not the "
@@ -306,25 +318,32 @@ def _run_context(args, mech, tolerances) -> dict:
             "path_reason": getattr(args, "path_reason", None)}
 
 
+def _inputs(args, mech, tolerances) -> dict:
+    """What decides a `run` study's numbers, as its run.json records them."""
+    from sewtol.provenance import version_record
+
+    return {"study": f"run {args.study}", "mechanism_file": str(args.file),
+            "mechanism": mech.name, "n": args.n, "seed": args.seed,
+            "output": args.output, "limit": args.limit, "adjust": args.adjust,
+            **{k: getattr(args, k) for k in ("lower_limit", "method", "target", "weight")
+               if getattr(args, k, None) is not None},
+            "params": mech.nominal_values(),
+            "tolerances": None if tolerances is None else
+            {"name": tolerances.name, "items": tolerances.as_dict(),
+             **({} if tolerances.dependence is None else {"dependence": {
+                 "params": list(tolerances.dependence.params),
+                 "matrix": [list(r) for r in tolerances.dependence.matrix]}})},
+            **version_record()}
+
+
 def _finish(args, fmt, mech, tolerances, obj, frames, frame) -> None:
-    from sewtol.provenance import now, version_record
+    from sewtol.provenance import now
 
     obj = {**obj, "context": _run_context(args, mech, tolerances)}
 
     if args.out:
-        inputs = {"study": f"run {args.study}", "mechanism_file": str(args.file),
-                  "mechanism": mech.name, "n": args.n, "seed": args.seed,
-                  "output": args.output, "limit": args.limit, "adjust": args.adjust,
-                  **{k: getattr(args, k) for k in ("lower_limit", "method", "target", "weight")
-                     if getattr(args, k, None) is not None},
-                  "params": mech.nominal_values(),
-                  "tolerances": None if tolerances is None else
-                  {"name": tolerances.name, "items": tolerances.as_dict(),
-                   **({} if tolerances.dependence is None else {"dependence": {
-                       "params": list(tolerances.dependence.params),
-                       "matrix": [list(r) for r in tolerances.dependence.matrix]}})},
-                  **version_record()}
-        write_outputs(args, args.study.replace("-", "_"), inputs, now(), obj, frames, None)
+        write_outputs(args, args.study.replace("-", "_"), _inputs(args, mech, tolerances), now(),
+                      obj, frames, None)
     emit(fmt, obj=obj, frame=frame)
 
 FAST_PATH_STUDIES = ("scan", "worst-case", "montecarlo", "sobol", "ppm", "allocation")

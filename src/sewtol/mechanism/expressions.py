@@ -10,6 +10,7 @@ parameters) is refused when the file is loaded, with the rule that was broken.
 from __future__ import annotations
 
 import ast
+import math
 import operator
 from dataclasses import dataclass
 
@@ -24,7 +25,7 @@ FUNCTIONS = {
     "asin": (np.arcsin, 1), "acos": (np.arccos, 1), "atan": (np.arctan, 1),
     "atan2": (np.arctan2, 2), "hypot": (np.hypot, 2), "abs": (np.abs, 1),
 }
-CONSTANTS = {"pi": np.pi}
+CONSTANTS = {"pi": np.float64(np.pi)}
 _BINARY = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul,
            ast.Div: operator.truediv, ast.Pow: operator.pow}
 _UNARY = {ast.USub: operator.neg, ast.UAdd: operator.pos}
@@ -63,6 +64,14 @@ def _check(node: ast.AST, names: list[str]) -> None:
     elif isinstance(node, ast.Constant):
         if isinstance(node.value, bool) or not isinstance(node.value, (int, float)):
             raise ExpressionError(f"the constant {node.value!r} is not a number")
+        try:
+            finite = math.isfinite(node.value)
+        except OverflowError:  # an int of hundreds of digits
+            finite = False
+        if not finite:
+            shown = f"a {len(str(node.value))}-digit number" if isinstance(node.value, int) \
+                else f"the number {node.value!r}"
+            raise ExpressionError(f"{shown} is not a finite 64-bit float") from None
     elif isinstance(node, ast.Name):
         if node.id in FUNCTIONS:
             raise ExpressionError(f"the function {node.id} must be called, e.g. {node.id}(x)")
@@ -98,6 +107,7 @@ def parse(text, valid_names=None) -> Expression:
     if isinstance(text, bool):
         raise ExpressionError("true/false is not a number")
     if isinstance(text, (int, float)):
+        _check(ast.Constant(text), [])
         return Expression(repr(float(text)), (), ast.Expression(ast.Constant(float(text))))
     if not isinstance(text, str):
         raise ExpressionError("must be a number or an expression in quotes")
@@ -117,12 +127,15 @@ def parse(text, valid_names=None) -> Expression:
 
 
 def _eval(node, values):
+    # NumPy floats, so 1/0, 10.0**400 and (-8)**(1/3) give inf or nan (which the loader refuses
+    # at the nominal values and a study counts), never a Python exception or a complex number
     if isinstance(node, ast.Expression):
         return _eval(node.body, values)
     if isinstance(node, ast.Constant):
-        return float(node.value)
+        return np.float64(node.value)
     if isinstance(node, ast.Name):
-        return CONSTANTS[node.id] if node.id in CONSTANTS else values[node.id]
+        v = CONSTANTS[node.id] if node.id in CONSTANTS else values[node.id]
+        return np.float64(v) if isinstance(v, (int, float)) else v  # a Python float: as above
     if isinstance(node, ast.BinOp):
         return _BINARY[type(node.op)](_eval(node.left, values), _eval(node.right, values))
     if isinstance(node, ast.UnaryOp):

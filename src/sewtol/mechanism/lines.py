@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import re
 
-_HEADER = re.compile(r"^\s*(\[\[?)\s*([^\]]+?)\s*\]\]?")
+# linear: one class then "]", stripped by _split (a lazy group between two \s* was cubic)
+_HEADER = re.compile(r"^\s*(\[\[?)([^\]]*)\]")
 _KEY = re.compile(r"""^\s*("[^"]*"|'[^']*'|[A-Za-z0-9_\-]+)\s*=""")
 
 

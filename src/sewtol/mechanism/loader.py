@@ -7,12 +7,14 @@ Nothing in the file is executed: expressions go through mechanism.expressions.
 
 from __future__ import annotations
 
+import functools
 import importlib
 import math
 import re
 import stat
-import tomllib
 from pathlib import Path
+
+import numpy as np
 
 from sewtol import dependence
 from sewtol.errors import ParameterError
@@ -34,7 +36,7 @@ from sewtol.mechanism.spec import (
     Spec,
 )
 from sewtol.mechanisms.params import check_names, check_rule
-from sewtol.tolerances import Tolerance, ToleranceSet, parse_item
+from sewtol.tolerances import Tolerance, ToleranceSet, parse_item, parse_toml
 
 MAX_BYTES = 1 << 20
 NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -53,7 +55,11 @@ RESERVED = set(X.FUNCTIONS) | set(X.CONSTANTS)
 class _Ctx:
     def __init__(self, path: str, text: str):
         self.path = path
-        self.loc = Locator(text)
+        self.text = text
+
+    @functools.cached_property
+    def loc(self) -> Locator:  # built only to place a refusal, after TOML has parsed
+        return Locator(self.text)
 
     def fail(self, where_path: tuple, where: str, rule: str, value):
         raise ParameterError(f"{self.path}:{self.loc.line(*where_path)}: {where}", rule, value)
@@ -85,12 +91,7 @@ def loads(text: str, path: str = "<text>", overrides: dict | None = None):
     from sewtol.mechanism.model import FileMechanism
 
     ctx = _Ctx(path, text)
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        m = re.search(r"line (\d+)", str(exc))
-        raise ParameterError(f"{path}:{m.group(1) if m else 1}", "is not valid TOML",
-                             str(exc)) from None
+    data = parse_toml(text, lambda line: f"{path}:{line}")
     _known(ctx, data, (), "", TOP_KEYS)
     if data.get("format") != FORMAT:
         ctx.fail(("format",), "format", f'must be "{FORMAT}"', data.get("format"))
@@ -140,7 +141,11 @@ def _str(ctx, path, where, v, pattern=None, what="a string"):
 
 
 def _number(ctx, path, where, v):
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+    try:
+        ok = not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+    except OverflowError:  # an int of hundreds of digits
+        ok = False
+    if not ok:
         ctx.fail(path, where, "must be a finite number", v)
     return float(v)
 
@@ -228,6 +233,10 @@ def _expr(ctx, path, where, v, pnames, kind="expr"):
     except X.ExpressionError as exc:
         ctx.fail(path, where, f"{exc.rule}; allowed: {X.ALLOWED}" if "not allowed" in exc.rule
                  or "not an allowed" in exc.rule else exc.rule, v)
+    with np.errstate(all="ignore"):
+        at_nominal = e({n: pnames[n].nominal for n in e.names})
+    if not np.isfinite(at_nominal):
+        ctx.fail(path, where, f"must be finite; it is {at_nominal} at the nominal values", v)
     if kind == "branch":
         for n in e.names:
             if pnames[n].rule != "branch":

@@ -24,12 +24,13 @@ import hashlib
 import io
 import json
 import sys
+import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from sewtol.errors import ParameterError
-from sewtol.io import write_bytes_atomic, write_text_atomic
+from sewtol.io import read_json, write_bytes_atomic, write_text_atomic
 
 FORMAT = "sewtol-chunk-1"
 MAX_CHUNK_BYTES = 512 * 2**20  # a chunk larger than this is not one of ours
@@ -112,11 +113,8 @@ class ChunkStore:
 
     def _open(self, resume: bool) -> None:
         path = self.folder / "manifest.json"
-        if path.exists():
-            try:
-                old = json.loads(path.read_text(encoding="utf-8"))
-            except (OSError, ValueError, UnicodeDecodeError):
-                old = None
+        if path.exists() or path.is_symlink():
+            old = read_json(path)  # None for a FIFO, a dangling link or 200 000 "["
             if not resume:
                 raise ParameterError("--out", "holds a study already; add --resume to continue "
                                      "it or choose an empty folder", self.label)
@@ -157,6 +155,9 @@ class ChunkStore:
                 return None, "missing"
             if p.stat().st_size > MAX_CHUNK_BYTES:
                 return None, f"larger than {MAX_CHUNK_BYTES} bytes"
+            with zipfile.ZipFile(p) as zf:  # deflated members: small on disk, huge unpacked
+                if sum(i.file_size for i in zf.infolist()) > MAX_CHUNK_BYTES:
+                    return None, f"unpacks to more than {MAX_CHUNK_BYTES} bytes"
             with np.load(p, allow_pickle=False) as z:
                 names = list(z.files)
                 if "header" not in names:

@@ -1,0 +1,204 @@
+"""Hostile inputs (issue 26, sections 4 and 5): each is refused in one line naming the field,
+rule and value, with exit 2, within a subprocess timeout (no hang, no traceback)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+NEEDLE = (ROOT / "examples" / "needle_208.toml").read_text()
+TIMEOUT_S = 60  # generous for an overloaded machine; the old header regex took hours on 1 MiB
+
+
+def sewtol(*argv, cwd=None, timeout=TIMEOUT_S):
+    """`sewtol ARGV` in a fresh process, killed after `timeout` s: (exit code, stdout, stderr)."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
+    p = subprocess.run([sys.executable, "-m", "sewtol", *map(str, argv)], capture_output=True,
+                       text=True, timeout=timeout, env=env, cwd=cwd)
+    return p.returncode, p.stdout, p.stderr
+
+
+def refused(*argv, cwd=None) -> str:
+    """The one-line refusal of `sewtol ARGV` (exit 2, nothing on stdout, no traceback)."""
+    code, out, err = sewtol(*argv, cwd=cwd)
+    assert code == 2 and out == "" and err.count("\n") == 1, (code, out, err[-2000:])
+    assert err.startswith("sewtol: error: ")
+    return err
+
+
+MEGA_LINE = "[" + " " * ((1 << 20) - 10_000)  # under the 1 MiB file cap with the needle
+
+
+@pytest.mark.parametrize("text, expected", [
+    # not TOML: refused by the TOML parser before any line is located
+    (MEGA_LINE + "\n", "m.toml:1: is not valid TOML"),
+    # valid TOML (the line sits in a string), refused later: the line locator scans it
+    (NEEDLE.replace("[mechanism]", f'x = """\n{MEGA_LINE}\n"""\n[mechanism]'),
+     "m.toml:6: x: unknown key"),
+    ("x = " + "[" * 100_000 + "]" * 100_000 + "\n",
+     "m.toml:1: nests arrays or inline tables too deeply to parse"),
+    ("\ufeff" + NEEDLE, "m.toml:1: starts with a UTF-8 byte-order mark (BOM)"),
+    (NEEDLE.replace("nominal = 6.75", "nominal = 1" + "0" * 399),
+     "m.toml:21: [parameters] LF.nominal: must be a finite number (got 1000"),
+    (NEEDLE.replace("nominal = 6.75", "nominal = 1" + "0" * 5000),
+     "m.toml:1: is not valid TOML (got 'Exceeds the limit (4300 digits)"),
+])
+def test_hostile_file_is_refused_by_name_in_one_line(tmp_path, text, expected):
+    (tmp_path / "m.toml").write_text(text)
+    assert refused("run", "m.toml", "nominal", cwd=tmp_path).startswith(
+        f"sewtol: error: {expected}")
+
+
+@pytest.mark.parametrize("expr, rule", [
+    ("9**9**9", "it is inf at the nominal values"),
+    ("10.0**400", "it is inf at the nominal values"),
+    ("1/0", "it is inf at the nominal values"),
+    ("0**-1", "it is inf at the nominal values"),
+    ("(-8)**(1/3)", "it is nan at the nominal values"),
+    ("sqrt(-1)", "it is nan at the nominal values"),
+    ("acos(2)", "it is nan at the nominal values"),
+    ("Ax + sqrt(Ax)", "it is nan at the nominal values"),  # Ax < 0
+    ("Ax ** Ax", "it is nan at the nominal values"),  # Python floats would give a complex
+    ("Ax / (Ax - Ax)", "it is -inf at the nominal values"),
+    ("1" + "0" * 399, "a 400-digit number is not a finite 64-bit float"),
+    ("Ax + 1e400", "the number inf is not a finite 64-bit float"),
+])
+def test_numeric_errors_of_an_expression_name_the_field_and_value(tmp_path, expr, rule):
+    (tmp_path / "m.toml").write_text(NEEDLE.replace('x = "Ax"', f'x = "{expr}"'))
+    err = refused("run", "m.toml", "nominal", cwd=tmp_path)
+    assert err.startswith("sewtol: error: m.toml:51: [[groups]] A.x: ")
+    assert rule in err and err.endswith(f"(got '{expr}')\n")
+
+
+@pytest.mark.parametrize("literal", ["nan", "inf", "1" + "0" * 400])
+def test_non_finite_literal_field_is_refused_at_load(tmp_path, literal):
+    (tmp_path / "m.toml").write_text(NEEDLE.replace('x = "Ax"', f"x = {literal}"))
+    err = refused("run", "m.toml", "nominal", cwd=tmp_path)
+    assert err.startswith("sewtol: error: m.toml:51: [[groups]] A.x: ")
+    assert "is not a finite 64-bit float" in err and "cannot close" not in err
+
+
+# --- command-line inputs ----------------------------------------------------------------------
+
+TWO_SETS = "[sets.tight]\nLF = 0.01\nLM = 0.02\n\n[sets.loose]\nLF = 0.05\n"
+
+
+def test_tolerance_set_spec_is_split_at_the_last_colon(tmp_path):
+    (tmp_path / "good.toml").write_text(TWO_SETS)
+    (tmp_path / "x.toml.d").mkdir()
+    (tmp_path / "x.toml.d" / "good.toml").write_text(TWO_SETS)
+    for spec in ("good.tomlx", "good.tomlx:tight"):  # once ran set x / tight of good.toml
+        assert refused("needle", "scan", "--tolerances", spec, cwd=tmp_path) == \
+            "sewtol: error: good.tomlx: cannot be read (got 'No such file or directory')\n"
+    code, out, err = sewtol("needle", "scan", "--tolerances", "x.toml.d/good.toml:tight",
+                            "--format", "csv", cwd=tmp_path)
+    assert code == 0 and err == ""
+    rows = [r.split(",") for r in out.splitlines()]
+    assert sorted({r[0] for r in rows[1:]}) == ["LF", "LM"]  # the two of set tight
+    assert {r[2] for r in rows[1:] if r[0] == "LF"} == {"0.01", "-0.01"}
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (("needle", "montecarlo", "--n", "50", "--out", ""), "--out: must name a folder (got '')"),
+    (("run", "needle_208", "sobol", "--out", ""), "--out: must name a folder (got '')"),
+    (("needle", "nominal", "--set", "LF=6.8", "--set", "LF=6.9"),
+     "LF: is given twice; give each name once (got 'LF=6.9')"),
+    (("needle", "nominal", "--set", "guide_shift_um=1e308"),
+     "guide_shift_um: must be a finite number in [-1e+06, 1e+06] (got '1e308')"),
+    (("needle", "nominal", "--set", "beta=nan"),
+     "beta: must be a finite number in [-1e+06, 1e+06] (got 'nan')"),
+    (("run", "needle_208", "nominal", "--set", "guide_shift_um=-inf"),
+     "guide_shift_um: must be a finite number in [-1e+06, 1e+06] (got '-inf')"),
+])
+def test_cli_value_is_refused_by_name(tmp_path, argv, expected):
+    assert refused(*argv, cwd=tmp_path) == f"sewtol: error: {expected}\n"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_folder_of_another_study_is_refused_and_kept(tmp_path):
+    """`run FILE montecarlo|sobol --out D` over another study's results: refused before
+    computing (as the needle path's manifest check does), D left as it was."""
+    base = ("run", "needle_208")
+    flags = ("--path", "generic", "--out", "D")
+    assert sewtol(*base, "montecarlo", "--n", "20", *flags, cwd=tmp_path)[0] == 0
+    before = {p.name: p.read_bytes() for p in (tmp_path / "D").iterdir()}
+    assert sewtol(*base, "montecarlo", "--n", "20", *flags, cwd=tmp_path)[0] == 0  # same study
+    err = refused(*base, "sobol", "--n", "16", *flags, cwd=tmp_path)
+    assert err == ("sewtol: error: --out: holds the results of a different study (differs in "
+                   "n, study); choose an empty folder (got 'D')\n")
+    assert refused(*base, "montecarlo", "--n", "20", "--seed", "1", *flags,
+                   cwd=tmp_path).startswith("sewtol: error: --out: holds the results of a "
+                                            "different study (differs in seed)")
+    after = {p.name: p.read_bytes() for p in (tmp_path / "D").iterdir()}
+    assert after.keys() == before.keys() and after["machines.csv"] == before["machines.csv"]
+    # an unfinished chunked study (manifest, no run.json) is not mixed with a generic one
+    (tmp_path / "E" / "chunks").mkdir(parents=True)
+    (tmp_path / "E" / "chunks" / "manifest.json").write_text("{}")
+    assert "holds the chunks of another study" in refused(
+        *base, "sobol", "--n", "16", "--path", "generic", "--out", "E", cwd=tmp_path)
+    # the needle path refuses a generic study's folder the same way
+    assert "holds the results of a different study" in refused(
+        "needle", "montecarlo", "--n", "50", "--out", "D", cwd=tmp_path)
+
+
+# --- study folders ----------------------------------------------------------------------------
+
+@pytest.mark.parametrize("make", ["fifo", "deep"])
+def test_a_hostile_manifest_is_refused_in_one_line_and_the_chunks_kept(tmp_path, make):
+    argv = ("needle", "montecarlo", "--n", "400", "--out", "D")
+    assert sewtol(*argv, cwd=tmp_path)[0] == 0
+    manifest = tmp_path / "D" / "chunks" / "manifest.json"
+    chunks = {p.name: p.read_bytes() for p in manifest.parent.glob("chunk_*.npz")}
+    assert chunks
+    manifest.unlink()
+    if make == "fifo":
+        os.mkfifo(manifest)  # a read would block forever
+    else:
+        manifest.write_text("[" * 200_000)  # json.loads: RecursionError
+    assert refused(*argv, "--resume", cwd=tmp_path) == (
+        "sewtol: error: --resume: the folder's manifest.json is not a sewtol manifest "
+        "(got 'D')\n")
+    assert refused(*argv, cwd=tmp_path).startswith("sewtol: error: --out: holds a study already")
+    assert {p.name: p.read_bytes() for p in manifest.parent.glob("chunk_*.npz")} == chunks
+
+
+def test_a_write_failure_names_the_file_not_its_temp_file(tmp_path):
+    (tmp_path / "D" / "machines.csv" / "x").mkdir(parents=True)  # the target is a folder
+    err = refused("needle", "montecarlo", "--n", "50", "--out", "D", cwd=tmp_path)
+    assert err == ("sewtol: error: --out: cannot be written (Is a directory); the finished "
+                   "chunks are kept: fix it and rerun with --resume (got 'D/machines.csv')\n")
+    assert sorted(p.name for p in (tmp_path / "D" / "chunks").glob("chunk_*.npz")) == \
+        ["chunk_00000.npz"]
+
+
+def test_a_chunk_that_unpacks_beyond_the_cap_is_rejected_unread(tmp_path, monkeypatch):
+    """The size cap bounds the unpacked size too (a deflated chunk, a zip bomb in small)."""
+    import numpy as np
+
+    from sewtol.studies import checkpoint
+
+    with checkpoint.ChunkStore(tmp_path, {"study": "bomb"}, False) as store:
+        store.save(0, np.zeros(100_000))  # 800 kB unpacked
+        path = tmp_path / "chunk_00000.npz"
+        with np.load(path) as z:
+            members = {k: z[k] for k in z.files}
+        with open(path, "wb") as fh:
+            np.savez_compressed(fh, **members)
+        assert path.stat().st_size < 10_000 and store.load(0)[1] is None  # still a good chunk
+        monkeypatch.setattr(checkpoint, "MAX_CHUNK_BYTES", 100_000)
+        assert store.load(0) == (None, "unpacks to more than 100000 bytes")
+
+
+@pytest.mark.parametrize("text, rule", [
+    ("\ufeff" + TWO_SETS, "starts with a UTF-8 byte-order mark (BOM)"),
+    ("x = " + "[" * 100_000 + "]" * 100_000 + "\n", "nests arrays or inline tables too deeply"),
+])
+def test_a_hostile_tolerance_file_is_refused_by_name(tmp_path, text, rule):
+    (tmp_path / "t.toml").write_text(text)
+    assert refused("needle", "scan", "--tolerances", "t.toml:tight", cwd=tmp_path).startswith(
+        f"sewtol: error: t.toml: {rule}")
