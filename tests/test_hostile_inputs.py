@@ -3,6 +3,7 @@ rule and value, with exit 2, within a subprocess timeout (no hang, no traceback)
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -136,6 +137,13 @@ def test_a_folder_of_another_study_is_refused_and_kept(tmp_path):
                                             "different study (differs in seed)")
     after = {p.name: p.read_bytes() for p in (tmp_path / "D").iterdir()}
     assert after.keys() == before.keys() and after["machines.csv"] == before["machines.csv"]
+    # the same study rerun by another revision of the code (as `make report` reruns every
+    # report into its own folder) replaces its results: the code's identity is not an input
+    record = json.loads((tmp_path / "D" / "run.json").read_text())
+    record["inputs"].update(git_revision="0" * 40, sewtol_version="0.0.0")
+    (tmp_path / "D" / "run.json").write_text(json.dumps(record))
+    assert sewtol(*base, "montecarlo", "--n", "20", *flags, cwd=tmp_path)[0] == 0
+    assert (tmp_path / "D" / "machines.csv").read_bytes() == before["machines.csv"]
     # an unfinished chunked study (manifest, no run.json) is not mixed with a generic one
     (tmp_path / "E" / "chunks").mkdir(parents=True)
     (tmp_path / "E" / "chunks" / "manifest.json").write_text("{}")

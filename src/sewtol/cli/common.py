@@ -296,6 +296,10 @@ def study_inputs(args, kind, params, tolerances, **extra) -> dict:
 
 
 RUN_ONLY = ("n_jobs", "scheduler")  # recorded in run.json, but never change the numbers
+# the code's identity: a finished study rerun into its own folder by a newer revision (as `make
+# report` does) is the same study and replaces its results; resuming chunks still needs the
+# same revision (checkpoint.ChunkStore compares the whole manifest)
+CODE_ONLY = ("sewtol_version", "git_revision")
 
 
 def check_study_folder(args, inputs: dict, chunked: bool = True) -> None:
@@ -321,7 +325,7 @@ def check_study_folder(args, inputs: dict, chunked: bool = True) -> None:
         raise ParameterError("--out", "holds a run.json that is not a sewtol record; choose "
                              "an empty folder", args.out)
     diff = sorted(k for k in set(old) | set(new)
-                  if k not in RUN_ONLY and old.get(k) != new.get(k))
+                  if k not in RUN_ONLY + CODE_ONLY and old.get(k) != new.get(k))
     if diff:
         raise ParameterError("--out", f"holds the results of a different study (differs in "
                              f"{', '.join(diff)}); choose an empty folder", args.out)
