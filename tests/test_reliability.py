@@ -138,15 +138,17 @@ def test_same_seed_byte_identical_json_for_any_workers(tmp_path):
 
 
 def test_interrupted_study_resumes_to_the_same_tables(tmp_path):
-    """SIGINT a running study after some chunks, resume it, compare with an uninterrupted run.
-    80 chunks of 500 machines: on a loaded machine this process can be descheduled for a second
-    or more between seeing the second chunk and sending the signal, and 16 chunks (n 8000) then
-    all finished first (exit 0 in a fresh-clone run beside other work)."""
-    cmd = [sys.executable, "-m", "sewtol", "needle", "montecarlo", "--n", "40000",
+    """SIGINT a running study after some chunks, resume it, compare with an uninterrupted run."""
+    cmd = [sys.executable, "-m", "sewtol", "needle", "montecarlo", "--n", "8000",
            "--seed", "11", "--tolerances", "recommended", "--format", "json"]
     out = tmp_path / "interrupted"
+    # a user's shell starts the command with SIGINT at its default; a test process may have
+    # inherited it ignored (the full suite in a fresh clone did, from something run earlier in
+    # the same pytest process), and an ignored SIGINT stays ignored across exec: the study then
+    # ran to the end and exited 0
     proc = subprocess.Popen(cmd + ["--out", str(out)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     chunks = out / "chunks"
     deadline = time.time() + 120
     while time.time() < deadline and len(list(chunks.glob("chunk_*.npz"))) < 2:
@@ -156,7 +158,7 @@ def test_interrupted_study_resumes_to_the_same_tables(tmp_path):
     saved = len(list(chunks.glob("chunk_*.npz")))
     assert proc.returncode == 130, err
     assert "interrupted; finished chunks are saved" in err and "--resume" in err
-    assert 2 <= saved < 80
+    assert 2 <= saved < 16
     assert not (out / "montecarlo.json").exists()
     resumed = subprocess.run(cmd + ["--out", str(out), "--resume"], capture_output=True,
                              text=True, timeout=300)
@@ -164,6 +166,6 @@ def test_interrupted_study_resumes_to_the_same_tables(tmp_path):
                            text=True, timeout=300)
     assert resumed.returncode == 0 and whole.returncode == 0
     assert resumed.stdout == whole.stdout
-    assert strict_loads(resumed.stdout)["n"] == 40000
+    assert strict_loads(resumed.stdout)["n"] == 8000
     assert (out / "machines.csv").read_bytes() == (tmp_path / "whole" / "machines.csv").read_bytes()
     assert os.path.getsize(out / "run.json") > 0
