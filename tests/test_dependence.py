@@ -220,3 +220,23 @@ def test_allocation_keeps_the_copula(monkeypatch):
     want = mc.draw_deviations(a.as_tolerance_set(), 300, 4)
     assert any(all(np.allclose(d[k], v, rtol=1e-12, atol=0) for k, v in want.items())
                for d in calls)
+
+
+def test_a_study_folder_records_the_copula_so_a_tied_run_never_resumes_untied_chunks(tmp_path):
+    """The needle path's manifest binds its chunks to the set's dependence as run.json does:
+    the same items with a correlation are another study (refused, not resumed)."""
+    import subprocess
+    import sys
+
+    untied = tmp_path / "untied.toml"
+    untied.write_text("[sets.s]\nAB = 0.05\nBE = 0.05\n")
+    tied = tmp_path / "tied.toml"
+    tied.write_text('[sets.s]\nAB = 0.05\nBE = 0.05\ncorrelation = [["AB", "BE", 0.9]]\n')
+    argv = [sys.executable, "-m", "sewtol", "needle", "montecarlo", "--n", "600", "--seed", "1",
+            "--out", str(tmp_path / "D")]
+    first = subprocess.run(argv + ["--tolerances", f"{untied}:s"], capture_output=True, text=True,
+                           timeout=300)
+    assert first.returncode == 0, first.stderr
+    again = subprocess.run(argv + ["--tolerances", f"{tied}:s", "--resume"], capture_output=True,
+                           text=True, timeout=300)
+    assert again.returncode == 2 and "tolerances" in again.stderr, again.stderr

@@ -287,6 +287,15 @@ class ToleranceSet:
         return {t.param: {"lower": t.lower, "upper": t.upper, "dist": t.dist,
                           **({"shift": t.shift} if t.shift else {})} for t in self.items}
 
+    def as_record(self) -> dict:
+        """What a study's manifest and run.json record of the set: its name, items and, for a
+        set that ties parameters, the copula's matrix (an independent set records no key, so
+        its records are as before)."""
+        tied = self.dependence
+        return {"name": self.name, "items": self.as_dict(),
+                **({} if tied is None else {"dependence": {
+                    "params": list(tied.params), "matrix": [list(r) for r in tied.matrix]}})}
+
 
 def _sym(param, pm, dist="uniform"):
     return Tolerance(param, -pm, pm, dist)

@@ -291,7 +291,7 @@ def study_inputs(args, kind, params, tolerances, **extra) -> dict:
 
     return {"study": kind, "n": getattr(args, "n", None), "seed": args.seed,
             "params": as_dict(params),
-            "tolerances": {"name": tolerances.name, "items": tolerances.as_dict()},
+            "tolerances": tolerances.as_record(),
             **version_record(), **extra, **getattr(args, "file_inputs", {})}
 
 

@@ -328,11 +328,7 @@ def _inputs(args, mech, tolerances) -> dict:
             **{k: getattr(args, k) for k in ("lower_limit", "method", "target", "weight")
                if getattr(args, k, None) is not None},
             "params": mech.nominal_values(),
-            "tolerances": None if tolerances is None else
-            {"name": tolerances.name, "items": tolerances.as_dict(),
-             **({} if tolerances.dependence is None else {"dependence": {
-                 "params": list(tolerances.dependence.params),
-                 "matrix": [list(r) for r in tolerances.dependence.matrix]}})},
+            "tolerances": None if tolerances is None else tolerances.as_record(),
             **version_record()}
 
 
