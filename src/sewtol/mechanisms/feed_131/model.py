@@ -48,7 +48,7 @@ class Feed131:
     fixed pivot's coordinates, ``.._angle`` the angle of an arm on its rocker. Frame origin O1
     (the main shaft), x to the right, y up; angles counter-clockwise from +x.
 
-    Attributes
+    Parameters
     ----------
     O1F, lift_phase : float
         Lower lift eccentric: radius (mm) and phase (deg), F = O1 + O1F e(phi + lift_phase).
