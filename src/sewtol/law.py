@@ -18,6 +18,13 @@ its draws are byte for byte those of the product law) and mapped by `deviations`
 and one law give the same machines in every study, for any number of workers. `law.sample(rng, n)` equals
 `law.deviations(law.sample_unit(rng, n))` and, for the independent law,
 `ToleranceSet.sample(rng, n)` bit for bit.
+
+Relations (`sewtol.relations`, e.g. a limit on AB - BE) condition the law: a machine is
+built only when its deviations keep every relation. The sampler then draws candidates from each
+stream in batches of STREAM rows, in order, and machine k is the (k % STREAM)-th candidate of
+stream k // STREAM that keeps them; the rest are rejected and counted (`units`, `acceptance`).
+So the window property holds (a stream's accepted candidates do not depend on how many are
+asked for) and a law without relations draws exactly what it drew before.
 """
 
 from __future__ import annotations
@@ -27,10 +34,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from sewtol.dependence import Dependence
+from sewtol.errors import ParameterError
+from sewtol.relations import Relation
 from sewtol.tolerances import Tolerance, ToleranceSet
 
 # machines per stream of the sampler: machine k draws from child k // STREAM of the seed
 STREAM = 500
+# a stream that needs more candidates than this per machine it gives (acceptance below 1e-3)
+# is refused: the relations leave almost nothing of the tolerances
+MAX_CANDIDATES_PER_MACHINE = 1000
 
 
 @dataclass(frozen=True)
@@ -46,17 +58,21 @@ class InputLaw:
         order: limits and distribution of each deviation.
     dependence : Dependence or None
         The copula tying some of them (None: independent).
+    relations : tuple of Relation
+        Limits on derived quantities the machines keep (the law is conditioned on them).
     """
 
     name: str
     marginals: tuple[Tolerance, ...]
     dependence: Dependence | None = None
+    relations: tuple[Relation, ...] = ()
 
     @classmethod
     def of(cls, tolerances: ToleranceSet) -> InputLaw:
-        """The law of a tolerance set: its active tolerances, tied by its dependence."""
+        """The law of a tolerance set: its active tolerances, tied by its dependence and
+        conditioned on its relations."""
         active = tolerances.active()
-        return cls(tolerances.name, active.items, active.dependence)
+        return cls(tolerances.name, active.items, active.dependence, active.relations)
 
     @property
     def params(self) -> list[str]:
@@ -69,8 +85,58 @@ class InputLaw:
 
     @property
     def independent(self) -> bool:
-        """True: every deviation is drawn on its own (the product of the marginals)."""
-        return self.dependence is None
+        """True: every deviation is drawn on its own (the product of the marginals, no
+        relation conditioning it)."""
+        return self.dependence is None and not self.relations
+
+    def accepts(self, dev: dict[str, np.ndarray]) -> np.ndarray:
+        """True per machine whose deviations keep every relation."""
+        n = len(next(iter(dev.values()))) if dev else 0
+        ok = np.ones(n, bool)
+        for r in self.relations:
+            ok &= r.holds(dev, n)
+        return ok
+
+    def units(self, streams: list[np.random.SeedSequence], start: int = 0,
+              stop: int | None = None) -> tuple[np.ndarray, int]:
+        """The independent standard uniforms (stop - start, dim) of machines start .. stop-1
+        (as `draw_units`; with relations, of the candidates they accept, the module docstring)
+        and the number of candidates drawn for them (stop - start without relations)."""
+        if not self.relations:
+            u = draw_units(streams, self.dim, start, stop)
+            return u, len(u)
+        stop = len(streams) * STREAM if stop is None else int(stop)
+        first = start // STREAM
+        rows, drawn = [], 0
+        for j in range(first, -(-stop // STREAM)):
+            need = min(STREAM, stop - j * STREAM)
+            gen = np.random.default_rng(streams[j])
+            kept, got, tried = [], 0, 0
+            while got < need:
+                if tried >= MAX_CANDIDATES_PER_MACHINE * STREAM:
+                    raise ParameterError(self.relations[0].where, "leave(s) almost no machine "
+                                         f"of the tolerances: {got} of {tried} candidates kept "
+                                         "every relation", [r.expr for r in self.relations])
+                batch = gen.random((STREAM, self.dim))
+                ok = self.accepts(self.of_uniforms(batch))
+                idx = np.flatnonzero(ok)[:need - got]
+                kept.append(batch[idx])
+                got += len(idx)
+                tried += int(idx[-1]) + 1 if got == need else STREAM
+            rows.append(np.concatenate(kept))
+            drawn += tried
+        u = np.concatenate(rows) if rows else np.empty((0, self.dim))
+        return u[start - first * STREAM:], drawn
+
+    def window(self, streams: list[np.random.SeedSequence], start: int = 0,
+               stop: int | None = None) -> dict[str, np.ndarray]:
+        """The deviations of machines start .. stop-1 of these streams (`units`, mapped)."""
+        return self.of_uniforms(self.units(streams, start, stop)[0])
+
+    def acceptance(self, n: int, seed: int | np.random.Generator) -> tuple[int, int]:
+        """(machines, candidates drawn for them) of machines 0 .. n-1 of `seed`: the
+        relations' pass rate is their ratio (n, n without relations)."""
+        return int(n), self.units(unit_streams(seed, n), 0, n)[1]
 
     def ranks(self, u: np.ndarray) -> np.ndarray:
         """The machines' ranks (n, dim) of independent standard uniforms u (n, dim): the
@@ -88,7 +154,8 @@ class InputLaw:
         return self.deviations(self.ranks(u))
 
     def sample_unit(self, rng: np.random.Generator, n: int) -> np.ndarray:
-        """n machines as ranks in (0, 1), shape (n, dim), from the Generator `rng`."""
+        """n machines as ranks in (0, 1), shape (n, dim), from the Generator `rng` (the
+        copula only: `draw` and `units` honour the relations)."""
         return self.ranks(rng.random((int(n), self.dim)))
 
     def deviations(self, u: np.ndarray) -> dict[str, np.ndarray]:
@@ -97,13 +164,27 @@ class InputLaw:
         return {t.param: t.from_unit(u[:, i]) for i, t in enumerate(self.marginals)}
 
     def sample(self, rng: np.random.Generator, n: int) -> dict[str, np.ndarray]:
-        """n machines' deviations from nominal, one array per parameter."""
-        return self.deviations(self.sample_unit(rng, n))
+        """n machines' deviations from nominal, one array per parameter (with relations: the
+        first n candidates of `rng` that keep them)."""
+        if not self.relations:
+            return self.deviations(self.sample_unit(rng, n))
+        kept, got, tried = [], 0, 0
+        while got < n:
+            if tried >= MAX_CANDIDATES_PER_MACHINE * max(int(n), STREAM):
+                raise ParameterError(self.relations[0].where, "leave(s) almost no machine of "
+                                     f"the tolerances: {got} of {tried} candidates kept every "
+                                     "relation", [r.expr for r in self.relations])
+            u = self.sample_unit(rng, max(int(n), STREAM))
+            ok = np.flatnonzero(self.accepts(self.deviations(u)))[:int(n) - got]
+            kept.append(u[ok])
+            got += len(ok)
+            tried += len(u)
+        return self.deviations(np.concatenate(kept))
 
     def draw(self, n: int, seed: int | np.random.Generator) -> dict[str, np.ndarray]:
         """Machines 0 .. n-1 of the one sampler (the module docstring): deviations per
         parameter, the same for one seed in every study."""
-        return self.of_uniforms(draw_units(unit_streams(seed, n), self.dim, 0, n))
+        return self.window(unit_streams(seed, n), 0, n)
 
     def box(self) -> dict[str, tuple[float, float]]:
         """The smallest and largest deviation each parameter can draw (its reach)."""
