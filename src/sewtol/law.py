@@ -22,7 +22,10 @@ and one law give the same machines in every study, for any number of workers. `l
 Relations (`sewtol.relations`, e.g. a limit on AB - BE) condition the law: a machine is
 built only when its deviations keep every relation. The sampler then draws candidates from each
 stream in batches of STREAM rows, in order, and machine k is the (k % STREAM)-th candidate of
-stream k // STREAM that keeps them; the rest are rejected and counted (`units`, `acceptance`).
+stream k // STREAM that keeps them; the rest are rejected and counted (`rank_rows`,
+`acceptance`). Selective assembly (`sewtol.selective`) matches two parts within lots of STREAM
+candidates drawn from the stream in turn; machine k is then the (k % STREAM)-th matched machine
+of stream k // STREAM.
 So the window property holds (a stream's accepted candidates do not depend on how many are
 asked for) and a law without relations draws exactly what it drew before.
 """
@@ -33,9 +36,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sewtol import selective
 from sewtol.dependence import Dependence
 from sewtol.errors import ParameterError
 from sewtol.relations import Relation
+from sewtol.selective import Selective
 from sewtol.tolerances import Tolerance, ToleranceSet
 
 # machines per stream of the sampler: machine k draws from child k // STREAM of the seed
@@ -60,19 +65,23 @@ class InputLaw:
         The copula tying some of them (None: independent).
     relations : tuple of Relation
         Limits on derived quantities the machines keep (the law is conditioned on them).
+    selective : Selective or None
+        Two parts sorted into classes and matched at assembly (sewtol.selective).
     """
 
     name: str
     marginals: tuple[Tolerance, ...]
     dependence: Dependence | None = None
     relations: tuple[Relation, ...] = ()
+    selective: Selective | None = None
 
     @classmethod
     def of(cls, tolerances: ToleranceSet) -> InputLaw:
         """The law of a tolerance set: its active tolerances, tied by its dependence and
         conditioned on its relations."""
         active = tolerances.active()
-        return cls(tolerances.name, active.items, active.dependence, active.relations)
+        return cls(tolerances.name, active.items, active.dependence, active.relations,
+                   active.selective)
 
     @property
     def params(self) -> list[str]:
@@ -87,7 +96,7 @@ class InputLaw:
     def independent(self) -> bool:
         """True: every deviation is drawn on its own (the product of the marginals, no
         relation conditioning it)."""
-        return self.dependence is None and not self.relations
+        return self.dependence is None and not self.relations and self.selective is None
 
     def accepts(self, dev: dict[str, np.ndarray]) -> np.ndarray:
         """True per machine whose deviations keep every relation."""
@@ -97,14 +106,15 @@ class InputLaw:
             ok &= r.holds(dev, n)
         return ok
 
-    def units(self, streams: list[np.random.SeedSequence], start: int = 0,
-              stop: int | None = None) -> tuple[np.ndarray, int]:
-        """The independent standard uniforms (stop - start, dim) of machines start .. stop-1
-        (as `draw_units`; with relations, of the candidates they accept, the module docstring)
-        and the number of candidates drawn for them (stop - start without relations)."""
-        if not self.relations:
+    def rank_rows(self, streams: list[np.random.SeedSequence], start: int = 0,
+                  stop: int | None = None) -> tuple[np.ndarray, int]:
+        """The ranks (stop - start, dim) of machines start .. stop-1 of these streams
+        (`ranks` of `draw_units`; with relations or selective assembly, of the candidates
+        matched and kept, the module docstring) and the candidates drawn for them (stop - start
+        without either; with selective assembly whole lots of STREAM parts)."""
+        if not self.relations and self.selective is None:
             u = draw_units(streams, self.dim, start, stop)
-            return u, len(u)
+            return self.ranks(u), len(u)
         stop = len(streams) * STREAM if stop is None else int(stop)
         first = start // STREAM
         rows, drawn = [], 0
@@ -114,29 +124,49 @@ class InputLaw:
             kept, got, tried = [], 0, 0
             while got < need:
                 if tried >= MAX_CANDIDATES_PER_MACHINE * STREAM:
-                    raise ParameterError(self.relations[0].where, "leave(s) almost no machine "
-                                         f"of the tolerances: {got} of {tried} candidates kept "
-                                         "every relation", [r.expr for r in self.relations])
-                batch = gen.random((STREAM, self.dim))
-                ok = self.accepts(self.of_uniforms(batch))
+                    what = self.relations[0] if self.relations else self.selective
+                    raise ParameterError(what.where, "leave(s) almost no machine of the "
+                                         f"tolerances: {got} of {tried} candidates built",
+                                         [r.expr for r in self.relations])
+                lot = self.ranks(gen.random((STREAM, self.dim)))
+                if self.selective is not None:
+                    lot = self.matched(lot)
+                ok = self.accepts(self.deviations(lot)) if self.relations else \
+                    np.ones(len(lot), bool)
                 idx = np.flatnonzero(ok)[:need - got]
-                kept.append(batch[idx])
+                kept.append(lot[idx])
                 got += len(idx)
-                tried += int(idx[-1]) + 1 if got == need else STREAM
+                tried += STREAM if self.selective is not None or got < need else int(idx[-1]) + 1
             rows.append(np.concatenate(kept))
             drawn += tried
-        u = np.concatenate(rows) if rows else np.empty((0, self.dim))
-        return u[start - first * STREAM:], drawn
+        r = np.concatenate(rows) if rows else np.empty((0, self.dim))
+        return r[start - first * STREAM:], drawn
+
+    def matched(self, lot: np.ndarray) -> np.ndarray:
+        """The machines of one lot of ranks (m, dim) after selective assembly: the pairs
+        sewtol.selective.match makes, each the first part's machine with the second part of
+        its partner (fewer rows: the unmatched parts are left out)."""
+        sel = self.selective
+        b = self.params.index(sel.params[1])
+        dev = self.deviations(lot)
+        lim = {t.param: (t.lower, t.upper) for t in self.marginals}
+        ia, ib = selective.match(
+            selective.classes(dev[sel.params[0]], sel.groups, sel.by, lim[sel.params[0]]),
+            selective.classes(dev[sel.params[1]], sel.groups, sel.by, lim[sel.params[1]]),
+            sel.groups)
+        out = lot[ia].copy()
+        out[:, b] = lot[ib, b]
+        return out
 
     def window(self, streams: list[np.random.SeedSequence], start: int = 0,
                stop: int | None = None) -> dict[str, np.ndarray]:
-        """The deviations of machines start .. stop-1 of these streams (`units`, mapped)."""
-        return self.of_uniforms(self.units(streams, start, stop)[0])
+        """The deviations of machines start .. stop-1 of these streams (`rank_rows`, mapped)."""
+        return self.deviations(self.rank_rows(streams, start, stop)[0])
 
     def acceptance(self, n: int, seed: int | np.random.Generator) -> tuple[int, int]:
-        """(machines, candidates drawn for them) of machines 0 .. n-1 of `seed`: the
-        relations' pass rate is their ratio (n, n without relations)."""
-        return int(n), self.units(unit_streams(seed, n), 0, n)[1]
+        """(machines, candidates drawn for them) of machines 0 .. n-1 of `seed`: the share
+        built is their ratio (n, n without relations or selective assembly)."""
+        return int(n), self.rank_rows(unit_streams(seed, n), 0, n)[1]
 
     def ranks(self, u: np.ndarray) -> np.ndarray:
         """The machines' ranks (n, dim) of independent standard uniforms u (n, dim): the
@@ -155,7 +185,7 @@ class InputLaw:
 
     def sample_unit(self, rng: np.random.Generator, n: int) -> np.ndarray:
         """n machines as ranks in (0, 1), shape (n, dim), from the Generator `rng` (the
-        copula only: `draw` and `units` honour the relations)."""
+        copula only: `draw` and `rank_rows` honour relations and selective assembly)."""
         return self.ranks(rng.random((int(n), self.dim)))
 
     def deviations(self, u: np.ndarray) -> dict[str, np.ndarray]:
@@ -166,6 +196,9 @@ class InputLaw:
     def sample(self, rng: np.random.Generator, n: int) -> dict[str, np.ndarray]:
         """n machines' deviations from nominal, one array per parameter (with relations: the
         first n candidates of `rng` that keep them)."""
+        if self.selective is not None:
+            raise ParameterError(self.selective.where, "matches parts within lots of the one "
+                                 "sampler: draw its machines with `draw`", self.selective.as_dict())
         if not self.relations:
             return self.deviations(self.sample_unit(rng, n))
         kept, got, tried = [], 0, 0

@@ -15,6 +15,7 @@ TOML form (a file of one or more sets):
     AB = { plus_minus = 0.05, dist = "normal", shift = 0.01 }   # process mean off centre (Cpk)
     correlation = [["AB", "BE", 0.9]]                           # sewtol.dependence
     relations = [{ expr = "AB - BE", lower = -0.01, upper = 0.01 }]   # sewtol.relations
+    selective = { params = ["AB", "BE"], groups = 4, by = "count" }  # sewtol.selective
 """
 
 from __future__ import annotations
@@ -28,10 +29,11 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from sewtol import dependence, relations
+from sewtol import dependence, relations, selective
 from sewtol.dependence import Dependence
 from sewtol.errors import ParameterError
 from sewtol.relations import Relation
+from sewtol.selective import Selective
 
 DISTRIBUTIONS = ("uniform", "normal", "truncnorm")
 # a limit beyond this (mm, deg or um) is a typo, not a tolerance
@@ -179,6 +181,8 @@ class ToleranceSet:
     relations : tuple of Relation
         Limits on quantities derived from several deviations (`sewtol.relations`, e.g.
         AB - BE): the machines built are the joint law's conditioned on every one.
+    selective : Selective or None
+        Two parts measured, sorted into classes and matched at assembly (`sewtol.selective`).
     """
 
     name: str
@@ -187,6 +191,7 @@ class ToleranceSet:
     nominal_names: tuple[str, ...] = field(default=(), compare=False)
     dependence: Dependence | None = None
     relations: tuple[Relation, ...] = ()
+    selective: Selective | None = None
 
     def __post_init__(self):
         seen = set()
@@ -202,6 +207,10 @@ class ToleranceSet:
             if not set(r.names) <= seen:
                 raise ParameterError(f"{r.where}.expr", f"names parameters the set '{self.name}' "
                                      "does not tolerance", sorted(set(r.names) - seen))
+        if self.selective is not None and not set(self.selective.params) <= seen:
+            raise ParameterError(f"{self.selective.where}.params", f"names parameters the set "
+                                 f"'{self.name}' does not tolerance",
+                                 sorted(set(self.selective.params) - seen))
 
     def check_against(self, nominal) -> ToleranceSet:
         """Refuse a set that can draw a machine the parameter rules reject (a length <= 0, a
@@ -234,7 +243,10 @@ class ToleranceSet:
         return ToleranceSet(self.name, items, self.description, dependence=None
                             if self.dependence is None else
                             self.dependence.restrict([t.param for t in items]),
-                            relations=self.relations)
+                            relations=self.relations,
+                            # a part of zero width needs no sorting (every one is the same size)
+                            selective=self.selective if self.selective is not None and set(
+                                self.selective.params) <= {t.param for t in items} else None)
 
     def check_names(self, valid: list[str]) -> ToleranceSet:
         """This set, if every parameter is in `valid`; otherwise ParameterError listing the valid names."""
@@ -293,7 +305,7 @@ class ToleranceSet:
                       t.shift * factors.get(t.param, 1.0)) for t in self.items),
             self.description + (f" (scaled: {', '.join(f'{k} x{float(f):g}' for k, f in changed.items())})"
                                 if changed else ""), dependence=self.dependence,
-            relations=self.relations)
+            relations=self.relations, selective=self.selective)
 
     def as_dict(self) -> dict:
         """The set as plain data: per parameter its lower and upper limit and distribution."""
@@ -309,7 +321,8 @@ class ToleranceSet:
                 **({} if tied is None else {"dependence": {
                     "params": list(tied.params), "matrix": [list(r) for r in tied.matrix]}}),
                 **({"relations": [r.as_dict() for r in self.relations]} if self.relations
-                   else {})}
+                   else {}),
+                **({} if self.selective is None else {"selective": self.selective.as_dict()})}
 
 
 def _sym(param, pm, dist="uniform"):
@@ -425,10 +438,12 @@ def load_toml(path: str | Path, valid_params: list[str] | None = None) -> dict[s
             raise ParameterError(f"sets.{name}", "must be a table", body)
         desc = str(body.get("description", ""))
         items = tuple(parse_item(name, k, v) for k, v in body.items()
-                      if k != "description" and k not in dependence.KEYS and k != relations.KEY)
+                      if k != "description" and k not in dependence.KEYS
+                      and k not in (relations.KEY, selective.KEY))
         known = [t.param for t in items]
         ts = ToleranceSet(name, items, desc, dependence=dependence.parse(name, body, known),
-                          relations=relations.parse(name, body, known))
+                          relations=relations.parse(name, body, known),
+                          selective=selective.parse(name, body, known))
         if valid_params is not None:
             ts.check_names(valid_params)
         out[name] = ts

@@ -106,6 +106,11 @@ def refuse_relations(tolerances: ToleranceSet) -> None:
                              "on its own and cannot scale a relation between several; allocate "
                              "the set without its relations, then add them",
                              tolerances.relations[0].expr)
+    if tolerances.selective is not None:
+        raise ParameterError(tolerances.selective.where, "allocation draws unmatched machines; "
+                             "compare selective assembly with tightening in the selective "
+                             "assembly study (sewtol.studies.selective_assembly)",
+                             tolerances.selective.as_dict())
 
 
 def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973,

@@ -4,7 +4,7 @@ The one sampler of every study (Monte-Carlo, strategies, ppm by plain Monte-Carl
 machine k is row k % CHUNK of the standard uniforms drawn from child k // CHUNK of the seed
 (`unit_streams`, `draw_units`), tied by the set's dependence and mapped through each
 tolerance's inverse CDF (`InputLaw.of_uniforms`), the candidates that break a relation of the
-set left out (`InputLaw.units`). So one seed and one tolerance set give the
+set left out (`InputLaw.rank_rows`). So one seed and one tolerance set give the
 same machines in every study, for any number of workers and any evaluation chunk size, and a
 study that scales the set (allocation) keeps every machine's uniforms, hence its rank, for
 every scale.

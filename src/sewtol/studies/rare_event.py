@@ -868,6 +868,10 @@ def limit_state(mech, tolerances: ToleranceSet, output: str, upper: float | None
         raise ParameterError(tol.relations[0].where, "conditions the law on a relation, which "
                              "the rare-event estimators do not take; use the Monte-Carlo (its "
                              "yield interval) for a set with relations", tol.relations[0].expr)
+    if tol.selective is not None:
+        raise ParameterError(tol.selective.where, "matches parts within lots, which the "
+                             "rare-event estimators do not draw; use the Monte-Carlo for a set "
+                             "with selective assembly", tol.selective.as_dict())
     zmap = StandardNormalMap(tol)
     name = name or (output if adjust is None else f"{output}_adjusted")
     limit, name = (upper, name) if lower is None else (0.0, f"{name}_excess")

@@ -104,6 +104,10 @@ def shapley_effects(model, law: InputLaw, m: int, seed: int | np.random.Generato
         raise ParameterError(law.relations[0].where, "conditions the law on a relation, which "
                              "the Shapley estimator does not sample; remove the relations",
                              law.relations[0].expr)
+    if law.selective is not None:
+        raise ParameterError(law.selective.where, "matches parts within lots, which the Shapley "
+                             "estimator does not draw; remove the selective assembly",
+                             law.selective.as_dict())
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(int(seed))
     d = law.dim
     z_var = rng.standard_normal((n_var, d)) @ _root(correlation_of(law)).T

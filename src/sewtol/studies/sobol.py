@@ -71,6 +71,10 @@ def check_independent(tolerances: ToleranceSet) -> None:
         raise ParameterError(r.where, "limits a quantity of several deviations (a relation), "
                              "so the inputs are not independent: Sobol indices need "
                              "independent inputs", r.expr)
+    if tolerances.selective is not None:
+        raise ParameterError(tolerances.selective.where, "matches parts at assembly, so the "
+                             "inputs are not independent: Sobol indices need independent inputs",
+                             tolerances.selective.as_dict())
 
 
 def problem_of(tolerances: ToleranceSet) -> dict:
