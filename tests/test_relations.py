@@ -264,3 +264,14 @@ def test_studies_that_cannot_condition_refuse_in_one_line():
         with pytest.raises(ParameterError) as exc:
             call()
         assert str(exc.value).startswith("held.relations[0]") and "\n" not in str(exc.value)
+
+
+def test_the_example_file_declares_a_relation_and_a_matching():
+    sets = load_toml(Path(__file__).parents[1] / "examples/tolerances/needle_208_paired.toml",
+                     VALID)
+    assert sets["paired"].relations == (Relation("AB - BE", -0.01, 0.01),)
+    assert sets["matched"].selective.as_dict() == {"params": ["AB", "BE"], "groups": 8,
+                                                   "by": "count"}
+    base = NEEDLE_208_SETS["base"]
+    for ts in sets.values():
+        assert ts.as_dict() == base.as_dict()
