@@ -150,3 +150,14 @@ def test_studies_that_cannot_match_refuse_in_one_line():
         with pytest.raises(ParameterError) as exc:
             call()
         assert str(exc.value).startswith("m.selective") and "\n" not in str(exc.value)
+
+
+def test_sample_from_a_generator_matches_too():
+    """law.sample(rng, n) (the protocol checks' draw) matches within its lots as draw does."""
+    ts = replace(NEEDLE_208_SETS["base"], selective=Selective(("AB", "BE"), 4, "width"))
+    law = InputLaw.of(ts)
+    a = law.sample(np.random.default_rng(5), 700)
+    b = law.sample(np.random.default_rng(5), 700)
+    assert len(a["AB"]) == 700 and all(np.array_equal(a[k], b[k]) for k in a)
+    assert np.array_equal(classes(a["AB"], 4, "width", (-0.05, 0.05)),
+                          classes(a["BE"], 4, "width", (-0.05, 0.05)))

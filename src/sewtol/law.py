@@ -194,24 +194,25 @@ class InputLaw:
         return {t.param: t.from_unit(u[:, i]) for i, t in enumerate(self.marginals)}
 
     def sample(self, rng: np.random.Generator, n: int) -> dict[str, np.ndarray]:
-        """n machines' deviations from nominal, one array per parameter (with relations: the
-        first n candidates of `rng` that keep them)."""
-        if self.selective is not None:
-            raise ParameterError(self.selective.where, "matches parts within lots of the one "
-                                 "sampler: draw its machines with `draw`", self.selective.as_dict())
-        if not self.relations:
+        """n machines' deviations from nominal, one array per parameter (with relations or
+        selective assembly: the first n candidates of `rng`, in lots of max(n, STREAM), that
+        are matched and keep the relations)."""
+        if not self.relations and self.selective is None:
             return self.deviations(self.sample_unit(rng, n))
         kept, got, tried = [], 0, 0
         while got < n:
             if tried >= MAX_CANDIDATES_PER_MACHINE * max(int(n), STREAM):
-                raise ParameterError(self.relations[0].where, "leave(s) almost no machine of "
-                                     f"the tolerances: {got} of {tried} candidates kept every "
-                                     "relation", [r.expr for r in self.relations])
-            u = self.sample_unit(rng, max(int(n), STREAM))
-            ok = np.flatnonzero(self.accepts(self.deviations(u)))[:int(n) - got]
-            kept.append(u[ok])
+                what = self.relations[0] if self.relations else self.selective
+                raise ParameterError(what.where, "leave(s) almost no machine of the "
+                                     f"tolerances: {got} of {tried} candidates built",
+                                     [r.expr for r in self.relations])
+            lot = self.sample_unit(rng, max(int(n), STREAM))
+            tried += len(lot)
+            if self.selective is not None:
+                lot = self.matched(lot)
+            ok = np.flatnonzero(self.accepts(self.deviations(lot)))[:int(n) - got]
+            kept.append(lot[ok])
             got += len(ok)
-            tried += len(u)
         return self.deviations(np.concatenate(kept))
 
     def draw(self, n: int, seed: int | np.random.Generator) -> dict[str, np.ndarray]:
