@@ -222,6 +222,8 @@ LAYOUT = [
       ("strategies_SET_all_CD_hist", "CD setting, all compensators (SET)")]),
     ("Failures per million", ["ppm", "ppm_bruteforce", "ppm_exceedance", "ppm_failing_machines"],
      [("ppm_exceedance", "Exceedance of SumDelta")]),
+    ("Tolerances as a joint distribution", ["joint_correlation", "joint_relation",
+                                            "joint_selective"], []),
 ]
 
 

@@ -14,6 +14,8 @@ TOML form (a file of one or more sets):
     CD = { plus_minus = 0.01 }
     AB = { plus_minus = 0.05, dist = "normal", shift = 0.01 }   # process mean off centre (Cpk)
     correlation = [["AB", "BE", 0.9]]                           # sewtol.dependence
+    relations = [{ expr = "AB - BE", lower = -0.01, upper = 0.01 }]   # sewtol.relations
+    selective = { params = ["AB", "BE"], groups = 4, by = "count" }  # sewtol.selective
 """
 
 from __future__ import annotations
@@ -27,9 +29,11 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from sewtol import dependence
+from sewtol import dependence, relations, selective
 from sewtol.dependence import Dependence
 from sewtol.errors import ParameterError
+from sewtol.relations import Relation
+from sewtol.selective import Selective
 
 DISTRIBUTIONS = ("uniform", "normal", "truncnorm")
 # a limit beyond this (mm, deg or um) is a typo, not a tolerance
@@ -174,6 +178,11 @@ class ToleranceSet:
     dependence : Dependence or None
         A Gaussian copula tying some of the parameters (`sewtol.dependence`); None: every
         deviation is drawn on its own.
+    relations : tuple of Relation
+        Limits on quantities derived from several deviations (`sewtol.relations`, e.g.
+        AB - BE): the machines built are the joint law's conditioned on every one.
+    selective : Selective or None
+        Two parts measured, sorted into classes and matched at assembly (`sewtol.selective`).
     """
 
     name: str
@@ -181,6 +190,8 @@ class ToleranceSet:
     description: str = ""
     nominal_names: tuple[str, ...] = field(default=(), compare=False)
     dependence: Dependence | None = None
+    relations: tuple[Relation, ...] = ()
+    selective: Selective | None = None
 
     def __post_init__(self):
         seen = set()
@@ -192,6 +203,14 @@ class ToleranceSet:
         if self.dependence is not None and not set(self.dependence.params) <= seen:
             raise ParameterError(self.dependence.where, f"ties parameters the set '{self.name}' "
                                  "does not tolerance", sorted(set(self.dependence.params) - seen))
+        for r in self.relations:
+            if not set(r.names) <= seen:
+                raise ParameterError(f"{r.where}.expr", f"names parameters the set '{self.name}' "
+                                     "does not tolerance", sorted(set(r.names) - seen))
+        if self.selective is not None and not set(self.selective.params) <= seen:
+            raise ParameterError(f"{self.selective.where}.params", f"names parameters the set "
+                                 f"'{self.name}' does not tolerance",
+                                 sorted(set(self.selective.params) - seen))
 
     def check_against(self, nominal) -> ToleranceSet:
         """Refuse a set that can draw a machine the parameter rules reject (a length <= 0, a
@@ -220,9 +239,14 @@ class ToleranceSet:
     def active(self) -> ToleranceSet:
         """Only the tolerances with a non-zero width (the ones that scatter)."""
         items = tuple(t for t in self.items if t.upper > t.lower)
+        # a relation keeps a parameter of zero width: its deviation is 0 (sewtol.relations)
         return ToleranceSet(self.name, items, self.description, dependence=None
                             if self.dependence is None else
-                            self.dependence.restrict([t.param for t in items]))
+                            self.dependence.restrict([t.param for t in items]),
+                            relations=self.relations,
+                            # a part of zero width needs no sorting (every one is the same size)
+                            selective=self.selective if self.selective is not None and set(
+                                self.selective.params) <= {t.param for t in items} else None)
 
     def check_names(self, valid: list[str]) -> ToleranceSet:
         """This set, if every parameter is in `valid`; otherwise ParameterError listing the valid names."""
@@ -280,7 +304,8 @@ class ToleranceSet:
                       t.upper * factors.get(t.param, 1.0), t.dist,
                       t.shift * factors.get(t.param, 1.0)) for t in self.items),
             self.description + (f" (scaled: {', '.join(f'{k} x{float(f):g}' for k, f in changed.items())})"
-                                if changed else ""), dependence=self.dependence)
+                                if changed else ""), dependence=self.dependence,
+            relations=self.relations, selective=self.selective)
 
     def as_dict(self) -> dict:
         """The set as plain data: per parameter its lower and upper limit and distribution."""
@@ -289,12 +314,15 @@ class ToleranceSet:
 
     def as_record(self) -> dict:
         """What a study's manifest and run.json record of the set: its name, items and, for a
-        set that ties parameters, the copula's matrix (an independent set records no key, so
-        its records are as before)."""
+        set that ties parameters, the copula's matrix, and its relations (a set without either
+        records no key, so its records are as before)."""
         tied = self.dependence
         return {"name": self.name, "items": self.as_dict(),
                 **({} if tied is None else {"dependence": {
-                    "params": list(tied.params), "matrix": [list(r) for r in tied.matrix]}})}
+                    "params": list(tied.params), "matrix": [list(r) for r in tied.matrix]}}),
+                **({"relations": [r.as_dict() for r in self.relations]} if self.relations
+                   else {}),
+                **({} if self.selective is None else {"selective": self.selective.as_dict()})}
 
 
 def _sym(param, pm, dist="uniform"):
@@ -410,9 +438,12 @@ def load_toml(path: str | Path, valid_params: list[str] | None = None) -> dict[s
             raise ParameterError(f"sets.{name}", "must be a table", body)
         desc = str(body.get("description", ""))
         items = tuple(parse_item(name, k, v) for k, v in body.items()
-                      if k != "description" and k not in dependence.KEYS)
-        ts = ToleranceSet(name, items, desc, dependence=dependence.parse(
-            name, body, [t.param for t in items]))
+                      if k != "description" and k not in dependence.KEYS
+                      and k not in (relations.KEY, selective.KEY))
+        known = [t.param for t in items]
+        ts = ToleranceSet(name, items, desc, dependence=dependence.parse(name, body, known),
+                          relations=relations.parse(name, body, known),
+                          selective=selective.parse(name, body, known))
         if valid_params is not None:
             ts.check_names(valid_params)
         out[name] = ts

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sewtol import dependence
+from sewtol import dependence, relations, selective
 from sewtol.errors import ParameterError
 from sewtol.mechanism import expressions as X
 from sewtol.mechanism.clearance import parse_clearances
@@ -481,7 +481,7 @@ def _tolerance_sets(ctx, table, pnames) -> dict[str, ToleranceSet]:
             if param == "description":
                 desc = _str(ctx, path + (param,), where, spec)
                 continue
-            if param in dependence.KEYS:
+            if param in dependence.KEYS or param in (relations.KEY, selective.KEY):
                 continue
             if param not in pnames:
                 ctx.fail(path + (param,), where, "must name a parameter of the file", param)
@@ -499,7 +499,10 @@ def _tolerance_sets(ctx, table, pnames) -> dict[str, ToleranceSet]:
                 ctx.fail(path + (param,), where, exc.rule, spec)
         try:
             tied = dependence.parse(set_name, body, [t.param for t in items])
+            limited = relations.parse(set_name, body, [t.param for t in items])
+            sorted_ = selective.parse(set_name, body, [t.param for t in items])
         except ParameterError as exc:
             ctx.fail(path, f"[tolerances.{set_name}]", f"{exc.field}: {exc.rule}", exc.value)
-        out[set_name] = ToleranceSet(set_name, tuple(items), desc, dependence=tied)
+        out[set_name] = ToleranceSet(set_name, tuple(items), desc, dependence=tied,
+                                     relations=limited, selective=sorted_)
     return out

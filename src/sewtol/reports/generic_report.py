@@ -110,6 +110,31 @@ def _tol_text(t):
     return s + ("" if t.dist == "uniform" else f" {t.dist}")
 
 
+def law_notes(tolerances, inspection: dict | None) -> list[str]:
+    """What the set declares beyond its limits, in words (nothing for an independent set, so
+    its report reads as before): the copula, the relations (and the worst case's polytope),
+    the matching, and how many candidates the machines were built from."""
+    out = []
+    dep = tolerances.active().dependence
+    if dep is not None:
+        pairs = [f"{a}-{b} {dep.array[i, j]:g}" for i, a in enumerate(dep.params)
+                 for j, b in enumerate(dep.params) if j > i and dep.array[i, j]]
+        out.append("the set ties " + ", ".join(pairs) + " (Gaussian copula of the normal scores)")
+    for r in tolerances.relations:
+        out.append(f"relation {r.expr} within [{r.lower:g}, {r.upper:g}]: machines that break "
+                   "it are rejected at inspection; the worst case searches what it leaves of "
+                   "the box")
+    if tolerances.selective is not None:
+        sel = tolerances.selective
+        out.append(f"{sel.params[0]} and {sel.params[1]} are matched in {sel.groups} classes of "
+                   f"equal {sel.by} (lots of 500)")
+    if inspection is not None:
+        out.append(f"inspection: {inspection['built']} machines built from "
+                   f"{inspection['candidates']} candidates ({100 * inspection['acceptance']:.1f} "
+                   "%); the others broke a relation or were left unmatched")
+    return out
+
+
 def dominance(scan_rows: pd.DataFrame) -> pd.DataFrame:
     """Per output, the toleranced parameters ranked by their largest |change| over both sides
     (a side whose machine cannot run counts as an infinite change) and their share of the sum."""
@@ -159,6 +184,7 @@ def build(mech, tolerances, n: int = 1000, seed: int = 0, limit_output: str | No
         notes.append(f"worst case of {name} not computed ({why})")
     mc = MC.montecarlo(mech, tolerances, n, seed, limit=upper, lower_limit=lower,
                        limit_output=limit_output)
+    notes += law_notes(tolerances, mc.inspection())
     machines = mc.machines
     yield_row = None
     if limit_output is not None:

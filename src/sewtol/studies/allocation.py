@@ -97,6 +97,22 @@ class Allocation:
                 "trials": self.trials.to_dict("records")}
 
 
+def refuse_relations(tolerances: ToleranceSet) -> None:
+    """Allocation scales each tolerance by its own factor; a relation (sewtol.relations) is one
+    limit on several of them, which no common scale defines, and the machines it rejects would
+    change with the scale (no common random numbers): refused in one line."""
+    if tolerances.relations:
+        raise ParameterError(tolerances.relations[0].where, "allocation scales each tolerance "
+                             "on its own and cannot scale a relation between several; allocate "
+                             "the set without its relations, then add them",
+                             tolerances.relations[0].expr)
+    if tolerances.selective is not None:
+        raise ParameterError(tolerances.selective.where, "allocation draws unmatched machines; "
+                             "compare selective assembly with tightening in the selective "
+                             "assembly study (sewtol.studies.selective_assembly)",
+                             tolerances.selective.as_dict())
+
+
 def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973,
              upper: float | None = None, lower: float | None = None, n: int = 2000,
              seed: int = 0, weights: dict[str, float] | None = None,
@@ -130,6 +146,7 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
     if int(seed) != seed or seed < 0:
         raise ParameterError("seed", "must be a whole number >= 0", seed)
     tol = checked(mech, tolerances)
+    refuse_relations(tol)
     weights = dict(weights or {})
     unknown = sorted(set(weights) - set(tol.params))
     if unknown:

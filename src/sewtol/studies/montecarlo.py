@@ -3,7 +3,8 @@
 The one sampler of every study (Monte-Carlo, strategies, ppm by plain Monte-Carlo, allocation):
 machine k is row k % CHUNK of the standard uniforms drawn from child k // CHUNK of the seed
 (`unit_streams`, `draw_units`), tied by the set's dependence and mapped through each
-tolerance's inverse CDF (`InputLaw.of_uniforms`). So one seed and one tolerance set give the
+tolerance's inverse CDF (`InputLaw.of_uniforms`), the candidates that break a relation of the
+set left out (`InputLaw.rank_rows`). So one seed and one tolerance set give the
 same machines in every study, for any number of workers and any evaluation chunk size, and a
 study that scales the set (allocation) keeps every machine's uniforms, hence its rank, for
 every scale.
@@ -31,7 +32,7 @@ import pandas as pd
 from scipy import stats
 
 from sewtol.errors import ParameterError
-from sewtol.law import STREAM, InputLaw, draw_units, stream_window, unit_streams
+from sewtol.law import STREAM, InputLaw, draw_units, stream_window, unit_streams  # noqa: F401 re-exports draw_units
 from sewtol.mechanism.spec import Spec
 from sewtol.studies.parallel import chunk_bounds, run_chunks
 from sewtol.tolerances import ToleranceSet
@@ -98,7 +99,7 @@ def check_memory(n: int, columns: int, what: str = "n", value=None) -> None:
 
 def _chunk(model, nominal, law: InputLaw, window, kwargs):
     streams, a, b = window
-    dev = law.of_uniforms(draw_units(streams, law.dim, a, b))
+    dev = law.window(streams, a, b)
     return dev, model(nominal, dev, **kwargs)
 
 
@@ -129,7 +130,7 @@ def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
             for k, v in list(dev.items()) + list(out.items()):
                 if np.shape(v) != (m,):
                     return f"column {k} has shape {np.shape(v)}, not ({m},)"
-            again = law.of_uniforms(draw_units(streams, law.dim, *bounds[i]))
+            again = law.window(streams, *bounds[i])
             for k, v in again.items():
                 if not np.allclose(dev[k], v, rtol=1e-12, atol=0.0):
                     return f"its {k} deviations are not the ones chunk {i} draws from the seed"
@@ -321,11 +322,22 @@ class MonteCarloResult:
     summary: str = "outputs"  # summary_frame and JSON: one row per "outputs" or per "cases"
     columns: Mapping[str, str] = field(default_factory=dict)
     extra: Mapping = field(default_factory=dict)
+    # with relations (sewtol.relations): the candidates drawn for the n machines built (the
+    # others broke a relation and were rejected at inspection); None: the set has none
+    candidates: int | None = None
 
     @property
     def n(self) -> int:
         """The number of machines drawn."""
         return len(self.machines)
+
+    def inspection(self) -> dict | None:
+        """With relations: candidates drawn, machines built (n) and rejected, and the
+        relations' pass rate n / candidates; None without relations."""
+        if self.candidates is None:
+            return None
+        return {"candidates": self.candidates, "built": self.n,
+                "rejected": self.candidates - self.n, "acceptance": self.n / self.candidates}
 
     @property
     def failed(self) -> int:
@@ -543,6 +555,7 @@ class MonteCarloResult:
                              **{c: list(self.yield_ci(c)) for c in cases}},
                 "quantiles": {"definition": QUANTILES_MEAN,
                               **{c: self.quantiles(c) for c in cases}},
+                **({} if self.candidates is None else {"inspection": self.inspection()}),
                 "extra": extra}
 
 
@@ -587,6 +600,8 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
     if adjust is not None:
         names = (*names, f"{limit_output}_adjusted")
         adjust = adjust if isinstance(adjust, str) else ",".join(adjust)
+    law = InputLaw.of(tolerances)
     return MonteCarloResult(mech.name, machines, names, tolerances.name, int(seed), limit_output,
                             specs, source, adjust, mech.output(limit_output).unit,
-                            tuple(tolerances.active().params))
+                            tuple(tolerances.active().params),
+                            candidates=law.acceptance(n, seed)[1] if law.relations else None)

@@ -861,7 +861,18 @@ def limit_state(mech, tolerances: ToleranceSet, output: str, upper: float | None
     mech.output(output)
     check_adjust(mech, adjust)
     upper, lower = limits_of(mech, output, upper, lower)
-    zmap = StandardNormalMap(checked(mech, tolerances))
+    tol = checked(mech, tolerances)
+    if tol.relations:
+        # the relations condition the law (sewtol.relations): P(fail | relations) is a ratio of
+        # two estimates that subset simulation and NAIS do not make; refused, not ignored
+        raise ParameterError(tol.relations[0].where, "conditions the law on a relation, which "
+                             "the rare-event estimators do not take; use the Monte-Carlo (its "
+                             "yield interval) for a set with relations", tol.relations[0].expr)
+    if tol.selective is not None:
+        raise ParameterError(tol.selective.where, "matches parts within lots, which the "
+                             "rare-event estimators do not draw; use the Monte-Carlo for a set "
+                             "with selective assembly", tol.selective.as_dict())
+    zmap = StandardNormalMap(tol)
     name = name or (output if adjust is None else f"{output}_adjusted")
     limit, name = (upper, name) if lower is None else (0.0, f"{name}_excess")
     names = group_modes(mech) if modes is None else tuple(dict.fromkeys(modes.values()))

@@ -59,12 +59,22 @@ MIN_COMPLETE, MIN_GIVEN_ROWS = 8, 20
 
 def check_independent(tolerances: ToleranceSet) -> None:
     """Sobol indices decompose the variance of independent inputs only: a set with a
-    dependence (`correlation`, `setup`) is refused, pointing to the Shapley effects."""
+    dependence (`correlation`, `setup`) is refused, pointing to the Shapley effects, and so is
+    one with relations (sewtol.relations)."""
     dep = tolerances.active().dependence
     if dep is not None:
         raise ParameterError("tolerances", f"ties {', '.join(dep.params)} (a correlation); Sobol "
                              "indices need independent inputs: use the Shapley effects "
                              "(sewtol run NAME shapley)", tolerances.name)
+    if tolerances.relations:
+        r = tolerances.relations[0]
+        raise ParameterError(r.where, "limits a quantity of several deviations (a relation), "
+                             "so the inputs are not independent: Sobol indices need "
+                             "independent inputs", r.expr)
+    if tolerances.selective is not None:
+        raise ParameterError(tolerances.selective.where, "matches parts at assembly, so the "
+                             "inputs are not independent: Sobol indices need independent inputs",
+                             tolerances.selective.as_dict())
 
 
 def problem_of(tolerances: ToleranceSet) -> dict:

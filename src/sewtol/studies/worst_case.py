@@ -11,6 +11,12 @@ but does not prove it). With compensators, the output is the adjusted one on eve
 The search (`Search`): how many starts, L-BFGS-B's gradient (central differences of every
 coordinate in one batch, or scipy's forward differences) and whether a machine that cannot run
 is left out (counted in `failed_corners`) or counts as the worst value.
+
+Relations (`sewtol.relations`, e.g. |AB - BE| <= 0.01) bound the search: the region is what the
+relations leave of the box. A linear relation cuts the box to a polytope; its vertices
+(`relations.polytope_vertices`) replace the box's corners as the candidates, and the polish is
+SLSQP with the relations as linear constraints. A relation that is not linear is refused (its
+region has no vertices to start from).
 """
 
 from __future__ import annotations
@@ -24,6 +30,7 @@ from scipy.optimize import minimize
 
 from sewtol.errors import ParameterError
 from sewtol.protocol import machines
+from sewtol.relations import polytope_vertices
 from sewtol.studies.adjusting import Adjusted, adjusted, evaluated
 from sewtol.studies.scan import checked
 from sewtol.tolerances import ToleranceSet
@@ -106,6 +113,12 @@ def worst_case(mech, tolerances: ToleranceSet, output: str, maxiter: int = 100, 
                              f"{MAX_CORNER_PARAMS} toleranced parameters", len(names))
     lo = np.array([t.lower for t in tol.items])
     hi = np.array([t.upper for t in tol.items])
+    cut = linear_relations(tol)
+    if tol.selective is not None:
+        # a matched pair lies in one class: a union of sub-boxes this search does not walk
+        raise ParameterError(tol.selective.where, "matches parts in classes, which the worst "
+                             "case does not search; state the matched pairs' limit as a relation "
+                             "instead", tol.selective.as_dict())
 
     def values(X):
         X = np.atleast_2d(X)
@@ -116,8 +129,16 @@ def worst_case(mech, tolerances: ToleranceSet, output: str, maxiter: int = 100, 
             return adjusted(mech, values(X), adjust, output, fast=fast, **options).value
         return evaluated(mech, values(X), output, fast=fast)
 
-    corners = np.array(list(itertools.product(*zip(lo, hi, strict=True))))
-    cands = np.vstack([corners, 0.5 * (lo + hi)])
+    if cut is None:
+        corners = np.array(list(itertools.product(*zip(lo, hi, strict=True))))
+        cands = np.vstack([corners, 0.5 * (lo + hi)])
+    else:
+        corners = polytope_vertices(lo, hi, *cut)
+        if not len(corners):
+            raise ParameterError(tol.relations[0].where, "leave(s) nothing of the tolerance box",
+                                 [r.expr for r in tol.relations])
+        # the vertices' mean lies inside the polytope (it is convex)
+        cands = np.vstack([corners, corners.mean(axis=0)])
     val = f(cands)
     failed = int(np.sum(np.isnan(val[:-1])))
     width = hi - lo
@@ -139,7 +160,9 @@ def worst_case(mech, tolerances: ToleranceSet, output: str, maxiter: int = 100, 
         corner_s = float(np.max(s[:-1]))
         for i in order:
             z0 = (cands[i] - lo) / width
-            if search.step is None:
+            if cut is not None:
+                res = _polish_in_polytope(f, score, z0, lo, width, cut, sign, search)
+            elif search.step is None:
                 def neg(z, score=score):
                     return -float(score(lo + z * width)[0])
 
@@ -149,11 +172,14 @@ def worst_case(mech, tolerances: ToleranceSet, output: str, maxiter: int = 100, 
                 res = minimize(_central(f, lo, width, sign, search.step), z0, jac=True,
                                method="L-BFGS-B", bounds=[(0.0, 1.0)] * len(names),
                                options={"maxiter": search.maxiter})
-            x_opt = lo + res.x * width
+            x_opt = lo + np.clip(res.x, 0.0, 1.0) * width
+            if cut is not None and not _inside(x_opt, cut):
+                continue  # SLSQP may end a hair outside the relations: that point is not a machine
             v_opt = float(score(x_opt)[0])
             if v_opt > best_s:
                 best_s, best_x = v_opt, x_opt
-        at_corner = bool(np.all(np.isclose(best_x, lo) | np.isclose(best_x, hi)))
+        at_corner = bool(np.all(np.isclose(best_x, lo) | np.isclose(best_x, hi))) if cut is None \
+            else bool(np.any(np.all(np.isclose(corners, best_x), axis=1)))
         at = None if adjust is None else adjusted(mech, values(best_x), adjust, output,
                                                   fast=fast, **options)
         found.append(Extreme(extreme, sign * best_s, sign * corner_s,
@@ -167,6 +193,60 @@ def worst_case(mech, tolerances: ToleranceSet, output: str, maxiter: int = 100, 
     return WorstCaseResult(mech.name, tolerances.name, output, rows, len(corners), failed,
                            _monotone_on_axes(f, lo, hi) if axes else None,
                            adjust if isinstance(adjust, str) else None, tuple(found))
+
+
+def linear_relations(tol: ToleranceSet):
+    """(a, lower, upper) of the set's relations over its parameters' deviations (a: one row
+    per relation, the constant moved into the limits), None without relations; a relation
+    that is not linear is refused in one line."""
+    if not tol.relations:
+        return None
+    names = tol.params
+    rows, lower, upper = [], [], []
+    for r in tol.relations:
+        if r.linear is None:
+            raise ParameterError(f"{r.where}.expr", "must be linear in the deviations for the "
+                                 "worst case (sums of parameters times numbers: its region "
+                                 "then has vertices to start from)", r.expr)
+        coef, const = r.linear
+        # a parameter of zero width deviates by 0: its term drops out
+        rows.append([coef.get(p, 0.0) for p in names])
+        lower.append(r.lower - const)
+        upper.append(r.upper - const)
+    return np.array(rows), np.array(lower), np.array(upper)
+
+
+def _inside(x, cut, rtol: float = 1e-9) -> bool:
+    """True when x keeps every linear relation (to rtol of the largest term)."""
+    a, lower, upper = cut
+    ax = a @ x
+    tol = rtol * (1.0 + np.abs(a) @ np.abs(x))
+    return bool(np.all((ax >= lower - tol) & (ax <= upper + tol)))
+
+
+def _polish_in_polytope(f, score, z0, lo, width, cut, sign, search):
+    """SLSQP from z0 inside the box scaled to [0, 1], the relations as linear constraints
+    lower <= a (lo + z width) <= upper."""
+    a, lower, upper = cut
+    az = a * width[None, :]
+    base = a @ lo
+    cons = []
+    for k in range(len(a)):
+        if np.isfinite(lower[k]):
+            cons.append({"type": "ineq", "fun": lambda z, k=k: az[k] @ z + base[k] - lower[k],
+                         "jac": lambda z, k=k: az[k]})
+        if np.isfinite(upper[k]):
+            cons.append({"type": "ineq", "fun": lambda z, k=k: upper[k] - base[k] - az[k] @ z,
+                         "jac": lambda z, k=k: -az[k]})
+    bounds = [(0.0, 1.0)] * len(z0)
+    if search.step is None:
+        def neg(z):
+            return -float(score(lo + np.clip(z, 0, 1) * width)[0])
+
+        return minimize(neg, z0, method="SLSQP", bounds=bounds, constraints=cons,
+                        options={"eps": search.eps, "maxiter": search.maxiter})
+    return minimize(_central(f, lo, width, sign, search.step), z0, jac=True, method="SLSQP",
+                    bounds=bounds, constraints=cons, options={"maxiter": search.maxiter})
 
 
 def _central(f, lo, width, sign, step):

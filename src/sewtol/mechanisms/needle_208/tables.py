@@ -782,6 +782,7 @@ def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 
     if not (0 < target < 1):
         raise ParameterError("target", "must be a yield strictly between 0 and 1", target)
     ref = reference.active()
+    A.refuse_relations(ref)
     names = ref.params
     costs = costs or {}
     c = np.array([float(costs.get(p, 1.0)) for p in names])
@@ -801,8 +802,10 @@ def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 
     if strategy is None:
         # the scale k (mm) of the shapes (the largest 1), searched in (0, max_mm): no tolerance
         # exceeds max_mm
+        # the copula ties ranks, whatever the widths: every trial keeps the set's dependence
         shapes = ToleranceSet(reference.name, tuple(Tolerance(p, -a, a) for p, a in
-                                                    zip(names, shape, strict=True)))
+                                                    zip(names, shape, strict=True)),
+                              dependence=ref.dependence)
         a = A.allocate(mech, shapes, OUTPUT, target, limit_um, None, n, seed,
                        adjust=_beta_box(range_deg), bracket=(0.0, max_mm),
                        steps=12 if steps is None else steps, failures=_failure_reasons)
@@ -814,7 +817,8 @@ def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 
         def limits(k):
             f = np.minimum(k * shape, max_mm) / half
             return ToleranceSet("trial", tuple(Tolerance(t.param, t.lower * fi, t.upper * fi)
-                                               for t, fi in zip(ref.items, f, strict=True)))
+                                               for t, fi in zip(ref.items, f, strict=True)),
+                                dependence=ref.dependence)
 
         # k up to where every tolerance reaches the cap, so the cap never ends the search early
         a = A.allocate(mech, ref, OUTPUT, target, limit_um, None, n, seed,
