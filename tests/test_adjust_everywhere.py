@@ -92,12 +92,12 @@ def test_sobol_adjust_beta_matches_todays_adjusted_case():
 
 def test_sobol_model_chunk_calls_adjust():
     from cli_helpers import beta_adjusted, fixed_um
-    from sewtol.mechanisms.needle_208.tables import as_mechanism, fixed_beta_of
+    from sewtol.mechanisms.needle_208.tables import as_mechanism, held
     from sewtol.studies.sobol import case_values, problem_of, sample
 
     tol = NEEDLE_208_SETS["base"]
     nom = Needle208.nominal()
-    nom = nom.override(beta=fixed_beta_of(nom, "optimum", (10.0, 35.0), 10.0))
+    nom = nom.override(beta=held(nom, "optimum", (10.0, 35.0)).nominal_values()["beta"])
     pr = problem_of(tol)
     X = sample(pr, 16, 3)[:40]
     dev = {k: X[:, i] for i, k in enumerate(pr["names"])}

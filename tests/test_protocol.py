@@ -108,3 +108,20 @@ def test_the_law_draws_the_machines_of_every_study():
     got = protocol.input_law(mech, ts).draw(1234, 2026)
     want = draw_deviations(ts, 1234, 2026)
     assert list(got) == list(want) and all(np.array_equal(got[k], want[k]) for k in want)
+
+
+def test_the_suite_holds_a_failure_table_to_the_protocols_words(monkeypatch):
+    """The needle's failure naming calls its machine at 3x every length a failure (it does not
+    close); a plug-in that calls such a machine "ok" fails the suite, naming the check."""
+    mech = load(mechanism_file("needle_208"))
+    pl = protocol.plugins(mech)
+    big = {p.name: np.array([p.nominal * (3.0 if p.rule == "positive" else 1.0)])
+           for p in mech.parameters}
+    assert mech.evaluate(big).status[0] == "cannot_close"
+    assert pl.failure_table(mech, big)["status"][0] == "cannot_close"
+    checks.check_failures_counted(mech)
+    liar = dataclasses.replace(pl, failure_table=lambda m, v: {
+        "status": np.full(len(next(iter(v.values()))), "ok", object)})
+    monkeypatch.setattr(protocol, "plugins", lambda m: liar)
+    with pytest.raises(AssertionError, match="check_failures_counted: the plug-in's failure"):
+        checks.check_failures_counted(mech)

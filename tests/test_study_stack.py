@@ -162,3 +162,31 @@ def test_run_settings_prints_one_row_per_setting_and_refuses_bad_ones_in_one_lin
                       (["--set", "a:AB=4", "--n", "5"], "--n: is not used by `run settings`")):
         code, out, err = run("run", "khujand_feed", "settings", *args)
         assert code == 2 and out == "" and msg in err and len(err.strip().splitlines()) == 1
+
+
+def test_the_monte_carlo_holds_a_compensator_at_the_nominal_machines_optimum(needle):
+    """hold="optimum": the fixed case's beta is the nominal machine's beta* (exactly what
+    `needle nominal` prints, here with the guide shifted 50 um), every machine's fixed SumDelta
+    is the kernel's at that beta, and the plug-in names every failure (counts add up to n)."""
+    from sewtol.mechanisms.needle_208.single import nominal_figures
+    from sewtol.protocol import machines
+    from sewtol.studies import montecarlo as MC
+
+    mech = needle.override(guide_shift_um=50.0)
+    star = nominal_figures(Needle208.nominal().override(guide_shift_um=50.0)).beta_opt_deg
+    assert star == pytest.approx(27.6817036, abs=1e-7)  # not the file's 22.58 deg
+    r = MC.montecarlo(mech, NEEDLE_208_SETS["recommended"], 64, 5, ["SumDelta_um"], 10.0,
+                      adjust={"beta": (10.0, 35.0)}, fast=True, hold="optimum")
+    assert r.held["beta"] == star
+    dev = {p: r.machines[p].to_numpy() for p in r.params}
+    fixed = FP.needle_kernel(mech.override(beta=star), machines(mech, dev))["SumDelta_um"]
+    np.testing.assert_array_equal(r.values("SumDelta_um").to_numpy(), fixed)
+    assert "total_fixed_um" in r.machines and "fail_dyad_adjusted" in r.machines
+    for case in r.cases():
+        c = r.counts(case)
+        assert c["ok"] + c["out_of_spec"] + c["failed"] == 64
+    kept = MC.montecarlo(mech, NEEDLE_208_SETS["recommended"], 2, 5, ["SumDelta_um"], 10.0,
+                         adjust={"beta": (10.0, 35.0)}, fast=True)
+    assert kept.held["beta"] == mech.nominal_values()["beta"]
+    with pytest.raises(ParameterError, match="hold"):
+        MC.montecarlo(mech, NEEDLE_208_SETS["recommended"], 2, 5, hold="best")

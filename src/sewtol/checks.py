@@ -128,6 +128,11 @@ def check_failures_counted(mech) -> None:
     for s, g in zip(ev.status, ev.failed_group, strict=True):
         if (s == "ok") != (g == ""):
             _fail("check_failures_counted", f"status {s!r} with failed group {g!r}")
+    table = pr.plugins(mech).failure_table
+    words = set(STATUSES) - {"ok"} | {"unexplained"}
+    if table is not None and not set(table(mech, vals)["status"][~ok]) <= words:
+        _fail("check_failures_counted", "the plug-in's failure_table names a machine that does "
+              f"not run otherwise than {sorted(words)}")
 
 
 def check_specs(mech) -> None:

@@ -99,6 +99,15 @@ class Plugins:
         `strategy_parameters`; an outer search where it is not exact (not held to a grid).
     strategy_parameters : frozenset
         The compensator parameters the strategy adjuster takes.
+    failure_table : callable or None
+        ``failure_table(mech, values) -> dict`` of arrays, every machine's first reason not to
+        run at its values: ``status`` (the protocol's words), ``group`` and the mechanism's
+        further figures (the needle: angle, gap, transmission angle). On the fast path the
+        Monte-Carlo names each machine's status by it (`studies.montecarlo.named_failures`),
+        Sobol, ppm and allocation their failures (`studies.adjusting.failures_of`).
+    columns : mapping
+        Study -> (generic column name -> the mechanism's name), in the order its tables show
+        them: the source study's words for the generic results (data, not code).
     """
 
     kernel: Callable | None = None
@@ -110,6 +119,8 @@ class Plugins:
     adjuster_tol: float = 0.0
     strategy_adjuster: Callable | None = None
     strategy_parameters: frozenset = frozenset()
+    failure_table: Callable | None = None
+    columns: Mapping[str, Mapping[str, str]] = field(default_factory=dict, hash=False)
     name: str = ""
     notes: tuple[str, ...] = field(default=())
 

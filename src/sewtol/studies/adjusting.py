@@ -142,3 +142,16 @@ def evaluated_failures(mech, values: dict, output: str) -> tuple[np.ndarray, np.
     why a machine gives no value of `output` ("ok" where it runs)."""
     ev = mech.evaluate(values, [output])
     return ev.status, ev.failed_group
+
+
+def failures_of(mech, fast: bool, failures=None):
+    """Who names why a machine does not run: `failures` as given, else on the fast path the
+    mechanism's plug-in (`Plugins.failure_table`), else `evaluated_failures`."""
+    table = plugins(mech).failure_table if fast and failures is None else None
+    if table is None:
+        return failures or evaluated_failures
+
+    def named(mech, values, output):
+        why = table(mech, values)
+        return why["status"], why["group"]
+    return named

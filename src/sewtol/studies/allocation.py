@@ -31,7 +31,7 @@ from sewtol.errors import ParameterError
 from sewtol.law import InputLaw, draw_units, unit_streams
 from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
-from sewtol.studies.adjusting import evaluated_failures
+from sewtol.studies.adjusting import failures_of
 from sewtol.studies.rare_event import check_adjust, limits_of, output_of
 from sewtol.studies.scan import checked
 from sewtol.tolerances import Tolerance, ToleranceSet
@@ -133,8 +133,9 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
     geometric: bisect at sqrt(max(lo, 1e-6 hi) hi) (k spans decades). limits(k): the trial set
     at scale k instead of each limit times k times its weight (e.g. the needle's shapes capped
     at a largest tolerance); the table's limits are then those of limits(scale).
-    failures(mech, values, output) -> (status, group) of machines without a value (default
-    adjusting.evaluated_failures), counted per trial. fast=False: the generic reference path."""
+    failures(mech, values, output) -> (status, group) of machines without a value (default the
+    mechanism's plug-in, else adjusting.evaluated_failures), counted per trial. fast=False: the
+    generic reference path."""
     mech.output(output)
     check_adjust(mech, adjust)
     upper, lower = limits_of(mech, output, upper, lower)
@@ -176,7 +177,7 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
         status = np.full(y.size, "ok", dtype=object)
         bad = ~np.isfinite(y)
         if bad.any():
-            status[bad] = (failures or evaluated_failures)(
+            status[bad] = failures_of(mech, fast, failures)(
                 mech, {p: v[bad] for p, v in values.items()}, output)[0]
         runs = status == "ok"
         inside = runs & spec.passes(y)

@@ -34,6 +34,7 @@ from scipy import stats
 from sewtol.errors import ParameterError
 from sewtol.law import STREAM, InputLaw, draw_units, stream_window, unit_streams  # noqa: F401 re-exports draw_units
 from sewtol.mechanism.spec import Spec
+from sewtol.protocol import NO_PLUGINS, machines, plugins
 from sewtol.studies.parallel import chunk_bounds, run_chunks
 from sewtol.tolerances import ToleranceSet
 
@@ -258,7 +259,6 @@ def _file_model(record, dev, mech, outputs, compensator=None, target=None, fast=
     """One chunk of `montecarlo`: the outputs of machines nominal + dev as built (the plug-in
     kernel where it gives every output, the status of the machines it cannot run from
     mech.evaluate) and, with a compensator, the adjusted case."""
-    from sewtol.protocol import NO_PLUGINS, machines, plugins
     from sewtol.studies.adjusting import adjusted
 
     values = machines(mech, dev)
@@ -325,6 +325,7 @@ class MonteCarloResult:
     # with relations (sewtol.relations): the candidates drawn for the n machines built (the
     # others broke a relation and were rejected at inspection); None: the set has none
     candidates: int | None = None
+    held: Mapping[str, float] = field(default_factory=dict)  # the fixed case's nominal values
 
     @property
     def n(self) -> int:
@@ -463,7 +464,7 @@ class MonteCarloResult:
         return int(at.sum())
 
     def failed_groups(self, adjusted: bool = False) -> dict[str, int]:
-        g = self.machines["failed_group_adjusted" if adjusted else "failed_group"]
+        g = self.values("failed_group_adjusted" if adjusted else "failed_group")
         return {str(k): int(v) for k, v in g[g != ""].value_counts().sort_index().items()}
 
     def to_dataframe(self) -> pd.DataFrame:
@@ -563,7 +564,7 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
                limit: float | None = None, limit_output: str | None = None, n_jobs: int = 1,
                progress=False, chunk_size: int = CHUNK, adjust: str | None = None,
                lower_limit: float | None = None, *, fast: bool = False, backend=None,
-               store=None, scheduler=None) -> MonteCarloResult:
+               store=None, scheduler=None, hold: str = "nominal") -> MonteCarloResult:
     """n machines of the file (see the module doc). Every output with a [[specs]] entry in the
     file splits its ok machines into ok and out_of_spec; `limit`/`lower_limit` replace the
     spec of limit_output (default: the first output studied with limits given, else the first
@@ -572,8 +573,12 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
     (`sewtol.studies.adjusting.adjusted`: the generic optimiser, or with fast=True the
     mechanism's plug-in where it takes the compensator), columns NAME_adjusted, PARAM_setting,
     status_adjusted, failed_group_adjusted; `adjust` may also map one parameter to its box (a
-    plug-in's search range). fast=True: the plug-in kernel for the outputs it gives. backend,
-    store, scheduler: as `sample_machines` (joblib backend, study folder, Dask cluster)."""
+    plug-in's search range). fast=True: the plug-in kernel for the outputs it gives, the
+    plug-in's words for why a machine fails (`named_failures`) and its names of the columns
+    (`Plugins.columns["montecarlo"]`). hold (with a compensator): the fixed case keeps it at
+    its "nominal" value or at the nominal machine's "optimum" (`at_optimum`: the setting an
+    assembler finds for the nominal; the result's `held` has the values). backend, store,
+    scheduler: as `sample_machines` (joblib backend, study folder, Dask cluster)."""
     names = tuple(mech.output_names if outputs is None else outputs)
     for name in names:
         mech.output(name)
@@ -589,6 +594,10 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
         names = (*names, limit_output)
     specs = tuple(s for s in mech.specs if s.output in names and s.output != limit_output)
     specs += () if spec is None else (spec,)
+    if hold not in HOLDS:
+        raise ParameterError("hold", f"must be one of {', '.join(HOLDS)}", hold)
+    if hold == "optimum" and adjust is not None:
+        mech = at_optimum(mech, adjust, limit_output, fast)
     nominal = mech.parameter_record()
     check_seed(seed)
     check_sampling(nominal, tolerances, n, seed, chunk_size,
@@ -597,11 +606,64 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
                                backend, chunk_size, desc=f"Monte-Carlo {mech.name}",
                                store=store, scheduler=scheduler, mech=mech, outputs=list(names),
                                compensator=adjust, target=limit_output, fast=fast)
+    params = tuple(tolerances.active().params)
+    pl = plugins(mech) if fast else NO_PLUGINS
+    if pl.failure_table is not None:
+        machines = named_failures(mech, pl.failure_table, machines, params, limit_output,
+                                  spec, adjust)
+    columns = dict(pl.columns.get("montecarlo", {}))
+    if columns:  # the mechanism's names, in its order, after the machine and its deviations
+        first = ["machine", *params, *(k for k in columns if k in machines)]
+        machines = machines[first + [k for k in machines if k not in first]].rename(
+            columns=columns)
     if adjust is not None:
         names = (*names, f"{limit_output}_adjusted")
         adjust = adjust if isinstance(adjust, str) else ",".join(adjust)
     law = InputLaw.of(tolerances)
     return MonteCarloResult(mech.name, machines, names, tolerances.name, int(seed), limit_output,
-                            specs, source, adjust, mech.output(limit_output).unit,
-                            tuple(tolerances.active().params),
+                            specs, source, adjust, mech.output(limit_output).unit, params,
+                            columns=columns, held=mech.nominal_values(),
                             candidates=law.acceptance(n, seed)[1] if law.relations else None)
+
+
+HOLDS = ("nominal", "optimum")
+
+
+def at_optimum(mech, compensators, output: str, fast: bool = True):
+    """The mechanism with its compensators' nominals at the nominal machine's optimum of
+    `output` (`adjusting.adjusted`, the same adjuster as every machine's): the setting an
+    assembler finds for the nominal machine, held in a study's fixed case."""
+    from sewtol.studies.adjusting import adjusted
+
+    one = {k: np.array([v]) for k, v in mech.nominal_values().items()}
+    comps = [compensators] if isinstance(compensators, str) else compensators
+    settings = {k: float(v[0]) for k, v in adjusted(mech, one, comps, output, fast=fast)
+                .settings.items()}
+    if not np.all(np.isfinite(list(settings.values()))):
+        raise ParameterError("hold", "optimum needs a nominal machine that runs at some "
+                             "setting of the compensators", settings)
+    return mech.override(**settings)
+
+
+def named_failures(mech, failure_table, frame: pd.DataFrame, params, output: str, spec, adjust):
+    """The machines' status in the mechanism's words, per case: ok, out_of_spec (by `spec`) or
+    why it does not run (`Plugins.failure_table` of its values: in the adjusted case at its
+    setting, or at the nominal where it has none), the group in failed_group and the plug-in's
+    further figures in fail_NAME ("" and NaN where it runs)."""
+    values = machines(mech, {p: frame[p].to_numpy(float) for p in params})
+    cases = {"": values}
+    if adjust is not None:
+        nominal = mech.nominal_values()
+        cases["_adjusted"] = {**values, **{
+            k.removesuffix("_setting"): np.where(np.isfinite(v), v, nominal[k.removesuffix(
+                "_setting")]) for k, v in frame.items() if k.endswith("_setting")}}
+    frame = frame.copy()
+    for suffix, vals in cases.items():
+        value = frame[f"{output}{suffix}"].to_numpy(float)
+        why, failed = dict(failure_table(mech, vals)), np.isnan(value)
+        passes = np.where(spec is None or spec.passes(value), "ok", "out_of_spec").astype(object)
+        frame[f"status{suffix}"] = np.where(failed, why.pop("status"), passes)
+        frame[f"failed_group{suffix}"] = np.where(failed, why.pop("group"), "")
+        for k, v in why.items():
+            frame[f"fail_{k}{suffix}"] = np.where(failed, v, np.nan)
+    return frame

@@ -46,7 +46,7 @@ from scipy import special, stats
 from sewtol.errors import ParameterError
 from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
-from sewtol.studies.adjusting import adjusted, evaluated, evaluated_failures
+from sewtol.studies.adjusting import adjusted, evaluated, failures_of
 from sewtol.studies.montecarlo import draw_units, stream_window, unit_streams
 from sewtol.studies.scan import checked
 from sewtol.tolerances import ToleranceSet
@@ -854,7 +854,7 @@ def limit_state(mech, tolerances: ToleranceSet, output: str, upper: float | None
     adjust: compensators as `adjusting.adjusted` takes them (a name, names, boxes or
     objects); options go to the mechanism's strategy adjuster. failures(mech, values, output)
     -> (status, group) of the machines without a value, as every study takes it (default
-    adjusting.evaluated_failures); the failure mode of a machine is "STATUS at GROUP"
+    the plug-in, else adjusting.evaluated_failures); the failure mode of a machine is "STATUS at GROUP"
     (`group_modes`), or, with `modes` (status -> the mechanism's word for it), modes[STATUS].
     fast=False: the generic reference path.
     """
@@ -877,5 +877,5 @@ def limit_state(mech, tolerances: ToleranceSet, output: str, upper: float | None
     limit, name = (upper, name) if lower is None else (0.0, f"{name}_excess")
     names = group_modes(mech) if modes is None else tuple(dict.fromkeys(modes.values()))
     return LimitState(_Response(mech, zmap, output, upper, lower, adjust, names, modes,
-                                failures or evaluated_failures, fast, dict(options)),
+                                failures_of(mech, fast, failures), fast, dict(options)),
                       zmap.dim, float(limit), names, name, zmap.to_physical)

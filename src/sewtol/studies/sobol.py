@@ -37,7 +37,7 @@ from scipy import stats
 
 from sewtol.errors import ParameterError
 from sewtol.protocol import machines
-from sewtol.studies.adjusting import adjusted, evaluated, evaluated_failures
+from sewtol.studies.adjusting import adjusted, evaluated, failures_of
 from sewtol.studies.parallel import chunk_bounds, run_chunks
 from sewtol.tolerances import ToleranceSet
 
@@ -459,7 +459,7 @@ def sobol(mech, tolerances: ToleranceSet, output: str, n: int, seed: int, *,
     failures : callable or None
         ``failures(mech, values, output) -> (status, group)`` of the machines (absolute
         values) that give no value in some case: why they do not run, in the mechanism's words
-        (POLICY); None: the mechanism's evaluation (`evaluated_failures`).
+        (POLICY); None: the mechanism's plug-in (fast), else its evaluation.
     fast : bool
         Use the mechanism's plug-ins (False: the generic reference path).
     options
@@ -495,7 +495,7 @@ def sobol(mech, tolerances: ToleranceSet, output: str, n: int, seed: int, *,
     status = np.full(len(X), "ok", dtype=object)
     group = np.full(len(X), "", dtype=object)
     if bad.any():
-        why = (failures or evaluated_failures)(
+        why = failures_of(mech, fast, failures)(
             mech, machines(mech, {k: X[bad, i] for i, k in enumerate(names)}), output)
         status[bad], group[bad] = why
     return result_of([case_indices(problem, X, y, n, seed, case, resamples, conf_level,

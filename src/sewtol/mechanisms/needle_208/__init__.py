@@ -6,15 +6,15 @@ Data and topology: ``mechanism.toml`` (the file `sewtol run needle_208 ...` runs
 the reconstructed frames with their provenance: ``frames.py`` and ``data/``.
 
 Outputs and their exact evaluation: ``metrics.py`` (d(phi), Delta+, Delta-, SumDelta on the
-exact rocker interval), ``single.py`` (one machine's figures), ``status.py`` (what became of
-each machine).
+exact rocker interval), ``single.py`` (one machine's figures), ``status.py`` (why a machine
+does not run).
 
 Compensators, exactly: ``beta.py`` (beta* by the sliding-window optimum), ``adjust.py`` (the
 joint optimum of beta and the guide), ``adjustment.py`` (any strategy's compensators, batched),
 ``kernels/`` (the fused numba fast paths, held equal to the numpy reference by tests),
 ``fast_path.py`` (the check that lets a mechanism file use them, and the protocol's plug-ins:
-the exact SumDelta kernel, the exact beta / beta + guide-shift adjuster and the strategy
-adjuster).
+the exact SumDelta kernel, the exact beta / beta + guide-shift adjuster, the strategy
+adjuster, the failure naming and the source's column names as data).
 
 No study lives here: every study is written once in sewtol.studies and runs on this machine as
 a protocol mechanism; ``tables.py`` (``as_mechanism``) gives their tables in the source's

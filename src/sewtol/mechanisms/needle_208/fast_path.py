@@ -236,6 +236,31 @@ def needle_strategy_adjuster(mech, values, compensators, limit_um: float = 10.0,
             "at_limit": dict(a.at_limit)}
 
 
+def needle_failure_table(mech, values) -> dict[str, np.ndarray]:
+    """Per machine at its values (beta as given): the first reason in assembly order it does
+    not run (status.failure_reasons: status, group = the dyad, angle_deg, gap_mm,
+    transmission_deg; status "unexplained" where none is found)."""
+    from sewtol.mechanisms.needle_208 import metrics as nm
+    from sewtol.mechanisms.needle_208.status import failure_reasons
+
+    why = failure_reasons(nm.columns(needle_params(mech, values))[0])
+    why["status"] = np.where(why["status"] == "", "unexplained", why["status"])
+    why["group"] = why.pop("dyad")
+    return why
+
+
+# the source study's names of the generic studies' columns, in the order its tables show them
+COLUMNS = {"montecarlo": {
+    "SumDelta_um": "total_fixed_um", "beta_setting": "beta_opt_deg",
+    "SumDelta_um_adjusted": "total_adjusted_um", "beta_low": "beta_low_deg",
+    "beta_high": "beta_high_deg", "beta_at_bound": "beta_at_bound",
+    **{f"{k}{case}": f"{v}_{case.strip('_') or 'fixed'}" for case in ("", "_adjusted")
+       for k, v in (("status", "status"), ("failed_group", "fail_dyad"),
+                    ("fail_angle_deg", "fail_angle_deg"), ("fail_gap_mm", "fail_gap_mm"),
+                    ("fail_transmission_deg", "fail_transmission_deg"))},
+    "beta_picks": "beta_picks_deg"}}
+
+
 def _plugins():
     from sewtol.mechanisms import params as P
     from sewtol.mechanisms.needle_208 import adjust as ad
@@ -247,7 +272,9 @@ def _plugins():
                    adjuster_sets=(frozenset({"beta"}), frozenset({"beta", "guide_shift_um"})),
                    adjusted_output="SumDelta_um", adjuster_tol=ad.PLATEAU_TOL_UM,
                    strategy_adjuster=needle_strategy_adjuster,
-                   strategy_parameters=frozenset(P.field_names(Needle208)), name="needle_208")
+                   strategy_parameters=frozenset(P.field_names(Needle208)),
+                   failure_table=needle_failure_table,
+                   columns=COLUMNS, name="needle_208")
 
 
 FAST_PATH = FastPath("needle_208", ("L", "M", "B", "C", "E"), check_needle_208, _plugins())

@@ -1,4 +1,5 @@
-"""What became of each machine of a needle study, per case (beta fixed, beta adjusted).
+"""Why a needle machine does not run: the plug-in (fast_path.needle_failure_table) by which
+every study names each machine's status, per case (beta fixed, beta adjusted).
 
 Status: `ok` (SumDelta <= limit), `out_of_spec` (SumDelta > limit), or a failure that names
 why: `cannot_close` (a dyad misses: the dyad, the angle of its worst position and the gap in mm)
@@ -15,14 +16,8 @@ unexplained.
 from __future__ import annotations
 
 import numpy as np
-import pandas as pd
 
-from sewtol.mechanisms import params as P
-from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208 import model as nd
-
-STATUSES = ("ok", "out_of_spec", "cannot_close", "dead_point", "unexplained")
-FAILURES = ("cannot_close", "dead_point", "unexplained")
 
 
 @np.errstate(invalid="ignore")
@@ -57,46 +52,3 @@ def failure_reasons(c) -> dict[str, np.ndarray]:
         gap = np.where(cond, g, gap)
     return {"status": status.ravel(), "dyad": dyad.ravel(), "angle_deg": angle.ravel(),
             "gap_mm": gap.ravel(), "transmission_deg": trans.ravel()}
-
-
-def machine_status(nominal, machines: pd.DataFrame, params, limit_um: float) -> pd.DataFrame:
-    """Status columns for a needle Monte-Carlo table (deviations in `params`, totals and the
-    adjusted beta in total_fixed_um, total_adjusted_um, beta_opt_deg)."""
-    dev = {k: machines[k].to_numpy(float) for k in params}
-    n = len(machines)
-    if not dev:
-        dev = {"LF": np.zeros(n)}
-    c, _ = nm.columns(P.with_deviations(nominal, dev))
-    beta_adj = machines["beta_opt_deg"].to_numpy(float)
-    beta_nom = c["beta"][:, 0]
-    cases = {"fixed": c,
-             "adjusted": nm.with_values(c, beta=np.where(np.isfinite(beta_adj), beta_adj,
-                                                         beta_nom))}
-    out = {}
-    for case, cc in cases.items():
-        total = machines[f"total_{case}_um"].to_numpy(float)
-        why = failure_reasons(cc)
-        failed = np.isnan(total)
-        status = np.where(total <= limit_um, "ok", "out_of_spec").astype(object)
-        reason = np.where(why["status"] == "", "unexplained", why["status"])
-        status = np.where(failed, reason, status)
-        out[f"status_{case}"] = status
-        out[f"fail_dyad_{case}"] = np.where(failed, why["dyad"], "")
-        out[f"fail_angle_deg_{case}"] = np.where(failed, why["angle_deg"], np.nan)
-        out[f"fail_gap_mm_{case}"] = np.where(failed, why["gap_mm"], np.nan)
-        out[f"fail_transmission_deg_{case}"] = np.where(failed, why["transmission_deg"], np.nan)
-    return pd.DataFrame(out, index=machines.index)
-
-
-def counts(status: pd.Series | np.ndarray) -> dict[str, int]:
-    """Machines per status plus `failed` (all failures) and `n`; ok + out_of_spec + failed = n."""
-    s = pd.Series(np.asarray(status, dtype=object))
-    vc = s.value_counts()
-    out = {k: int(vc.get(k, 0)) for k in STATUSES}
-    unknown = set(vc.index) - set(STATUSES)
-    if unknown:
-        raise ValueError(f"unknown status {sorted(unknown)}")
-    out["failed"] = sum(out[k] for k in FAILURES)
-    out["n"] = int(len(s))
-    assert out["ok"] + out["out_of_spec"] + out["failed"] == out["n"]
-    return out

@@ -28,7 +28,6 @@ from scipy import stats
 from sewtol.errors import ParameterError
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.needle_208 import beta as sb
-from sewtol.mechanisms.needle_208 import status as ns
 from sewtol.mechanisms.needle_208.adjustment import STATUSES, Adjustment, adjust, columns_of
 from sewtol.mechanisms.needle_208.single import nominal_figures
 from sewtol.studies import montecarlo as MC
@@ -456,30 +455,22 @@ def adjusted_montecarlo_model(nominal, dev, strategy: Strategy, limit_um: float)
     return {k: f[k].to_numpy() for k in f.columns}
 
 
-FIXED_BETA = ("optimum", "as_given")
+# fixed_beta -> what the generic Monte-Carlo holds beta at in the fixed case (its `hold`)
+FIXED_BETA = {"optimum": "optimum", "as_given": "nominal"}
 FIXED_BETA_MEANS = {
     "optimum": "every machine keeps the nominal machine's beta* in the searched range (as "
                "`sewtol needle nominal` prints it for the same parameters)",
     "as_given": "every machine keeps the nominal's own beta parameter"}
-# the needle's names of the Monte-Carlo's columns (MonteCarloResult.columns), as the source
-MONTECARLO_COLUMNS = {OUTPUT: "total_fixed_um", f"{OUTPUT}_adjusted": "total_adjusted_um",
-                      "beta_setting": "beta_opt_deg", "beta_low": "beta_low_deg",
-                      "beta_high": "beta_high_deg", "status": "status_fixed",
-                      "beta_picks": "beta_picks_deg"}
 
 
-def fixed_beta_of(nominal, fixed_beta: str, range_deg, limit_um) -> float:
-    """The beta every machine keeps in the fixed case.
-
-    "optimum": the nominal machine's beta* in range_deg, exactly what `sewtol needle nominal`
-    prints for the same parameters (so a study of a shifted guide is fixed at that guide's beta*,
-    as an assembler would set it); "as_given": the nominal's own beta parameter.
-    """
-    if fixed_beta == "as_given":
-        return float(nominal.beta)
-    if fixed_beta != "optimum":
+def held(nominal, fixed_beta: str, range_deg):
+    """`as_mechanism(nominal)` with beta where the fixed case keeps it: "optimum" the nominal
+    machine's beta* in range_deg (studies.montecarlo.at_optimum; what `sewtol needle nominal`
+    prints), "as_given" the nominal's own beta."""
+    if fixed_beta not in FIXED_BETA:
         raise ParameterError("fixed_beta", f"must be one of {', '.join(FIXED_BETA)}", fixed_beta)
-    return float(nominal_figures(nominal, tuple(range_deg), limit_um).beta_opt_deg)
+    mech = as_mechanism(nominal)
+    return MC.at_optimum(mech, _beta_box(range_deg), OUTPUT) if fixed_beta == "optimum" else mech
 
 
 def montecarlo(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed: int,
@@ -535,7 +526,7 @@ def montecarlo(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed:
     -------
     MonteCarloResult
         Every machine with its deviations, SumDelta (um) in both cases (total_fixed_um,
-        total_adjusted_um), beta* (beta_opt_deg) and status (MONTECARLO_COLUMNS); yields,
+        total_adjusted_um), beta* (beta_opt_deg) and status (fast_path.COLUMNS); yields,
         counts, quantiles and capability per case (fixed_beta, adjusted_beta; "fixed" and
         "adjusted" name them too); ``extra`` holds limit_um, nominal_beta_deg (the fixed case's
         beta), fixed_beta and beta_search_range_deg.
@@ -558,35 +549,19 @@ def montecarlo(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed:
     if not (np.isfinite(limit_um) and limit_um > 0):
         raise ParameterError("limit_um", "must be a positive number of um", limit_um)
     sb.check_range(range_deg, limit_um)
-    params = tuple(tolerances.active().params)
-    check_sampling(nominal, tolerances, n, seed, chunk_size, columns=len(params) + 14)
-    nominal = nominal.override(beta=fixed_beta_of(nominal, fixed_beta, range_deg, limit_um))
+    check_sampling(nominal, tolerances, n, seed, chunk_size,
+                   columns=len(tolerances.active().params) + 14)
+    if fixed_beta not in FIXED_BETA:
+        raise ParameterError("fixed_beta", f"must be one of {', '.join(FIXED_BETA)}", fixed_beta)
     r = MC.montecarlo(as_mechanism(nominal), tolerances, n, seed, [OUTPUT], limit_um,
                       n_jobs=n_jobs, progress=progress, chunk_size=chunk_size,
                       adjust={"beta": tuple(map(float, range_deg))}, fast=True,
-                      backend=backend, store=store, scheduler=scheduler)
-    m = r.machines
-    machines = m[["machine", *params]].assign(
-        total_fixed_um=m[OUTPUT], beta_opt_deg=m["beta_setting"],
-        total_adjusted_um=m[f"{OUTPUT}_adjusted"], beta_low_deg=m["beta_low"],
-        beta_high_deg=m["beta_high"], beta_at_bound=m["beta_at_bound"])
-    status = ns.machine_status(nominal, machines, params, float(limit_um))
-    return replace(r, machines=pd.concat([machines, status], axis=1), summary="cases",
-                   columns=MONTECARLO_COLUMNS,
-                   extra={"limit_um": float(limit_um), "nominal_beta_deg": float(nominal.beta),
+                      backend=backend, store=store, scheduler=scheduler,
+                      hold=FIXED_BETA[fixed_beta])
+    return replace(r, summary="cases",
+                   extra={"limit_um": float(limit_um), "nominal_beta_deg": r.held["beta"],
                           "fixed_beta": fixed_beta, "fixed_beta_means": FIXED_BETA_MEANS[fixed_beta],
                           "beta_search_range_deg": list(map(float, range_deg))})
-
-
-def _failure_reasons(mech, values, output) -> tuple[np.ndarray, np.ndarray]:
-    """(status, dyad) of machines that do not run, at the mechanism's beta: the first reason
-    in assembly order (status.failure_reasons; "unexplained" when none is found)."""
-    from sewtol.mechanisms.needle_208 import metrics as nm
-    from sewtol.mechanisms.needle_208.fast_path import needle_params
-    from sewtol.mechanisms.needle_208.status import failure_reasons
-
-    why = failure_reasons(nm.columns(needle_params(mech, values))[0])
-    return np.where(why["status"] == "", "unexplained", why["status"]), why["dyad"]
 
 
 def needle_sobol(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed: int,
@@ -641,17 +616,16 @@ def needle_sobol(nominal: Needle208, tolerances: ToleranceSet | str, n: int, see
     tolerances = needle_set(tolerances)
     S.check_sobol(nominal, tolerances, n, seed, second_order)
     sb.check_range(range_deg, limit_um)
-    nominal = nominal.override(beta=fixed_beta_of(nominal, fixed_beta, range_deg, limit_um))
     if strategy is None:
         adjusted, comps, options = "adjusted_beta", _beta_box(range_deg, limit_um), {}
     else:
         adjusted = "adjusted_" + strategy.name
         comps, options = strategy.compensators, {"limit_um": limit_um, "plateaus": False}
-    return S.sobol(as_mechanism(nominal), tolerances, OUTPUT, n, seed,
+    return S.sobol(held(nominal, fixed_beta, range_deg), tolerances, OUTPUT, n, seed,
                    cases={"fixed_beta": None, adjusted: comps}, resamples=resamples,
                    conf_level=conf_level, second_order=second_order, n_jobs=n_jobs,
                    progress=progress, backend=backend, chunk_size=chunk_size or S.CHUNK,
-                   store=store, scheduler=scheduler, failures=_failure_reasons, **options)
+                   store=store, scheduler=scheduler, **options)
 
 
 ADJUSTMENTS = ("none", "beta")
@@ -709,7 +683,7 @@ def needle_limit_state(nominal: Needle208, tolerances: ToleranceSet | str, limit
     return limit_state(as_mechanism(nominal), tolerances, OUTPUT, float(limit_um),
                        adjust={"beta": range_deg} if beta else None,
                        name="total_adjusted_um" if beta else "total_fixed_um",
-                       modes=LIMIT_STATE_MODES, failures=_failure_reasons)
+                       modes=LIMIT_STATE_MODES)
 
 
 # the needle's names of the allocation's columns (studies.allocation.Allocation.to_dataframe)
@@ -808,7 +782,7 @@ def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 
                               dependence=ref.dependence)
         a = A.allocate(mech, shapes, OUTPUT, target, limit_um, None, n, seed,
                        adjust=_beta_box(range_deg), bracket=(0.0, max_mm),
-                       steps=12 if steps is None else steps, failures=_failure_reasons)
+                       steps=12 if steps is None else steps)
         columns = {**ALLOCATION_COLUMNS, "upper": "tolerance_mm"}
         del columns["lower"]
     else:
@@ -824,7 +798,7 @@ def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 
         a = A.allocate(mech, ref, OUTPUT, target, limit_um, None, n, seed,
                        adjust=strategy.compensators, bracket=(0.0, float(max_mm / shape.min())),
                        steps=10 if steps is None else steps, geometric=True, limits=limits,
-                       failures=_failure_reasons, limit_um=limit_um, plateaus=False)
+                       limit_um=limit_um, plateaus=False)
         columns = ALLOCATION_COLUMNS
     table = a.table.assign(cost_weight=c, slope_um_per_mm=s,
                            reference_lower=[t.lower for t in ref.items],
