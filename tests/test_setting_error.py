@@ -280,3 +280,27 @@ def test_cli_setting_error_refusals_are_one_line(argv, message):
     code, out, err = run("needle", *argv, "--n", "4")
     assert code == 2 and out == ""
     assert message in err and err.count("\n") == 1
+
+
+# --- housing tolerances --------------------------------------------------------------------------
+
+
+def test_base_housing_is_the_base_set_plus_the_housing_bores():
+    from sewtol.mechanism import load
+    from sewtol.tolerances import NEEDLE_208_SETS, needle_set
+
+    in_file = load(mechanism_file("needle_208")).tolerance_sets["base_housing"]
+    shipped = needle_set(str(ROOT / "examples" / "tolerances" / "needle_208_housing.toml")
+                         + ":base_housing")
+    assert in_file.as_dict() == shipped.as_dict()
+    items = {t.param: (t.lower, t.upper, t.dist) for t in in_file.items}
+    base = {t.param: (t.lower, t.upper, t.dist) for t in NEEDLE_208_SETS["base"].items}
+    assert {k: items[k] for k in base} == base
+    housing = {k: v for k, v in items.items() if k not in base}
+    assert housing == {**{k: (-0.02, 0.02, "uniform") for k in
+                          ("Ax", "Ay", "Dx", "Dy", "guide_x", "guide_y")},
+                       "guide_angle": (-0.0229, 0.0229, "uniform")}
+    # 0.02 mm over the 50 mm guide
+    assert np.degrees(np.arctan(0.02 / 50)) == pytest.approx(0.0229, abs=1e-4)
+    # the default sets (and the committed reports) do not include it
+    assert "base_housing" not in NEEDLE_208_SETS
