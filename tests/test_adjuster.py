@@ -16,6 +16,7 @@ from sewtol.mechanism import load, loads
 from sewtol.mechanisms.needle_208 import Needle208
 from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208.adjust import optimise
+from sewtol.setting_error import SettingError
 from sewtol.studies import montecarlo as MC
 from test_needle_file_paths import POSITIONS_UM, sampling_bound_um
 
@@ -260,7 +261,8 @@ def test_bad_compensator_fields_are_refused(extra, where, rule):
 def test_compensator_fields_are_read(needle):
     mech = loads(SLIDER + CRANK + "resolution = 0.01\nsetting_error = 0.005\n")
     c = mech.compensators["crank"]
-    assert (c.mode, c.resolution, c.setting_error, c.step) == ("offset", 0.01, 0.005, None)
+    assert (c.mode, c.resolution, c.setting_error, c.step) == \
+        ("offset", 0.01, SettingError("uniform", 0.005), None)
     assert mech.compensators["rod"].mode == "absolute"
     g = needle.compensators["guide_shift"]
     assert (g.parameter, g.low, g.high, g.mode) == ("guide_shift_um", -100.0, 100.0, "offset")

@@ -175,10 +175,12 @@ def check_compensators(mech) -> None:
             k = (c.high - c.low) / step
             if not (step > 0 and abs(k - round(k)) < 1e-9 * max(1.0, k)):
                 _fail("check_compensators", f"{name}: step {step} does not divide its box")
-        for attr in ("resolution", "setting_error"):
-            v = getattr(c, attr, 0.0) or 0.0
-            if not (np.isfinite(v) and v >= 0):
-                _fail("check_compensators", f"{name}: {attr} {v} must be >= 0")
+        v = getattr(c, "resolution", 0.0) or 0.0
+        if not (np.isfinite(v) and v >= 0):
+            _fail("check_compensators", f"{name}: resolution {v} must be >= 0")
+        err = getattr(c, "setting_error", None)
+        if err is not None and not (np.isfinite(err.width) and err.width >= 0):
+            _fail("check_compensators", f"{name}: setting error {err} must be >= 0")
 
 
 def check_tolerance_sets(mech) -> None:

@@ -97,6 +97,8 @@ class Plugins:
         keys): the mechanism's own adjuster of `adjusted_output` for compensators given as
         objects (name, low, high and, where declared, steps, resolution, mode), any subset of
         `strategy_parameters`; an outer search where it is not exact (not held to a grid).
+        Its settings are in each compensator's own terms (an offset compensator's offset from
+        the machine's as-built value, an absolute one's value).
     strategy_parameters : frozenset
         The compensator parameters the strategy adjuster takes.
     failure_table : callable or None

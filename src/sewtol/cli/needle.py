@@ -313,13 +313,16 @@ def _montecarlo_notes(record) -> list[str]:
                 "range), the others sit on a flat plateau"] if k else []))
 
 
-def _strategy(args):
-    """The strategy of --adjust/--range/--step/--resolution (None without --adjust).
+def _strategy(args, setting_errors: bool = False):
+    """The strategy of --adjust/--range/--step/--resolution/--setting-error (None without
+    --adjust). Only the strategies study sets compensators with their setting errors
+    (`setting_errors=True`); every other study sets them exactly, so --setting-error is refused
+    there and the built-in errors are dropped from the strategy (and its record).
 
     --beta-range means the range searched for beta everywhere: with --adjust naming beta it is
     beta's --range (giving both is refused); with --adjust not naming beta nothing searches beta,
     so it is refused."""
-    from sewtol.mechanisms.needle_208.compensators import parse_cli
+    from sewtol.mechanisms.needle_208.compensators import Strategy, parse_cli
     from sewtol.mechanisms.needle_208.model import Needle208
     from sewtol.mechanisms.params import field_names
 
@@ -335,13 +338,24 @@ def _strategy(args):
                                  "also gives; give one of them", given)
         lo, hi = given
         ranges.append(f"beta={lo!r},{hi!r}")
-    return parse_cli(adjust, ranges, args.step, args.resolution,
-                     valid=field_names(Needle208))
+    errors = getattr(args, "setting_error", None) or ()
+    if errors and not setting_errors:
+        raise ParameterError("--setting-error", "is applied by the strategies study only "
+                             "(sewtol needle strategies); this study sets every compensator "
+                             "exactly", errors[0])
+    strategy = parse_cli(adjust, ranges, args.step, args.resolution,
+                         valid=field_names(Needle208), setting_errors=errors)
+    if strategy is not None and not setting_errors:
+        strategy = Strategy(strategy.name, tuple(c.with_changes(setting_error=None)
+                                                 for c in strategy.compensators))
+    return strategy
 
 
 def _strategy_record(strategy) -> dict:
     return {c.name: {"low": c.low, "high": c.high, "step": c.step, "resolution": c.resolution,
-                     "mode": c.mode} for c in strategy.compensators}
+                     "mode": c.mode, **({} if c.setting_error is None else
+                                        {"setting_error": c.setting_error.to_dict()})}
+            for c in strategy.compensators}
 
 
 def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
@@ -382,7 +396,7 @@ def cmd_needle_strategies(args):
     not_offered(args, "needle strategies",
                  resume="it keeps no checkpoints; rerun with the same seed",
                  scheduler="it runs on this machine; use --n-jobs")
-    strategy = _strategy(args)
+    strategy = _strategy(args, setting_errors=True)
     params, tolerances = _at_beta_star(args, _study_nominal(args)), _tolerances(args)
     rows = default_strategies()
     if strategy is not None:
@@ -420,7 +434,13 @@ def _adjust_options(p):
     p.add_argument("--step", action="append", metavar="NAME=VALUE",
                    help="discrete settings low + k*VALUE (a shim set, a graduated clamp)")
     p.add_argument("--resolution", action="append", metavar="NAME=VALUE",
-                   help="how finely the assembler sets it (report the worst within +/-VALUE/2)")
+                   help="how finely the assembler sets it (strategies: the setting made is "
+                        "rounded to a multiple of VALUE; achieved_um: the worst within "
+                        "+/-VALUE/2)")
+    p.add_argument("--setting-error", action="append", metavar="NAME=SD",
+                   help="strategies: the error of a setting made, normal with this sd (or "
+                        "NAME=uniform:HALF_WIDTH; 0: exact), in the compensator's unit; the "
+                        "ones set after it are re-set (docs/adjustment.md)")
 
 
 def cmd_needle_sobol(args):

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sewtol import dependence, relations, selective
+from sewtol import dependence, relations, selective, setting_error
 from sewtol.errors import ParameterError
 from sewtol.mechanism import expressions as X
 from sewtol.mechanism.clearance import parse_clearances
@@ -452,11 +452,20 @@ def _compensators(ctx, table, pnames) -> dict[str, Compensator]:
                          f"high - low = {high - low:g} and give at most {MAX_STEPS} settings",
                          step)
         extra = {}
-        for k in ("resolution", "setting_error"):
-            if k in c:
-                extra[k] = _number(ctx, path + (k,), f"{where} {k}", c[k])
-                if extra[k] < 0:
-                    ctx.fail(path + (k,), f"{where} {k}", "must be >= 0", extra[k])
+        if "resolution" in c:
+            extra["resolution"] = _number(ctx, path + ("resolution",), f"{where} resolution",
+                                          c["resolution"])
+            if extra["resolution"] < 0:
+                ctx.fail(path + ("resolution",), f"{where} resolution", "must be >= 0",
+                         extra["resolution"])
+        if "setting_error" in c:
+            err = c["setting_error"]
+            if not isinstance(err, dict):
+                err = _number(ctx, path + ("setting_error",), f"{where} setting_error", err)
+            try:
+                extra["setting_error"] = setting_error.parse(err, f"{where} setting_error")
+            except ParameterError as exc:
+                ctx.fail(path + ("setting_error",), exc.field, exc.rule, exc.value)
         mode = c.get("mode", "absolute")
         if mode not in MODES:
             ctx.fail(path + ("mode",), f"{where} mode", f"must be one of {', '.join(MODES)}",

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sewtol.errors import ParameterError
+from sewtol.setting_error import SettingError
 
 FORMAT = "sewtol-mechanism/1"
 UNITS = ("mm", "deg", "um", "1")
@@ -57,8 +58,10 @@ class Compensator:
     `low`, `high` bound the setting (the parameter's unit); mode "absolute": the setting
     replaces the parameter, "offset": it is added to the machine's as-built value. `step`
     (None: continuous): only the settings low + k * step exist. `resolution` (how finely a
-    fitter can set it) and `setting_error` (the +- error of a setting made) are stored for the
-    studies; 0 means exact."""
+    fitter can set it: a setting made is rounded to a multiple of it; 0: exactly) and
+    `setting_error` (sewtol.setting_error.SettingError: how far a setting made lands from the
+    one aimed at; None: exactly) are what the strategies study sets the machines with
+    (sewtol.studies.strategies.set_in_order)."""
 
     name: str
     parameter: str
@@ -67,7 +70,7 @@ class Compensator:
     line: int = 0
     step: float | None = None
     resolution: float = 0.0
-    setting_error: float = 0.0
+    setting_error: SettingError | None = None
     mode: str = "absolute"
 
     def settings(self):

@@ -385,3 +385,24 @@ def grouped_bars(labels, series: dict, ax=None, ylabel: str = "", title: str = "
     ax.grid(True, axis="y", lw=0.3)
     ax.legend(fontsize=7)
     return ax
+
+
+def yield_vs_setting_error(curve, ax=None, label: str | None = None):
+    """The yield of a strategy (%) against one compensator's setting error, with its 95 %
+    interval as a band (`sewtol.studies.strategies.yield_curve`'s result)."""
+    ax = ax or plt.gca()
+    w = np.asarray(curve.widths, float)
+    y = curve.yields * 100
+    lo, hi = (np.array([c[i] for c in curve.yield_ci]) * 100 for i in (0, 1))
+    line, = ax.plot(w, y, marker="o", ms=3, label=label or f"{curve.strategy}")
+    ax.fill_between(w, lo, hi, color=line.get_color(), alpha=0.2, lw=0)
+    unit = curve.unit.replace("um", MICRO)
+    what = "sd" if curve.dist == "normal" else "half-width"
+    ax.set_xlabel(f"{curve.compensator} setting error, {curve.dist} {what} ({unit})")
+    ax.set_ylabel("yield (%)")
+    ax.set_ylim(-2, 102)
+    ax.set_title(f"Yield against the setting error, {curve.n} machines "
+                 f"({curve.tolerances}, 95 % interval)", fontsize=9)
+    ax.grid(True, lw=0.3)
+    ax.legend(fontsize=7)
+    return ax

@@ -31,7 +31,10 @@ from sewtol.protocol import plugins
 class Adjusted:
     """Per machine: the adjusted output (`value`), each compensator parameter's setting, the
     status (the plug-in's words, or the generic "ok"/"cannot_close"/"dead_point"), whether
-    each setting lies on an end of its box, and the plug-in's extra figures (`extras`)."""
+    each setting lies on an end of its box, and the plug-in's extra figures (`extras`).
+    `terms`: ``"absolute"`` (settings are the parameters' values) or ``"own"`` (each
+    compensator's own terms, as a plug-in's strategy adjuster gives them: an offset
+    compensator's offset from the as-built value)."""
 
     value: np.ndarray
     settings: dict[str, np.ndarray]
@@ -39,6 +42,7 @@ class Adjusted:
     at_bound: dict[str, np.ndarray]
     extras: dict[str, np.ndarray] = field(default_factory=dict)
     path: str = "generic"
+    terms: str = "absolute"
 
 
 def _boxes(mech, compensators) -> dict[str, tuple[float, float]]:
@@ -84,7 +88,7 @@ def adjusted(mech, values: dict | None, compensators, output: str, *, fast: bool
         names = [c.name for c in compensators]
         if pl is not None and output == pl.adjusted_output and pl.adjusts_strategy(names):
             return _of(pl.strategy_adjuster(mech, values or {}, tuple(compensators), **options),
-                       pl.name)
+                       pl.name, "own")
         compensators = {c.name: (c.low, c.high) for c in compensators}
     boxes = _boxes(mech, compensators)
     if pl is not None and output == pl.adjusted_output and pl.adjusts(boxes):
@@ -92,10 +96,10 @@ def adjusted(mech, values: dict | None, compensators, output: str, *, fast: bool
     return _generic(mech, values, boxes, output, objective)
 
 
-def _of(r: dict, path: str) -> Adjusted:
+def _of(r: dict, path: str, terms: str = "absolute") -> Adjusted:
     known = ("value", "settings", "status", "at_bound")
     return Adjusted(r["value"], dict(r["settings"]), r["status"], dict(r.get("at_bound", {})),
-                    {k: v for k, v in r.items() if k not in known}, path)
+                    {k: v for k, v in r.items() if k not in known}, path, terms)
 
 
 def _generic(mech, values, boxes, output, objective) -> Adjusted:

@@ -11,19 +11,35 @@ the machine as built. Per row: counts ok + out_of_spec + cannot_close + dead_poi
 (against the output's spec), the yield with its Clopper-Pearson interval, p50/p95/p99 of the
 adjusted output (a machine that cannot run ranks as infinitely bad), and each compensator's
 settings spread over the machines that run with the share at an end of its box.
+
+Setting the compensators as a fitter does (`set_in_order`): where a compensator has a
+resolution or a setting error (sewtol.setting_error), the fitter sets the compensators one at a
+time in the fitting order (the strategy's `fitting_order` where it has one, as the needle's
+does; else the order given: a file's declaration order): before each imperfect one, the
+compensators not yet set are optimised jointly given those already set; it is set to its
+optimum rounded to its resolution plus its drawn error (clipped to its box), and the exact ones
+before it in the order are set at that joint optimum; after the last imperfect one the rest are
+set at their joint optimum given all that. Every row states its compensators' resolution and
+setting error. The errors are drawn from the study's seed, one stream per compensator beside
+the machines' (`setting_error.unit_draws`): the same seed gives the same tables for any chunking
+or n_jobs, and every row and every level of `yield_curve` uses the same draws (only the scale
+changes). With every compensator exact the row is the joint optimum, as before.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pandas as pd
 from scipy import stats
 
+from sewtol import setting_error as se
 from sewtol.errors import ParameterError
+from sewtol.mechanism.spec import Compensator as FileCompensator
 from sewtol.protocol import input_law, machines, plugins
+from sewtol.setting_error import SettingError
 from sewtol.studies.adjusting import Adjusted, adjusted
 from sewtol.studies.montecarlo import WORDS, check_seed, quantiles
 from sewtol.studies.parallel import chunk_bounds, run_chunks
@@ -69,21 +85,136 @@ def _names(compensators) -> list[str]:
     return [getattr(c, "name", c) for c in comps]
 
 
-def _adjust(mech, values, compensators, output, fast, options) -> Adjusted:
+def _stage(mech, values, compensators, output, fast, options) -> Adjusted:
+    """The joint optimum of `compensators` (names, or objects) on machines `values`; none: the
+    machine as built."""
     if _names(compensators) or (fast and plugins(mech).adjusts_strategy(())):
         return adjusted(mech, values, compensators, output, fast=fast, **options)
     ev = mech.evaluate(values, [output])  # nothing to set: the machine as built
     return Adjusted(ev.outputs[output], {}, ev.status, {}, {"failed_group": ev.failed_group})
 
 
-def _chunk(mech, values, strategies, output, fast, options, threads):
+def compensator_objects(mech, compensators) -> list:
+    """The row's compensators as objects (a name: the file's [compensators.NAME]), in the
+    row's order."""
+    comps = getattr(compensators, "compensators", compensators)
+    if isinstance(comps, Mapping):  # parameter -> box: exact by construction
+        return []
+    if isinstance(comps, str):
+        comps = [comps]
+    out = []
+    for c in comps:
+        if isinstance(c, str):
+            if c not in mech.compensators:
+                raise ParameterError("strategy", "must name compensators of the mechanism ("
+                                     + (", ".join(mech.compensators) or "it has none") + ")", c)
+            c = mech.compensators[c]
+        out.append(c)
+    return out
+
+
+def _exact(c) -> bool:
+    return not getattr(c, "resolution", 0.0) and getattr(c, "setting_error", None) is None
+
+
+def _parameter(c) -> str:
+    return getattr(c, "parameter", c.name)
+
+
+def _top(c) -> float:
+    return float(c.settings()[-1]) if getattr(c, "step", None) else float(c.high)
+
+
+def _stage_arg(comps: list):
+    """What `adjusted` takes for these compensators: a file's by name (its boxes, its modes),
+    others (the needle's) as objects."""
+    return tuple(c.name if isinstance(c, FileCompensator) else c for c in comps)
+
+
+def fitting_order(mech, compensators) -> list:
+    """The compensators in the order the fitter sets them: the strategy's `fitting_order`
+    where it declares one (the needle's), else the order given."""
+    order = getattr(compensators, "fitting_order", None)
+    return list(order) if order is not None else compensator_objects(mech, compensators)
+
+
+def set_in_order(mech, values, compensators, output, units: Mapping | None = None, *,
+                 fast: bool = True, **options) -> Adjusted:
+    """Each machine adjusted as a fitter sets the compensators (the module docstring): in the
+    fitting order, each imperfect one (a resolution or a setting error) at the joint optimum of
+    those not yet set, rounded to its resolution, plus its error ``setting_error.from_unit(
+    units[name])`` per machine, clipped to its box; the rest re-set optimally given it. With
+    every compensator exact: the joint optimum (one call). The settings reported for an
+    imperfect compensator are the settings made (with their errors)."""
+    objs = compensator_objects(mech, compensators)
+    if all(_exact(c) for c in objs):
+        return _stage(mech, values, compensators, output, fast, options)
+    order = fitting_order(mech, compensators)
+    n = len(next(iter(values.values())))
+    nominal = mech.nominal_values()
+    vals = {k: np.asarray(v, float) for k, v in values.items()}
+    made, made_bound, first, terms = {}, {}, None, None
+    start = 0
+    for i, comp in enumerate(order):
+        if _exact(comp):
+            continue
+        a = _stage(mech, vals, _stage_arg(order[start:]), output, fast, options)
+        first = a if first is None else first
+        terms = a.terms if terms is None else terms
+        for c in order[start:i + 1]:
+            p = _parameter(c)
+            as_built = np.broadcast_to(np.asarray(vals.get(p, nominal[p]), float), (n,))
+            x = np.asarray(a.settings[p], float)
+            own = x if (a.terms == "own" or c.mode == "absolute") else x - as_built
+            if c is comp:
+                own = se.snap(own, c.resolution)
+                if c.setting_error is not None:
+                    if units is None or c.name not in units:
+                        raise ParameterError("units", "must give the setting-error draws of "
+                                             "every compensator with a setting error", c.name)
+                    own = own + c.setting_error.from_unit(units[c.name])
+                own = np.where(np.isfinite(own), np.clip(own, c.low, _top(c)), own)
+            absolute = own if c.mode == "absolute" else as_built + own
+            vals[p] = np.where(np.isfinite(absolute), absolute, as_built)
+            made[p] = own if a.terms == "own" else absolute
+            eps = 1e-6 * (c.high - c.low)
+            made_bound[p] = (own <= c.low + eps) | (own >= _top(c) - eps)
+        start = i + 1
+    last = _stage(mech, vals, _stage_arg(order[start:]), output, fast, options)
+    extras = {}
+    for k, v in last.extras.items():
+        if isinstance(v, Mapping):  # per-compensator figures: each from the stage that set it
+            merged = {**first.extras.get(k, {}), **v}
+            if k == "at_limit":
+                merged.update(made_bound)
+            extras[k] = merged
+        else:
+            extras[k] = v
+    if "total_before_um" in first.extras:  # as built, not as left by the earlier stages
+        extras["total_before_um"] = first.extras["total_before_um"]
+    return Adjusted(last.value, {**made, **last.settings}, last.status,
+                    {**made_bound, **last.at_bound}, extras, last.path, terms or last.terms)
+
+
+def _units(seed: int, mech, rows, n: int) -> dict[str, np.ndarray]:
+    """The standard uniforms of every setting error in the rows, machines 0 .. n-1."""
+    names = sorted({c.name for r in rows for c in compensator_objects(mech, r)
+                    if getattr(c, "setting_error", None) is not None})
+    return {name: se.unit_draws(seed, name, 0, n) for name in names}
+
+
+def _adjust(mech, values, compensators, output, fast, options, units=None) -> Adjusted:
+    return set_in_order(mech, values, compensators, output, units, fast=fast, **options)
+
+
+def _chunk(mech, values, strategies, output, fast, options, threads, units=None):
     import numba
 
     before = numba.get_num_threads()
     if threads is not None:  # one numba thread per worker process (2 x 2 threads ran slower)
         numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     try:
-        return [_adjust(mech, values, s, output, fast, options) for s in strategies]
+        return [_adjust(mech, values, s, output, fast, options, units) for s in strategies]
     finally:
         numba.set_num_threads(before)
 
@@ -100,7 +231,8 @@ def _cat(values: list):
 
 def _concat(parts: list[Adjusted]) -> Adjusted:
     return Adjusted(*(_cat([getattr(p, k) for p in parts]) for k in
-                      ("value", "settings", "status", "at_bound", "extras")), parts[0].path)
+                      ("value", "settings", "status", "at_bound", "extras")), parts[0].path,
+                    parts[0].terms)
 
 
 @dataclass(frozen=True)
@@ -117,6 +249,8 @@ class StrategiesResult:
     names: tuple[str, ...]
     compensators: tuple[tuple[str, ...], ...]
     adjusted: tuple[Adjusted, ...]
+    resolutions: tuple[str, ...] = ()  # per row: each compensator's resolution, or "none"
+    setting_errors: tuple[str, ...] = ()  # per row: each compensator's setting error, or "none"
 
     @property
     def n(self) -> int:
@@ -154,8 +288,10 @@ class StrategiesResult:
             at = float(np.mean(np.asarray(a.at_bound.get(k, np.zeros(self.n)), bool)))
             spread.append(f"{k} {x.min():.6g}..{x.max():.6g} (at bound {at:.1%})" if x.size
                           else f"{k} -")
+        setting = ({"resolution": self.resolutions[i], "setting_error": self.setting_errors[i]}
+                   if self.resolutions else {})
         return {"strategy": name, "compensators": ",".join(self.compensators[i]) or "-",
-                **c, "yield": c["ok"] / c["n"], "yield_ci_low": float(ci.low),
+                **setting, **c, "yield": c["ok"] / c["n"], "yield_ci_low": float(ci.low),
                 "yield_ci_high": float(ci.high), **quantiles(a.value),
                 "settings": "; ".join(spread)}
 
@@ -194,14 +330,131 @@ def strategies(mech, tolerances, n: int, seed: int, strategies: Mapping | None =
     dev = law.draw(int(n), seed)
     values = machines(mech, dev)
     rows = list(strategies.values())
+    units = _units(seed, mech, rows, int(n))
     if n_jobs == 1 and not progress:
-        adj = [_adjust(mech, values, s, output, fast, options) for s in rows]
+        adj = [_adjust(mech, values, s, output, fast, options, units) for s in rows]
     else:
         parts = run_chunks(_chunk, [(mech, {k: v[a:b] for k, v in values.items()}, rows, output,
-                                     fast, options, 1 if n_jobs != 1 else None)
+                                     fast, options, 1 if n_jobs != 1 else None,
+                                     {k: v[a:b] for k, v in units.items()})
                                     for a, b in chunk_bounds(int(n), CHUNK)],
                            n_jobs=n_jobs, progress=progress, desc="strategies")
         adj = [_concat([p[i] for p in parts]) for i in range(len(rows))]
+    labels = [setting_labels(mech, s) for s in rows]
     return StrategiesResult(mech.name, output, mech.output(output).unit, spec, law.name,
                             int(seed), dev, tuple(strategies), tuple(tuple(_names(s))
-                                                                     for s in rows), tuple(adj))
+                                                                     for s in rows), tuple(adj),
+                            tuple(r for r, _ in labels), tuple(e for _, e in labels))
+
+
+def _unit(mech, c) -> str:
+    unit = getattr(c, "unit", None)
+    if unit is None:
+        unit = next((p.unit for p in mech.parameters if p.name == _parameter(c)), "")
+    return "" if unit == "1" else unit
+
+
+def setting_labels(mech, compensators) -> tuple[str, str]:
+    """A row's (resolution, setting error) for tables: ``NAME VALUE UNIT`` per compensator
+    that has one (``; `` between), "none" where every compensator is exact."""
+    objs = compensator_objects(mech, compensators)
+    res = [f"{c.name} {c.resolution:g} {_unit(mech, c)}".rstrip() for c in objs
+           if getattr(c, "resolution", 0.0)]
+    err = [f"{c.name} {se.label(c.setting_error, _unit(mech, c))}" for c in objs
+           if getattr(c, "setting_error", None) is not None]
+    return "; ".join(res) or "none", "; ".join(err) or "none"
+
+
+@dataclass(frozen=True)
+class YieldCurve:
+    """The yield of one strategy against one compensator's setting error: the same machines
+    and the same error draws at every level (only the width changes), from `yield_curve`."""
+
+    mechanism: str
+    strategy: str
+    compensator: str
+    dist: str  # "normal" (widths are standard deviations) or "uniform" (half-widths)
+    unit: str
+    tolerances: str
+    seed: int
+    n: int
+    widths: tuple[float, ...]
+    counts: tuple[dict, ...]  # per width: ok, out_of_spec, cannot_close, dead_point, n
+    yield_ci: tuple[tuple[float, float], ...]
+    quantiles: tuple[dict, ...]  # per width: p50, p95, p99 of the adjusted output
+
+    @property
+    def key(self) -> str:
+        return "sd" if self.dist == "normal" else "half_width"
+
+    @property
+    def yields(self) -> np.ndarray:
+        return np.array([c["ok"] / c["n"] for c in self.counts])
+
+    def to_dataframe(self) -> pd.DataFrame:
+        """One row per width: the width (``sd_UNIT`` or ``half_width_UNIT``), the counts (they
+        add up to n), the yield with its 95 % Clopper-Pearson interval, the quantiles."""
+        col = f"{self.key}_{self.unit}" if self.unit else self.key
+        return pd.DataFrame([{"strategy": self.strategy, "compensator": self.compensator,
+                              "dist": self.dist, col: w,
+                              **{k: c[k] for k in (*STATUSES, "n")}, "yield": c["ok"] / c["n"],
+                              "yield_ci_low": lo, "yield_ci_high": hi, **q}
+                             for w, c, (lo, hi), q in zip(self.widths, self.counts,
+                                                           self.yield_ci, self.quantiles,
+                                                           strict=True)])
+
+    def to_dict(self) -> dict:
+        return {"mechanism": self.mechanism, "strategy": self.strategy,
+                "compensator": self.compensator, "dist": self.dist, "unit": self.unit,
+                "tolerances": self.tolerances, "seed": self.seed, "n": self.n,
+                "yield_ci_method": "Clopper-Pearson exact binomial interval of ok / n, 95 %",
+                "rows": self.to_dataframe().to_dict("records")}
+
+
+def with_setting_error(mech, compensators, name: str, error: SettingError | None):
+    """The row `compensators` with compensator `name`'s setting error replaced (a strategy
+    object keeps its type and fitting order; names become the file's compensator objects)."""
+    objs = compensator_objects(mech, compensators)
+    if name not in [c.name for c in objs]:
+        raise ParameterError("compensator", "must be one of the strategy's ("
+                             + (", ".join(c.name for c in objs) or "it has none") + ")", name)
+    if error is not None and error.exact:
+        error = None
+    new = tuple(replace(c, setting_error=error) if c.name == name else c for c in objs)
+    if hasattr(compensators, "compensators"):
+        return replace(compensators, compensators=new)
+    return new
+
+
+def yield_curve(mech, tolerances, n: int, seed: int, strategy, compensator: str, widths,
+                dist: str | None = None, output: str | None = None, spec=None, *,
+                fast: bool = True, n_jobs: int = 1, progress=False, **options) -> YieldCurve:
+    """The yield of `strategy` (names of the mechanism's compensators, or a strategy object)
+    on machines 0 .. n-1 of `seed` with `compensator`'s setting error at each of `widths`
+    (its unit; the sd of a normal error or the half-width of a uniform one; `dist` default:
+    the compensator's own law, else normal), the other compensators as declared. The same
+    machines and error draws at every width (`set_in_order`), so the curve is smooth in the
+    width and width 0 is the row without a setting error."""
+    widths = tuple(float(w) for w in widths)
+    if not widths or any(not (np.isfinite(w) and w >= 0) for w in widths):
+        raise ParameterError("widths", "must be finite numbers >= 0", widths)
+    objs = {c.name: c for c in compensator_objects(mech, strategy)}
+    own = getattr(objs.get(compensator), "setting_error", None)
+    dist = dist or (own.dist if own is not None else "normal")
+    if dist not in se.DISTS:
+        raise ParameterError("dist", f"must be one of {', '.join(se.DISTS)}", dist)
+    rows = {f"{w!r}": with_setting_error(mech, strategy, compensator,
+                                         SettingError(dist, w) if w else None)
+            for w in widths}
+    r = strategies(mech, tolerances, n, seed, rows, output, spec, fast=fast, n_jobs=n_jobs,
+                   progress=progress, **options)
+    frame = r.to_dataframe()
+    name = getattr(strategy, "name", "+".join(objs))
+    return YieldCurve(mech.name, name, compensator, dist, _unit(mech, objs[compensator]),
+                      r.tolerances, int(seed), r.n, widths,
+                      tuple({k: int(row[k]) for k in (*STATUSES, "n")}
+                            for _, row in frame.iterrows()),
+                      tuple((float(lo), float(hi)) for lo, hi in
+                            zip(frame.yield_ci_low, frame.yield_ci_high, strict=True)),
+                      tuple({k: float(row[k]) for k in ("p50", "p95", "p99")}
+                            for _, row in frame.iterrows()))

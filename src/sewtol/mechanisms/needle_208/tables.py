@@ -277,6 +277,18 @@ def worst_case_table(nominal: Needle208, tolerances: ToleranceSet | str,
                                     strategy=strategy if a else None) for a in (False, True)])
 
 
+def strategy_setting(strategy: Strategy) -> tuple[str, str]:
+    """(resolution, setting error) of a strategy's row: ``NAME VALUE UNIT`` per compensator that
+    has one, "none" where all are exact."""
+    from sewtol import setting_error as se
+
+    res = [f"{c.name} {c.resolution:g} {c.unit}".rstrip() for c in strategy.compensators
+           if c.resolution]
+    err = [f"{c.name} {se.label(c.setting_error, c.unit)}" for c in strategy.compensators
+           if c.setting_error is not None]
+    return "; ".join(res) or "none", "; ".join(err) or "none"
+
+
 def summarise_frame(machines: pd.DataFrame, strategy: Strategy, limit_um: float) -> pd.DataFrame:
     """The row of the strategies table (counts, yield and interval, SumDelta quantiles, Cpk,
     at-limit shares, achieved yield, distinct settings) of a per-machine table written by
@@ -299,7 +311,9 @@ def summarise_frame(machines: pd.DataFrame, strategy: Strategy, limit_um: float)
         cpk = float((limit_um - run.mean()) / (3 * np.std(run, ddof=1)))
     else:
         cpk = float("nan")
-    row = {"strategy": strategy.name, "n": n, "ok": k,
+    row = {"strategy": strategy.name, **dict(zip(("resolution", "setting_error"),
+                                                  strategy_setting(strategy), strict=True)),
+           "n": n, "ok": k,
            "out_of_spec": counts["out of spec"], "cannot_assemble": counts["cannot assemble"],
            "dead_point": counts["dead point"], "yield": k / n, "yield_ci_low": float(ci.low),
            "yield_ci_high": float(ci.high), **q, "Cpk": cpk}
