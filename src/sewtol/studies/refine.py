@@ -40,6 +40,8 @@ import numpy as np
 import pandas as pd
 
 from sewtol.errors import ParameterError
+from sewtol.protocol import Mechanism
+from sewtol.tolerances import ToleranceSet
 
 PENALTY = 1e6
 LINK_FRACTION = 0.10  # default box of a length: +-10 % of its nominal
@@ -466,11 +468,12 @@ def _step_source(mech, name, tolerances) -> str:
     return "1 % of the value" if _is_length(mech, name) else "1 % of the box width"
 
 
-def refine(mech, parameters: Sequence[str] | Mapping | None = None, *, objective: str | None = None,
-           adjust=None, constraints: Sequence[Constraint] | None = None, seed: int = 0,
+def refine(mech: Mechanism, parameters: Sequence[str] | Mapping | None = None, *,
+           objective: str | None = None, adjust: Sequence[str] | Mapping | None = None,
+           constraints: Sequence[Constraint] | None = None, seed: int = 0,
            restarts: int = 3, popsize: int = 12, maxiter: int = 200, tol: float = 1e-7,
            polish: bool = True, polish_evaluations: int = 1500, local_search: bool = True,
-           tolerances=None, fast: bool = True) -> RefineResult:
+           tolerances: ToleranceSet | None = None, fast: bool = True) -> RefineResult:
     """Minimise `objective` of the adjusted nominal design over `parameters` (see the module
     docstring).
 
@@ -491,11 +494,14 @@ def refine(mech, parameters: Sequence[str] | Mapping | None = None, *, objective
         None: `default_constraints(mech)` (transmission >= 40 deg).
     seed : int
         The restarts' Generators are ``np.random.default_rng(seed).spawn(restarts)``.
-    restarts, popsize, maxiter, tol :
-        Differential evolution: restarts, population per parameter, generations, relative
-        convergence tolerance.
+    restarts, popsize, maxiter : int
+        Differential evolution: restarts, population per parameter, generations.
+    tol : float
+        Differential evolution's relative convergence tolerance.
     polish : bool
-        Polish the best restart by Nelder-Mead (at most `polish_evaluations` designs).
+        Polish the best restart by Nelder-Mead.
+    polish_evaluations : int
+        The most designs each Nelder-Mead (the polish, the local search) evaluates.
     local_search : bool
         Also run that Nelder-Mead from today's design alone (the contrast of a local search).
     tolerances : ToleranceSet or None
@@ -506,6 +512,13 @@ def refine(mech, parameters: Sequence[str] | Mapping | None = None, *, objective
     Returns
     -------
     RefineResult
+        The refined design beside today's, the restarts, the confirmation, the degree of
+        influence and the deviation curves.
+
+    Raises
+    ------
+    ParameterError
+        For an unknown parameter or output, a branch, a bad box or a bad search setting.
     """
     from scipy.optimize import differential_evolution, minimize
 
