@@ -86,7 +86,7 @@ class Constraint:
             v = v + np.maximum(y - self.upper, 0.0)
         return np.where(np.isnan(y), np.inf, v / self.scale)
 
-    def active(self, y, rel: float = 1e-4) -> bool:
+    def active(self, y, rel: float = 1e-3) -> bool:
         """True where the value holds and lies on a limit (within rel * scale of it)."""
         y = float(y)
         return bool(self.violation(y) == 0 and any(
