@@ -9,7 +9,8 @@ Mechanisms: Needle208 (frames: load_frame, list_frames), Feed131. Tolerances: To
 ToleranceSet, tolerance_set, NEEDLE_208_SETS. Single machines: nominal_figures, deviation_table.
 Studies: scan, largest_tolerances, worst_case_table, montecarlo, needle_sobol, allocate,
 compare_guides, strategies_table, optimise (the exact joint optimum), adjust, Compensator,
-Strategy, estimate and needle_limit_state (rare events). Errors: ParameterError, AssemblyError.
+Strategy, estimate and needle_limit_state (rare events), refine (nominal refinement of any
+mechanism file). Errors: ParameterError, AssemblyError.
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ _PUBLIC = {
     "Compensator": ("sewtol.mechanisms.needle_208.compensators", "Compensator"),
     "Strategy": ("sewtol.mechanisms.needle_208.compensators", "Strategy"),
     "estimate": ("sewtol.studies.rare_event", "estimate"),
+    "refine": ("sewtol.studies.refine", "refine"),
     "needle_limit_state": ("sewtol.mechanisms.needle_208.tables", "needle_limit_state"),
     "ParameterError": ("sewtol.errors", "ParameterError"),
     "AssemblyError": ("sewtol.errors", "AssemblyError"),

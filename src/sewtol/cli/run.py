@@ -28,7 +28,7 @@ from sewtol.cli.common import (
 from sewtol.errors import ParameterError
 
 STUDIES = ("nominal", "scan", "montecarlo", "sobol", "worst-case", "ppm", "allocation", "report",
-           "settings", "strategies", "shapley")
+           "settings", "strategies", "shapley", "refine")
 RUN_FORMATS = ("text", "table", "json", "csv")
 DEFAULT_N = {"montecarlo": 2000, "strategies": 2000, "sobol": 256, "ppm": 20000,
              "allocation": 2000, "report": 1000, "shapley": 200}
@@ -49,7 +49,9 @@ USES = {"nominal": (), "scan": ("output", "tolerances", "adjust"),
                        "weight", "adjust"),
         "report": ("output", "tolerances", "n", "seed", "limit", "lower_limit"), "settings": (),
         "strategies": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "n_jobs",
-                       "strategy")}
+                       "strategy"),
+        "refine": ("output", "tolerances", "seed", "adjust", "vary", "keep", "require",
+                   "restarts", "popsize", "maxiter", "plot")}
 # the library's keyword arguments named as `run`'s flags in its errors
 RUN_FLAGS = {**FLAGS, "adjust": "--adjust", "limit": "--limit", "lower_limit": "--lower-limit",
              "target": "--target", "weights": "--weight"}
@@ -94,6 +96,23 @@ def add_run(sub) -> None:
     p.add_argument("--strategy", action="append", default=None, metavar="NAME=C1,C2",
                    help="strategies: a row NAME adjusting these [compensators.NAME] of the file "
                         "together (repeatable; default none, each compensator alone and all)")
+    p.add_argument("--vary", action="append", default=None, metavar="NAME[=LOW,HIGH]",
+                   help="refine: a parameter refined, with its absolute bounds (default box: a "
+                        "length +-10 %%, a frame coordinate +-2 mm, an angle +-0.5 deg); "
+                        "repeatable, NAME,NAME,... allowed (default: the links and the pivots)")
+    p.add_argument("--keep", action="append", default=None, metavar="OUTPUT=TOL",
+                   help="refine: hold OUTPUT within +-TOL of today's value (repeatable)")
+    p.add_argument("--require", action="append", default=None, metavar="OUTPUT>=V|OUTPUT<=V",
+                   help="refine: a limit on an output of the refined design (repeatable; every "
+                        "transmission output >= 40 deg is always required)")
+    p.add_argument("--restarts", type=int, default=None,
+                   help="refine: differential-evolution restarts that must agree (default 3)")
+    p.add_argument("--popsize", type=int, default=None,
+                   help="refine: population per refined parameter (default 10)")
+    p.add_argument("--maxiter", type=int, default=None,
+                   help="refine: generations of each restart (default 400)")
+    p.add_argument("--plot", default=None, metavar="FILE",
+                   help="refine: the objective's curve today and refined (.png/.svg/.pdf)")
     p.add_argument("--format", choices=RUN_FORMATS, default="text")
     p.add_argument("--out", default=None, metavar="DIR",
                    help="write the tables, the result and run.json here")
@@ -147,7 +166,8 @@ def resolve_tolerances(mech, spec):
 
 def _check_flags(args) -> None:
     for key in ("output", "tolerances", "n", "seed", "limit", "n_jobs", "adjust", "lower_limit",
-                "method", "target", "weight", "strategy"):
+                "method", "target", "weight", "strategy", "vary", "keep", "require", "restarts",
+                "popsize", "maxiter", "plot"):
         value = getattr(args, key)
         if value is not None and key not in USES[args.study]:
             raise ParameterError("--" + key.replace("_", "-"), f"is not used by `run "
@@ -235,6 +255,8 @@ def cmd_run(args) -> None:
 
         res = compare(mech, settings)
         return _finish(args, fmt, mech, None, res.to_dict(), {"settings": res.rows}, res.rows)
+    if args.study == "refine":
+        return _refine(args, fmt, mech)
     tolerances = resolve_tolerances(mech, args.tolerances)
     if args.path_reason is None:
         args.path_reason = _tolerances_refusal(tolerances)
@@ -519,3 +541,89 @@ def _yield_study(args, fmt, mech, tolerances) -> None:
     if fmt == "table":
         print(f"\nP(not {cond}, or the machine cannot run) = {res.statement}")
     return None
+
+
+def _parse_vary(items, mech) -> dict | None:
+    """--vary NAME[=LOW,HIGH] items as refine's parameters (None: its default)."""
+    if not items:
+        return None
+    out = {}
+    for item in items:
+        name, eq, box = item.partition("=")
+        names = [n.strip() for n in name.split(",") if n.strip()]
+        if eq and len(names) != 1:
+            raise ParameterError("--vary", "NAME=LOW,HIGH names one parameter", item)
+        for n in names:
+            if n not in mech.parameter_names:
+                raise ParameterError("--vary", "must name parameters of the file ("
+                                     + ", ".join(mech.parameter_names) + ")", n)
+            if n in out:
+                raise ParameterError("--vary", "names a parameter twice", n)
+            out[n] = None
+        if eq:
+            try:
+                lo, hi = (float(v) for v in box.split(","))
+            except ValueError:
+                raise ParameterError("--vary", "must be NAME=LOW,HIGH (numbers)", item) from None
+            out[names[0]] = (lo, hi)
+    return out
+
+
+def _parse_constraints(args, mech, adjust, objective) -> list:
+    """The transmission margin, --keep OUTPUT=TOL and --require OUTPUT>=V / OUTPUT<=V."""
+    from sewtol.studies import refine as RF
+
+    out = RF.default_constraints(mech)
+    for item in args.keep or []:
+        name, eq, tol = item.partition("=")
+        mech.output(name.strip()) if eq else None
+        try:
+            value = float(tol)
+        except ValueError:
+            raise ParameterError("--keep", "must be OUTPUT=TOL (a number)", item) from None
+        out.append(RF.keep(mech, name.strip(), value, adjust, objective))
+    for item in args.require or []:
+        for op, make in ((">=", RF.at_least), ("<=", RF.at_most)):
+            if op in item:
+                name, _, v = item.partition(op)
+                mech.output(name.strip())
+                try:
+                    out.append(make(name.strip(), float(v)))
+                except ValueError:
+                    raise ParameterError("--require", f"must be OUTPUT{op}VALUE (a number)",
+                                         item) from None
+                break
+        else:
+            raise ParameterError("--require", "must be OUTPUT>=VALUE or OUTPUT<=VALUE", item)
+    return out
+
+
+def _refine(args, fmt, mech) -> None:
+    """`run FILE refine` (sewtol.studies.refine): the design refined, today's beside it."""
+    from sewtol.cli.common import save_plot
+    from sewtol.protocol import plugins
+    from sewtol.studies import refine as RF
+
+    tolerances = (resolve_tolerances(mech, args.tolerances)
+                  if args.tolerances is not None or mech.tolerance_sets else None)
+    adjust = None if args.adjust is None else (
+        [] if args.adjust.strip() == "none" else [a.strip() for a in args.adjust.split(",")])
+    objective = args.output or mech.output_names[0]
+    params = _parse_vary(args.vary, mech)
+    constraints = _parse_constraints(args, mech, adjust, objective)
+    fast = args.path != "generic"
+    args.path_used = (plugins(mech).name or "generic") if fast else "generic"
+    check_study_folder(args, _inputs(args, mech, tolerances), chunked=False)
+    res = RF.refine(mech, params, objective=objective, adjust=adjust, constraints=constraints,
+                    seed=args.seed, restarts=args.restarts or 3, popsize=args.popsize or 10,
+                    maxiter=args.maxiter or 400, tolerances=tolerances, fast=fast)
+    frames = {"parameters": res.parameters, "outputs": res.outputs_frame(),
+              "restarts": res.restarts, "influence": res.influence}
+    if res.curves() is not None:
+        frames["curves"] = res.curves()
+    save_plot(args, res.plot)
+    _finish(args, fmt, mech, tolerances, res.to_dict(), frames, res.parameters)
+    if fmt == "table":
+        emit("table", frame=res.outputs_frame())
+        emit("table", frame=res.influence)
+        print("\n".join(f"- {line}" for line in res.confirmation()))

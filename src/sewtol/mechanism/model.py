@@ -22,7 +22,7 @@ from sewtol import engine
 from sewtol.errors import ParameterError
 from sewtol.mechanism.clearance import Clearance
 from sewtol.mechanism.groups import GROUPS
-from sewtol.mechanism.outputs import OUTPUT_TYPES, provide
+from sewtol.mechanism.outputs import OUTPUT_TYPES, line_distance_um, provide
 from sewtol.mechanism.spec import Compensator, Group, Header, Output, Parameter, Spec
 from sewtol.mechanisms import params as P
 from sewtol.tolerances import ToleranceSet
@@ -198,6 +198,22 @@ class FileMechanism:
         out = {o.name: np.concatenate([p[0][o.name] for p in parts]) for o in chosen}
         return Evaluation(out, np.concatenate([p[1] for p in parts]),
                           np.concatenate([p[2] for p in parts]))
+
+    def curve(self, output: str, values: dict | None = None, q_rad=None) -> np.ndarray:
+        """The per-angle quantity a line_deviation output reduces (its signed distance d, um)
+        for the machines of `values` at driving angles q_rad (default the file's samples):
+        shape (machines, angles); NaN rows where a machine does not run."""
+        o = self.output(output)
+        if o.type != "line_deviation":
+            raise ParameterError("output", "must be a line_deviation output to give a curve",
+                                 output)
+        state = self.state(values, q_rad)
+        status, _ = self.status_of(state)
+        kwargs = _resolved(o.fields, OUTPUT_TYPES[o.type].fields, state.points, state.angles,
+                           state.values)
+        with np.errstate(invalid="ignore"):
+            d = np.broadcast_to(line_distance_um(state, **kwargs), state.shape)
+        return np.where((status == "ok")[:, None], d, np.nan)
 
     def _evaluate_block(self, values, chosen):
         state = self.state(values)

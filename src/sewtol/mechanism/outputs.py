@@ -46,14 +46,20 @@ def _reduce(values, q_rad, measure):
     return np.degrees(np.asarray(q_rad)[k]) % 360.0
 
 
-def line_deviation(state, point, x, y, angle_deg, shift_um, measure):
-    """Distance d (um) of the point from a line through (x, y) leaning angle_deg from the
-    vertical (top towards +x), moved shift_um along its normal n = (cos a, -sin a):
-    sum_extremes = max(max d, 0) + max(-min d, 0) (the needle's SumDelta)."""
+def line_distance_um(state, point, x, y, angle_deg, shift_um, measure=None):
+    """Signed distance d (um) of the point from a line through (x, y) leaning angle_deg from
+    the vertical (top towards +x), moved shift_um along its normal n = (cos a, -sin a), at
+    every driving angle: shape (machines, angles)."""
     a = angle_deg * DEG
     n = np.cos(a) - 1j * np.sin(a)
     g = x + 1j * y + n * (shift_um * 1e-3)
-    d = 1e3 * (np.conjugate(n) * (point.p - g)).real
+    return 1e3 * (np.conjugate(n) * (point.p - g)).real
+
+
+def line_deviation(state, point, x, y, angle_deg, shift_um, measure):
+    """Distance d (um) of the point from a line (line_distance_um), reduced over the cycle:
+    sum_extremes = max(max d, 0) + max(-min d, 0) (the needle's SumDelta)."""
+    d = line_distance_um(state, point, x, y, angle_deg, shift_um)
     if measure == "sum_extremes":
         return np.maximum(np.max(d, axis=-1), 0.0) + np.maximum(-np.min(d, axis=-1), 0.0)
     if measure == "max_abs":

@@ -1,0 +1,199 @@
+"""Nominal refinement (sewtol.studies.refine, `sewtol run FILE refine`).
+
+The refined designs of studies/needle_208_refine.py (tests/data/refined_needle_208.json, the
+JSON parameters as `sewtol needle nominal --set` takes them) are re-evaluated three ways: the
+fused kernel (the path the search used), the generic sampled path of the mechanism file
+(examples/needle_208.toml with the refined nominals) and an independent numpy model written from
+the description (tests/refine_reference.py). Small searches check the study's invariants:
+below the start, constraints hold, same seed same answer, influence equals its definition.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cli_helpers import run
+from refine_reference import figures
+from sewtol.errors import ParameterError
+from sewtol.mechanism import load
+from sewtol.mechanisms import params as P
+from sewtol.mechanisms.needle_208 import metrics as nm
+from sewtol.mechanisms.needle_208.model import Needle208, check_assembly, transmission_extremes
+from sewtol.protocol import plugins
+from sewtol.studies import refine as RF
+from sewtol.studies.adjusting import adjusted
+
+ROOT = Path(__file__).resolve().parents[1]
+FILE = ROOT / "examples" / "needle_208.toml"
+DESIGNS_FILE = Path(__file__).parent / "data" / "refined_needle_208.json"
+# the designs the study wrote (housing kept, guide refitted, the smallest set of links)
+NAMES = tuple(json.loads(DESIGNS_FILE.read_text())["designs"]) if DESIGNS_FILE.exists() else ()
+TODAY_UM = 4.59  # the issue's figure of today's design (sewtol needle nominal: 4.587)
+ADJUSTER_TOL_UM = 1e-3  # the exact adjuster's plateau tolerance (adjust.PLATEAU_TOL_UM)
+
+
+@pytest.fixture(scope="module")
+def mech():
+    return load(FILE)
+
+
+def _design(name):
+    d = json.loads(DESIGNS_FILE.read_text())["designs"][name]
+    return d, load(FILE, d["parameters"])
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_refined_design_is_reevaluated_by_the_generic_path(name):
+    # (the file holds at least the housing-kept design: test_the_study_wrote_its_designs)
+    """The JSON parameters, loaded as the file's nominals: the generic (sampled) SumDelta lies
+    within the kernel's derived bound below the fused one, which is the claimed figure."""
+    d, refined = _design(name)
+    ev = refined.evaluate(None, ["SumDelta_um", "stroke_um", "transmission_LMA_deg",
+                                 "transmission_BCD_deg"])
+    assert ev.status[0] == "ok"
+    pl = plugins(refined)
+    fused = float(pl.kernel(refined, {})["SumDelta_um"][0])
+    bound = float(pl.kernel_bound(refined, {})["SumDelta_um"][0])
+    generic = float(ev.outputs["SumDelta_um"][0])
+    assert 0.0 <= fused - generic <= bound
+    # the claim is the adjuster's value at these settings: the fused figure there
+    assert fused == pytest.approx(d["refined"]["SumDelta_um"], abs=ADJUSTER_TOL_UM)
+    # at least threefold below today's, every constraint as claimed
+    assert d["refined"]["SumDelta_um"] <= TODAY_UM / 3
+    for c in d["constraints"]:
+        y = float(ev.outputs[c["output"]][0])
+        assert y == pytest.approx(d["refined"][c["output"]], abs=1e-6)
+        assert c["lower"] is None or y >= c["lower"]
+        assert c["upper"] is None or y <= c["upper"]
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_refined_design_checked_by_the_independent_model(name):
+    """An independent numpy model (72000 crank angles, no sewtol code) gives the same SumDelta,
+    a stroke inside the +-0.1 mm band and transmission angles >= 40 deg; the built-in model's
+    exact figures (rocker interval, closed-form transmission extremes) agree."""
+    d, refined = _design(name)
+    values = refined.nominal_values()
+    ind = figures(values)
+    assert ind["closes"]
+    # dense sampling lies below the exact extremes by < 1e-6 um here (h^2 |d''| / 8)
+    assert ind["SumDelta_um"] == pytest.approx(d["refined"]["SumDelta_um"], abs=ADJUSTER_TOL_UM)
+    stroke = next(c for c in d["constraints"] if c["output"] == "stroke_um")
+    # the sampled stroke of the file lies below the exact one; the band holds for both
+    assert stroke["lower"] <= ind["stroke_mm"] * 1e3 <= stroke["upper"]
+    assert min(ind["transmission_LMA_deg"], ind["transmission_BCD_deg"]) >= 40.0
+    machine = Needle208(**{k: values[k] for k in P.field_names(Needle208)})
+    check_assembly(machine)  # assemblable over the whole turn, no dead point
+    c, _ = nm.columns(machine)
+    feas = nm.feasibility(c)
+    g1, _, g2, _ = transmission_extremes(c, feas.lo.reshape(-1, 1), feas.hi.reshape(-1, 1))
+    assert float(np.min(g1)) == pytest.approx(ind["transmission_LMA_deg"], abs=1e-3)
+    assert float(np.min(g2)) == pytest.approx(ind["transmission_BCD_deg"], abs=1e-3)
+    assert float(nm.stroke_mm(c)[0]) == pytest.approx(ind["stroke_mm"], abs=1e-6)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_refined_settings_are_the_adjusters_optimum(name):
+    """beta (and the guide shift) in the JSON are the exact adjuster's optimum of the refined
+    links: re-adjusting them gives the same SumDelta."""
+    d, refined = _design(name)
+    boxes = {k: tuple(v) for k, v in d["adjust"].items()}
+    a = adjusted(refined, {}, boxes, "SumDelta_um")
+    assert float(a.value[0]) == pytest.approx(d["refined"]["SumDelta_um"], abs=ADJUSTER_TOL_UM)
+
+
+def test_the_study_wrote_its_designs():
+    assert "housing_kept" in NAMES
+
+
+def _small(mech, seed=3):
+    cons = RF.default_constraints(mech) + [RF.keep(mech, "stroke_um", 100.0, ["beta"])]
+    return RF.refine(mech, ["AB", "BE"], adjust=["beta"], constraints=cons, seed=seed,
+                     restarts=2, popsize=8, maxiter=25, polish_evaluations=120,
+                     local_search=False, tolerances=mech.tolerance_sets["base"])
+
+
+def test_small_refinement_beats_today_keeps_constraints_and_repeats(mech):
+    r = _small(mech)
+    assert r.objective_before == pytest.approx(4.5871, abs=1e-3)
+    assert r.objective_after < r.objective_before
+    # the constraints hold on the refined design, re-evaluated from its values alone
+    ev = mech.evaluate({k: np.array([v]) for k, v in r.refined.items()},
+                       [c.output for c in r.constraints])
+    assert ev.status[0] == "ok"
+    for c in r.constraints:
+        assert c.violation(ev.outputs[c.output][0]) == 0
+    assert r.outputs_frame()["holds"].all()
+    # the objective is the adjusted SumDelta of those values (beta at the adjuster's optimum)
+    a = adjusted(mech, {k: np.array([r.refined[k]]) for k in ("AB", "BE")}, ["beta"],
+                 "SumDelta_um")
+    assert float(a.value[0]) == pytest.approx(r.objective_after, abs=1e-9)
+    assert float(a.settings["beta"][0]) == pytest.approx(r.refined["beta"], abs=1e-9)
+    # only AB, BE and beta changed
+    assert set(r.changed) == {"AB", "BE", "beta"}
+    # same seed, same answer
+    again = _small(mech)
+    assert again.refined == r.refined
+    assert again.restarts.drop(columns="seconds").equals(r.restarts.drop(columns="seconds"))
+
+
+def test_influence_is_slope_times_step(mech):
+    """Degree of influence: the central-difference slope (re-adjusted) times the tolerance."""
+    design = mech.nominal_values()
+    f = RF.influence(mech, design, ["AB", "CD", "Ax"], "SumDelta_um", ["beta"],
+                     mech.tolerance_sets["base"])
+    rows = f.set_index("parameter")
+    assert rows.loc["AB", "step"] == pytest.approx(0.05)  # base tolerance of AB
+    assert rows.loc["CD", "step"] == pytest.approx(0.30)  # CD untoleranced: 1 % of 30 mm
+    assert rows.loc["Ax", "step"] == pytest.approx(0.04)  # a frame coordinate: 1 % of 4 mm
+    for p, r in rows.iterrows():
+        h = 0.1 * r["step"]
+        vals = {p: np.array([design[p] + h, design[p] - h, design[p] + r["step"], design[p]])}
+        a = adjusted(mech, vals, ["beta"], "SumDelta_um").value
+        assert r["slope_per_unit"] == pytest.approx((a[0] - a[1]) / (2 * h), rel=1e-9)
+        assert r["influence"] == pytest.approx(r["slope_per_unit"] * r["step"], rel=1e-12)
+        assert r["change_up"] == pytest.approx(a[2] - a[3], abs=1e-9)
+
+
+def test_bad_inputs_name_field_rule_value(mech):
+    with pytest.raises(ParameterError, match="parameters: must name parameters"):
+        RF.refine(mech, ["XX"])
+    with pytest.raises(ParameterError, match="branch_M: a branch"):
+        RF.refine(mech, ["branch_M"])
+    with pytest.raises(ParameterError, match="AB: box must have low < high"):
+        RF.refine(mech, {"AB": (10.0, 9.0)})
+    with pytest.raises(ParameterError, match="lower: must be <= upper"):
+        RF.Constraint("stroke_um", 2.0, 1.0)
+    with pytest.raises(ParameterError, match="restarts: must be an integer >= 1"):
+        RF.refine(mech, ["AB"], restarts=0)
+    code, out, err = run("run", "needle_208", "refine", "--vary", "XX")
+    assert code == 2 and err.count("\n") == 1 and "--vary" in err and "XX" in err
+    code, out, err = run("run", "needle_208", "refine", "--keep", "stroke_um")
+    assert code == 2 and err.count("\n") == 1 and "--keep" in err
+    code, out, err = run("run", "needle_208", "refine", "--require", "stroke_um=3")
+    assert code == 2 and err.count("\n") == 1 and "--require" in err
+    code, out, err = run("run", "needle_208", "nominal", "--restarts", "2")
+    assert code == 2 and "--restarts" in err
+
+
+def test_cli_refine_json_contract():
+    code, out, err = run("run", "needle_208", "refine", "--vary", "AB,BE", "--adjust", "beta",
+                         "--keep", "stroke_um=100", "--restarts", "1", "--popsize", "6",
+                         "--maxiter", "5", "--seed", "2", "--format", "json")
+    assert code == 0, err
+    obj = json.loads(out)
+    assert set(obj["parameters"]) <= {"AB", "BE", "beta"}
+    assert obj["today"]["SumDelta_um"] == pytest.approx(4.5871, abs=1e-3)
+    assert obj["refined"]["SumDelta_um"] <= obj["today"]["SumDelta_um"]
+    assert {"stroke_um", "transmission_LMA_deg", "transmission_BCD_deg"} <= set(obj["refined"])
+    assert obj["context"]["path"] == "needle_208"
+    # the parameters go straight back in as --set
+    sets = [f"--set={k}={v!r}" for k, v in obj["parameters"].items()]
+    code, out2, _ = run("run", "needle_208", "nominal", *sets, "--format", "json")
+    assert code == 0
+    outputs = json.loads(out2)["outputs"]
+    assert outputs["stroke_um"] == pytest.approx(obj["refined"]["stroke_um"], abs=1e-9)
