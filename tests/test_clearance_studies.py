@@ -90,3 +90,35 @@ def test_share_links_case_is_the_montecarlos_machines():
     assert again.cases.equals(s.cases)
     w = s.worst.set_index(["source", "name"])["share"]
     assert w[("links", "sum")] + w[("pins", "sum")] == pytest.approx(1.0)
+
+
+def test_run_clearance_on_a_file_and_its_one_line_refusals(tmp_path):
+    from cli_helpers import run, strict_loads
+
+    f = tmp_path / "needle_pins.toml"
+    f.write_text((EXAMPLES / "needle_208.toml").read_text() + PINS)
+    code, out, err = run("run", str(f), "clearance", "--n", "4", "--seed", "2",
+                         "--tolerances", "base", "--guide-fit", "H7/g6", "--guide-fit", "H8/e8",
+                         "--format", "json")
+    assert code == 0, err
+    obj = strict_loads(out)
+    assert [r["case"] for r in obj["share"]] == ["links", "pins", "both"]
+    assert [r["fit"] for r in obj["guide"]["fits"]] == ["H7/g6", "H8/e8"]
+    for r in obj["guide"]["fits"]:
+        assert r["runs"] + r["binds"] + r["failed"] == 4
+    # the links case is the Monte-Carlo's machines, through the CLI too
+    direct = K.clearance_share(needle(), "base", 4, 2, adjust=())
+    assert obj["share"][0]["mean"] == pytest.approx(direct.cases["mean"][0], rel=1e-12)
+    for argv, line in [
+        (("run", "needle_208", "clearance", "--n", "3"),
+         "clearances: the mechanism file declares no revolute [[clearances]]"),
+        (("run", str(f), "clearance", "--guide-fit", "H7/p6"),
+         "--guide-fit: must be a clearance fit"),
+        (("run", str(f), "clearance", "--guide-diameter", "600"), "--guide-diameter:"),
+        (("run", str(f), "clearance", "--play-limit", "-1"), "--play-limit: must be positive"),
+        (("run", str(f), "clearance", "--adjust", "gamma"), "--adjust: must name a compensator"),
+        (("run", str(f), "montecarlo", "--play-limit", "3"),
+         "--play-limit: is not used by `run montecarlo`"),
+    ]:
+        code, out, err = run(*argv)
+        assert code == 2 and line in err and err.count("\n") == 1, (argv, err)
