@@ -122,3 +122,18 @@ def test_run_clearance_on_a_file_and_its_one_line_refusals(tmp_path):
     ]:
         code, out, err = run(*argv)
         assert code == 2 and line in err and err.count("\n") == 1, (argv, err)
+
+
+def test_adjustment_sees_the_journals():
+    """The needle's plug-in adjuster knows the links only: with journals off centre the
+    generic adjuster must run, and its optimum is the real model's at the setting it found."""
+    mech = needle()
+    values = {"AB": np.array([10.0, 10.01]), "A_dx_mm": np.array([0.0145, 0.0]),
+              "B_dy_mm": np.array([0.0, -0.0145])}
+    links = {"AB": values["AB"]}
+    got, y, status = K.adjusted_machines(mech, values, ("beta",), "SumDelta_um")
+    _, y0, _ = K.adjusted_machines(mech, links, ("beta",), "SumDelta_um")
+    assert list(status) == ["ok", "ok"]
+    assert np.all(np.abs(y - y0) > 0.1)  # the journals moved the optimum
+    again = mech.evaluate(got, ["SumDelta_um"]).outputs["SumDelta_um"]
+    np.testing.assert_allclose(again, y, rtol=1e-9)

@@ -213,19 +213,25 @@ def machines_of(mech, tolerances, n: int, seed: int) -> dict[str, np.ndarray]:
 
 
 def adjusted_machines(mech, values: dict, adjust, output: str):
-    """The machines with their compensators set (the generic adjuster: it sees the pair
-    parameters, which the plug-ins do not), the adjusted output and status per machine."""
+    """The machines with their compensators set, the adjusted output and status per machine:
+    the mechanism's plug-in adjuster where the journals sit at their centres (it knows the
+    link parameters only), else the generic adjuster, which sees the pair parameters."""
     from sewtol.studies.adjusting import adjusted
+
+    pairs = {p.name for p in getattr(mech, "pair_parameters", ())}
+    ideal = not any(np.any(np.asarray(values[k]) != 0) for k in pairs & set(values))
 
     m = len(next(iter(values.values())))
     if not adjust:
         ev = mech.evaluate(values, [output])
         return dict(values), ev.outputs[output], ev.status
-    a = adjusted(mech, values, list(adjust), output, fast=False)
+    a = adjusted(mech, values, list(adjust), output, fast=ideal)
     out = dict(values)
     for param, setting in a.settings.items():
         out[param] = np.broadcast_to(np.asarray(setting, float), (m,))
-    status = np.asarray(a.status, object)  # the generic adjuster's: ok, cannot_close, dead_point
+    from sewtol.studies.montecarlo import WORDS  # a plug-in's words, as the Monte-Carlo reads them
+
+    status = np.array([WORDS.get(w, w) for w in a.status], object)
     return out, np.asarray(a.value, float), status
 
 
@@ -268,7 +274,8 @@ def guide_criterion(mech, tolerances, n: int, seed: int, *, output: str | None =
     along the line).
 
     For each of n machines drawn from `tolerances` (seeded; compensators `adjust` set per
-    machine by the generic adjuster of `output`, ``()`` for none), at each crank angle: d the
+    machine on `output`, ``()`` for none: the plug-in adjuster where the mechanism has one, as
+    the journals are centred here), at each crank angle: d the
     signed deviation of E from the guide (um), W_min, W_max the first-order worst-case reach of
     E across the guide under the pin clearances at their smallest and largest (sum c_j |J_j|).
     The journals let E lie anywhere in [d - W, d + W]; the guide's bore, with diametral gap g,
@@ -396,7 +403,7 @@ class ClearanceShare:
 def clearance_share(mech, tolerances, n: int, seed: int, *, output: str | None = None,
                     adjust=("beta",), pins: str = "drawn", rim: bool = False,
                     limit: float | None = None) -> ClearanceShare:
-    """The share of `output`'s scatter (after `adjust`, generic adjuster) from the pin clearances
+    """The share of `output`'s scatter (after `adjust`) from the pin clearances
     (random journals: `random_offsets` with ``clearance=pins`` and `rim`) against the link
     tolerances of `tolerances`, on n machines drawn with `seed`; the yield against `limit`
     (default the file's spec of the output). See `ClearanceShare`."""
