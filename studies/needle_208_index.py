@@ -182,6 +182,34 @@ def adjustment_conclusions(out: Path, sets: list[str]) -> list[Conclusion]:
     return items
 
 
+def clearance_conclusions(out: Path) -> list[Conclusion]:
+    """The pins' share and the guide fit that keeps 95 % of machines running, per tolerance set
+    and strategy (needle_208_clearances.py's tables)."""
+    items = []
+    path = out / "clearance_share.csv"
+    if path.exists():
+        share = _csv(path)
+        for name, rows in share.groupby("tolerances", sort=False):
+            r = rows.set_index("case")
+            items.append(Conclusion(
+                f"{name} tolerances, H7/g6 on the seven 8 mm pins, beta adjusted: SumDelta <= "
+                f"10 µm on {r.loc['links', 'yield']:.1%} of machines with ideal pins, "
+                f"{r.loc['both', 'yield']:.1%} with the journals random in their clearance; the "
+                f"pins alone give {r.loc['pins', 'variance_share']:.0%} of the variance, the "
+                f"links alone {r.loc['links', 'variance_share']:.0%} "
+                "([clearances.md](clearances.md))."))
+    path = out / "clearance_guide.csv"
+    if path.exists():
+        guide = _csv(path)
+        words = "; ".join(f"{r.tolerances}, {r.strategy}: {r.tightest_fit_95pct_run}"
+                          for r in guide.itertuples())
+        items.append(Conclusion(
+            "Tightest ISO 286 guide fit (8 mm rod, assumed) with which 95 % of machines run "
+            f"without binding, per tolerance set and strategy: {words} "
+            "([clearances.md](clearances.md))."))
+    return items
+
+
 def nominal_conclusion(out: Path) -> list[Conclusion]:
     path = out / "nominal.csv"
     if not path.exists():
@@ -222,6 +250,7 @@ LAYOUT = [
       ("strategies_SET_all_CD_hist", "CD setting, all compensators (SET)")]),
     ("Failures per million", ["ppm", "ppm_bruteforce", "ppm_exceedance", "ppm_failing_machines"],
      [("ppm_exceedance", "Exceedance of SumDelta")]),
+    ("Joint clearances", ["clearances"], []),
 ]
 
 
@@ -299,6 +328,8 @@ def main(argv=None) -> None:
                 "not assessed in this run (frames.md is written by needle_208_frames.py)")],
         "Which tolerances to tighten": tighten_conclusions(out, sets),
         "What adjustment buys": adjustment_conclusions(out, sets),
+        "Joint clearances": clearance_conclusions(out) or [Conclusion(
+            "not assessed in this run (clearances.md is written by needle_208_clearances.py)")],
         f"Nominal machine (frame {DEFAULT_FRAME})": nominal_conclusion(out),
     }
     intro = ("The frame of the 208 (the positions of the upper shaft A and the rear rocker pivot "

@@ -126,6 +126,12 @@ class ClearanceWorstCase:
     radius_mm: dict[str, float]
     argmax_mm: dict[str, np.ndarray] = field(default_factory=dict)
 
+    @property
+    def inert(self) -> tuple[str, ...]:
+        """The pairs whose offset moves the signal at no machine and angle (exactly 0): a
+        point the model draws but no group builds on (the spatial groups take lengths)."""
+        return tuple(j for j, v in self.by_pair.items() if not np.any(np.nan_to_num(v)))
+
     def to_dataframe(self) -> pd.DataFrame:
         """One row per (machine, angle): W and each pair's c_j |J_j|."""
         m, k = self.total.shape
