@@ -142,8 +142,9 @@ def report(args, share, worst, fits, reach, pins) -> str:
         "## Their share of SumDelta after beta adjustment",
         "",
         "`links`: the set's machines with ideal pins; `pins`: nominal links with the journals "
-        "random; `both`. Beta re-adjusted on every machine (the generic adjuster: it sees the "
-        "journals). variance_share: the case's variance over both's.",
+        "random; `both`. Beta re-adjusted on every machine (the needle's exact adjuster where "
+        "the journals are centred, the generic one where they are not: the plug-in does not see "
+        "them). variance_share: the case's variance over both's.",
         "",
         md_table(share[["tolerances", "case", "n", "failed", "mean", "std", "within_limit",
                         "yield", "variance_share"]], 3),

@@ -201,11 +201,13 @@ def clearance_conclusions(out: Path) -> list[Conclusion]:
     path = out / "clearance_guide.csv"
     if path.exists():
         guide = _csv(path)
-        words = "; ".join(f"{r.tolerances}, {r.strategy}: {r.tightest_fit_95pct_run}"
-                          for r in guide.itertuples())
+        words = "; ".join(
+            f"{r.tolerances}, {'no adjustment' if r.strategy == 'none' else r.strategy}: "
+            f"{'no fit rated' if r.tightest_fit_95pct_run == 'none' else r.tightest_fit_95pct_run}"
+            for r in guide.itertuples())
         items.append(Conclusion(
-            "Tightest ISO 286 guide fit (8 mm rod, assumed) with which 95 % of machines run "
-            f"without binding, per tolerance set and strategy: {words} "
+            "Tightest ISO 286 guide fit (8 mm rod, assumed; H6/h5 to H11/c11 rated) with which "
+            f"95 % of machines run without binding, per tolerance set and strategy: {words} "
             "([clearances.md](clearances.md))."))
     return items
 
