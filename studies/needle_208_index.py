@@ -184,6 +184,36 @@ def adjustment_conclusions(out: Path, sets: list[str]) -> list[Conclusion]:
     return items
 
 
+def clearance_conclusions(out: Path) -> list[Conclusion]:
+    """The pins' share and the guide fit that keeps 95 % of machines running, per tolerance set
+    and strategy (needle_208_clearances.py's tables)."""
+    items = []
+    path = out / "clearance_share.csv"
+    if path.exists():
+        share = _csv(path)
+        for name, rows in share.groupby("tolerances", sort=False):
+            r = rows.set_index("case")
+            items.append(Conclusion(
+                f"{name} tolerances, H7/g6 on the seven 8 mm pins, beta adjusted: SumDelta <= "
+                f"10 µm on {r.loc['links', 'yield']:.1%} of machines with ideal pins, "
+                f"{r.loc['both', 'yield']:.1%} with the journals random in their clearance; the "
+                f"pins alone give {r.loc['pins', 'variance_share']:.0%} of the variance, the "
+                f"links alone {r.loc['links', 'variance_share']:.0%} "
+                "([clearances.md](clearances.md))."))
+    path = out / "clearance_guide.csv"
+    if path.exists():
+        guide = _csv(path)
+        words = "; ".join(
+            f"{r.tolerances}, {'no adjustment' if r.strategy == 'none' else r.strategy}: "
+            f"{'no fit rated' if r.tightest_fit_95pct_run == 'none' else r.tightest_fit_95pct_run}"
+            for r in guide.itertuples())
+        items.append(Conclusion(
+            "Tightest ISO 286 guide fit (8 mm rod, assumed; H6/h5 to H11/c11 rated) with which "
+            f"95 % of machines run without binding, per tolerance set and strategy: {words} "
+            "([clearances.md](clearances.md))."))
+    return items
+
+
 def nominal_conclusion(out: Path) -> list[Conclusion]:
     path = out / "nominal.csv"
     if not path.exists():
@@ -229,6 +259,7 @@ LAYOUT = [
      [("ppm_exceedance", "Exceedance of SumDelta")]),
     ("Tolerances as a joint distribution", ["joint_correlation", "joint_relation",
                                             "joint_selective"], []),
+    ("Joint clearances", ["clearances"], []),
 ]
 
 
@@ -306,6 +337,8 @@ def main(argv=None) -> None:
                 "not assessed in this run (frames.md is written by needle_208_frames.py)")],
         "Which tolerances to tighten": tighten_conclusions(out, sets),
         "What adjustment buys": adjustment_conclusions(out, sets),
+        "Joint clearances": clearance_conclusions(out) or [Conclusion(
+            "not assessed in this run (clearances.md is written by needle_208_clearances.py)")],
         f"Nominal machine (frame {DEFAULT_FRAME})": nominal_conclusion(out),
     }
     intro = ("The frame of the 208 (the positions of the upper shaft A and the rear rocker pivot "

@@ -421,3 +421,23 @@ def test_tighten_conclusions_give_the_explained_share_the_sobol_and_the_pair_int
         assert (f"S2({pair.param_i}, {pair.param_j}) = {pair.S2:.3f} +/- {pair.S2_conf:.3f}"
                 in index)
         assert f"{name} tolerances: single tolerances explain" in index
+
+
+def test_clearance_conclusions_come_from_the_tables(needle_report):
+    folder, _, page = needle_report
+    if not (folder / "clearance_share.csv").exists():
+        pytest.skip("no committed clearance tables")
+    body = page[page.index("<body>"):]
+    conclusions = body[:body.index("</section>")]
+    share = pd.read_csv(folder / "clearance_share.csv")
+    for name, rows in share.groupby("tolerances"):
+        r = rows.set_index("case")
+        assert f"{name} tolerances, H7/g6" in conclusions
+        assert f"{r.loc['links', 'yield']:.1%} of machines with ideal pins" in conclusions
+        assert f"{r.loc['both', 'yield']:.1%} with the journals random" in conclusions
+    guide = pd.read_csv(folder / "clearance_guide.csv")
+    for r in guide.itertuples():
+        strategy = "no adjustment" if r.strategy == "none" else r.strategy
+        fit = "no fit rated" if r.tightest_fit_95pct_run == "none" else r.tightest_fit_95pct_run
+        assert f"{r.tolerances}, {strategy}: {fit}" in conclusions
+    assert f'id="{rh.anchor_of("clearances")}"' in page

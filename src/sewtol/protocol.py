@@ -16,7 +16,9 @@ A mechanism, for a study, is five things and nothing else:
    equal the generic evaluation, and an exact adjuster for some sets of compensators.
 
 `override(**nominals)` gives the same mechanism with other nominal values, so a study may vary
-the design itself (refinement); a pair's clearance will enter as parameters of the pair.
+the design itself (refinement). A pair's clearance enters as parameters of the pair: a file's
+revolute pair with a clearance has its journal's offset (`pair_parameters`, nominal 0), which
+`evaluate` takes beside the parameters (sewtol.mechanism.clearance, sewtol.studies.clearance).
 
 `sewtol.mechanism.FileMechanism` (any mechanism file, every built-in) implements it; a
 mechanism folder adds plug-ins by declaring them in its fast path (``FAST_PATHS``). Every

@@ -28,10 +28,10 @@ from sewtol.cli.common import (
 from sewtol.errors import ParameterError
 
 STUDIES = ("nominal", "scan", "montecarlo", "sobol", "worst-case", "ppm", "allocation", "report",
-           "settings", "strategies", "shapley", "refine")
+           "settings", "strategies", "shapley", "refine", "clearance")
 RUN_FORMATS = ("text", "table", "json", "csv")
 DEFAULT_N = {"montecarlo": 2000, "strategies": 2000, "sobol": 256, "ppm": 20000,
-             "allocation": 2000, "report": 1000, "shapley": 200}
+             "allocation": 2000, "report": 1000, "shapley": 200, "clearance": 400}
 # --target: the smallest probability ppm must resolve; the yield allocation must keep
 DEFAULT_TARGET = {"ppm": 1e-6, "allocation": 0.9973}
 # the studies whose limits default to the file's [[specs]] (--limit/--lower-limit override them)
@@ -51,7 +51,9 @@ USES = {"nominal": (), "scan": ("output", "tolerances", "adjust"),
         "strategies": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "n_jobs",
                        "strategy"),
         "refine": ("output", "tolerances", "seed", "adjust", "vary", "keep", "require",
-                   "restarts", "popsize", "maxiter", "plot")}
+                   "restarts", "popsize", "maxiter", "plot"),
+        "clearance": ("output", "tolerances", "n", "seed", "limit", "adjust", "target",
+                      "guide_diameter", "play_limit", "guide_fit")}
 # the library's keyword arguments named as `run`'s flags in its errors
 RUN_FLAGS = {**FLAGS, "adjust": "--adjust", "limit": "--limit", "lower_limit": "--lower-limit",
              "target": "--target", "weights": "--weight"}
@@ -113,6 +115,13 @@ def add_run(sub) -> None:
                    help="refine: generations of each restart (default 400)")
     p.add_argument("--plot", default=None, metavar="FILE",
                    help="refine: the objective's curve today and refined (.png/.svg/.pdf)")
+    p.add_argument("--guide-diameter", type=float, default=None, metavar="MM",
+                   help="clearance: the guide rod's diameter for its ISO 286 fits (default 8)")
+    p.add_argument("--play-limit", type=float, default=None, metavar="UM",
+                   help="clearance: the largest lateral play at the stitch (default 20 um)")
+    p.add_argument("--guide-fit", action="append", default=None, metavar="FIT",
+                   help="clearance: a guide fit to rate, e.g. H7/g6 (repeatable; default "
+                        "H6/h5 ... H11/c11)")
     p.add_argument("--format", choices=RUN_FORMATS, default="text")
     p.add_argument("--out", default=None, metavar="DIR",
                    help="write the tables, the result and run.json here")
@@ -167,7 +176,7 @@ def resolve_tolerances(mech, spec):
 def _check_flags(args) -> None:
     for key in ("output", "tolerances", "n", "seed", "limit", "n_jobs", "adjust", "lower_limit",
                 "method", "target", "weight", "strategy", "vary", "keep", "require", "restarts",
-                "popsize", "maxiter", "plot"):
+                "popsize", "maxiter", "plot", "guide_diameter", "play_limit", "guide_fit"):
         value = getattr(args, key)
         if value is not None and key not in USES[args.study]:
             raise ParameterError("--" + key.replace("_", "-"), f"is not used by `run "
@@ -298,6 +307,8 @@ def cmd_run(args) -> None:
         return _yield_study(args, fmt, mech, tolerances)
     if args.study == "strategies":
         return _strategies(args, fmt, mech, tolerances)
+    if args.study == "clearance":
+        return _clearance(args, fmt, mech, tolerances)
     from sewtol.studies import montecarlo as MC
 
     res = _as_flags(MC.montecarlo, mech, tolerances, args.n, args.seed, outputs, args.limit,
@@ -320,6 +331,62 @@ def _strategies(args, fmt, mech, tolerances) -> None:
                     args.n, args.seed, rows, args.spec_output, args.spec)
     frame = res.to_dataframe()
     return _finish(args, fmt, mech, tolerances, res.to_dict(), {"strategies": frame}, frame)
+
+
+def _clearance(args, fmt, mech, tolerances) -> None:
+    """`run FILE clearance` (sewtol.studies.clearance): the pins' share of the output after
+    --adjust, and with a line_deviation output the guide pair as the criterion."""
+    import math
+
+    from sewtol.studies import clearance as K
+
+    K.revolute(mech)  # refused in one line when the file declares no revolute clearance
+    if args.n < 2:
+        raise ParameterError("--n", "must be >= 2 for `run clearance`", args.n)
+    target = 0.95 if args.target is None else args.target
+    if not (math.isfinite(target) and 0 < target < 1):
+        raise ParameterError("--target", "must be a yield strictly between 0 and 1", target)
+    adjust = tuple(a.strip() for a in args.adjust.split(",")) if args.adjust else ()
+    for a in adjust:
+        if a not in mech.compensators:
+            raise ParameterError("--adjust", "must name a compensator of the file ("
+                                 + (", ".join(mech.compensators) or "it has none") + ")", a)
+    diameter = 8.0 if args.guide_diameter is None else args.guide_diameter
+    play = 20.0 if args.play_limit is None else args.play_limit
+    fits = tuple(args.guide_fit) if args.guide_fit else K.GUIDE_FITS
+    for f in fits:  # a fit outside ISO 286's scope, or not a clearance fit: named as a flag
+        try:
+            K.fit_gap_um(f, diameter)
+        except ParameterError as exc:
+            flag = "--guide-diameter" if "diameter" in exc.field else "--guide-fit"
+            raise ParameterError(flag, exc.rule, exc.value) from None
+    if not (math.isfinite(play) and play > 0):
+        raise ParameterError("--play-limit", "must be positive (um)", play)
+    output = args.output
+    share = _as_flags(partial(K.clearance_share, output=output, adjust=adjust,
+                              limit=args.limit), mech, tolerances, args.n, args.seed)
+    frames = {"clearance_share": share.cases, "clearance_worst": share.worst}
+    obj = {"mechanism": mech.name, "tolerances": tolerances.name, "n": args.n,
+           "seed": args.seed, "output": share.output, "strategy": share.strategy,
+           "limit": share.limit, "pins": share.pins,
+           "share": share.cases.to_dict("records"), "worst": share.worst.to_dict("records")}
+    frame = share.cases
+    line = next((o.name for o in mech.outputs if o.type == "line_deviation"), None)
+    guide_output = output if output is not None and mech.output(output).type == \
+        "line_deviation" else line
+    if guide_output is not None:
+        g = _as_flags(partial(K.guide_criterion, output=guide_output, adjust=adjust,
+                              guide_diameter_mm=diameter, fits=fits, play_limit_um=play,
+                              target_yield=target), mech, tolerances, args.n, args.seed)
+        tight, loose = g.fit_reaching("yield")
+        runs = g.fit_reaching("runs_share")
+        obj["guide"] = {"output": guide_output, "guide_diameter_mm": diameter,
+                        "play_limit_um": play, "target_yield": target,
+                        "tightest_fit_runs": runs[0], "tightest_fit": tight,
+                        "loosest_fit": loose, "fits": g.fits.to_dict("records")}
+        frames.update({"guide_fits": g.fits, "guide_machines": g.machines})
+        frame = g.fits
+    return _finish(args, fmt, mech, tolerances, obj, frames, frame)
 
 
 def _as_flags(fn, *a):

@@ -5,7 +5,24 @@ or ``[min, max]``) or an ISO 286 fit at a pin diameter (``fit = "H7/g6"``,
 ``diameter_mm = 8``). A prismatic pair (``pair = "prismatic"``) names its slider group and gives
 the gap across the guide (``gap_mm``, hole minus rod or slot minus block) or a fit, and the
 guide's length (``length_mm``). Stored as the diametral clearance range (hole minus shaft, mm),
-the way ISO 286 states it. Data only: no study uses the clearances yet.
+the way ISO 286 states it.
+
+How a revolute clearance enters the model (the effective-link model: the clearance is a link of
+length |r| <= c of any direction between journal and bearing, Ting, Zhu & Watkins 2000): each
+revolute pair with a clearance gets two pair parameters, the offset r = (dx, dy) mm of the
+journal's centre from the bearing's, in the frame's axes, held over the turn (a constant r gives
+at each angle the offset at that angle: the position analysis is angle by angle). At r = 0 the
+model is the ideal one, bit for bit. Where r enters, by the group that makes the joint's point:
+
+- a frame point, a crank pin, a point on a body (``point``, ``crank``, ``on_body``): the point
+  the next link turns about is moved by r (the next link's journal, r from this body's);
+- the joint of a dyad (``rrr``, ``rrp``): link 2's journal is r from link 1's, so link 1 turns
+  about p1 + r; the joint's point is link 2's, except for a point on a body fixed to link 1
+  (an ``on_body`` group whose origin or direction names the dyad's p1), which sees link 1's
+  (= link 2's - r). A third link pinned at the same point takes link 2's.
+
+Prismatic pairs (a gap and a length) are data: the guide-pair criterion
+(`sewtol.studies.clearance`) reads them; they do not enter the model.
 """
 
 from __future__ import annotations
@@ -13,6 +30,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
+from sewtol import engine
 from sewtol.errors import ParameterError
 from sewtol.fits import check_diameter, iso_fit
 
@@ -23,6 +43,41 @@ KEYS = ("joint", "pair", "radial_mm", "gap_mm", "fit", "diameter_mm", "length_mm
 REVOLUTE_AT = {"crank": ("center", "name"), "rrr": ("name", "p1", "p2"), "rrp": ("name", "p1"),
                "rpr": ("pivot", "block")}
 PRISMATIC_AT = ("rrp", "rpr", "spatial_slider")
+DYADS = ("rrr", "rrp")  # groups whose own point is the joint of their two links
+
+
+def offset_names(joint: str) -> tuple[str, str]:
+    """The pair parameters of a revolute pair: its journal's offset (dx, dy) in mm."""
+    return f"{joint}_dx_mm", f"{joint}_dy_mm"
+
+
+def pair_offsets(clearances, cols: dict) -> dict:
+    """joint -> complex offset r = dx + i dy (mm, shaped (m, 1)) of every revolute pair with a
+    clearance, from the evaluation's columns."""
+    out = {}
+    for c in clearances:
+        if c.pair == "revolute":
+            dx, dy = offset_names(c.joint)
+            out[c.joint] = np.asarray(cols[dx], float) + 1j * np.asarray(cols[dy], float)
+    return out
+
+
+def shifted(point, r):
+    """The point moved by the constant offset r (its transfer functions unchanged)."""
+    return engine.Motion(point.p + r, point.dp, point.ddp)
+
+
+def on_body_view(group, points: dict, link1: dict, groups) -> dict:
+    """The points an on_body group sees: a dyad's joint as its link 1 holds it when the group's
+    origin or direction also names the dyad's p1 (the body is fixed to link 1)."""
+    named = [group.fields.get("origin"), *(group.fields.get("direction") or ())]
+    p1 = {g.name: g.fields.get("p1") for g in groups if g.type in DYADS}
+    view = points
+    for s in named:
+        if s in link1 and p1.get(s) in named:
+            view = dict(view) if view is points else view
+            view[s] = link1[s]
+    return view
 
 
 @dataclass(frozen=True)

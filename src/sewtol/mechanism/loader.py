@@ -19,7 +19,7 @@ import numpy as np
 from sewtol import dependence, relations, selective, setting_error
 from sewtol.errors import ParameterError
 from sewtol.mechanism import expressions as X
-from sewtol.mechanism.clearance import parse_clearances
+from sewtol.mechanism.clearance import offset_names, parse_clearances
 from sewtol.mechanism.groups import GROUPS
 from sewtol.mechanism.lines import Locator
 from sewtol.mechanism.outputs import OUTPUT_TYPES, OUTPUTS, provide, providers
@@ -107,8 +107,13 @@ def loads(text: str, path: str = "<text>", overrides: dict | None = None):
     specs = _specs(ctx, data.get("specs", []), outputs)
     comps = _compensators(ctx, data.get("compensators", {}), pnames)
     sets = _tolerance_sets(ctx, data.get("tolerances", {}), pnames)
-    clearances = parse_clearances(data.get("clearances"), groups,  # joint clearances: data only
+    clearances = parse_clearances(data.get("clearances"), groups,
                                   lambda p: (f"{path}:{ctx.loc.line(*p)}: ", ctx.loc.line(*p)))
+    for i, c in enumerate(clearances):
+        taken = [n for n in offset_names(c.joint) if n in pnames] if c.pair == "revolute" else []
+        if taken:  # a revolute pair's offsets are its pair parameters (clearance.py)
+            ctx.fail(("clearances", i, "joint"), f"[[clearances]] #{i + 1}.joint",
+                     f"its offset parameter {taken[0]} is a name of [parameters] already", c.joint)
     mech = FileMechanism(path=path, header=header, parameters=tuple(params),
                          groups=tuple(groups), outputs=tuple(outputs), compensators=comps,
                          tolerance_sets=sets, specs=specs, clearances=clearances)

@@ -20,7 +20,7 @@ import pandas as pd
 
 from sewtol import engine
 from sewtol.errors import ParameterError
-from sewtol.mechanism.clearance import Clearance
+from sewtol.mechanism.clearance import DYADS, Clearance, offset_names, on_body_view, pair_offsets, shifted
 from sewtol.mechanism.groups import GROUPS
 from sewtol.mechanism.outputs import OUTPUT_TYPES, line_distance_um, provide
 from sewtol.mechanism.spec import Compensator, Group, Header, Output, Parameter, Spec
@@ -77,7 +77,21 @@ class FileMechanism:
     compensators: dict[str, Compensator] = field(default_factory=dict)
     tolerance_sets: dict[str, ToleranceSet] = field(default_factory=dict)
     specs: tuple[Spec, ...] = ()
-    clearances: tuple[Clearance, ...] = ()  # [[clearances]]: data; no study uses them yet
+    clearances: tuple[Clearance, ...] = ()  # [[clearances]]: their offsets are pair parameters
+
+    @property
+    def pair_parameters(self) -> tuple[Parameter, ...]:
+        """The offset of each revolute pair with a clearance: the journal's centre from the
+        bearing's, in the frame's axes (``JOINT_dx_mm``, ``JOINT_dy_mm``; nominal 0, where the
+        model is the ideal one). `evaluate` and `state` take them beside the parameters; see
+        `sewtol.mechanism.clearance` for where each pair's offset enters."""
+        out = []
+        for c in self.clearances:
+            if c.pair == "revolute":
+                for name in offset_names(c.joint):
+                    out.append(Parameter(name, 0.0, "mm", "finite",
+                                         f"offset of the journal in pair {c.joint} ({name[-5:-3]})"))
+        return tuple(out)
 
     @property
     def name(self) -> str:
@@ -149,13 +163,14 @@ class FileMechanism:
     def columns(self, values: dict | None = None) -> tuple[dict, int]:
         """Every parameter as an (m, 1) column: the given values, nominal for the rest."""
         values = dict(values or {})
-        P.check_names(values, self.parameter_names)
+        pairs = self.pair_parameters
+        P.check_names(values, self.parameter_names + [p.name for p in pairs])
         sizes = {np.size(v) for v in values.values() if np.ndim(v) > 0}
         if len(sizes) > 1:
             raise ParameterError("values", "all arrays must have the same length", sorted(sizes))
         m = sizes.pop() if sizes else 1
         cols = {}
-        for p in self.parameters:
+        for p in self.parameters + pairs:
             v = np.asarray(values.get(p.name, p.nominal), float)
             P.check_rule(p.name, p.rule, v)
             cols[p.name] = np.broadcast_to(v.reshape(-1, 1) if v.ndim else v, (m, 1))
@@ -170,9 +185,24 @@ class FileMechanism:
         q = engine.driving_angle(q_rad)
         shape = (m, q_rad.size)
         points, angles, closures = {}, {}, {}
+        offsets = pair_offsets(self.clearances, cols)
+        link1 = {}  # a dyad's joint with a clearance, as its link 1 holds it (see clearance.py)
         for g in self.groups:
             gt = GROUPS[g.type]
-            made, closure = gt.builder(q, **_resolved(g.fields, gt.fields, points, angles, cols))
+            seen = points
+            if link1 and g.type == "on_body":
+                seen = on_body_view(g, points, link1, self.groups)
+            fields = _resolved(g.fields, gt.fields, seen, angles, cols)
+            r = offsets.get(g.name)
+            if r is not None and g.type in DYADS:
+                # the journal of link 2 sits r from link 1's: link 1 turns about p1 + r
+                fields["p1"] = shifted(fields["p1"], r)
+            made, closure = gt.builder(q, **fields)
+            if r is not None and gt.produces == "point":
+                if g.type in DYADS:
+                    link1[g.name] = shifted(made, -r)
+                else:
+                    made = shifted(made, r)  # the next link's journal, r from this body's
             # a Motion's arrays are complex, an Angle's float; each shaped (machines, angles)
             dtype = complex if gt.produces == "point" else float
             (points if gt.produces == "point" else angles)[g.name] = type(made)(
@@ -249,7 +279,7 @@ def statuses(closures: dict, shape: tuple) -> tuple[np.ndarray, np.ndarray]:
     return status, failed
 
 
-def _resolved(fields: dict, kinds: dict, points: dict, angles: dict, values: dict) -> dict:
+def resolved(fields: dict, kinds: dict, points: dict, angles: dict, values: dict) -> dict:
     """A group's or an output's fields as its function takes them: points and angles by name,
     a direction as the angle of P -> Q, expressions evaluated on `values`, choices as given."""
     out = {}
@@ -268,6 +298,7 @@ def _resolved(fields: dict, kinds: dict, points: dict, angles: dict, values: dic
     return out
 
 
+_resolved = resolved
 _CLASSES: dict = {}
 
 
