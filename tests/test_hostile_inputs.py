@@ -288,7 +288,8 @@ def test_a_server_that_is_not_a_scheduler_is_refused_in_one_line(tmp_path, kind,
                                 timeout=SCHEDULER_TIMEOUT_S)
     assert code == 2 and out == "" and err.count("\n") == 1, (code, out, err[-2000:])
     assert err.startswith(f"sewtol: error: --scheduler: {rule}")
-    assert err.endswith(f"(got '{address}')\n") and not (tmp_path / "D").exists()
+    assert err.endswith(f"(got '{address}')\n")
+    assert not list(tmp_path.rglob("chunk_*.npz"))  # refused before any chunk was computed
 
 
 @pytest.mark.parametrize("address, why", [
@@ -330,3 +331,46 @@ def test_the_stated_scheduler_timeout_is_the_real_one(kind):
     if kind != "garbage":
         assert elapsed >= timeout - 0.1, elapsed  # it did wait as long as it says
         assert f"within {timeout:g} s" in info.value.rule
+
+
+# --- memory limits ----------------------------------------------------------------------------
+
+def test_the_memory_estimate_honours_the_address_space_limit(tmp_path):
+    """Under `ulimit -v` 1.5 GB the 2e6-machine study (1.67 GiB of results) is refused up front
+    in one line, instead of computed and then lost to a MemoryError traceback."""
+    import resource
+
+    limit = 1_500_000_000
+    env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
+    p = subprocess.run([sys.executable, "-m", "sewtol", "needle", "montecarlo", "--n", "2000000",
+                        "--out", "D"], capture_output=True, text=True, env=env, cwd=tmp_path,
+                       timeout=SCHEDULER_TIMEOUT_S,
+                       preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_AS, (limit, limit)))
+    assert p.returncode == 2 and p.stdout == "" and p.stderr.count("\n") == 1, p.stderr[-2000:]
+    assert p.stderr.startswith("sewtol: error: --n: needs about 1.67 GiB for 28 columns of "
+                               "2000000 rows, more than the memory this process may still use (")
+    assert p.stderr.endswith(" GiB, address-space limit (ulimit -v)) (got 2000000)\n")
+    assert not (tmp_path / "D").exists()
+
+
+@pytest.mark.parametrize("version", ["v2", "v1"])
+def test_the_memory_estimate_honours_a_container_limit(tmp_path, monkeypatch, version):
+    from sewtol.errors import ParameterError
+    from sewtol.studies import montecarlo
+
+    limit, usage = tmp_path / "limit", tmp_path / "usage"
+    limit.write_text(f"{2**30}\n")  # 1 GiB, of which 256 MiB in use: 0.75 GiB left
+    usage.write_text(f"{2**28}\n")
+    files = [("/nonexistent/memory.max", "/nonexistent/memory.current"), (limit, usage)]
+    monkeypatch.setattr(montecarlo, "CGROUP_MEMORY_FILES",
+                        files if version == "v1" else files[::-1])
+    assert montecarlo.memory_limits_bytes()["container memory limit (cgroup)"] == 3 * 2**28
+    montecarlo.check_memory(100_000, 28)  # 0.09 GB fits
+    with pytest.raises(ParameterError, match=r"needs about 0\.834 GiB for 28 columns of 1000000 "
+                       r"rows, more than the memory this process may still use \(0\.75 GiB, "
+                       r"container memory limit \(cgroup\)\)"):
+        montecarlo.check_memory(1_000_000, 28)
+    limit.write_text("max\n")  # v2's "no limit", and v1's page-rounded 2**63 - 1
+    assert "container memory limit (cgroup)" not in montecarlo.memory_limits_bytes()
+    limit.write_text("9223372036854771712\n")
+    assert "container memory limit (cgroup)" not in montecarlo.memory_limits_bytes()
