@@ -33,13 +33,16 @@ def chunk_bounds(n: int, chunk_size: int) -> list[tuple[int, int]]:
 
 def check_address(address) -> str:
     """`address` if it reads as a Dask scheduler address (scheme://host:port, a port in
-    1..65535), else ParameterError; nothing is contacted."""
-    from distributed.comm.addressing import get_address_host_port
+    1..65535, or an in-process inproc:// address), else ParameterError; nothing is
+    contacted."""
+    from distributed.comm.addressing import get_address_host_port, parse_address
 
     rule = "must be a Dask scheduler address such as tcp://host:8786"
     if not isinstance(address, str) or not address.strip() or any(c.isspace() for c in address):
         raise ParameterError("scheduler", rule, address)
     try:
+        if parse_address(address)[0] == "inproc":  # a cluster in this process
+            return address
         port = get_address_host_port(address)[1]
     except ValueError as exc:
         raise ParameterError("scheduler", f"{rule} ({exc})", address) from None
