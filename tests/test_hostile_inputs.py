@@ -374,3 +374,23 @@ def test_the_memory_estimate_honours_a_container_limit(tmp_path, monkeypatch, ve
     assert "container memory limit (cgroup)" not in montecarlo.memory_limits_bytes()
     limit.write_text("9223372036854771712\n")
     assert "container memory limit (cgroup)" not in montecarlo.memory_limits_bytes()
+
+
+@pytest.mark.parametrize("kind", ["http", "garbage"])
+def test_a_scheduler_that_stops_answering_after_the_probe_is_one_error(kind, monkeypatch):
+    """The client after a passed probe is bounded by the same timeout, and a failed one is
+    closed: a ParameterError naming the address, not a hang or a traceback."""
+    import time
+
+    import distributed.comm  # noqa: F401  (imports are not the connection's time)
+
+    from sewtol.errors import ParameterError
+    from sewtol.studies import parallel
+
+    monkeypatch.setattr(parallel, "probe", lambda address, timeout: None)  # it answered
+    timeout = 3.0
+    with _server(kind) as address:
+        start = time.monotonic()
+        with pytest.raises(ParameterError, match="the Dask scheduler there stopped answering"):
+            parallel.connect(address, timeout=timeout)
+        assert time.monotonic() - start < timeout + 1.0

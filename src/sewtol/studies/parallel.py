@@ -106,11 +106,23 @@ def connect(address: str, timeout: float = CONNECT_TIMEOUT_S):
     if why is not None:
         raise ParameterError("scheduler", why, address)
     left = max(1.0, timeout - (time.monotonic() - start))
-    try:
-        return _closing_client(Client, address, left)
-    except Exception as exc:  # the scheduler went away between the probe and the client
-        raise ParameterError("scheduler", f"the Dask scheduler there stopped answering "
-                             f"({type(exc).__name__})", address) from None
+    made: dict = {}
+
+    def make():  # in a thread: Client's own timeout does not cover a stalled handshake
+        try:
+            made["client"] = _closing_client(Client, address, left)
+        except Exception as exc:  # kept whole and turned into the one line below
+            made["error"] = exc
+
+    thread = threading.Thread(target=make, name="sewtol-scheduler-client", daemon=True)
+    thread.start()
+    thread.join(left + 0.25)
+    if "client" in made:
+        return made["client"]
+    # the scheduler went away (or stalled) between the probe and the client
+    why = type(made["error"]).__name__ if "error" in made else f"no answer within {timeout:g} s"
+    raise ParameterError("scheduler", f"the Dask scheduler there stopped answering ({why})",
+                         address)
 
 
 def _closing_client(Client, address: str, timeout: float):
