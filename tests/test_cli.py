@@ -132,3 +132,54 @@ def test_the_installed_command_prints_its_help():
     assert done.stdout.startswith("usage: sewtol")
     for group in ("needle", "feed", "run", "mechanisms"):
         assert group in done.stdout
+
+
+def test_the_readme_flag_table_matches_the_parser():
+    """Every flag the README's flag table offers a command is one that command's parser has:
+    rows name commands in backticks (`needle nominal`, `scan`: a bare name keeps the group
+    before it; "every `needle` command": all of them; "(`needle scan`: `--out` only)": that
+    flag alone). Rows for "all" or "every study" are the common parser's, checked by the
+    help test."""
+    import re
+    from pathlib import Path
+
+    from sewtol.cli import build_parser
+
+    parsers = dict(_commands(build_parser()))
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    table = text[text.index("| flag | meaning | commands |"):].split("\n\n")[0].splitlines()[2:]
+    checked = 0
+
+    def targets(cell):
+        if cell.startswith("all"):  # "all", "all but `needle frames`": the common parser's
+            return []
+        if cell.startswith("every `"):
+            group = re.match(r"every `(\w+)` command", cell).group(1)
+            but = [tuple(n.split()) for n in re.findall(r"`([^`]+)`", cell.partition(" but ")[2])]
+            return [p for p in parsers if len(p) == 2 and p[0] == group and p not in but]
+        out, group = [], None
+        for name in re.findall(r"`([^`]+)`", cell):
+            words = tuple(name.split())
+            if words[0] in ("needle", "feed"):
+                group, words = words[0], words[1:]
+            if not words or words[0].startswith("--"):
+                continue
+            assert group is not None, (cell, name)
+            out.append((group, *words))
+        return out
+
+    for row in table:
+        flag_cell, _, where = (c.strip() for c in row.strip("|").split(" | "))
+        flags = re.findall(r"`(--[a-z-]+)", flag_cell)
+        main, _, aside = where.partition("(")
+        groups = [(flags, targets(main))]
+        if aside:
+            groups.append((re.findall(r"`(--[a-z-]+)` only", aside), targets(aside)))
+        for wanted, paths in groups:
+            for path in paths:
+                assert path in parsers, (row, path)
+                have = {f for a in parsers[path]._actions for f in a.option_strings}
+                for flag in wanted:
+                    assert flag in have, (path, flag)
+                    checked += 1
+    assert checked >= 40  # the table names commands in most rows

@@ -3,6 +3,7 @@ rule and value, with exit 2, within a subprocess timeout (no hang, no traceback)
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import subprocess
@@ -210,3 +211,186 @@ def test_a_hostile_tolerance_file_is_refused_by_name(tmp_path, text, rule):
     (tmp_path / "t.toml").write_text(text)
     assert refused("needle", "scan", "--tolerances", "t.toml:tight", cwd=tmp_path).startswith(
         f"sewtol: error: t.toml: {rule}")
+
+
+def test_a_write_failure_names_the_target_for_every_cause(tmp_path, monkeypatch):
+    """write_bytes_atomic's OSError names the file asked for, never its temporary file, and
+    leaves no temporary file: a folder in the way, a refused rename, a full disk."""
+    from sewtol import io
+
+    (tmp_path / "a.csv").mkdir()
+    with pytest.raises(IsADirectoryError) as info:
+        io.write_text_atomic(tmp_path / "a.csv", "x\n")
+    assert info.value.filename == str(tmp_path / "a.csv") and info.value.strerror
+    for exc in (PermissionError(13, "Permission denied"), OSError(28, "No space left on device")):
+        def refuse(src, dst, exc=exc):
+            raise type(exc)(exc.errno, exc.strerror, src, None, dst)
+        monkeypatch.setattr(io.os, "replace", refuse)
+        with pytest.raises(OSError) as info:
+            io.write_text_atomic(tmp_path / "b.csv", "x\n")
+        assert (info.value.errno, info.value.filename) == (exc.errno, str(tmp_path / "b.csv"))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.csv"]  # no .b.csv.*.tmp left
+
+
+# --- Dask scheduler addresses -----------------------------------------------------------------
+
+SCHEDULER_TIMEOUT_S = 180  # a subprocess's imports take ~30 s on this loaded machine; a hang is
+# caught either way (the HTTP case used to wait forever)
+
+
+@contextlib.contextmanager
+def _server(kind):
+    """A local server on a free port that is not a Dask scheduler: an HTTP server (it waits
+    for a request line that never comes) or one that answers every connection with random
+    bytes (they once decoded to a 3 EiB frame). Yields its tcp:// address."""
+    import http.server
+    import socket
+    import threading
+
+    import numpy as np
+
+    if kind == "http":
+        server = http.server.HTTPServer(("127.0.0.1", 0), http.server.BaseHTTPRequestHandler)
+        threading.Thread(target=server.serve_forever, daemon=True).start()
+        try:
+            yield f"tcp://127.0.0.1:{server.server_address[1]}"
+        finally:
+            server.shutdown()
+            server.server_close()
+        return
+    garbage = np.random.default_rng(26).bytes(1 << 16)
+    listener = socket.create_server(("127.0.0.1", 0))
+
+    def serve():
+        while True:
+            try:
+                conn, _ = listener.accept()
+            except OSError:  # closed at the end of the test
+                return
+            with conn, contextlib.suppress(OSError):
+                conn.sendall(garbage)
+
+    threading.Thread(target=serve, daemon=True).start()
+    try:
+        yield f"tcp://127.0.0.1:{listener.getsockname()[1]}"
+    finally:
+        listener.close()
+
+
+@pytest.mark.parametrize("kind, rule", [
+    ("http", "no Dask scheduler answers there within 10 s (got"),
+    ("garbage", "something answers there, but not as a Dask scheduler ("),
+])
+def test_a_server_that_is_not_a_scheduler_is_refused_in_one_line(tmp_path, kind, rule):
+    with _server(kind) as address:
+        code, out, err = sewtol("needle", "montecarlo", "--n", "50", "--out", "D",
+                                "--scheduler", address, cwd=tmp_path,
+                                timeout=SCHEDULER_TIMEOUT_S)
+    assert code == 2 and out == "" and err.count("\n") == 1, (code, out, err[-2000:])
+    assert err.startswith(f"sewtol: error: --scheduler: {rule}")
+    assert err.endswith(f"(got '{address}')\n")
+    assert not list(tmp_path.rglob("chunk_*.npz"))  # refused before any chunk was computed
+
+
+@pytest.mark.parametrize("address, why", [
+    ("tcp://[::1", "invalid address '[::1'"),
+    ("tcp://127.0.0.1:99999", "port 99999 is not in 1..65535"),
+    ("tcp://host", "missing port number in address 'host'"),
+    ("foo://host:1", "unknown address scheme 'foo'"),
+])
+def test_a_malformed_scheduler_address_is_one_line_and_nothing_after_it(tmp_path, address, why):
+    """Refused before a client is made, so no half-made client prints "Exception ignored"
+    at exit."""
+    code, out, err = sewtol("needle", "montecarlo", "--n", "50", "--scheduler", address,
+                            cwd=tmp_path, timeout=SCHEDULER_TIMEOUT_S)
+    assert code == 2 and out == "" and err.count("\n") == 1, (code, out, err[-2000:])
+    assert err.startswith("sewtol: error: --scheduler: must be a Dask scheduler address such "
+                          f"as tcp://host:8786 ({why}")
+
+
+@pytest.mark.parametrize("kind", ["http", "garbage", "closed"])
+def test_the_stated_scheduler_timeout_is_the_real_one(kind):
+    """connect() gives up within its timeout (plus the probe thread's one second to wind
+    down): the message's "within N s" is what happens."""
+    import time
+
+    import distributed.comm  # noqa: F401  (imports are not the connection's time)
+
+    from sewtol.errors import ParameterError
+    from sewtol.studies.parallel import connect
+
+    timeout = 3.0
+    with contextlib.ExitStack() as stack:
+        address = ("tcp://127.0.0.1:1" if kind == "closed" else
+                   stack.enter_context(_server(kind)))
+        start = time.monotonic()
+        with pytest.raises(ParameterError) as info:
+            connect(address, timeout=timeout)
+        elapsed = time.monotonic() - start
+    assert elapsed < timeout + 1.5, elapsed
+    if kind != "garbage":
+        assert elapsed >= timeout - 0.1, elapsed  # it did wait as long as it says
+        assert f"within {timeout:g} s" in info.value.rule
+
+
+# --- memory limits ----------------------------------------------------------------------------
+
+def test_the_memory_estimate_honours_the_address_space_limit(tmp_path):
+    """Under `ulimit -v` 1.5 GB the 2e6-machine study (1.67 GiB of results) is refused up front
+    in one line, instead of computed and then lost to a MemoryError traceback."""
+    import resource
+
+    limit = 1_500_000_000
+    env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
+    p = subprocess.run([sys.executable, "-m", "sewtol", "needle", "montecarlo", "--n", "2000000",
+                        "--out", "D"], capture_output=True, text=True, env=env, cwd=tmp_path,
+                       timeout=SCHEDULER_TIMEOUT_S,
+                       preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_AS, (limit, limit)))
+    assert p.returncode == 2 and p.stdout == "" and p.stderr.count("\n") == 1, p.stderr[-2000:]
+    assert p.stderr.startswith("sewtol: error: --n: needs about 1.67 GiB for 28 columns of "
+                               "2000000 rows, more than the memory this process may still use (")
+    assert p.stderr.endswith(" GiB, address-space limit (ulimit -v)) (got 2000000)\n")
+    assert not (tmp_path / "D").exists()
+
+
+@pytest.mark.parametrize("version", ["v2", "v1"])
+def test_the_memory_estimate_honours_a_container_limit(tmp_path, monkeypatch, version):
+    from sewtol.errors import ParameterError
+    from sewtol.studies import montecarlo
+
+    limit, usage = tmp_path / "limit", tmp_path / "usage"
+    limit.write_text(f"{2**30}\n")  # 1 GiB, of which 256 MiB in use: 0.75 GiB left
+    usage.write_text(f"{2**28}\n")
+    files = [("/nonexistent/memory.max", "/nonexistent/memory.current"), (limit, usage)]
+    monkeypatch.setattr(montecarlo, "CGROUP_MEMORY_FILES",
+                        files if version == "v1" else files[::-1])
+    assert montecarlo.memory_limits_bytes()["container memory limit (cgroup)"] == 3 * 2**28
+    montecarlo.check_memory(100_000, 28)  # 0.09 GB fits
+    with pytest.raises(ParameterError, match=r"needs about 0\.834 GiB for 28 columns of 1000000 "
+                       r"rows, more than the memory this process may still use \(0\.75 GiB, "
+                       r"container memory limit \(cgroup\)\)"):
+        montecarlo.check_memory(1_000_000, 28)
+    limit.write_text("max\n")  # v2's "no limit", and v1's page-rounded 2**63 - 1
+    assert "container memory limit (cgroup)" not in montecarlo.memory_limits_bytes()
+    limit.write_text("9223372036854771712\n")
+    assert "container memory limit (cgroup)" not in montecarlo.memory_limits_bytes()
+
+
+@pytest.mark.parametrize("kind", ["http", "garbage"])
+def test_a_scheduler_that_stops_answering_after_the_probe_is_one_error(kind, monkeypatch):
+    """The client after a passed probe is bounded by the same timeout, and a failed one is
+    closed: a ParameterError naming the address, not a hang or a traceback."""
+    import time
+
+    import distributed.comm  # noqa: F401  (imports are not the connection's time)
+
+    from sewtol.errors import ParameterError
+    from sewtol.studies import parallel
+
+    monkeypatch.setattr(parallel, "probe", lambda address, timeout: None)  # it answered
+    timeout = 3.0
+    with _server(kind) as address:
+        start = time.monotonic()
+        with pytest.raises(ParameterError, match="the Dask scheduler there stopped answering"):
+            parallel.connect(address, timeout=timeout)
+        assert time.monotonic() - start < timeout + 1.0

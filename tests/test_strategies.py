@@ -214,6 +214,20 @@ def test_adding_a_compensator_never_lowers_the_yield(nominal):
             assert np.all(res.get(b).total_um <= res.get(a).total_um + 0.01)
     # the source's practice: beta plus a guide move buys more than beta alone on base tolerances
     assert table.loc["beta+shift", "p50_um"] < table.loc["beta", "p50_um"]
+    # at_limit split into one column per compensator, each the share of its machines' flags
+    split = ["at_limit_beta", "at_limit_guide_shift_um", "at_limit_guide_angle", "at_limit_CD"]
+    columns = list(table.columns)
+    at = columns.index("at_limit_share")
+    assert columns[at + 1:at + 5] == split and "at_limit" in columns
+    for strategy in table.index:
+        names = [c.name for c in res.get(strategy).strategy.compensators]
+        flags = {c: res.machines(strategy)[f"{c}_at_limit"].to_numpy(bool) for c in names}
+        for col in split:
+            name = col.removeprefix("at_limit_")
+            expected = np.mean(flags[name]) if name in names else np.nan
+            np.testing.assert_equal(table.loc[strategy, col], expected)
+        any_flag = np.any(list(flags.values()), axis=0) if names else np.zeros(6, bool)
+        assert table.loc[strategy, "at_limit_share"] == np.mean(any_flag)
 
 
 def test_machine_that_cannot_assemble_keeps_its_row(nominal):

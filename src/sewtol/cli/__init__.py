@@ -66,6 +66,13 @@ def main(argv=None) -> int:
         print(f"sewtol: error: {exc.filename or 'output'}: {exc.strerror or exc}{kept}",
               file=sys.stderr)
         return 2
+    except MemoryError:  # the up-front estimate passed, the study's peak did not fit
+        where = getattr(args, "out", None)
+        kept = (f"; finished chunks are kept in {where}/chunks: free memory and rerun with "
+                "--resume" if where else "; use a smaller --n or --out DIR to keep chunks")
+        print(f"sewtol: error: ran out of memory (the address-space or container limit, or the "
+              f"machine's memory){kept}", file=sys.stderr)
+        return 2
     except (KeyboardInterrupt, Terminated) as exc:
         where = getattr(args, "out", None)
         hint = (f"; finished chunks are saved in {where}/chunks: rerun the same command with "

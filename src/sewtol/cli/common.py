@@ -257,9 +257,12 @@ def scheduler_address(args) -> tuple[str, str] | None:
         flag, address = "SEWTOL_SCHEDULER", os.environ["SEWTOL_SCHEDULER"]
     else:
         return None
-    if not address.strip() or any(ch.isspace() for ch in address):
-        raise ParameterError(flag, "must be a Dask scheduler address such as tcp://host:8786",
-                             address)
+    from sewtol.studies.parallel import check_address
+
+    try:
+        check_address(address)
+    except ParameterError as exc:
+        raise ParameterError(flag, exc.rule, address) from None
     if getattr(args, "n_jobs", 1) != 1:
         raise ParameterError("--n-jobs", f"is the single-machine path; with {flag} the "
                              "cluster's workers set the parallelism", args.n_jobs)

@@ -73,29 +73,91 @@ def check_seed(seed) -> int:
     return int(seed)
 
 
-def available_memory_bytes() -> int | None:
+def _read_int(path: str) -> int | None:
+    """The whole number in a one-value file (a cgroup's limit or usage); None if absent,
+    unreadable or unlimited ("max")."""
     try:
-        for line in open("/proc/meminfo"):
-            if line.startswith("MemAvailable:"):
-                return int(line.split()[1]) * 1024
+        with open(path) as fh:
+            return int(fh.read().split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def _status_bytes(key: str) -> int | None:
+    """A "kB" field of /proc/self/status (VmSize: this process's address space) in bytes."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith(key + ":"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+# (limit, usage) of the container's memory: cgroup v2, then v1
+CGROUP_MEMORY_FILES = (("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
+                       ("/sys/fs/cgroup/memory/memory.limit_in_bytes",
+                        "/sys/fs/cgroup/memory/memory.usage_in_bytes"))
+# a cgroup v1 "no limit" is a page-rounded 2**63 - 1; anything above 2**60 is no limit
+_NO_LIMIT = 1 << 60
+
+
+def memory_limits_bytes() -> dict[str, int]:
+    """What this process may still allocate, by source, in bytes (an absent source is left
+    out): the machine's available memory (MemAvailable), the address-space limit (`ulimit -v`,
+    RLIMIT_AS, less the address space in use) and the container's cgroup limit (v2 memory.max
+    or v1 memory.limit_in_bytes, less its usage)."""
+    out = {}
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    out["available memory"] = int(line.split()[1]) * 1024
     except (OSError, ValueError, IndexError):
         pass
-    try:
+    if "available memory" not in out:
         import os
 
-        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (ValueError, OSError, AttributeError):
-        return None
+        try:
+            out["available memory"] = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+        except (ValueError, OSError, AttributeError):
+            pass
+    try:
+        import resource
+
+        soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+    except (ImportError, OSError, ValueError):
+        soft = None
+    if soft is not None and soft != resource.RLIM_INFINITY:
+        used = _status_bytes("VmSize") or 0
+        out["address-space limit (ulimit -v)"] = max(0, soft - used)
+    for limit, usage in CGROUP_MEMORY_FILES:
+        cap = _read_int(limit)
+        if cap is not None and cap < _NO_LIMIT:
+            out["container memory limit (cgroup)"] = max(0, cap - (_read_int(usage) or 0))
+            break
+    return out
+
+
+def available_memory_bytes() -> int | None:
+    """The least of memory_limits_bytes(), None if none is known."""
+    limits = memory_limits_bytes()
+    return min(limits.values()) if limits else None
 
 
 def check_memory(n: int, columns: int, what: str = "n", value=None) -> None:
     """Refuse a study whose result table cannot fit in the memory available now."""
     need = int(n) * int(columns) * BYTES_PER_CELL
-    have = available_memory_bytes()
-    if have is not None and need > have:
+    limits = memory_limits_bytes()
+    if not limits:
+        return
+    source = min(limits, key=limits.get)
+    have = limits[source]
+    if need > have:
         raise ParameterError(what, f"needs about {need / 2**30:.3g} GiB for {columns} columns of "
-                             f"{int(n)} rows, more than the memory available "
-                             f"({have / 2**30:.3g} GiB)", n if value is None else value)
+                             f"{int(n)} rows, more than the memory this process may still use "
+                             f"({have / 2**30:.3g} GiB, {source})", n if value is None else value)
 
 
 def _chunk(model, nominal, law: InputLaw, window, kwargs):

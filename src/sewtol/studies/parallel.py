@@ -31,18 +31,115 @@ def chunk_bounds(n: int, chunk_size: int) -> list[tuple[int, int]]:
     return [(i, min(i + chunk_size, n)) for i in range(0, n, chunk_size)]
 
 
+def check_address(address) -> str:
+    """`address` if it reads as a Dask scheduler address (scheme://host:port, a port in
+    1..65535, or an in-process inproc:// address), else ParameterError; nothing is
+    contacted."""
+    from distributed.comm.addressing import get_address_host_port, parse_address
+
+    rule = "must be a Dask scheduler address such as tcp://host:8786"
+    if not isinstance(address, str) or not address.strip() or any(c.isspace() for c in address):
+        raise ParameterError("scheduler", rule, address)
+    try:
+        if parse_address(address)[0] == "inproc":  # a cluster in this process
+            return address
+        port = get_address_host_port(address)[1]
+    except ValueError as exc:
+        raise ParameterError("scheduler", f"{rule} ({exc})", address) from None
+    if not 0 < port < 65536:
+        raise ParameterError("scheduler", f"{rule} (port {port} is not in 1..65535)", address)
+    return address
+
+
+def probe(address: str, timeout: float) -> str | None:
+    """Ask `address` who it is, all within `timeout` s: None if a Dask scheduler answers,
+    else why not, in words. Whatever the other end does (no answer, an HTTP server that waits
+    for a request line, random bytes that decode to a 3 EiB frame) ends in a reason, never a
+    hang or a traceback: the question runs in its own thread and event loop, abandoned at the
+    deadline."""
+    import asyncio
+
+    from distributed.comm import connect as open_comm
+
+    stage = ["connecting"]
+
+    async def ask():
+        comm = await open_comm(address, timeout=timeout)
+        stage[0] = "answered"
+        try:
+            await comm.write({"op": "identity", "reply": True})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    outcome: dict = {}
+
+    def run():
+        try:
+            outcome["reply"] = asyncio.run(asyncio.wait_for(ask(), timeout))
+        except Exception as exc:  # kept whole and turned into the reason below
+            outcome["error"] = exc
+
+    thread = threading.Thread(target=run, name="sewtol-scheduler-probe", daemon=True)
+    thread.start()
+    thread.join(timeout + 1)  # the loop's own deadline, plus a second to wind down
+    error, reply = outcome.get("error"), outcome.get("reply")
+    if thread.is_alive() or isinstance(error, (TimeoutError, asyncio.TimeoutError)):
+        return f"no Dask scheduler answers there within {timeout:g} s"
+    if error is not None and stage[0] == "connecting" and isinstance(error, OSError):
+        return f"no Dask scheduler answers there within {timeout:g} s ({type(error).__name__})"
+    if error is not None:
+        return f"something answers there, but not as a Dask scheduler ({type(error).__name__})"
+    if not (isinstance(reply, dict) and reply.get("type") == "Scheduler"):
+        return "something answers there, but not as a Dask scheduler"
+    return None
+
+
 def connect(address: str, timeout: float = CONNECT_TIMEOUT_S):
-    """A distributed.Client on the scheduler at `address`; ParameterError if it does not answer."""
+    """A distributed.Client on the scheduler at `address`, made within `timeout` s (the probe
+    and the client share it); ParameterError, naming the address, if no scheduler answers."""
     from distributed import Client
 
-    if not isinstance(address, str) or not address.strip() or any(c.isspace() for c in address):
-        raise ParameterError("scheduler", "must be a scheduler address such as "
-                             "tcp://host:8786", address)
-    try:
-        return Client(address, timeout=timeout, set_as_default=False)
-    except (OSError, TimeoutError, ValueError) as exc:
-        raise ParameterError("scheduler", f"no Dask scheduler answers there within {timeout:g} s "
-                             f"({type(exc).__name__})", address) from None
+    check_address(address)
+    start = time.monotonic()
+    why = probe(address, timeout)
+    if why is not None:
+        raise ParameterError("scheduler", why, address)
+    left = max(1.0, timeout - (time.monotonic() - start))
+    made: dict = {}
+
+    def make():  # in a thread: Client's own timeout does not cover a stalled handshake
+        try:
+            made["client"] = _closing_client(Client, address, left)
+        except Exception as exc:  # kept whole and turned into the one line below
+            made["error"] = exc
+
+    thread = threading.Thread(target=make, name="sewtol-scheduler-client", daemon=True)
+    thread.start()
+    thread.join(left + 0.25)
+    if "client" in made:
+        return made["client"]
+    # the scheduler went away (or stalled) between the probe and the client
+    why = type(made["error"]).__name__ if "error" in made else f"no answer within {timeout:g} s"
+    raise ParameterError("scheduler", f"the Dask scheduler there stopped answering ({why})",
+                         address)
+
+
+def _closing_client(Client, address: str, timeout: float):
+    """Client(address) whose failed start closes it at once: a half-made client left to the
+    garbage collector waits twice the timeout in __del__ and prints "Exception ignored"."""
+
+    class ClosingClient(Client):
+        def start(self, **kwargs):
+            try:
+                super().start(**kwargs)
+            except BaseException:
+                with contextlib.suppress(Exception):
+                    self.close(timeout=1)
+                self.status = "closed"  # __del__ has nothing left to close
+                raise
+
+    return ClosingClient(address, timeout=timeout, set_as_default=False)
 
 
 def numba_threads_on_worker() -> int | None:

@@ -322,6 +322,9 @@ def summarise_frame(machines: pd.DataFrame, strategy: Strategy, limit_um: float)
     for comp in strategy.compensators:
         any_limit |= at_limit[comp.name]
     row["at_limit_share"] = float(any_limit.mean())
+    for comp in strategy.compensators:  # one column per compensator: its share at an end
+        row[f"at_limit_{comp.name}"] = float(np.mean(at_limit[comp.name]))
+    # the combined text the committed reports (strategies.csv/.md, report.html) were made with
     row["at_limit"] = ", ".join(f"{c.name} {np.mean(at_limit[c.name]):.1%}"
                                 for c in strategy.compensators)
     row["achieved_yield"] = float(np.mean(achieved <= limit_um))
@@ -350,8 +353,15 @@ class StrategiesResult:
         return len(self.deviations)
 
     def to_dataframe(self) -> pd.DataFrame:
-        return pd.concat([summarise_frame(a.to_dataframe(), a.strategy, a.limit_um)
-                          for a in self.adjustments], ignore_index=True)
+        """One row per strategy; at_limit_NAME (the share of machines with compensator NAME at
+        an end of its range) sits after at_limit_share, NaN in a row without NAME."""
+        table = pd.concat([summarise_frame(a.to_dataframe(), a.strategy, a.limit_um)
+                           for a in self.adjustments], ignore_index=True)
+        split = [f"at_limit_{c.name}" for a in self.adjustments for c in a.strategy.compensators]
+        split = list(dict.fromkeys(split))
+        rest = [c for c in table.columns if c not in split]
+        at = rest.index("at_limit_share") + 1
+        return table[rest[:at] + split + rest[at:]]
 
     def machines(self, strategy: str) -> pd.DataFrame:
         """Deviations, criterion before and after, settings, at-limit flags and status."""
