@@ -239,7 +239,7 @@ SCHEDULER_TIMEOUT_S = 180  # a subprocess's imports take ~30 s on this loaded ma
 
 
 @contextlib.contextmanager
-def _server(kind):
+def _server(kind, drop_after_s=None):
     """A local server on a free port that is not a Dask scheduler: an HTTP server (it waits
     for a request line that never comes) or one that answers every connection with random
     bytes (they once decoded to a 3 EiB frame). Yields its tcp:// address."""
@@ -249,8 +249,14 @@ def _server(kind):
 
     import numpy as np
 
+    class Handler(http.server.BaseHTTPRequestHandler):
+        # drop_after_s: a connection that never sends its request line is dropped then; the
+        # server handles one connection at a time, so shutdown() would wait for ever on a
+        # client that stalled after the probe and is never closed
+        timeout = drop_after_s
+
     if kind == "http":
-        server = http.server.HTTPServer(("127.0.0.1", 0), http.server.BaseHTTPRequestHandler)
+        server = http.server.HTTPServer(("127.0.0.1", 0), Handler)
         threading.Thread(target=server.serve_forever, daemon=True).start()
         try:
             yield f"tcp://127.0.0.1:{server.server_address[1]}"
@@ -389,7 +395,7 @@ def test_a_scheduler_that_stops_answering_after_the_probe_is_one_error(kind, mon
 
     monkeypatch.setattr(parallel, "probe", lambda address, timeout: None)  # it answered
     timeout = 3.0
-    with _server(kind) as address:
+    with _server(kind, drop_after_s=timeout + 2.0) as address:
         start = time.monotonic()
         with pytest.raises(ParameterError, match="the Dask scheduler there stopped answering"):
             parallel.connect(address, timeout=timeout)
