@@ -94,7 +94,7 @@ def test_exact_compensators_are_the_joint_optimum_bit_for_bit(mech):
 def test_the_exact_row_reproduces_the_committed_strategies_report(nominal):
     """Machines 0..59 of the committed report (base set, seed 2026): the exact beta + shift +
     angle row gives its per-machine SumDelta (written to 9 significant digits)."""
-    path = ROOT / "reports" / "needle_208" / "strategies_base_machines_beta_shift_angle.csv"
+    path = ROOT / "reports" / "needle_208" / "strategies_base_machines_beta_shift_angle_exact.csv"
     ref = pd.read_csv(path).iloc[:60]
     rows = [r for r in C.default_strategies() if r.name == "beta+shift+angle exact"]
     res = strategies_table(nominal, "base", 60, 2026, rows)
