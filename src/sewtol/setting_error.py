@@ -36,7 +36,7 @@ import numpy as np
 from scipy import special
 
 from sewtol.errors import ParameterError
-from sewtol.law import STREAM
+from sewtol.law import STREAM, draw_units
 
 DISTS = ("normal", "uniform")
 # the first spawn-key word of every setting-error stream: the machines' streams are children
@@ -161,10 +161,7 @@ def unit_draws(seed: int, name: str, start: int, stop: int) -> np.ndarray:
     start, stop = int(start), int(stop)
     if stop <= start:
         return np.empty(0)
-    first, last = start // STREAM, -(-stop // STREAM)
-    rows = [np.random.default_rng(s).random(STREAM)
-            for s in _streams(seed, name, last)[first:]]
-    return np.concatenate(rows)[start - first * STREAM: stop - first * STREAM]
+    return draw_units(_streams(seed, name, -(-stop // STREAM)), 1, start, stop)[:, 0]
 
 
 def snap(setting, resolution: float) -> np.ndarray:
