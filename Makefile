@@ -46,6 +46,7 @@ ifeq ($(strip $(TOLERANCES)),)
 		--figure-format $(FIGURE_FORMAT)
 	$(BIN)/python studies/needle_208_strategies.py --out $(REPORTS) --n 2000 --n-jobs 2 \
 		--figure-format $(FIGURE_FORMAT)
+	$(BIN)/python studies/needle_208_strategies_frames.py --out $(REPORTS) --n 500 --n-jobs 2
 	$(BIN)/python studies/needle_208_joint.py --out $(REPORTS)
 	$(BIN)/python studies/needle_208_clearances.py --out $(REPORTS) --n 400
 	$(BIN)/python studies/needle_208_index.py --out $(REPORTS)
@@ -64,6 +65,8 @@ else
 		--figure-format $(FIGURE_FORMAT) --tolerances $(TOLERANCES)
 	$(BIN)/python studies/needle_208_strategies.py --out $(REPORTS) --n 2000 --n-jobs 2 \
 		--figure-format $(FIGURE_FORMAT) --tolerances $(TOLERANCES)
+	$(BIN)/python studies/needle_208_strategies_frames.py --out $(REPORTS) --n 500 --n-jobs 2 \
+		--tolerances $(TOLERANCES)
 	$(BIN)/python studies/needle_208_index.py --out $(REPORTS)
 endif
 
