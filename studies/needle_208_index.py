@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 from datetime import datetime
 from pathlib import Path
 
 import pandas as pd
 
 from sewtol.io import write_text_atomic
+from sewtol.mechanisms.needle_208.compensators import STRATEGY_ROWS as STRATEGY_COMPENSATORS
 from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME
 from sewtol.reports.html import Conclusion, Figure, Report, Section, markdown_index, render
 
@@ -59,11 +61,28 @@ def set_names(run: dict) -> list[str]:
     return list(run.get("inputs", {}).get("tolerance_sets", {})) or ["base", "recommended"]
 
 
-def robust_conclusions(frames_md: str) -> list[Conclusion]:
+def set_params(run: dict) -> dict[str, list[str]]:
+    """Each set's toleranced parameters (only those are ranked for the set)."""
+    return {k: list(v) for k, v in run.get("inputs", {}).get("tolerance_sets", {}).items()}
+
+
+# the machine as designed: beta is the one adjustment the 208 makes on each machine (the design
+# note: "only beta is adjusted on each machine"); the headline's yield is this strategy's
+DESIGNED_STRATEGY = "beta"
+# the frames study's labels (needle_208_frames.py)
+FRAME_LABELS = ("holds in every frame", "fails in every frame", "frame-dependent")
+COMPENSATOR_WORDS = {"beta": "beta", "guide_shift_um": "guide shift", "guide_angle": "guide angle",
+                     "CD": "CD (sliding head)"}
+IDEAL_SUFFIX = " exact"  # strategies.md's idealised rows: every compensator set exactly
+
+
+def frame_conclusions(frames_md: str) -> list[Conclusion]:
+    """frames.md's statements with their labels (holds in / fails in every frame, or
+    frame-dependent)."""
     out = []
-    for line in _section(frames_md, "What is robust"):
+    for line in _section(frames_md, "What holds in every frame"):
         text = line.lstrip("- ").strip()
-        for verdict in ("robust", "frame-dependent"):
+        for verdict in FRAME_LABELS:
             tag = f"**{verdict}**: "
             if text.startswith(tag):
                 out.append(Conclusion(text[len(tag):], verdict))
@@ -73,114 +92,267 @@ def robust_conclusions(frames_md: str) -> list[Conclusion]:
     return out
 
 
-def tighten_conclusions(out: Path, sets: list[str]) -> list[Conclusion]:
-    """Which tolerances to tighten: the contributors to the adjusted SumDelta's scatter, the
-    largest total Sobol indices, the tightest single tolerances, the allocation's tightest."""
-    items = []
-    for name in sets:
-        path = out / f"montecarlo_{name}_pareto.csv"
-        if path.exists():
-            par = _csv(path)
-            k = int((par["cumulative_pct"] < 90.0).sum()) + 1
-            top = par.head(k)
-            link = f"[montecarlo_{name}_pareto.md](montecarlo_{name}_pareto.md)"
-            if "variance_pct" in par:  # shares of the whole variance, the remainder named
-                tol = par[~par["param"].astype(str).str.startswith("(")]
-                top = tol.head(int((tol["cumulative_pct"] < 90.0).sum()) + 1)
-                explained = float(tol["variance_pct"].sum())
-                shares = ", ".join(f"{p} {v:.1f} %" for p, v in zip(
-                    top["param"], top["variance_pct"], strict=True))
-                rest = (f"the other {100 - explained:.1f} % is interaction, "
-                        f"{_and(list(top['param']))} acting together" if explained < 100 else
-                        "no interaction beyond the estimates' sampling noise")
-                items.append(Conclusion(
-                    f"{name} tolerances: single tolerances explain {min(explained, 100.0):.1f} % "
-                    f"of the variance of SumDelta after beta adjustment ({shares}; eta^2); "
-                    f"{rest} ({link})."))
-            else:
-                shares = ", ".join(f"{p} {v:.1f} %" for p, v in zip(
-                    top["param"], top["share_pct"], strict=True))
-                items.append(Conclusion(
-                    f"{name} tolerances: {_and(list(top['param']))} carry "
-                    f"{top['cumulative_pct'].iloc[-1]:.1f} % of the scatter of SumDelta after "
-                    f"beta adjustment (eta^2 shares {shares}; {link})."))
-        path = out / f"sobol_{name}.csv"
-        if path.exists():
-            sob = _csv(path)
-            adj = sob[sob["case"] == "adjusted_beta"].sort_values("ST", ascending=False).head(2)
-            items.append(Conclusion(
-                f"{name} tolerances, Sobol (beta adjusted): largest total indices "
-                + ", ".join(f"{r.param} ST = {r.ST:.3f} +/- {r.ST_conf:.3f}"
-                            for r in adj.itertuples()) + f" ([sobol_{name}.md](sobol_{name}.md))."))
-        path = out / f"sobol_{name}_second_order.csv"
-        if path.exists():
-            s2 = _csv(path)
-            s2 = s2[s2["case"] == "adjusted_beta"].sort_values("S2", ascending=False)
-            top, rest = s2.iloc[0], s2.iloc[1:]
-            link = f"[sobol_{name}_second_order.md](sobol_{name}_second_order.md)"
-            # the words follow the number: "most" only where the pair carries over half
-            share = ("carries most of the variance" if top.S2 > 0.5 else
-                     f"carries {top.S2:.0%} of the variance, the largest of any pair")
-            items.append(Conclusion(
-                f"{name} tolerances, second-order Sobol (beta adjusted): S2({top.param_i}, "
-                f"{top.param_j}) = {top.S2:.3f} +/- {top.S2_conf:.3f}: the interaction of "
-                f"{top.param_i} and {top.param_j} {share}; every other "
-                f"pair is below {rest['S2'].abs().max():.3f} ({link})."))
+def pct(x: float) -> str:
+    return f"{100 * x:.1f} %"
+
+
+def span(lo: float, hi: float) -> str:
+    return f"{100 * lo:.1f}–{100 * hi:.1f} %"
+
+
+def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
+    """The exact binomial interval of k / n (the strategies tables' interval)."""
+    from scipy.stats import beta
+
+    a = (1 - level) / 2
+    lo = 0.0 if k == 0 else float(beta.ppf(a, k, n - k + 1))
+    hi = 1.0 if k == n else float(beta.ppf(1 - a, k + 1, n - k))
+    return lo, hi
+
+
+def strategy_frames(out: Path) -> pd.DataFrame | None:
+    """Every strategy yield on every frame: strategies.csv (the default frame) and
+    strategies_frames.csv (the others, needle_208_strategies_frames.py); None without the first."""
+    path = out / "strategies.csv"
+    if not path.exists():
+        return None
+    st = _csv(path).assign(frame=DEFAULT_FRAME)
+    other = out / "strategies_frames.csv"
+    if other.exists():
+        st = pd.concat([st, _csv(other)], ignore_index=True)
+    return st
+
+
+def frame_ranges(st: pd.DataFrame) -> pd.DataFrame:
+    """Per set and strategy: the yield on the default frame (with its interval and n) and the
+    lowest and highest yield over every frame computed, with the frames counted."""
+    rows = []
+    for (name, strategy), g in st.groupby(["tolerances", "strategy"], sort=False):
+        home = g[g["frame"] == DEFAULT_FRAME].iloc[0]
+        others = g[g["frame"] != DEFAULT_FRAME]
+        rows.append({"tolerances": name, "strategy": strategy, "yield": home["yield"],
+                     "low": home.yield_ci_low, "high": home.yield_ci_high, "n": int(home.n),
+                     "setting_error": home.setting_error, "resolution": home.resolution,
+                     "frames": len(g), "min": g["yield"].min(), "max": g["yield"].max(),
+                     "worst_frame": g.sort_values("yield").iloc[0].frame,
+                     "n_other": int(others.n.max()) if len(others) else 0,
+                     "half_width_other": float(((others.yield_ci_high - others.yield_ci_low) / 2)
+                                               .max()) if len(others) else float("nan")})
+    return pd.DataFrame(rows)
+
+
+def recommend(ranges: pd.DataFrame, name: str) -> pd.Series:
+    """The one adjustment to recommend for set `name`: of the strategies a fitter can do (not an
+    idealised row), the one with the highest yield on its worst frame (the frame is not
+    published); ties go to the higher yield on the default frame."""
+    g = ranges[(ranges.tolerances == name) & ~ranges.strategy.str.endswith(IDEAL_SUFFIX)]
+    return g.sort_values(["min", "yield"], ascending=False).iloc[0]
+
+
+def _precision(row) -> str:
+    """The row's setting precision in words, from its setting_error and resolution columns
+    (each "NAME what" joined by "; ", or "none": set exactly)."""
+    words = []
+    for column, what in (("setting_error", "error"), ("resolution", "resolution")):
+        text = "none" if pd.isna(row[column]) else str(row[column])
+        for part in ([] if text == "none" else text.split("; ")):
+            name, _, rest = part.partition(" ")
+            words.append(f"the {COMPENSATOR_WORDS.get(name, name)} set with a {rest} {what}")
+    return (_and(words) + ", the others set exactly") if words else "every compensator set exactly"
+
+
+def _best_everywhere(st: pd.DataFrame, name: str, strategy: str) -> tuple[bool, list[str]]:
+    """Whether `strategy` has the highest yield of the realistic rows on every frame."""
+    real = st[(st.tolerances == name) & ~st.strategy.str.endswith(IDEAL_SUFFIX)]
+    frames, best = [], []
+    for frame, g in real.groupby("frame", sort=False):
+        frames.append(frame)
+        best.append(g.sort_values("yield", ascending=False).iloc[0].strategy == strategy)
+    return all(best), frames
+
+
+def headline(out: Path, sets: list[str]) -> tuple[tuple[str, str], ...]:
+    """The report's first three lines: the yield of the designed machine, the one adjustment to
+    add (with the yield it buys and its setting precision) and how far that depends on the
+    frame. Empty when this run wrote no strategies table."""
+    st = strategy_frames(out)
+    if st is None:
+        return ()
+    ranges = frame_ranges(st)
+    name = sets[0] if sets[0] in set(ranges.tolerances) else ranges.tolerances.iloc[0]
+    g = ranges[ranges.tolerances == name].set_index("strategy")
+    now = g.loc[DESIGNED_STRATEGY]
+    rec = recommend(ranges, name)
+    added = [c for c in STRATEGY_COMPENSATORS.get(rec.strategy, ())
+             if c not in STRATEGY_COMPENSATORS[DESIGNED_STRATEGY]]
+    frames_n = int(g["frames"].max())
+    yield_line = (f"{pct(now['yield'])} of machines meet SumDelta ≤ 10 µm (95 % interval "
+                  f"{span(now.low, now.high)}, n = {now.n}; {name} tolerances, beta adjusted "
+                  f"per machine as designed, frame {DEFAULT_FRAME}).")
+    if not added:
+        do_line = (f"keep {DESIGNED_STRATEGY}: no strategy a fitter can do beats it on its "
+                   "worst frame ([strategies.md](strategies.md)).")
+    else:
+        words = _and([COMPENSATOR_WORDS[c] for c in added])
+        do_line = (f"add the {words} adjustment{'s' if len(added) > 1 else ''} (strategy "
+                   f"{rec.strategy}): {pct(now['yield'])} → {pct(rec['yield'])} (95 % interval "
+                   f"{span(rec.low, rec.high)}, n = {rec.n}) with {_precision(rec)}.")
+        ideal = [s for s in g.index if s.endswith(IDEAL_SUFFIX)]
+        for s in ideal:
+            real = s.removesuffix(IDEAL_SUFFIX)
+            if real in g.index:
+                do_line += (f" {real} gives {pct(g.loc[real, 'yield'])} at that precision, "
+                            f"{pct(g.loc[s, 'yield'])} only with every compensator set exactly "
+                            "(an idealisation).")
+    if frames_n < 2:
+        frame_line = (f"not assessed: this run computed the strategies on {DEFAULT_FRAME} only "
+                      "(needle_208_strategies_frames.py computes the others).")
+    else:
+        everywhere, names = _best_everywhere(st, name, rec.strategy)
+        verdict = ("holds in every frame" if everywhere else "frame-dependent")
+        n_other = int(g["n_other"].max())
+        frame_line = (
+            f"the recommendation {verdict} ({rec.strategy} is the best realistic strategy "
+            f"{'on each of ' + _and(names) if everywhere else 'on some frames only'}); the "
+            f"yields are frame-dependent: {rec.strategy} {span(rec['min'], rec['max'])}, "
+            f"{DESIGNED_STRATEGY} {span(now['min'], now['max'])} over the {frames_n} named frames "
+            f"(n = {n_other} on each other frame; every strategy's range under What adjustment "
+            "buys).")
+    return (("Yield", yield_line), ("What to do", do_line), ("Frame", frame_line))
+
+
+def _evidence(out: Path, name: str, params: list[str]) -> tuple[str, list[str]]:
+    """One set's rankings in one line, its parameters only, and the two with the largest total
+    Sobol index (eta^2 where there is no Sobol table)."""
+    words, links, top = [], [], []
+    path = out / f"montecarlo_{name}_pareto.csv"
+    if path.exists():
+        par = _csv(path)
+        tol = par[par["param"].isin(params)]
+        lead = tol.sort_values(tol.columns[1] if "variance_pct" not in tol else "variance_pct",
+                               ascending=False).head(2)
+        key = "variance_pct" if "variance_pct" in par else "share_pct"
+        words.append("eta^2 " + ", ".join(f"{r.param} {getattr(r, key):.1f} %"
+                                          for r in lead.itertuples()))
+        if "variance_pct" in par:
+            rest = 100 - float(tol["variance_pct"].sum())
+            if rest > 0:
+                words[-1] += f" (the other {rest:.1f} % is interaction)"
+        top = list(lead["param"])
+        links.append(f"[montecarlo_{name}_pareto.md](montecarlo_{name}_pareto.md)")
+    path = out / f"sobol_{name}.csv"
+    if path.exists():
+        sob = _csv(path)
+        adj = sob[(sob["case"] == "adjusted_beta") & sob["param"].isin(params)]
+        adj = adj.sort_values("ST", ascending=False).head(2)
+        words.append("Sobol ST " + ", ".join(f"{r.param} {r.ST:.3f} ± {r.ST_conf:.3f}"
+                                            for r in adj.itertuples()))
+        top = list(adj["param"])
+        links.append(f"[sobol_{name}.md](sobol_{name}.md)")
+    path = out / f"sobol_{name}_second_order.csv"
+    if path.exists():
+        s2 = _csv(path)
+        s2 = s2[(s2["case"] == "adjusted_beta") & s2["param_i"].isin(params)
+                & s2["param_j"].isin(params)].sort_values("S2", ascending=False)
+        if len(s2):
+            r = s2.iloc[0]
+            words.append(f"S2({r.param_i}, {r.param_j}) = {r.S2:.3f} ± {r.S2_conf:.3f}")
+            links.append(f"[sobol_{name}_second_order.md](sobol_{name}_second_order.md)")
     path = out / "largest_tolerances.csv"
     if path.exists():
         lt = _csv(path)
-        lt["abs_mm"] = lt["largest_delta_mm"].abs()
+        lt = lt[lt["param"].isin(params)].assign(abs_mm=lambda f: f["largest_delta_mm"].abs())
         tight = lt.groupby("param")["abs_mm"].min().sort_values().head(3)
-        items.append(Conclusion(
-            "Alone, the tightest parts are " + ", ".join(f"{p} (+/-{v:.4f} mm)" for p, v in
-                                                         tight.items())
-            + ": the largest single deviation that keeps SumDelta(beta*) ≤ 10 µm "
-            "([largest_tolerances.md](largest_tolerances.md))."))
+        words.append("alone, the tightest " + ", ".join(f"{p} ±{v:.4f} mm"
+                                                        for p, v in tight.items()))
+        links.append("[largest_tolerances.md](largest_tolerances.md)")
+    text = (f"{name} tolerances ({', '.join(params)}; beta adjusted): " + "; ".join(words)
+            + " (" + ", ".join(links) + ").")
+    return text, top
+
+
+def _allocation(out: Path) -> dict | None:
+    """allocation.md's tolerances and the yield its Monte-Carlo check reached (k of n)."""
     path = out / "allocation.csv"
-    if path.exists():
-        al = _csv(path).sort_values("tolerance_mm")
-        items.append(Conclusion(
-            "For 99.73 % after beta adjustment the allocation asks for "
-            + ", ".join(f"{r.param} +/-{r.tolerance_mm:.4f} mm" for r in al.itertuples())
-            + " ([allocation.md](allocation.md))."))
+    if not path.exists():
+        return None
+    md = (out / "allocation.md").read_text() if (out / "allocation.md").exists() else ""
+    got = re.search(r"achieved yield: ([0-9.]+)", md)
+    n = re.search(r"yield check: Monte-Carlo, (\d+) machines", md)
+    ref = re.search(r"reference set: (\w+)", md)
+    al = _csv(path).sort_values("tolerance_mm")
+    return {"table": al, "yield": float(got.group(1)) if got else None,
+            "n": int(n.group(1)) if n else None, "reference": ref.group(1) if ref else None}
+
+
+def tighten_conclusions(out: Path, sets: list[str], params: dict[str, list[str]]
+                        ) -> list[Conclusion]:
+    """Which tolerances to tighten: per set, the rankings of its own tolerances in one line;
+    then one recommendation: the pair that leads the sets' total Sobol indices, with the
+    allocation that tightens them and the yield it reached."""
+    items, tops = [], []
+    for name in sets:
+        if not params.get(name):
+            continue
+        text, top = _evidence(out, name, params[name])
+        items.append(Conclusion(text))
+        tops.append(top)
+    al = _allocation(out)
+    lead = [p for p in (tops[0] if tops else []) if all(p in t for t in tops)]
+    if lead:
+        rec = (f"**Recommendation**: tighten {_and(lead)} together (they lead the total Sobol "
+               f"indices of {'every set' if len(tops) > 1 else 'the set'} and act together)")
+        if al is not None:
+            t = al["table"].set_index("param")["tolerance_mm"]
+            asks = ", ".join(f"{p} ±{t[p]:.4f} mm" for p in lead if p in t)
+            others = ", ".join(f"{p} ±{v:.4f} mm" for p, v in t.items() if p not in lead)
+            rec += (f": for 99.73 % after beta adjustment the allocation ("
+                    f"{al['reference'] or 'reference'} set's tolerances) asks {asks}, with "
+                    f"{others}")
+            if al["yield"] is not None and al["n"]:
+                k = int(round(al["yield"] * al["n"]))
+                lo, hi = clopper_pearson(k, al["n"])
+                rec += (f"; it reached {pct(al['yield'])} (95 % interval {span(lo, hi)}, "
+                        f"n = {al['n']}, frame {DEFAULT_FRAME}, ideal pins)")
+        items.append(Conclusion(rec + " ([allocation.md](allocation.md))."))
     return items
 
 
 def adjustment_conclusions(out: Path, sets: list[str]) -> list[Conclusion]:
+    """Every strategy yield with its range over the named frames, per set; the allocated set's
+    failures per million (default frame only)."""
     items = []
-    mc = _json(out / "montecarlo_summary.json")
-    for name in sets:
-        if name not in mc:
-            continue
-        s = mc[name]
-        c = s["counts"]["adjusted_beta"]
-        # "yields" is the shared Monte-Carlo JSON; yield_*_beta the tables made before it
-        fixed, adjusted = (s["yields"]["fixed_beta"], s["yields"]["adjusted_beta"]) if "yields" \
-            in s else (s["yield_fixed_beta"], s["yield_adjusted_beta"])
-        items.append(Conclusion(
-            f"{name} tolerances, {s['n']} machines: adjusting beta per machine takes the yield "
-            f"from {fixed:.1%} (beta fixed at the nominal beta*) to "
-            f"{adjusted:.1%} (ok {c['ok']} + out of spec {c['out_of_spec']} + "
-            f"failed {c['failed']} = {c['n']}; [montecarlo_{name}.md](montecarlo_{name}.md))."))
-    path = out / "strategies.csv"
-    if path.exists():
-        st = _csv(path)
-        for name, g in st.groupby("tolerances", sort=False):
-            # the best a fitter can do: not an idealised row (every compensator set exactly)
-            real = g[~g["strategy"].str.endswith(" exact")]
-            best = (real if len(real) else g).sort_values("yield", ascending=False).iloc[0]
-            parts = [f"{s} {y:.1%}" for s, y in zip(g["strategy"], g["yield"], strict=True)]
+    st = strategy_frames(out)
+    if st is not None:
+        ranges = frame_ranges(st)
+        for name, g in ranges.groupby("tolerances", sort=False):
+            frames_n = int(g["frames"].max())
+            parts = []
+            for _, r in g.iterrows():
+                text = f"{r.strategy} {pct(r['yield'])}"
+                if frames_n > 1:
+                    text += f" (frames {span(r['min'], r['max'])})"
+                if r.strategy.endswith(IDEAL_SUFFIX):
+                    text += " [idealisation: set exactly]"
+                parts.append(text)
+            best = recommend(ranges, name)
+            where = (f"{int(g.n.iloc[0])} machines on {DEFAULT_FRAME}, {int(g.n_other.max())} on "
+                     f"each of the other {frames_n - 1} frames (95 % intervals ± "
+                     f"{100 * g.half_width_other.max():.1f} points at most there)"
+                     if frames_n > 1 else f"{int(g.n.iloc[0])} machines on {DEFAULT_FRAME} only")
             items.append(Conclusion(
-                f"{name} tolerances, {int(g['n'].iloc[0])} machines (the same in every row): "
-                f"{'; '.join(parts)}. Best: {best.strategy} ({best['yield']:.1%}, 95 % interval "
-                f"{best.yield_ci_low:.1%} ... {best.yield_ci_high:.1%}; "
-                "[strategies.md](strategies.md))."))
+                f"{name} tolerances, {where}: {'; '.join(parts)}. Best on its worst frame: "
+                f"{best.strategy} ({pct(best['yield'])}, 95 % interval "
+                f"{span(best.low, best.high)}; worst frame {best.worst_frame} "
+                f"{pct(best['min'])}) ([strategies.md](strategies.md)"
+                + (", [strategies_frames.md](strategies_frames.md)" if frames_n > 1 else "")
+                + ")."))
     path = out / "ppm.csv"
     if path.exists():
         ppm = _csv(path)
         for r in ppm[ppm["tolerance set"] == "allocated"].itertuples():
-            items.append(Conclusion(f"Allocated tolerances, {r.strategy}: {r.statement} "
-                                    "([ppm.md](ppm.md))."))
+            items.append(Conclusion(f"Allocated tolerances, {r.strategy}, frame {DEFAULT_FRAME} "
+                                    f"only: {r.statement} ([ppm.md](ppm.md))."))
     return items
 
 
@@ -244,7 +416,7 @@ LAYOUT = [
     ("Sobol, SET tolerances", ["sobol_SET", "sobol_SET_second_order", "sobol_SET_convergence"],
      [("sobol_SET", "First-order and total Sobol indices with 95 % intervals")]),
     ("Tolerance limits and allocation", ["largest_tolerances", "allocation", "guides"], []),
-    ("Adjustment strategies", ["strategies", "strategies_setting_error",
+    ("Adjustment strategies", ["strategies", "strategies_frames", "strategies_setting_error",
                                "strategies_SET_failures"],
      [("strategies_yield", "Yield by adjustment strategy"),
       ("strategies_setting_error", "Yield of beta + shift + angle against the guide angle's "
@@ -307,6 +479,7 @@ def provenance(out: Path, sets: list[str], missing: list[str]) -> dict:
         prov[f"tolerance set {name}"] = "; ".join(
             f"{p} {v['lower']:+g}/{v['upper']:+g} mm {v['dist']}" for p, v in body.items())
     for label, path in (("tolerance studies", "run.json"), ("strategies", "strategies_run.json"),
+                        ("strategies on the other frames", "strategies_frames_run.json"),
                         ("failures per million", "ppm_run.json")):
         r = _json(out / path)
         if r:
@@ -332,24 +505,27 @@ def main(argv=None) -> None:
     frames_md = (out / "frames.md").read_text() if (out / "frames.md").exists() else ""
 
     conclusions = {
-        "What holds in every frame, and what depends on the frame":
-            robust_conclusions(frames_md) or [Conclusion(
+        "What adjustment buys (range over the named frames beside every yield)":
+            adjustment_conclusions(out, sets),
+        "Which tolerances to tighten": tighten_conclusions(out, sets, set_params(run)),
+        "What holds in every frame, what fails in every frame, what depends on the frame":
+            frame_conclusions(frames_md) or [Conclusion(
                 "not assessed in this run (frames.md is written by needle_208_frames.py)")],
-        "Which tolerances to tighten": tighten_conclusions(out, sets),
-        "What adjustment buys": adjustment_conclusions(out, sets),
         "Joint clearances": clearance_conclusions(out) or [Conclusion(
             "not assessed in this run (clearances.md is written by needle_208_clearances.py)")],
         f"Nominal machine (frame {DEFAULT_FRAME})": nominal_conclusion(out),
     }
     intro = ("The frame of the 208 (the positions of the upper shaft A and the rear rocker pivot "
-             "D, the dyad branches, the sense of beta) is not published. Every figure below "
-             f"comes from the default reconstruction `{DEFAULT_FRAME}`; the Frames section "
-             "repeats the studies on every named frame. Read the conclusions in that light. "
-             "Criterion everywhere: SumDelta = Delta+ + Delta- ≤ 10 µm, guide fixed.")
+             "D, the dyad branches, the sense of beta) is not published. A figure comes from the "
+             f"default reconstruction `{DEFAULT_FRAME}` unless the range over the named frames "
+             "stands beside it; the Frames section repeats the studies on every named frame. "
+             "Criterion everywhere: SumDelta = Delta+ + Delta- ≤ 10 µm; the guide is fixed "
+             "unless a strategy adjusts it.")
     sections, missing = build_sections(out, sets)
     prov = provenance(out, sets, missing)
 
-    report = Report("208 needle drive: reports", intro, conclusions, sections, prov)
+    report = Report("208 needle drive: reports", intro, conclusions, sections, prov,
+                    headline(out, sets))
     write_text_atomic(out / "index.md", markdown_index(report))
     write_text_atomic(out / "report.html", render(report))
     print(f"wrote {out / 'index.md'} and {out / 'report.html'}")

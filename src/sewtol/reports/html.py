@@ -1,4 +1,5 @@
-"""A self-contained HTML report: conclusions in words first, then figures and tables, then the
+"""A self-contained HTML report: the headline (what the yield is, what to do, how far it depends on
+the frame) in three lines, the conclusions in words, then figures and tables, then the
 provenance. Pure: data in, one string out (no file is read or written here); figures are embedded
 (PNG as base64 data URIs, SVG inline), so the page opens anywhere and pastes into a report.
 
@@ -19,7 +20,8 @@ from sewtol.errors import ParameterError
 
 CSS = """
 body{font-family:"DejaVu Sans",Arial,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;
-color:#111;line-height:1.4;font-size:14px}
+color:#111;line-height:1.4;font-size:14px;overflow-wrap:break-word}
+div.table,div.wide{overflow-x:auto}
 h1{font-size:1.6em;border-bottom:2px solid #333}h2{font-size:1.3em;border-bottom:1px solid #999;
 margin-top:2em}h3{font-size:1.1em}
 table{border-collapse:collapse;margin:.5em 0 1em;font-size:12px}
@@ -27,8 +29,11 @@ th,td{border:1px solid #bbb;padding:2px 6px;text-align:right}th{background:#eee}
 td:first-child,th:first-child{text-align:left}
 figure{margin:1em 0}figure img,figure svg{max-width:100%;height:auto}
 figcaption{font-size:12px;color:#333}
+section.headline{border:2px solid #346;padding:.3em .8em;margin:.5em 0 1em;font-size:15px}
+section.headline p{margin:.35em 0}
 section.conclusions{background:#f5f8ff;border:1px solid #9ab;padding:.5em 1em}
-.robust{color:#060;font-weight:bold}.dependent{color:#a40;font-weight:bold}
+.holds{color:#060;font-weight:bold}.fails{color:#a00;font-weight:bold}
+.dependent{color:#a40;font-weight:bold}
 details{margin:.5em 0}summary{cursor:pointer}
 code{background:#f2f2f2;padding:0 2px}
 @media print{details{display:block}section{page-break-inside:avoid}}
@@ -60,20 +65,34 @@ class Section:
     collapse_rows: int = 40  # pipe tables longer than this fold into <details>
 
 
+# a statement's verdict over the frames (or the source's readings) -> its CSS class; '' is plain
+VERDICT_CLASSES = {"holds in every frame": "holds", "fails in every frame": "fails",
+                   "frame-dependent": "dependent", "holds under every reading": "holds",
+                   "reading-dependent": "dependent"}
+
+
 @dataclass(frozen=True)
 class Conclusion:
-    """One statement; verdict 'robust', 'frame-dependent' or '' (plain)."""
+    """One statement; verdict one of VERDICT_CLASSES or '' (plain)."""
     text: str
     verdict: str = ""
+
+    def __post_init__(self):
+        if self.verdict and self.verdict not in VERDICT_CLASSES:
+            raise ParameterError("verdict", f"must be one of {', '.join(VERDICT_CLASSES)} or "
+                                 "empty", self.verdict)
 
 
 @dataclass(frozen=True)
 class Report:
+    """The page. `headline`: the lines a reader sees first, as (label, text) pairs (the needle
+    report: the yield, what to do, how far it depends on the frame), before everything else."""
     title: str
     intro: str
     conclusions: dict[str, list[Conclusion]]
     sections: list[Section]
     provenance: dict = field(default_factory=dict)
+    headline: tuple[tuple[str, str], ...] = ()
 
 
 def _inline(text: str) -> str:
@@ -177,15 +196,21 @@ def figure_html(fig: Figure) -> str:
 def _provenance(prov: dict) -> str:
     rows = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{_inline(str(v))}</td></tr>"
                    for k, v in prov.items())
-    return f"<table><tbody>{rows}</tbody></table>"
+    return f'<div class="wide"><table><tbody>{rows}</tbody></table></div>'
 
 
 def render(report: Report) -> str:
     """The whole page. The conclusions come first, right after the title and a short intro."""
     parts = ["<!DOCTYPE html>", '<html lang="en">', "<head>", '<meta charset="utf-8">',
+             '<meta name="viewport" content="width=device-width, initial-scale=1">',
              f"<title>{html.escape(report.title)}</title>", f"<style>{CSS}</style>", "</head>",
-             "<body>", f"<h1>{html.escape(report.title)}</h1>",
-             '<section class="conclusions" id="conclusions">', "<h2>Conclusions</h2>"]
+             "<body>", f"<h1>{html.escape(report.title)}</h1>"]
+    if report.headline:
+        parts.append('<section class="headline" id="headline">')
+        parts += [f'<p class="headline-line"><strong>{html.escape(label)}</strong>: '
+                  f"{_inline(text)}</p>" for label, text in report.headline]
+        parts.append("</section>")
+    parts += ['<section class="conclusions" id="conclusions">', "<h2>Conclusions</h2>"]
     if report.intro:
         parts.append(f"<p>{_inline(report.intro)}</p>")
     for heading, items in report.conclusions.items():
@@ -194,7 +219,7 @@ def render(report: Report) -> str:
         for c in items:
             tag = ""
             if c.verdict:
-                cls = "robust" if c.verdict == "robust" else "dependent"
+                cls = VERDICT_CLASSES[c.verdict]
                 tag = f'<span class="{cls}">{html.escape(c.verdict)}</span>: '
             lis.append(f"<li>{tag}{_inline(c.text)}</li>")
         parts.append("<ul>" + "".join(lis) + "</ul>")
@@ -222,7 +247,10 @@ def render(report: Report) -> str:
 def markdown_index(report: Report, html_name: str = "report.html") -> str:
     """The same report as a Markdown index: the conclusions, then per section its tables as
     links and its figures as images (the figure files beside it), then the provenance."""
-    lines = [f"# {report.title}", "", report.intro, "",
+    lines = [f"# {report.title}", ""]
+    if report.headline:
+        lines += [f"- **{label}**: {text}" for label, text in report.headline] + [""]
+    lines += [report.intro, "",
              f"[{html_name}]({html_name}): this page as one self-contained HTML file "
              "(figures embedded).", ""]
     for heading, items in report.conclusions.items():
