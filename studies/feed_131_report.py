@@ -37,7 +37,7 @@ SECTIONS = [("Working figures and paths", ["figures", "trajectory"], FIGURES[:2]
 
 
 def write_pages(out: Path, intro: str, conclusions: dict, provenance: dict,
-                fmt: str = "png") -> Report:
+                fmt: str = "png", headline: tuple = ()) -> Report:
     """index.md and report.html of the feed folder from its tables and figures (already written)
     and the conclusions; returns the report."""
     sections = []
@@ -46,7 +46,8 @@ def write_pages(out: Path, intro: str, conclusions: dict, provenance: dict,
                      for stem, caption in figures)
         sections.append(Section(heading, tuple((t, (out / f"{t}.md").read_text())
                                                for t in tables), figs))
-    report = Report("131-42+3 feed chains: reports", intro, conclusions, sections, provenance)
+    report = Report("131-42+3 feed chains: reports", intro, conclusions, sections, provenance,
+                    headline)
     write_text_atomic(out / "index.md", markdown_index(report))
     write_text_atomic(out / "report.html", render(report))
     return report
@@ -59,7 +60,7 @@ def reading_conclusions(explanations) -> list[Conclusion]:
         senses = explanations[f"{dog}_feeds"]
         made = explanations[senses.notna() & (senses != "n/a")]  # n/a: never crosses the level
         kinds = sorted(set(made[f"{dog}_feeds"]))
-        verdict = "robust" if len(kinds) == 1 else "reading-dependent"
+        verdict = "holds under every reading" if len(kinds) == 1 else "reading-dependent"
         spread = ", ".join(f"{e}: {f}" for e, f in zip(made["explanation"], made[f"{dog}_feeds"],
                                                          strict=True))
         out.append(Conclusion(f"the {dog} dog feeds {' or '.join(kinds)} under the "
@@ -71,6 +72,47 @@ def reading_conclusions(explanations) -> list[Conclusion]:
             f"{best[f'{dog}_max_length_residual_mm']:.3f} mm; [readoff_explanations.md]"
             "(readoff_explanations.md))"))
     return out
+
+
+def headline(summary, contrib, sob, explanations, n_mc: int, tolerances: str, b_25: float
+             ) -> tuple[tuple[str, str], ...]:
+    """The report's first three lines, in the needle report's shape where it applies: the
+    scatter (the feed has no published acceptance limit, so no yield is claimed), one
+    recommendation (the tolerances that carry two thirds of the stitch length's variance) and
+    what depends on the reading of the source (the feed has one frame)."""
+    rows = summary.set_index("output")
+    words = [f"{label} {rows.loc[out, 'mean']:.3f}{unit} (1–99 % {rows.loc[out, 'p1']:.3f}–"
+             f"{rows.loc[out, 'p99']:.3f}{unit})" for out, label, unit in
+             (("lower_step_mm", "the lower step", " mm"), ("upper_step_mm", "the upper", " mm"),
+              ("differential_ratio", "the differential ratio", ""))]
+    failed = int(rows["failed"].max())
+    scatter = (f"no acceptance limit is published for the feed, so no yield is claimed; over "
+               f"{n_mc} machines ({failed} failed to assemble; {tolerances}) "
+               + ", ".join(words) + " ([montecarlo.md](montecarlo.md)).")
+    g = contrib[(contrib["output"] == "lower_step_mm")
+                & ~contrib["param"].astype(str).str.startswith("(")]
+    key = "variance_pct" if "variance_pct" in g else "share_pct"
+    cum = g[key].cumsum()
+    top = g.head(int((cum < 200 / 3).sum()) + 1)
+    st = sob[sob["case"] == "lower_step_mm"].set_index("param")["ST"]
+    sobol = ", ".join(f"{p} {st[p]:.3f}" for p in top["param"] if p in st)
+    do = (f"to narrow the stitch length (the lower step), tighten {_and(list(top['param']))}: "
+          f"together {top[key].sum():.1f} % of its variance (eta^2"
+          + (f"; Sobol ST {sobol}" if sobol else "") + "); the regulator sets the step itself "
+          f"(2.5 mm at b = {b_25:.2f} deg) ([contributors.md](contributors.md)).")
+    parts = []
+    for dog in ("lower", "upper"):
+        senses = explanations[f"{dog}_feeds"]
+        kinds = sorted(set(senses[senses.notna() & (senses != "n/a")]))
+        parts.append(f"the {dog} dog feeds {' or '.join(kinds)} "
+                     + ("under every reading" if len(kinds) == 1 else "(reading-dependent)"))
+    reading = ("one frame (the analysis program's exact link data); of the source's plots, "
+               + " and ".join(parts) + " ([readoff_explanations.md](readoff_explanations.md)).")
+    return (("Scatter", scatter), ("What to do", do), ("Reading", reading))
+
+
+def _and(words: list[str]) -> str:
+    return words[0] if len(words) == 1 else f"{', '.join(words[:-1])} and {words[-1]}"
 
 
 def tighten_conclusions(contrib, sob) -> list[Conclusion]:
@@ -253,7 +295,9 @@ def main(argv=None) -> None:
             "run time": f"{seconds:.0f} s ({started} ... {record['finished_utc']})",
             "command": "`" + " ".join(record["command_line"]) + "`",
             "libraries": ", ".join(f"{k} {v}" for k, v in record["libraries"].items())}
-    write_pages(out, intro, conclusions, prov, fmt)
+    lines = headline(summary, contrib, sob.to_dataframe(), res.summary(), args.n_mc,
+                     ts.description, feed.b_for_step(p, 2.5))
+    write_pages(out, intro, conclusions, prov, fmt, lines)
     write_text_atomic(out / "run.json", to_json(record))
     print(f"wrote {out}")
 

@@ -217,33 +217,101 @@ def _at_phi(traj, column: str, phi_deg: float) -> float:
     return float(np.interp(phi_deg % 360.0, phi, np.asarray(traj[column], float), period=360.0))
 
 
+PHASE_LABEL = "phase-label"  # gid of the phase labels tooth_paths places (tests find them by it)
+PHASE_MARKER = "phase-marker"  # gid of the entry/exit markers
+
+
+def densify(xy: np.ndarray, step_px: float = 1.0) -> np.ndarray:
+    """A polyline in display pixels resampled to points at most step_px apart (so a small box
+    lying across a segment between two samples still contains some of it)."""
+    seg = np.diff(xy, axis=0)
+    k = np.maximum(1, np.ceil(np.hypot(seg[:, 0], seg[:, 1]) / step_px).astype(int))
+    parts = [xy[i] + np.outer(np.arange(k[i]) / k[i], seg[i]) for i in range(len(seg))]
+    return np.vstack([*parts, xy[-1:]])
+
+
+def box_overlap(a, b) -> float:
+    """The area two display boxes (matplotlib Bbox) share, in px^2."""
+    w = min(a.x1, b.x1) - max(a.x0, b.x0)
+    h = min(a.y1, b.y1) - max(a.y0, b.y0)
+    return max(w, 0.0) * max(h, 0.0)
+
+
+def place_labels(ax, labels, curves, avoid=(), hlines=(), distances_pt=(5.0, 9.0, 14.0),
+                 gid=PHASE_LABEL):
+    """Annotate each (text, (x, y), color) of `labels` beside its point, at the offset (eight
+    directions at each of distances_pt) whose box overlaps nothing already there: no label
+    placed before it, no artist of `avoid` (markers), no stretch of the `curves` (list of (x, y)
+    arrays in data units) or of the horizontal lines at the heights `hlines`, inside the axes.
+    The figure is drawn first so the limits and the aspect are final; the choice is made in
+    display pixels from the data, not by hand (the least-covered offset wins if none is free)."""
+    fig = ax.figure
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    x0, x1 = ax.get_xlim()
+    curves = [*curves, *(([x0, x1], [h, h]) for h in hlines)]
+    pts = np.vstack([densify(ax.transData.transform(np.column_stack(c))) for c in curves])
+    blocked = [a.get_window_extent(renderer) for a in avoid]
+    inside = ax.get_window_extent(renderer)
+    placed = []
+    angles = np.deg2rad(np.arange(0.0, 360.0, 45.0))
+    for text, (x, y), color in labels:
+        best = None
+        for dist in distances_pt:
+            for t in angles:
+                c, s = np.cos(t), np.sin(t)
+                kw = {"ha": "left" if c > 0.3 else "right" if c < -0.3 else "center",
+                      "va": "bottom" if s > 0.3 else "top" if s < -0.3 else "center"}
+                ann = ax.annotate(text, (x, y), xytext=(dist * c, dist * s),
+                                  textcoords="offset points", fontsize=6, color=color, **kw)
+                bb = ann.get_window_extent(renderer)
+                ann.remove()
+                grown = bb.expanded(1.0, 1.0).padded(1.0)
+                on_curve = int(np.sum((pts[:, 0] >= grown.x0) & (pts[:, 0] <= grown.x1)
+                                      & (pts[:, 1] >= grown.y0) & (pts[:, 1] <= grown.y1)))
+                cost = (1e6 * sum(box_overlap(grown, o) > 0 for o in (*placed, *blocked))
+                        + 1e4 * (not (inside.x0 <= bb.x0 and bb.x1 <= inside.x1
+                                      and inside.y0 <= bb.y0 and bb.y1 <= inside.y1))
+                        + on_curve + 0.01 * dist)
+                if best is None or cost < best[0]:
+                    best = (cost, (dist * c, dist * s), kw, bb)
+        _, offset, kw, bb = best
+        ann = ax.annotate(text, (x, y), xytext=offset, textcoords="offset points", fontsize=6,
+                          color=color, **kw)
+        ann.set_gid(gid)
+        placed.append(bb)
+    return ax
+
+
 def tooth_paths(traj, plate_mm: float, material_mm: float = 0.0, ax=None,
                 phases: dict | None = None, mark_every_deg: float = 30.0):
     """Both middle-tooth paths with the plate line (and the material's top, if any), the sense
     of travel, a dot every mark_every_deg of phi (labelled every 90 deg) and, with phases =
-    {dog: (entry_phi_deg, exit_phi_deg)}, where each tooth enters and leaves its working part."""
+    {dog: (entry_phi_deg, exit_phi_deg)}, where each tooth enters and leaves its working part.
+    The phase labels are placed by `place_labels` off the curves, the markers and each other."""
     ax = ax or plt.gca()
-    # the phase labels of the two dogs on opposite sides of their dots, so they do not collide
-    for (dog, color), offset in zip((("lower", "C0"), ("upper", "C1")), ((-22, 4), (4, -10)),
-                                    strict=True):
+    labels, curves, markers = [], [], []
+    for dog, color in (("lower", "C0"), ("upper", "C1")):
         x, y = traj[f"{dog}_x_mm"], traj[f"{dog}_y_mm"]
         ax.plot(np.r_[x, x[:1]], np.r_[y, y[:1]], color=color, label=f"{dog} dog, middle tooth")
+        curves.append((np.r_[x, x[:1]], np.r_[y, y[:1]]))
         ax.annotate("", xy=(x.iloc[6], y.iloc[6]), xytext=(x.iloc[0], y.iloc[0]),
                     arrowprops={"arrowstyle": "->", "color": color})
         for phi in np.arange(0.0, 360.0, mark_every_deg):
             px, py = _at_phi(traj, f"{dog}_x_mm", phi), _at_phi(traj, f"{dog}_y_mm", phi)
             ax.plot(px, py, ".", color=color, ms=3)
             if phi % 90 == 0:
-                ax.annotate(f"{phi:.0f}\u00b0", (px, py), fontsize=6, color=color,
-                            xytext=offset, textcoords="offset points")
+                labels.append((f"{phi:.0f}\u00b0", (px, py), color))
         if phases and dog in phases:
             for phi, marker, what in zip(phases[dog], ("^", "v"), ("entry", "exit"),
                                          strict=True):
                 if not np.isfinite(phi):
                     continue
-                ax.plot(_at_phi(traj, f"{dog}_x_mm", phi), _at_phi(traj, f"{dog}_y_mm", phi),
-                        marker, color=color, mec="k", ms=7,
-                        label=f"{dog} {what} at \u03c6 = {phi:.1f}\u00b0")
+                (m,) = ax.plot(_at_phi(traj, f"{dog}_x_mm", phi),
+                               _at_phi(traj, f"{dog}_y_mm", phi), marker, color=color, mec="k",
+                               ms=7, label=f"{dog} {what} at \u03c6 = {phi:.1f}\u00b0")
+                m.set_gid(PHASE_MARKER)
+                markers.append(m)
     ax.axhline(plate_mm, color="k", lw=1, label=f"needle plate y = {plate_mm:g} mm")
     if material_mm > 0:
         ax.axhline(plate_mm + material_mm, color="0.5", ls="--", lw=1,
@@ -254,6 +322,8 @@ def tooth_paths(traj, plate_mm: float, material_mm: float = 0.0, ax=None,
     ax.grid(True, lw=0.3)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0),
               title=f"dots every {mark_every_deg:g}\u00b0 of \u03c6", title_fontsize=7)
+    place_labels(ax, labels, curves, markers,
+                 [plate_mm, plate_mm + material_mm] if material_mm > 0 else [plate_mm])
     return ax
 
 
