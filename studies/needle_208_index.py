@@ -128,6 +128,8 @@ def frame_ranges(st: pd.DataFrame) -> pd.DataFrame:
     lowest and highest yield over every frame computed, with the frames counted."""
     rows = []
     for (name, strategy), g in st.groupby(["tolerances", "strategy"], sort=False):
+        if not (g["frame"] == DEFAULT_FRAME).any():  # a set the default frame's table lacks
+            continue
         home = g[g["frame"] == DEFAULT_FRAME].iloc[0]
         others = g[g["frame"] != DEFAULT_FRAME]
         rows.append({"tolerances": name, "strategy": strategy, "yield": home["yield"],

@@ -548,3 +548,20 @@ def test_frame_verdicts_have_three_distinct_labels():
     # the committed statements: the >= 99 % yields fail on every frame (7.8, 1.4, 5.1 %)
     line = next(x for x in text.splitlines() if "base tolerances >= 99 %" in x)
     assert line.startswith("- **fails in every frame**:"), line
+
+
+def test_headline_without_the_other_frames_says_the_frame_was_not_assessed(tmp_path):
+    """Only the default frame's strategies table (a custom run before the frames study): the
+    yield and the recommendation from it, and the frame line says it was not assessed; an extra
+    set only the other frames' table has is left out."""
+    index = _script("needle_208_index")
+    shutil.copy(COMMITTED / "strategies.csv", tmp_path / "strategies.csv")
+    lines = dict(index.headline(tmp_path, ["base", "recommended"]))
+    assert lines["Frame"].startswith("not assessed")
+    assert "(strategy all)" in lines["What to do"]
+    other = pd.read_csv(COMMITTED / "strategies_frames.csv", comment="#")
+    other.assign(tolerances="only_elsewhere").to_csv(tmp_path / "strategies_frames.csv",
+                                                     index=False)
+    ranges = index.frame_ranges(index.strategy_frames(tmp_path))
+    assert set(ranges.tolerances) == {"base", "recommended"}
+    assert (ranges.frames == 1).all()
