@@ -66,18 +66,22 @@ def main(argv=None) -> int:
     ap.add_argument("--tolerances", action="append", metavar="FILE.toml[:SET]",
                     help="these sets instead of the built-in base and recommended (repeatable)")
     args = ap.parse_args(argv)
+    frames = [f for f in frame_names() if f != DEFAULT_FRAME]
+    started = now()
     try:
         sets = resolve_all(args.tolerances, {k: NEEDLE_208_SETS[k] for k in SETS},
                            field_names(Needle208))
+        for f in frames:
+            for ts in sets.values():
+                ts.check_against(Needle208.nominal(f))
+        # bad --n, --seed or --n-jobs: strategies_table refuses them before any machine is made
+        table = frame_rows(frames, sets, args.n, args.seed, args.n_jobs,
+                           (lambda m: print(m, flush=True)) if args.progress else None)
     except ParameterError as exc:
         print(f"needle_208_strategies_frames.py: error: {exc}", file=sys.stderr)
         return 2
-    started = now()
     out = Path(args.out) / "needle_208"
     out.mkdir(parents=True, exist_ok=True)
-    frames = [f for f in frame_names() if f != DEFAULT_FRAME]
-    table = frame_rows(frames, sets, args.n, args.seed, args.n_jobs,
-                       (lambda m: print(m, flush=True)) if args.progress else None)
     write_table(table, out, "strategies_frames",
                 "Yield by adjustment strategy on the other named frames, 208 needle drive",
                 {"frames": ", ".join(frames) + f" (the default frame {DEFAULT_FRAME}: "

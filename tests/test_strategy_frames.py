@@ -57,3 +57,11 @@ def test_committed_table_covers_every_other_frame_and_adds_up():
                                     ("table41", "beta+shift+angle exact", 0.65)):
         r = t[(t.frame == frame) & (t.tolerances == "base") & (t.strategy == strategy)].iloc[0]
         assert r.yield_ci_low <= theirs <= r.yield_ci_high, (frame, strategy, r["yield"])
+
+
+def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys):
+    main = _script().main
+    assert main(["--out", str(tmp_path), "--n", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("needle_208_strategies_frames.py: error:") and "\n" not in err
+    assert "1" in err and not (tmp_path / "needle_208" / "strategies_frames.md").exists()
