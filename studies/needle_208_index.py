@@ -1,6 +1,7 @@
 """The index of reports/needle_208/: index.md (Markdown, figures embedded as images) and
-report.html (one self-contained page: conclusions in words first, every table and figure, the
-provenance). Reads only what the other study scripts wrote (run it last); every number in the
+report.html (one self-contained page: three headline lines first (the yield, one
+recommendation, how far it depends on the frame), then the conclusions in words, every table
+and figure, the provenance). Reads only what the other study scripts wrote (run it last); every number in the
 conclusions comes from those tables.
 
     python studies/needle_208_index.py [--out reports]
