@@ -1,4 +1,4 @@
-"""The README's bad-input table, produced by the real CLI (tests/test_bad_inputs.py checks that
+"""The bad-input table of docs/cli.md, produced by the real CLI (tests/test_bad_inputs.py checks that
 every row still matches what the CLI prints and that nothing is written).
 
     python studies/bad_input_table.py   # prints the table's markdown rows

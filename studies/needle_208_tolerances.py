@@ -38,7 +38,9 @@ from sewtol.tolerances import NEEDLE_208_SETS, resolve_all
 
 SCAN_COLUMNS = {"param": "parameter", "side": "limit", "delta_mm": "deviation (mm)",
                 "value_mm": "value (mm)", "beta_deg": "beta* (deg)", "plus_um": "Delta+ (um)",
-                "minus_um": "Delta- (um)", "total_um": "SumDelta (um)"}
+                "minus_um": "Delta- (um)", "total_um": "SumDelta (um)",
+                # beta*'s plateau: SumDelta within 1e-3 um of the optimum; beta* is its centre
+                "beta_low_deg": "beta* plateau from (deg)", "beta_high_deg": "beta* plateau to (deg)"}
 
 
 def tol_text(ts) -> str:
@@ -84,6 +86,10 @@ def main(argv=None) -> int:
             write_table(frame, out, f"scan_{name}{suffix}",
                         f"Per-parameter scan, {name} tolerances, guide shift {shift:+g} um",
                         {**base, "guide shift (um)": shift,
+                         "beta_at_bound": "True where beta*'s plateau (the plateau columns) "
+                         "reaches an end of the searched 10 ... 35 deg: SumDelta stays within "
+                         "1e-3 um of its least value up to that end; a plateau narrower than "
+                         "0.1 deg there means SumDelta is still falling at the end",
                          "nominal at this guide": f"beta* {sc.nominal_row['beta_deg']:.4f} deg, "
                          f"SumDelta {sc.nominal_row['total_um']:.4f} um"})
             if shift == 0:

@@ -1,5 +1,5 @@
-"""Every bad input gives one line on stderr and exit 2, before anything is written; the README's
-table is what the CLI prints (studies/bad_input_table.py generates it)."""
+"""Every bad input gives one line on stderr and exit 2, before anything is written; the table in
+docs/cli.md is what the CLI prints (studies/bad_input_table.py generates it)."""
 
 import importlib.util
 import re
@@ -15,8 +15,9 @@ spec.loader.exec_module(table)
 
 
 def readme_rows() -> dict[str, str]:
+    """The bad-input table's rows (docs/cli.md, moved there from the README)."""
     out = {}
-    for line in (ROOT / "README.md").read_text().splitlines():
+    for line in (ROOT / "docs" / "cli.md").read_text().splitlines():
         m = re.match(r"^\| `(sewtol [^`]*)` \| (.*) \|$", line)
         if m:
             out[m.group(1)] = m.group(2).replace("&#124;", "|")
@@ -42,7 +43,7 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(folder, args):
     assert not out.exists(), args  # not even the manifest
     shown = f"sewtol {args.format(d=table.SHOWN)}"
     expected = readme_rows().get(shown)
-    assert expected is not None, f"README's bad-input table has no row for `{shown}`"
+    assert expected is not None, f"docs/cli.md's bad-input table has no row for `{shown}`"
     message = lines[0].replace(str(folder), table.SHOWN)
     for cut in table.MACHINE_DEPENDENT:
         if cut in expected:

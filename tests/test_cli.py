@@ -4,6 +4,7 @@ import io
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from cli_helpers import run, strict_loads
 from sewtol.mechanisms.needle_208.single import deviation_table
@@ -108,9 +109,30 @@ def test_every_command_prints_its_help():
             for flag in action.option_strings:
                 assert flag in out, (path, flag)
         seen += 1
-    assert seen >= 23  # sewtol, needle and its 12 commands, feed and its 6, run, mechanisms
+    assert seen >= 24  # sewtol, needle and its 12 commands, feed and its 6, run, mechanisms, fit
     # a help text with a literal percent sign is written %% (argparse formats it)
     assert "its 95 % interval" in " ".join(run("needle", "strategies", "--help")[1].split())
+
+
+def test_every_run_study_prints_its_help():
+    """`sewtol run FILE STUDY --help` for every study and every built-in mechanism (a name or
+    a path): exit 0, run's usage with every study named, nothing on stderr."""
+    from sewtol.cli.run import STUDIES
+    from sewtol.mechanisms import mechanism_file
+
+    names = ("needle_208", "feed_131", "khujand_feed", "spatial_crank_rocker")
+    first = None
+    for name in (*names, str(mechanism_file("needle_208"))):
+        for study in STUDIES:
+            code, out, err = run("run", name, study, "--help")
+            assert code == 0 and err == "", (name, study, err)
+            assert out.startswith("usage: sewtol run"), (name, study)
+            first = first or out
+            assert out == first  # one parser: the same help whatever the file and study
+    for study in STUDIES:
+        assert study in first
+    for flag in ("--wide", "--format", "--out", "--adjust", "--path"):
+        assert flag in first
 
 
 def test_the_installed_command_prints_its_help():
@@ -146,8 +168,16 @@ def test_the_readme_flag_table_matches_the_parser():
     from sewtol.cli import build_parser
 
     parsers = dict(_commands(build_parser()))
-    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    table = text[text.index("| flag | meaning | commands |"):].split("\n\n")[0].splitlines()[2:]
+    root = Path(__file__).resolve().parents[1]
+
+    def flag_table(path):
+        text = (root / path).read_text()
+        return text[text.index("| flag | meaning | commands |"):].split("\n\n")[0].splitlines()
+
+    table = flag_table("README.md")
+    assert flag_table("docs/cli.md") == table  # the reference page carries the same table
+    assert any(row.startswith("| `--wide` |") for row in table)
+    table = table[2:]
     checked = 0
 
     def targets(cell):
@@ -160,6 +190,10 @@ def test_the_readme_flag_table_matches_the_parser():
         out, group = [], None
         for name in re.findall(r"`([^`]+)`", cell):
             words = tuple(name.split())
+            if words[0] == "run":  # `run`: its one parser, whatever the study
+                out.append(("run",))
+                group = None
+                continue
             if words[0] in ("needle", "feed"):
                 group, words = words[0], words[1:]
             if not words or words[0].startswith("--"):
@@ -183,3 +217,75 @@ def test_the_readme_flag_table_matches_the_parser():
                     assert flag in have, (path, flag)
                     checked += 1
     assert checked >= 40  # the table names commands in most rows
+
+
+def _table(text):
+    """The first Markdown table of a command's output: (header, rows as lists of cells)."""
+    lines = [ln for ln in text.splitlines() if ln.startswith("|")]
+    cells = [[c.strip() for c in ln.strip("|").split("|")] for ln in lines]
+    return cells[0], cells[2:]
+
+
+def test_wide_tables_are_compact_by_default_and_whole_with_wide():
+    """A wide table prints the columns a decision needs and names what --wide adds; --wide
+    prints every column JSON and CSV hold, in their order; the counts still add up to n."""
+    from sewtol.cli.needle import COMPACT
+
+    argv = ("needle", "strategies", "--n", "20", "--seed", "3")
+    rows = strict_loads(run(*argv, "--format", "json")[1])["rows"]
+    code, compact, _ = run(*argv)
+    assert code == 0
+    header, cells = _table(compact)
+    assert header == [c for c in COMPACT["strategies"]]
+    assert len(header) < len(rows[0])
+    hidden = [k for k in rows[0] if k not in header]
+    assert f"note: --wide adds {len(hidden)} more columns ({', '.join(hidden)})" in compact
+    for row, line in zip(rows, cells, strict=True):
+        shown = dict(zip(header, line, strict=True))
+        failed = row["cannot_assemble"] + row["dead_point"]
+        assert int(shown["failed"]) == failed
+        assert int(shown["ok"]) + int(shown["out_of_spec"]) + failed == row["n"] == 20
+        assert float(shown["yield"]) == pytest.approx(row["yield"], abs=5e-5)
+    code, wide, _ = run(*argv, "--wide")
+    assert code == 0 and "--wide adds" not in wide
+    header, cells = _table(wide)
+    assert header == list(rows[0]) and len(cells) == len(rows)
+    csv = run(*argv, "--format", "csv")[1]
+    assert csv.splitlines()[0].split(",") == list(rows[0])  # CSV stays complete
+
+    argv = ("needle", "montecarlo", "--n", "50", "--seed", "3")
+    summary = strict_loads(run(*argv, "--format", "json")[1])["counts"]
+    header, cells = _table(run(*argv)[1])
+    assert header == list(COMPACT["montecarlo"])
+    for line in cells:
+        shown = dict(zip(header, line, strict=True))
+        assert int(shown["ok"]) + int(shown["out_of_spec"]) + int(shown["failed"]) == 50
+        assert int(shown["ok"]) == summary[shown["case"]]["ok"]
+    wide_header, _ = _table(run(*argv, "--wide")[1])
+    assert set(header) < set(wide_header) and "Cpu_percentile" in wide_header
+    # `run FILE montecarlo` on the fast path is the needle command, --wide included
+    assert run("run", "needle_208", "montecarlo", "--n", "50", "--seed", "3", "--wide")[1] == \
+        run(*argv, "--wide")[1]
+
+
+def test_wide_is_offered_by_every_command_with_a_compact_table():
+    from sewtol.cli import build_parser
+    from sewtol.cli import feed as F
+    from sewtol.cli import needle as N
+    from sewtol.cli import run as R
+
+    parsers = dict(_commands(build_parser()))
+    wanted = [("needle", k) for k in N.COMPACT] + [("feed", "scan"), ("feed", "montecarlo"),
+                                                    ("run",)]
+    assert set(F.COMPACT) == {"scan", "contributors"} and set(R.COMPACT) <= set(R.STUDIES)
+    for path in wanted:
+        assert "--wide" in {f for a in parsers[path]._actions for f in a.option_strings}, path
+    # the generic run studies: the counts in the compact table add up to n
+    header, cells = _table(run("run", "khujand_feed", "montecarlo", "--n", "40", "--seed", "1")[1])
+    assert header == [c for c in R.COMPACT["montecarlo"] if c != "case"]
+    for line in cells:
+        shown = dict(zip(header, line, strict=True))
+        assert int(shown["ok"]) + int(shown["out_of_spec"]) + int(shown["failed"]) == 40
+    header, _ = _table(run("feed", "scan")[1])
+    assert header == list(F.COMPACT["scan"])
+    assert "lower_step_mm" in _table(run("feed", "scan", "--wide")[1])[0]

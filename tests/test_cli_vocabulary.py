@@ -65,6 +65,14 @@ def test_scan_flags_rows_at_the_bound_and_keeps_the_guide_shift():
     assert sum(r["beta_at_bound"] for r in rows.values()) == 8
     code, text, _ = run("needle", "scan", "--beta-range", "22", "23")
     assert "note: 8 of 12 rows have beta* on a bound" in text
+    # in words: LM's optimum is pinned at an end (SumDelta still falling), BC upper and BE
+    # lower are flat over the whole range, BE upper a plateau running into its lower end
+    assert ("note: LM upper: SumDelta 7.1094 um for beta 22.0000 ... 22.0005 deg, pinned at "
+            "the range's end 22 deg") in text
+    assert "BC upper: SumDelta 12.5502 um for beta 22.0000 ... 23.0000 deg, the whole" in text
+    assert "BE lower: SumDelta 52.2090 um for beta 22.0000 ... 23.0000 deg, the whole" in text
+    assert ("BE upper: SumDelta 51.8111 um for beta 22.0000 ... 22.4972 deg, a flat plateau "
+            "reaching the range's end 22 deg") in text
     # --set guide_shift_um reaches the scan (it used to be reset to 0 by the scan's default)
     _, shifted, _ = run("needle", "scan", "--format", "json", "--set", "guide_shift_um=20")
     _, flag, _ = run("needle", "scan", "--format", "json", "--guide-shift-um", "20")
@@ -340,6 +348,32 @@ def test_fixed_beta_is_the_nominal_beta_star_in_every_needle_study():
     _, out, _ = run("needle", "guides", "--n", "20", *shift)
     row = strict_loads(out)["rows"][0]
     assert row["guide"] == "nominal" and row["beta_opt_deg"] == star
+
+
+def test_scan_says_where_a_plateau_reaching_the_bound_lies():
+    """AB at its lower limit: beta* 16.49 deg is flagged at the bound although it lies inside
+    [10, 35]: SumDelta is flat (within 1e-3 um) over 10 ... 22.99 deg, a plateau that runs into
+    the range's end. beta_deg is its centre; a wider range extends the plateau and leaves
+    SumDelta as it was, which the note allows ("may stay flat or fall beyond")."""
+    def ab_lower(*extra):
+        _, out, _ = run("needle", "scan", "--format", "json", *extra)
+        return next(r for r in strict_loads(out)["rows"]
+                    if (r["param"], r["side"]) == ("AB", "lower"))
+
+    row = ab_lower()
+    assert row["beta_at_bound"] and 16.4 < row["beta_deg"] < 16.6
+    assert row["beta_low_deg"] == pytest.approx(10.0, abs=1e-6)
+    assert 22.9 < row["beta_high_deg"] < 23.1
+    assert row["beta_deg"] == pytest.approx(0.5 * (row["beta_low_deg"] + row["beta_high_deg"]),
+                                            abs=1e-6)
+    wider = ab_lower("--beta-range", "0", "35")
+    assert not wider["beta_at_bound"] and 0 < wider["beta_low_deg"] < 10
+    assert wider["beta_high_deg"] == pytest.approx(row["beta_high_deg"], abs=1e-3)
+    assert wider["total_um"] == pytest.approx(row["total_um"], abs=1e-3)
+    _, text, _ = run("needle", "scan")
+    assert ("note: AB lower: SumDelta 55.0624 um for beta 10.0000 ... 22.9871 deg, a flat "
+            "plateau reaching the range's end 10 deg") in text
+    assert "note: 1 of 12 rows" in text and "LF upper:" not in text
 
 
 def test_adjusted_scan_flags_the_same_rows():

@@ -19,7 +19,7 @@ import numpy as np
 def strict(o):
     """JSON-ready data with every NaN or infinity as None (null): JSON has no NaN or Infinity.
 
-    What null means for each key is listed in the README (e.g. a quantile beyond every machine
+    What null means for each key is listed in docs/cli.md (e.g. a quantile beyond every machine
     that runs, a Cpu without scatter, a window that does not exist).
     """
     if isinstance(o, dict):

@@ -57,7 +57,15 @@ def parse_sets(items, cls=None) -> dict:
     return out
 
 
-def emit(fmt: str, *, obj=None, frame=None) -> None:
+# the columns that say why a machine gives no value, whose sum a compact table prints as
+# `failed` (so ok + out_of_spec + failed = n stays visible)
+FAILURE_COLUMNS = ("cannot_assemble", "cannot_close", "dead_point", "undefined", "unexplained")
+
+
+def emit(fmt: str, *, obj=None, frame=None, compact=None, wide: bool = False) -> None:
+    """Print a study's result: `obj` as JSON, `frame` as CSV, or `frame` as a Markdown table.
+    JSON and CSV always hold every column; a table with `compact` (the column names a decision
+    needs, in their order) prints those unless `wide`, and says in a note what --wide adds."""
     if fmt == "json":
         data = obj if obj is not None else frame.to_dict(orient="records")
         sys.stdout.write(to_json(data))
@@ -66,7 +74,36 @@ def emit(fmt: str, *, obj=None, frame=None) -> None:
 
         sys.stdout.write(to_csv(frame))
     else:
-        sys.stdout.write(frame.to_markdown(index=False, floatfmt=".4f") + "\n")
+        shown = frame if wide or compact is None else compact_view(frame, compact)
+        sys.stdout.write(shown.to_markdown(index=False, floatfmt=".4f") + "\n")
+        hidden = [c for c in frame.columns if c not in shown.columns]
+        if hidden:
+            sys.stdout.write(f"\nnote: --wide adds {len(hidden)} more columns "
+                             f"({', '.join(map(str, hidden))}); --format json and csv hold "
+                             "every column\n")
+
+
+def compact_view(frame, compact):
+    """`frame` cut to the `compact` columns it has, in that order; `failed` (when the frame
+    has no such column) is the sum of its FAILURE_COLUMNS."""
+    import pandas as pd
+
+    out = {}
+    for name in compact:
+        if name in frame.columns:
+            out[name] = frame[name]
+        elif name == "failed":
+            causes = [c for c in FAILURE_COLUMNS if c in frame.columns]
+            if causes:
+                out[name] = frame[causes].sum(axis=1)
+    return pd.DataFrame(out, index=frame.index)
+
+
+def wide_option(p):
+    """--wide: a table prints every column (by default the columns a decision needs)."""
+    p.add_argument("--wide", action="store_true",
+                   help="table output: print every column (default: the columns a decision "
+                        "needs; --format json and csv always hold every column)")
 
 
 def print_notes(args, notes) -> None:

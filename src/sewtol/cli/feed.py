@@ -28,6 +28,7 @@ from sewtol.cli.common import (
     save_plot,
     scan_figure,
     study_inputs,
+    wide_option,
     write_outputs,
 )
 from sewtol.errors import ParameterError
@@ -38,6 +39,13 @@ FEED_SCREEN_N = 1000  # machines of the Monte-Carlo that picks each output's par
 # so the contributor table needs more machines than bins (n = 20 divided by zero; n < 20 gave
 # meaningless shares: at n = 10 every tolerance 100 % of the variance)
 CONTRIBUTOR_BINS = 20
+# the columns a table prints without --wide (JSON and CSV keep every column): a scan's change
+# of each output at each limit; each tolerance's share of an output's variance
+COMPACT = {
+    "scan": ("param", "side", "delta_mm", "change_lower_step_mm", "change_upper_step_mm",
+             "change_differential_ratio"),
+    "contributors": ("output", "param", "variance_pct", "cumulative_variance_pct"),
+}
 
 
 def _feed_params(args):
@@ -140,7 +148,7 @@ def cmd_feed_scan(args):
     obj = {"context": _feed_context(args, params, tolerances),
            "rows": frame.to_dict(orient="records")}
     _feed_write(args, "scan", params, tolerances, started, obj, {"scan": frame})
-    emit(args.format, obj=obj, frame=frame)
+    emit(args.format, obj=obj, frame=frame, compact=COMPACT["scan"], wide=args.wide)
     save_plot(args, lambda ax: scan_figure(frame, "change_differential_ratio", ax,
                                              "change of the differential ratio"))
 
@@ -170,7 +178,7 @@ def cmd_feed_montecarlo(args):
     emit(args.format, obj=obj, frame=summary)
     if args.format == "table":
         sys.stdout.write("\ncontributors (share of each output's variance, %)\n")
-        emit("table", frame=contrib)
+        emit("table", frame=contrib, compact=COMPACT["contributors"], wide=args.wide)
         over = sorted(set(contrib.loc[contrib["variance_pct"] < 0, "output"]))
         print_notes(args, [f"the first-order shares of {', '.join(over)} add up to more than "
                             "100 %: with this --n the estimates' noise exceeds the interactions "
@@ -270,10 +278,12 @@ def add_feed(sub) -> None:
     p.add_argument("--out", default=None, metavar="DIR",
                    help="write scan.csv, scan.json and run.json here")
     plot_option(p, "the change of the differential ratio at each tolerance's limits")
+    wide_option(p)
     p.set_defaults(func=cmd_feed_scan, seed=0, n_jobs=1)
     p = fsub.add_parser("montecarlo", help="feed outputs of N machines and their contributors")
     study(p, 2000, "machines (default 2000)")
     plot_option(p, "each output's shares of variance by tolerance")
+    wide_option(p)
     p.set_defaults(func=cmd_feed_montecarlo)
     p = fsub.add_parser("sobol", help="Sobol indices of each feed output over the tolerances "
                         "that matter to it (SALib)")

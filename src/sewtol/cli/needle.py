@@ -33,6 +33,7 @@ from sewtol.cli.common import (
     save_plot,
     scan_figure,
     study_inputs,
+    wide_option,
     write_outputs,
 )
 from sewtol.errors import ParameterError
@@ -40,6 +41,18 @@ from sewtol.io import to_json
 
 BETA_LIMIT_DEG = 360.0
 SOBOL_RESAMPLES, SOBOL_CONF_LEVEL = 200, 0.95
+# the columns a table prints without --wide: what a decision needs (JSON and CSV keep every
+# column; `failed` is the sum of the failure counts, so ok + out_of_spec + failed = n shows)
+COMPACT = {
+    "scan": ("param", "side", "delta_mm", "beta_deg", "plus_um", "minus_um", "total_um",
+             "beta_at_bound"),
+    "montecarlo": ("case", "n", "ok", "out_of_spec", "failed", "yield", "yield_ci_low",
+                   "yield_ci_high", "p95_um"),
+    "strategies": ("strategy", "resolution", "setting_error", "n", "ok", "out_of_spec", "failed",
+                   "yield", "yield_ci_low", "yield_ci_high", "p95_um", "at_limit_share"),
+    "guides": ("guide", "beta_opt_deg", "total_um", "window_width_deg", "yield_fixed_beta",
+               "yield_adjusted_beta", "yield_adjusted", "failed"),
+}
 
 
 def _needle_params(args):
@@ -230,14 +243,46 @@ def cmd_needle_scan(args):
                          beta_search_range_deg=list(args.beta_range), context=context)
         write_outputs(args, "scan", inputs, started, obj, {"scan": frame},
                        [{"started_utc": started, "resumed": False}])
-    emit(args.format, obj=obj, frame=frame)
+    compact = (*COMPACT["scan"], *[c for c in frame.columns if c.endswith("_setting")],
+               "status")
+    emit(args.format, obj=obj, frame=frame, compact=compact, wide=args.wide)
     if "beta_at_bound" in frame:
-        n = int(frame["beta_at_bound"].sum())
-        print_notes(args, [f"{n} of {len(frame)} rows have beta* on a bound of the searched "
-                            f"range {list(args.beta_range)} deg (column beta_at_bound): their "
-                            "optimum may lie outside it"] if n else [])
+        print_notes(args, _plateau_notes(frame, list(args.beta_range)))
     save_plot(args, lambda ax: scan_figure(frame, "total_um", ax, "SumDelta at beta* (um)",
                                              args.limit_um))
+
+
+def _plateau_notes(frame, range_deg) -> list[str]:
+    """In words, the scan rows whose beta* is a plateau reaching an end of the searched range
+    (beta_at_bound): the plateau's extent, the end it reaches, and what that means."""
+    from sewtol.mechanisms.needle_208.adjust import PLATEAU_TOL_UM
+    from sewtol.studies.montecarlo import PINNED_PLATEAU
+
+    rows = frame[frame["beta_at_bound"].astype(bool)]
+    if rows.empty:
+        return []
+    lo, hi = range_deg
+    notes = [f"{len(rows)} of {len(frame)} rows have beta* on a bound of the searched range "
+             f"{range_deg} deg (column beta_at_bound): SumDelta stays within "
+             f"{PLATEAU_TOL_UM:g} um of its least value for every beta of a plateau that runs "
+             "into an end of the range; beta_deg is the plateau's centre"]
+    if "beta_low_deg" not in rows:
+        return notes
+    for r in rows.itertuples():
+        a, b = float(r.beta_low_deg), float(r.beta_high_deg)
+        end = lo if abs(a - lo) <= abs(hi - b) else hi
+        where = f"{r.param} {r.side}: SumDelta {r.total_um:.4f} um for beta {a:.4f} ... {b:.4f} deg"
+        if a <= lo + 1e-6 * (hi - lo) and b >= hi - 1e-6 * (hi - lo):
+            notes.append(f"{where}, the whole searched range: beta does not change SumDelta "
+                         "there")
+        elif b - a < PINNED_PLATEAU:
+            notes.append(f"{where}, pinned at the range's end {end:g} deg: SumDelta still falls "
+                         "there, so the optimum lies outside the range (widen --beta-range)")
+        else:
+            notes.append(f"{where}, a flat plateau reaching the range's end {end:g} deg: any "
+                         "beta on it does as well, and SumDelta may stay flat or fall beyond "
+                         f"{end:g} deg (a wider --beta-range shows which)")
+    return notes
 
 
 def cmd_needle_montecarlo(args):
@@ -276,7 +321,8 @@ def cmd_needle_montecarlo(args):
                              "summary": res.summary_frame()}
 
     res, record = _in_study_folder(args, inputs, study)
-    emit(args.format, obj=record, frame=res.summary_frame())
+    emit(args.format, obj=record, frame=res.summary_frame(), compact=COMPACT["montecarlo"],
+         wide=args.wide)
     print_notes(args, _montecarlo_notes(record))
     save_plot(args, lambda ax: plots().montecarlo_histograms(
         res.machines["total_fixed_um"], res.machines["total_adjusted_um"], limit,
@@ -382,7 +428,7 @@ def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
             machines, tolerances.active().params), "summary": summary}
 
     summary, record = _in_study_folder(args, inputs, study)
-    emit(args.format, obj=record, frame=summary)
+    emit(args.format, obj=record, frame=summary, compact=COMPACT["strategies"], wide=args.wide)
     print_notes(args, _fixed_notes(record))
 
 
@@ -418,7 +464,7 @@ def cmd_needle_strategies(args):
     obj = {"context": context, **_fixed_record(args, params, strategy),
            "rows": table.to_dict(orient="records")}
     write_outputs(args, "strategies", inputs, started, obj, frames, [])
-    emit(args.format, obj=obj, frame=table)
+    emit(args.format, obj=obj, frame=table, compact=COMPACT["strategies"], wide=args.wide)
     save_plot(args, lambda ax: plots().grouped_bars(
         list(table["strategy"]), {"yield": table["yield"]}, ax=ax, ylabel="yield",
         errors={"yield": (table["yield_ci_low"], table["yield_ci_high"])},
@@ -531,7 +577,7 @@ def cmd_needle_guides(args):
            "strategy": "fixed beta and beta adjusted" if strategy is None else strategy.name,
            **({} if strategy is None else {"compensators": _strategy_record(strategy)}),
            "rows": table.to_dict(orient="records")}
-    emit(args.format, obj=obj, frame=table)
+    emit(args.format, obj=obj, frame=table, compact=COMPACT["guides"], wide=args.wide)
     save_plot(args, lambda ax: plots().grouped_bars(
         list(table["guide"]), {"beta fixed at the guide's beta*": table["yield_fixed_beta"],
                                **({"beta adjusted": table["yield_adjusted_beta"]}
@@ -739,6 +785,7 @@ def add_needle(sub) -> None:
                    help="write scan.csv, scan.json and run.json (the context) here")
     _adjust_options(p)
     plot_option(p, "SumDelta at each tolerance's upper and lower limit")
+    wide_option(p)
     p.set_defaults(func=cmd_needle_scan, seed=None, n_jobs=1)
 
     p = nsub.add_parser("montecarlo", help="yield with beta fixed and adjusted per machine")
@@ -747,6 +794,7 @@ def add_needle(sub) -> None:
     p.add_argument("--n", type=int, default=2000, help="machines (default 2000)")
     _beta_options(p)
     plot_option(p, "the histograms of SumDelta, beta fixed and adjusted")
+    wide_option(p)
     p.set_defaults(func=cmd_needle_montecarlo)
     _adjust_options(p)
 
@@ -756,6 +804,7 @@ def add_needle(sub) -> None:
     p.add_argument("--n", type=int, default=500, help="machines (default 500)")
     _adjust_options(p)
     plot_option(p, "the yield of each strategy with its 95 %% interval")
+    wide_option(p)
     p.set_defaults(func=cmd_needle_strategies)
 
     p = nsub.add_parser("sobol", help="Sobol indices of SumDelta (SALib)")
@@ -801,6 +850,7 @@ def add_needle(sub) -> None:
     _beta_options(p)
     _adjust_options(p)
     plot_option(p, "the yields of each guide setting, beta fixed and adjusted")
+    wide_option(p)
     p.set_defaults(func=cmd_needle_guides)
 
     p = nsub.add_parser("allocation", help="widest tolerances for a yield after adjustment")

@@ -23,6 +23,7 @@ from sewtol.cli.common import (
     check_study_folder,
     emit,
     parse_sets,
+    wide_option,
     write_outputs,
 )
 from sewtol.errors import ParameterError
@@ -54,6 +55,13 @@ USES = {"nominal": (), "scan": ("output", "tolerances", "adjust"),
                    "restarts", "popsize", "maxiter", "plot"),
         "clearance": ("output", "tolerances", "n", "seed", "limit", "adjust", "target",
                       "guide_diameter", "play_limit", "guide_fit")}
+# the columns a table prints without --wide (JSON and CSV keep every column); `failed` sums
+# the failure counts where the table has no such column, so ok + out_of_spec + failed = n
+COMPACT = {"montecarlo": ("output", "case", "n", "ok", "out_of_spec", "failed", "mean", "std",
+                          "min", "max"),
+           "strategies": ("strategy", "compensators", "resolution", "setting_error", "n", "ok",
+                          "out_of_spec", "failed", "yield", "yield_ci_low", "yield_ci_high",
+                          "p95")}
 # the library's keyword arguments named as `run`'s flags in its errors
 RUN_FLAGS = {**FLAGS, "adjust": "--adjust", "limit": "--limit", "lower_limit": "--lower-limit",
              "target": "--target", "weights": "--weight"}
@@ -123,6 +131,7 @@ def add_run(sub) -> None:
                    help="clearance: a guide fit to rate, e.g. H7/g6 (repeatable; default "
                         "H6/h5 ... H11/c11)")
     p.add_argument("--format", choices=RUN_FORMATS, default="text")
+    wide_option(p)
     p.add_argument("--out", default=None, metavar="DIR",
                    help="write the tables, the result and run.json here")
     p.add_argument("--set", action="append", metavar="NAME=VALUE",
@@ -429,7 +438,7 @@ def _finish(args, fmt, mech, tolerances, obj, frames, frame) -> None:
     if args.out:
         write_outputs(args, args.study.replace("-", "_"), _inputs(args, mech, tolerances), now(),
                       obj, frames, None)
-    emit(fmt, obj=obj, frame=frame)
+    emit(fmt, obj=obj, frame=frame, compact=COMPACT.get(args.study), wide=args.wide)
 
 FAST_PATH_STUDIES = ("scan", "worst-case", "montecarlo", "sobol", "ppm", "allocation")
 
@@ -536,7 +545,7 @@ def _needle_namespace(args, mech, tolerances=None):
     if study == "allocation":
         ns.target = args.target
     ns.format = "table" if args.format == "text" else args.format
-    ns.progress, ns.out = args.progress, args.out
+    ns.progress, ns.out, ns.wide = args.progress, args.out, args.wide
     ns.nominal_params, ns.tolerance_set = needle_params(mech), tolerances
     ns.file_inputs = {"mechanism_file": str(args.file), "fast_path": "needle_208"}
     return ns

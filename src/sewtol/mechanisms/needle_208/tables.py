@@ -100,9 +100,16 @@ class ScanResult:
 
 
 def _figures(a, base, strategy) -> dict:
-    """The needle's columns of an adjusted batch (sewtol.studies.adjusting.Adjusted)."""
+    """The needle's columns of an adjusted batch (sewtol.studies.adjusting.Adjusted): with beta
+    set, also its plateau beta_low_deg .. beta_high_deg (SumDelta within 1e-3 um of the
+    optimum; beta_deg is its centre), which beta_at_bound says reaches an end of the range."""
     n, sets_beta = len(a.value), strategy is None or "beta" in strategy.names
-    f = {"beta_deg": a.settings["beta"] if sets_beta else np.full(n, base.beta),
+    beta = a.settings["beta"] if sets_beta else np.full(n, base.beta)
+    plateau = {}
+    if sets_beta and "low" in a.extras and "beta" in a.extras["low"]:
+        plateau = {"beta_low_deg": a.extras["low"]["beta"],
+                   "beta_high_deg": a.extras["high"]["beta"]}
+    f = {"beta_deg": beta, **plateau,
          **{k: a.extras[k] for k in FIGURES},
          "beta_at_bound": (np.asarray(a.at_bound["beta"], bool) if strategy is None
                            else a.at_bound["beta"]) if sets_beta else np.zeros(n, bool)}
@@ -145,10 +152,12 @@ def scan(nominal: Needle208, tolerances: ToleranceSet | str, guide_shift_um: flo
     -------
     ScanResult
         Rows with ``param``, ``side`` (upper/lower), ``delta_mm`` (the deviation), ``value_mm``
-        (the parameter's value), ``beta_deg`` (beta*), ``plus_um``, ``minus_um`` and
-        ``total_um`` (Delta+, Delta-, SumDelta) and ``beta_at_bound`` (beta*'s plateau reaches
-        an end of range_deg: the row's optimum may lie outside it); ``nominal_row`` the same
-        for the nominal.
+        (the parameter's value), ``beta_deg`` (beta*, the centre of its plateau),
+        ``beta_low_deg`` and ``beta_high_deg`` (the plateau: every beta there gives SumDelta
+        within 1e-3 um of the optimum), ``plus_um``, ``minus_um`` and ``total_um`` (Delta+,
+        Delta-, SumDelta) and ``beta_at_bound`` (the plateau reaches an end of range_deg:
+        SumDelta is flat up to that end and may stay flat or fall beyond it);
+        ``nominal_row`` the same for the nominal.
     """
     from sewtol.studies import scan as S
 
