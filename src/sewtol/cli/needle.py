@@ -158,11 +158,11 @@ def _study_nominal(args):
 def _tolerances(args):
     from sewtol.mechanisms.needle_208.model import Needle208
     from sewtol.mechanisms.params import field_names
-    from sewtol.tolerances import NEEDLE_208_SETS, resolve
+    from sewtol.tolerances import needle_builtin_sets, resolve
 
     if getattr(args, "tolerance_set", None) is not None:  # `run FILE`: the file's set, resolved
         return args.tolerance_set
-    return resolve(args.tolerances, NEEDLE_208_SETS, field_names(Needle208))
+    return resolve(args.tolerances, needle_builtin_sets(), field_names(Needle208))
 
 
 def cmd_needle_frames(args):
@@ -575,7 +575,7 @@ def allocation_figure(table, reference: str, target: float, ax):
 
 
 def cmd_needle_worst_case(args):
-    from sewtol.mechanisms.needle_208.tables import worst_case_table
+    from sewtol.mechanisms.needle_208.tables import MAX_CORNER_PARAMS, worst_case_table
 
     strategy = _strategy(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
@@ -583,9 +583,9 @@ def cmd_needle_worst_case(args):
     if not active.items:
         raise ParameterError("--tolerances", "has no tolerance with a non-zero width",
                              tolerances.name)
-    if len(active.items) > 10:
-        raise ParameterError("--tolerances", "worst case enumerates corners; at most 10 "
-                             "tolerances", len(active.items))
+    if len(active.items) > MAX_CORNER_PARAMS:
+        raise ParameterError("--tolerances", "worst case enumerates corners; at most "
+                             f"{MAX_CORNER_PARAMS} tolerances", len(active.items))
     tolerances.check_against(params)
     _check_beta_range(args)
     params = _at_beta_star(args, params, strategy)
@@ -697,7 +697,8 @@ def _study_options(p, seed=True):
     """--tolerances and, for the studies that draw machines, --seed, --n-jobs, --scheduler,
     --progress, --out and --resume."""
     p.add_argument("--tolerances", default="base",
-                   help="base, recommended, FILE.toml or FILE.toml:SET (default base)")
+                   help="base, recommended, base_housing, recommended_housing (with the "
+                        "housing bores), FILE.toml or FILE.toml:SET (default base)")
     if seed:
         p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
         p.add_argument("--n-jobs", type=int, default=1,

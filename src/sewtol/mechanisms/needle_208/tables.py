@@ -52,7 +52,8 @@ if TYPE_CHECKING:
     from sewtol.studies.sobol import SobolResult
 
 OUTPUT = "SumDelta_um"
-MAX_CORNER_PARAMS = 10
+# 2**14 corners: the built-in sets with the housing (recommended_housing has 14 tolerances)
+MAX_CORNER_PARAMS = 14
 FIGURES = ("plus_um", "minus_um", "total_um")
 
 
@@ -226,7 +227,8 @@ def worst_case(nominal, tolerances: ToleranceSet | str, adjust: bool,
 
     tolerances = needle_set(tolerances)
     if len(tolerances.active().params) > MAX_CORNER_PARAMS:
-        raise ParameterError("tolerances", "worst case enumerates corners; at most 10 parameters",
+        raise ParameterError("tolerances", "worst case enumerates corners; at most "
+                             f"{MAX_CORNER_PARAMS} parameters",
                              len(tolerances.active().params))
     comps, options = None, {}
     if adjust:
@@ -735,7 +737,10 @@ def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 
     the widest tolerance) bisected in (0, max_mm). A strategy: its exact joint optimum; each
     reference tolerance keeps its own (possibly asymmetric) shape, both limits scaled by
     min(k a_i, max_mm) / h_i (h_i its half-width, slopes per h_i), k bisected geometrically
-    (it spans decades) up to where every tolerance reaches max_mm.
+    (it spans decades) up to where every tolerance reaches max_mm. A tolerance the strategy
+    cancels alone at its reference limits (SumDelta within 1e-3 um of the nominal's at both,
+    e.g. the guide bore's position under the guide shift) is held at its reference limits
+    (``held_at_reference``), not scaled.
 
     Parameters
     ----------
@@ -811,22 +816,35 @@ def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 
         del columns["lower"]
     else:
         half = np.array([0.5 * (t.upper - t.lower) for t in ref.items])
+        # a tolerance the strategy cancels alone at its reference limits (within the plateau
+        # tolerance, e.g. the guide bore's position under the guide shift) has no slope to
+        # shape it: scaled like the others it would take the cap at once and use up the
+        # compensator's range the others need (the housing sets: every other tolerance fell to
+        # 1e-9 mm), so it is held at its reference limits and the rest are allocated
+        held = np.array(slope) * half < 1e-3
+        if held.all():
+            held[:] = False
+        free = (c / s**2) ** (1.0 / 3.0)
+        shape = np.where(held, np.nan, free)
+        shape = np.where(held, half, shape / np.nanmax(shape))
 
         def limits(k):
-            f = np.minimum(k * shape, max_mm) / half
+            f = np.where(held, half, np.minimum(k * shape, max_mm)) / half
             return ToleranceSet("trial", tuple(Tolerance(t.param, t.lower * fi, t.upper * fi)
                                                for t, fi in zip(ref.items, f, strict=True)),
                                 dependence=ref.dependence)
 
         # k up to where every tolerance reaches the cap, so the cap never ends the search early
         a = A.allocate(mech, ref, OUTPUT, target, limit_um, None, n, seed,
-                       adjust=strategy.compensators, bracket=(0.0, float(max_mm / shape.min())),
+                       adjust=strategy.compensators, bracket=(0.0, float(max_mm / shape[~held].min())),
                        steps=10 if steps is None else steps, geometric=True, limits=limits,
                        limit_um=limit_um, plateaus=False)
-        columns = ALLOCATION_COLUMNS
+        columns = {**ALLOCATION_COLUMNS, "held_at_reference": "held_at_reference"}
     table = a.table.assign(cost_weight=c, slope_um_per_mm=s,
                            reference_lower=[t.lower for t in ref.items],
                            reference_upper=[t.upper for t in ref.items])
+    if strategy is not None:
+        table = table.assign(held_at_reference=held)
     return replace(a, table=table, columns=columns, yield_=a.yield_ if a.scale > 0 else 1.0,
                    adjust="beta" if strategy is None else strategy.name)
 
