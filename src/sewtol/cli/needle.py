@@ -386,6 +386,19 @@ def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
     print_notes(args, _fixed_notes(record))
 
 
+def _measurement(args):
+    """--measurement-error SD_UM [--measured-positions K]: None for none or 0."""
+    from sewtol.measurement_error import DEFAULT_POSITIONS, parse_cli
+
+    sd, k = getattr(args, "measurement_error", None), getattr(args, "measured_positions", None)
+    if sd is None:
+        if k is not None:
+            raise ParameterError("--measured-positions", "needs --measurement-error (the sd "
+                                 "of a reading)", k)
+        return None
+    return parse_cli(sd, DEFAULT_POSITIONS if k is None else k)
+
+
 def cmd_needle_strategies(args):
     from sewtol.mechanisms.needle_208.compensators import Strategy, default_strategies
     from sewtol.mechanisms.needle_208.tables import strategies_table
@@ -397,6 +410,7 @@ def cmd_needle_strategies(args):
                  resume="it keeps no checkpoints; rerun with the same seed",
                  scheduler="it runs on this machine; use --n-jobs")
     strategy = _strategy(args, setting_errors=True)
+    measurement = _measurement(args)
     params, tolerances = _at_beta_star(args, _study_nominal(args)), _tolerances(args)
     rows = default_strategies()
     if strategy is not None:
@@ -405,16 +419,17 @@ def cmd_needle_strategies(args):
         rows.append(strategy)
     started = now()
     res = strategies_table(params, tolerances, args.n, args.seed, rows, n_jobs=args.n_jobs,
-                           progress=args.progress)
+                           progress=args.progress, measurement=measurement)
     table = res.to_dataframe()
     frames = {"strategies": table}
     for r in rows:
         safe = "".join(ch if ch.isalnum() else "_" for ch in r.name)
         frames[f"machines_{safe}"] = deviation_columns(res.machines(r.name), res.params)
+    reading = {} if measurement is None else {"measurement_error": measurement.to_dict()}
     inputs = study_inputs(args, "strategies", params, tolerances, limit_um=10.0,
-                     strategies={r.name: _strategy_record(r) for r in rows})
+                          strategies={r.name: _strategy_record(r) for r in rows}, **reading)
     context = {**_context(args, params, tolerances, strategy),
-               "strategy": [r.name for r in rows], "limit_um": 10.0}
+               "strategy": [r.name for r in rows], "limit_um": 10.0, **reading}
     obj = {"context": context, **_fixed_record(args, params, strategy),
            "rows": table.to_dict(orient="records")}
     write_outputs(args, "strategies", inputs, started, obj, frames, [])
@@ -756,6 +771,13 @@ def add_needle(sub) -> None:
     _study_options(p)
     p.add_argument("--n", type=int, default=500, help="machines (default 500)")
     _adjust_options(p)
+    p.add_argument("--measurement-error", default=None, metavar="SD_UM",
+                   help="set the compensators from a reading of the needle bar's deviation "
+                        "with a normal error of this sd (um) at each measured position (0: "
+                        "from the true deviation; docs/adjustment.md)")
+    p.add_argument("--measured-positions", type=int, default=None, metavar="K",
+                   help="with --measurement-error: the handwheel positions read, equally "
+                        "spaced over a turn (default 36, every 10 deg)")
     plot_option(p, "the yield of each strategy with its 95 %% interval")
     p.set_defaults(func=cmd_needle_strategies)
 

@@ -349,6 +349,9 @@ class StrategiesResult:
     seed: int
     limit_um: float
     limits: dict  # param -> (lower, upper) deviation limits of the tolerance set
+    # the reading the compensators were set from (sewtol.measurement_error label; none: the
+    # true deviation)
+    measurement: str = "none"
 
     @property
     def n(self) -> int:
@@ -356,9 +359,13 @@ class StrategiesResult:
 
     def to_dataframe(self) -> pd.DataFrame:
         """One row per strategy; at_limit_NAME (the share of machines with compensator NAME at
-        an end of its range) sits after at_limit_share, NaN in a row without NAME."""
+        an end of its range) sits after at_limit_share, NaN in a row without NAME;
+        measurement_error after setting_error (none in a row that sets nothing)."""
         table = pd.concat([summarise_frame(a.to_dataframe(), a.strategy, a.limit_um)
                            for a in self.adjustments], ignore_index=True)
+        table.insert(list(table.columns).index("setting_error") + 1, "measurement_error",
+                     [self.measurement if a.strategy.compensators else "none"
+                      for a in self.adjustments])
         split = [f"at_limit_{c.name}" for a in self.adjustments for c in a.strategy.compensators]
         split = list(dict.fromkeys(split))
         rest = [c for c in table.columns if c not in split]
@@ -415,7 +422,7 @@ class StrategiesResult:
 def strategies_table(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed: int,
                      strategies: list[Strategy] | None = None, limit_um: float = 10.0,
                      n_jobs: int = 1, progress: bool | Callable[[int, int], None] = False,
-                     ) -> StrategiesResult:
+                     measurement=None) -> StrategiesResult:
     """`sewtol needle strategies`: the strategies study (sewtol.studies.strategies) of the same
     n machines (one draw from `seed`) on `as_mechanism(nominal)`, each strategy's joint optimum
     by the needle's strategy adjuster (needle_208.adjustment), in the source's columns.
@@ -439,6 +446,9 @@ def strategies_table(nominal: Needle208, tolerances: ToleranceSet | str, n: int,
         Worker processes (chunks of machines; the same numbers for any n_jobs).
     progress : bool or callable
         A progress bar, or a callback progress(done, total).
+    measurement : sewtol.measurement_error.MeasurementError or None
+        Set the compensators from a reading of the needle bar's deviation with this error
+        (None or sd 0: from the true deviation, as before).
 
     Returns
     -------
@@ -463,7 +473,8 @@ def strategies_table(nominal: Needle208, tolerances: ToleranceSet | str, n: int,
     strategies = [s.check_names(valid) for s in strategies]
     r = ST.strategies(as_mechanism(nominal), tolerances, n, seed,
                       {s.name: s for s in strategies}, OUTPUT, Spec(OUTPUT, float(limit_um)),
-                      n_jobs=n_jobs, progress=progress, limit_um=limit_um)
+                      n_jobs=n_jobs, progress=progress, limit_um=limit_um,
+                      measurement=measurement)
     adjs = tuple(Adjustment(s, float(limit_um), a.extras["total_before_um"], a.value,
                             a.extras["plus_um"], a.extras["minus_um"], a.extras["achieved_um"],
                             a.status, a.settings, a.extras["low"], a.extras["high"],
@@ -471,7 +482,7 @@ def strategies_table(nominal: Needle208, tolerances: ToleranceSet | str, n: int,
                                                                   strict=True))
     return StrategiesResult(pd.DataFrame(r.deviations), adjs, tuple(tol.params), tolerances.name,
                             int(seed), float(limit_um),
-                            {t.param: (t.lower, t.upper) for t in tol.items})
+                            {t.param: (t.lower, t.upper) for t in tol.items}, r.measurement)
 
 
 def adjusted_montecarlo_model(nominal, dev, strategy: Strategy, limit_um: float):
