@@ -26,6 +26,7 @@ import pandas as pd
 from scipy import stats
 
 from sewtol.errors import ParameterError
+from sewtol.measurement_error import MeasurementError
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.needle_208 import beta as sb
 from sewtol.mechanisms.needle_208.adjustment import STATUSES, Adjustment, adjust, columns_of
@@ -422,7 +423,7 @@ class StrategiesResult:
 def strategies_table(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed: int,
                      strategies: list[Strategy] | None = None, limit_um: float = 10.0,
                      n_jobs: int = 1, progress: bool | Callable[[int, int], None] = False,
-                     measurement=None) -> StrategiesResult:
+                     measurement: MeasurementError | None = None) -> StrategiesResult:
     """`sewtol needle strategies`: the strategies study (sewtol.studies.strategies) of the same
     n machines (one draw from `seed`) on `as_mechanism(nominal)`, each strategy's joint optimum
     by the needle's strategy adjuster (needle_208.adjustment), in the source's columns.
