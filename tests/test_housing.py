@@ -131,3 +131,35 @@ def test_allocation_holds_a_tolerance_the_strategy_cancels_alone_and_meets_the_t
     # the others were scaled from their shapes, not collapsed to nothing (they fell to 1e-9 mm
     # when the held ones were scaled with them)
     assert (t.drop(index=["guide_x", "guide_y"])["upper_mm"] > 1e-3).all()
+
+
+def test_the_housing_share_table_adds_up(tmp_path):
+    """studies/needle_208_housing.py on a small run: the ST shares of each case add up to
+    100 %, the two group rows are the sums of their members (7 housing features, 6 links), and
+    the headline quotes the housing row."""
+    import importlib.util
+    import json
+
+    import pandas as pd
+
+    spec = importlib.util.spec_from_file_location(
+        "needle_208_housing", ROOT / "studies" / "needle_208_housing.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    assert script.main(["--out", str(tmp_path), "--n-sobol", "32", "--n", "60"]) == 0
+    folder = tmp_path / "needle_208"
+    t = pd.read_csv(folder / "housing_share.csv", comment="#")
+    params, groups = t[~t.param.str.contains(r"\(all")], t[t.param.str.contains(r"\(all")]
+    assert sorted(params[params.group == "housing"].param) == sorted(HOUSING)
+    assert len(params[params.group == "link"]) == 6
+    # the CSV prints 9 significant digits: 13 values of up to 100 % each round by <= 5e-7
+    for col in ("ST_share_fixed_beta_pct", "ST_share_adjusted_beta_pct"):
+        assert params[col].sum() == pytest.approx(100.0, abs=13 * 5e-7)
+        assert groups[col].sum() == pytest.approx(100.0, abs=2 * 5e-7)
+    for g, row in groups.set_index("group").iterrows():
+        members = params[params.group == g]
+        for col in ("ST_fixed_beta", "ST_adjusted_beta", "eta2_share_beta_shift_pct"):
+            assert row[col] == pytest.approx(members[col].sum(), rel=1e-8, abs=7 * 5e-7), (g, col)
+    obj = json.loads((folder / "housing_share.json").read_text())
+    housing = groups.set_index("group").loc["housing"]
+    assert f"{housing.ST_share_adjusted_beta_pct:.0f} % with beta adjusted" in obj["headline"]
