@@ -7,7 +7,7 @@ for one in 0.001 mm, docs/adjustment.md); the machine's SumDelta is the true one
 chosen. The same machines as the strategies report (seed, n) and the same reading errors at every
 sd (only the scale changes). Writes reports/needle_208/strategies_measurement_error.csv/.md/.png.
 
-    python studies/needle_208_measurement.py [--out reports] [--seed 2026] [--n 2000]
+    python studies/needle_208_measurement.py [--out reports] [--seed 2026] [--n 500]
         [--n-jobs 1]
 """
 
@@ -41,7 +41,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="reports")
     ap.add_argument("--seed", type=int, default=2026)
-    ap.add_argument("--n", type=int, default=2000)
+    ap.add_argument("--n", type=int, default=500)
     ap.add_argument("--n-jobs", type=int, default=1)
     plots.add_figure_format(ap)
     args = ap.parse_args(argv)
