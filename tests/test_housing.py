@@ -163,3 +163,16 @@ def test_the_housing_share_table_adds_up(tmp_path):
     obj = json.loads((folder / "housing_share.json").read_text())
     housing = groups.set_index("group").loc["housing"]
     assert f"{housing.ST_share_adjusted_beta_pct:.0f} % with beta adjusted" in obj["headline"]
+
+
+def test_the_housing_flag_adds_the_housing_to_any_set_and_refuses_it_twice():
+    """--housing on a user's file set: the scan answers for the housing features under the
+    name SET_housing, and its rows equal those of the built-in base_housing for the base set;
+    a set that tolerances a housing feature already is refused in one line."""
+    flag = _json("scan", "--tolerances", "base", "--housing")
+    named = _json("scan", "--tolerances", "base_housing")
+    assert flag["context"]["tolerances"] == "base_housing"
+    assert flag["rows"] == named["rows"]
+    code, out, err = run("needle", "scan", "--tolerances", "base_housing", "--housing")
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert "Ax: is toleranced by set 'base_housing' already" in err

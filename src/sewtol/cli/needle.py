@@ -158,11 +158,13 @@ def _study_nominal(args):
 def _tolerances(args):
     from sewtol.mechanisms.needle_208.model import Needle208
     from sewtol.mechanisms.params import field_names
-    from sewtol.tolerances import needle_builtin_sets, resolve
+    from sewtol.tolerances import needle_builtin_sets, resolve, with_housing
 
     if getattr(args, "tolerance_set", None) is not None:  # `run FILE`: the file's set, resolved
         return args.tolerance_set
-    return resolve(args.tolerances, needle_builtin_sets(), field_names(Needle208))
+    ts = resolve(args.tolerances, needle_builtin_sets(), field_names(Needle208))
+    # --housing: the set plus the housing bores (a set that tolerances one already is refused)
+    return with_housing(ts) if getattr(args, "housing", False) else ts
 
 
 def cmd_needle_frames(args):
@@ -714,6 +716,10 @@ def _study_options(p, seed=True):
     p.add_argument("--tolerances", default="base",
                    help="base, recommended, base_housing, recommended_housing (with the "
                         "housing bores), FILE.toml or FILE.toml:SET (default base)")
+    p.add_argument("--housing", action="store_true",
+                   help="add the housing tolerances to the set (bores A, D and the guide: "
+                        "+/-0.02 mm per coordinate, the guide's direction +/-0.0229 deg; "
+                        "assumed, docs/needle_208.md); the set is named SET_housing")
     if seed:
         p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
         p.add_argument("--n-jobs", type=int, default=1,
