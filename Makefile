@@ -47,6 +47,9 @@ ifeq ($(strip $(TOLERANCES)),)
 	$(BIN)/python studies/needle_208_strategies.py --out $(REPORTS) --n 2000 --n-jobs 2 \
 		--figure-format $(FIGURE_FORMAT)
 	$(BIN)/python studies/needle_208_strategies_frames.py --out $(REPORTS) --n 500 --n-jobs 2
+	$(BIN)/python studies/needle_208_measurement.py --out $(REPORTS) --n 500 --n-jobs 2 \
+		--figure-format $(FIGURE_FORMAT)
+	$(BIN)/python studies/needle_208_housing.py --out $(REPORTS) --n-jobs 2
 	$(BIN)/python studies/needle_208_joint.py --out $(REPORTS)
 	$(BIN)/python studies/needle_208_clearances.py --out $(REPORTS) --n 400
 	$(BIN)/python studies/needle_208_index.py --out $(REPORTS)

@@ -103,6 +103,12 @@ class Plugins:
         the machine's as-built value, an absolute one's value).
     strategy_parameters : frozenset
         The compensator parameters the strategy adjuster takes.
+    measured_adjuster : callable or None
+        ``measured_adjuster(mech, values, compensators, phi_rad, noise, **options) -> dict``
+        (the strategy adjuster's keys, settings in each compensator's own terms): the
+        compensators set to the optimum of the adjusted output as MEASURED at the crank angles
+        `phi_rad` with the reading errors `noise` (machines x angles, the output's unit;
+        sewtol.measurement_error), the value the true output at those settings.
     failure_table : callable or None
         ``failure_table(mech, values) -> dict`` of arrays, every machine's first reason not to
         run at its values: ``status`` (the protocol's words), ``group`` and the mechanism's
@@ -123,6 +129,7 @@ class Plugins:
     adjuster_tol: float = 0.0
     strategy_adjuster: Callable | None = None
     strategy_parameters: frozenset = frozenset()
+    measured_adjuster: Callable | None = None
     failure_table: Callable | None = None
     columns: Mapping[str, Mapping[str, str]] = field(default_factory=dict, hash=False)
     name: str = ""

@@ -23,7 +23,7 @@ from __future__ import annotations
 import re
 import stat
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -347,6 +347,47 @@ CD +/-0.01. All uniform.
 """
 
 
+# The housing features of the 208 (ASSUMED: the source tolerances none of them; docs/needle_208.md,
+# "Housing tolerances"): the upper-shaft bore A, the rear-rocker pivot bore D and the guide bore
+# (its point N1 and its direction); F is the frame's origin. Bore positions: ISO 1101 position
+# tolerance diameter 0.04 mm (bores machined in one clamping on a machining centre or jig
+# borer), drawn as +-0.02 mm per coordinate; the guide bore's direction: 0.02 mm over the
+# 50 mm guide, +-0.0229 deg. (ISO 2768-1's general tolerances, class f +-0.15 mm for 30 ... 120
+# mm, are for dimensions a drawing leaves untoleranced, not for functional bores.)
+NEEDLE_208_HOUSING = (
+    _sym("Ax", 0.02), _sym("Ay", 0.02), _sym("Dx", 0.02), _sym("Dy", 0.02),
+    _sym("guide_x", 0.02), _sym("guide_y", 0.02), _sym("guide_angle", 0.0229))
+HOUSING_DESCRIPTION = ("housing bores A, D and the guide (assumed: position +-0.02 mm per "
+                       "coordinate, guide direction +-0.0229 deg)")
+
+
+def with_housing(tolerances: ToleranceSet, housing=NEEDLE_208_HOUSING,
+                 name: str | None = None) -> ToleranceSet:
+    """The set plus the housing tolerances (default: the 208's, `NEEDLE_208_HOUSING`), named
+    ``NAME_housing``. A parameter the set already tolerances is refused (the housing would
+    replace its tolerance silently)."""
+    own = {t.param for t in tolerances.items}
+    twice = [t.param for t in housing if t.param in own]
+    if twice:
+        raise ParameterError(twice[0], f"is toleranced by set '{tolerances.name}' already; the "
+                             "housing tolerances would replace it", tolerances.name)
+    return replace(tolerances, name=name or f"{tolerances.name}_housing",
+                   items=tolerances.items + tuple(housing),
+                   description=f"{tolerances.name} set plus {HOUSING_DESCRIPTION}")
+
+
+NEEDLE_208_HOUSING_SETS = {f"{k}_housing": with_housing(v) for k, v in NEEDLE_208_SETS.items()}
+"""Every built-in set of the 208 with the housing tolerances added (`with_housing`):
+``base_housing``, ``recommended_housing``. Kept apart from NEEDLE_208_SETS (the sets the
+committed reports rest on); every needle study takes them by name."""
+
+
+def needle_builtin_sets() -> dict[str, ToleranceSet]:
+    """The names a needle study takes as built-in sets: NEEDLE_208_SETS and their housing
+    variants (NEEDLE_208_HOUSING_SETS)."""
+    return {**NEEDLE_208_SETS, **NEEDLE_208_HOUSING_SETS}
+
+
 SYMMETRIC_RULE = ("must not be negative: a symmetric tolerance +/-X needs X >= 0 (give lower "
                   "and upper for a one-sided one)")
 
@@ -513,7 +554,8 @@ def resolve_all(specs: list[str] | None, builtin: dict[str, ToleranceSet],
 
 def needle_set(tolerances: ToleranceSet | str) -> ToleranceSet:
     """The needle tolerance set a study was given: a ToleranceSet as it is, or its string
-    shortcut, a built-in name ("base", "recommended") or "FILE.toml[:SET]".
+    shortcut, a built-in name ("base", "recommended", or either with the housing:
+    "base_housing", "recommended_housing") or "FILE.toml[:SET]".
 
     Parameters
     ----------
@@ -531,6 +573,7 @@ def needle_set(tolerances: ToleranceSet | str) -> ToleranceSet:
         from sewtol.mechanisms.needle_208.model import Needle208
         from sewtol.mechanisms.params import field_names
 
-        return resolve(tolerances, NEEDLE_208_SETS, field_names(Needle208))
-    raise ParameterError("tolerances", "must be a ToleranceSet, a set name (base, recommended) "
-                         "or 'FILE.toml[:SET]'", type(tolerances).__name__)
+        return resolve(tolerances, needle_builtin_sets(), field_names(Needle208))
+    raise ParameterError("tolerances", "must be a ToleranceSet, a set name (base, recommended, "
+                         "base_housing, recommended_housing) or 'FILE.toml[:SET]'",
+                         type(tolerances).__name__)

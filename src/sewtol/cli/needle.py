@@ -171,11 +171,13 @@ def _study_nominal(args):
 def _tolerances(args):
     from sewtol.mechanisms.needle_208.model import Needle208
     from sewtol.mechanisms.params import field_names
-    from sewtol.tolerances import NEEDLE_208_SETS, resolve
+    from sewtol.tolerances import needle_builtin_sets, resolve, with_housing
 
     if getattr(args, "tolerance_set", None) is not None:  # `run FILE`: the file's set, resolved
         return args.tolerance_set
-    return resolve(args.tolerances, NEEDLE_208_SETS, field_names(Needle208))
+    ts = resolve(args.tolerances, needle_builtin_sets(), field_names(Needle208))
+    # --housing: the set plus the housing bores (a set that tolerances one already is refused)
+    return with_housing(ts) if getattr(args, "housing", False) else ts
 
 
 def cmd_needle_frames(args):
@@ -432,6 +434,19 @@ def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
     print_notes(args, _fixed_notes(record))
 
 
+def _measurement(args):
+    """--measurement-error SD_UM [--measured-positions K]: None for none or 0."""
+    from sewtol.measurement_error import DEFAULT_POSITIONS, parse_cli
+
+    sd, k = getattr(args, "measurement_error", None), getattr(args, "measured_positions", None)
+    if sd is None:
+        if k is not None:
+            raise ParameterError("--measured-positions", "needs --measurement-error (the sd "
+                                 "of a reading)", k)
+        return None
+    return parse_cli(sd, DEFAULT_POSITIONS if k is None else k)
+
+
 def cmd_needle_strategies(args):
     from sewtol.mechanisms.needle_208.compensators import Strategy, default_strategies
     from sewtol.mechanisms.needle_208.tables import strategies_table
@@ -443,6 +458,7 @@ def cmd_needle_strategies(args):
                  resume="it keeps no checkpoints; rerun with the same seed",
                  scheduler="it runs on this machine; use --n-jobs")
     strategy = _strategy(args, setting_errors=True)
+    measurement = _measurement(args)
     params, tolerances = _at_beta_star(args, _study_nominal(args)), _tolerances(args)
     rows = default_strategies()
     if strategy is not None:
@@ -451,16 +467,17 @@ def cmd_needle_strategies(args):
         rows.append(strategy)
     started = now()
     res = strategies_table(params, tolerances, args.n, args.seed, rows, n_jobs=args.n_jobs,
-                           progress=args.progress)
+                           progress=args.progress, measurement=measurement)
     table = res.to_dataframe()
     frames = {"strategies": table}
     for r in rows:
         safe = "".join(ch if ch.isalnum() else "_" for ch in r.name)
         frames[f"machines_{safe}"] = deviation_columns(res.machines(r.name), res.params)
+    reading = {} if measurement is None else {"measurement_error": measurement.to_dict()}
     inputs = study_inputs(args, "strategies", params, tolerances, limit_um=10.0,
-                     strategies={r.name: _strategy_record(r) for r in rows})
+                          strategies={r.name: _strategy_record(r) for r in rows}, **reading)
     context = {**_context(args, params, tolerances, strategy),
-               "strategy": [r.name for r in rows], "limit_um": 10.0}
+               "strategy": [r.name for r in rows], "limit_um": 10.0, **reading}
     obj = {"context": context, **_fixed_record(args, params, strategy),
            "rows": table.to_dict(orient="records")}
     write_outputs(args, "strategies", inputs, started, obj, frames, [])
@@ -621,7 +638,7 @@ def allocation_figure(table, reference: str, target: float, ax):
 
 
 def cmd_needle_worst_case(args):
-    from sewtol.mechanisms.needle_208.tables import worst_case_table
+    from sewtol.mechanisms.needle_208.tables import MAX_CORNER_PARAMS, worst_case_table
 
     strategy = _strategy(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
@@ -629,9 +646,9 @@ def cmd_needle_worst_case(args):
     if not active.items:
         raise ParameterError("--tolerances", "has no tolerance with a non-zero width",
                              tolerances.name)
-    if len(active.items) > 10:
-        raise ParameterError("--tolerances", "worst case enumerates corners; at most 10 "
-                             "tolerances", len(active.items))
+    if len(active.items) > MAX_CORNER_PARAMS:
+        raise ParameterError("--tolerances", "worst case enumerates corners; at most "
+                             f"{MAX_CORNER_PARAMS} tolerances", len(active.items))
     tolerances.check_against(params)
     _check_beta_range(args)
     params = _at_beta_star(args, params, strategy)
@@ -743,7 +760,12 @@ def _study_options(p, seed=True):
     """--tolerances and, for the studies that draw machines, --seed, --n-jobs, --scheduler,
     --progress, --out and --resume."""
     p.add_argument("--tolerances", default="base",
-                   help="base, recommended, FILE.toml or FILE.toml:SET (default base)")
+                   help="base, recommended, base_housing, recommended_housing (with the "
+                        "housing bores), FILE.toml or FILE.toml:SET (default base)")
+    p.add_argument("--housing", action="store_true",
+                   help="add the housing tolerances to the set (bores A, D and the guide: "
+                        "+/-0.02 mm per coordinate, the guide's direction +/-0.0229 deg; "
+                        "assumed, docs/needle_208.md); the set is named SET_housing")
     if seed:
         p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
         p.add_argument("--n-jobs", type=int, default=1,
@@ -803,6 +825,13 @@ def add_needle(sub) -> None:
     _study_options(p)
     p.add_argument("--n", type=int, default=500, help="machines (default 500)")
     _adjust_options(p)
+    p.add_argument("--measurement-error", default=None, metavar="SD_UM",
+                   help="set the compensators from a reading of the needle bar's deviation "
+                        "with a normal error of this sd (um) at each measured position (0: "
+                        "from the true deviation; docs/adjustment.md)")
+    p.add_argument("--measured-positions", type=int, default=None, metavar="K",
+                   help="with --measurement-error: the handwheel positions read, equally "
+                        "spaced over a turn (default 36, every 10 deg)")
     plot_option(p, "the yield of each strategy with its 95 %% interval")
     wide_option(p)
     p.set_defaults(func=cmd_needle_strategies)

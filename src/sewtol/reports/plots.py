@@ -476,3 +476,23 @@ def yield_vs_setting_error(curve, ax=None, label: str | None = None):
     ax.grid(True, lw=0.3)
     ax.legend(fontsize=7)
     return ax
+
+
+def yield_vs_measurement_error(curve, ax=None, label: str | None = None):
+    """The yield of a strategy (%) against the sd of the reading its compensators are set from,
+    with its 95 % interval as a band (`sewtol.studies.strategies.measurement_curve`'s result)."""
+    ax = ax or plt.gca()
+    w = np.asarray(curve.sds_um, float)
+    y = curve.yields * 100
+    lo, hi = (np.array([c[i] for c in curve.yield_ci]) * 100 for i in (0, 1))
+    line, = ax.plot(w, y, marker="o", ms=3, label=label or f"{curve.strategy}")
+    ax.fill_between(w, lo, hi, color=line.get_color(), alpha=0.2, lw=0)
+    ax.set_xlabel(f"reading error of the needle path, normal sd ({MICRO}) at "
+                  f"{curve.positions} positions")
+    ax.set_ylabel("yield (%)")
+    ax.set_ylim(-2, 102)
+    ax.set_title(f"Yield against the measurement error, {curve.n} machines "
+                 f"({curve.tolerances}, 95 % interval)", fontsize=9)
+    ax.grid(True, lw=0.3)
+    ax.legend(fontsize=7)
+    return ax

@@ -24,6 +24,14 @@ setting error. The errors are drawn from the study's seed, one stream per compen
 the machines' (`setting_error.unit_draws`): the same seed gives the same tables for any chunking
 or n_jobs, and every row and every level of `yield_curve` uses the same draws (only the scale
 changes). With every compensator exact the row is the joint optimum, as before.
+
+Setting from a measurement (`measurement`, sewtol.measurement_error): every stage's optimum is
+then the optimum of the output as the fitter READS it (the mechanism's `measured_adjuster`
+plug-in: the needle's reads d at equally spaced crank angles, each reading with a normal
+error), and the machine's figure is the true output at the settings made. The reading errors
+are drawn per machine from a stream of their own (`measurement_error.normal_draws`), the same
+for every row and every level of `measurement_curve` (only the scale changes); sd 0 is exact
+(the rows without the option, bit for bit).
 """
 
 from __future__ import annotations
@@ -35,8 +43,10 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from sewtol import measurement_error as me
 from sewtol import setting_error as se
 from sewtol.errors import ParameterError
+from sewtol.measurement_error import MeasurementError
 from sewtol.mechanism.spec import Compensator as FileCompensator
 from sewtol.protocol import input_law, machines, plugins
 from sewtol.setting_error import SettingError
@@ -85,9 +95,30 @@ def _names(compensators) -> list[str]:
     return [getattr(c, "name", c) for c in comps]
 
 
-def _stage(mech, values, compensators, output, fast, options) -> Adjusted:
-    """The joint optimum of `compensators` (names, or objects) on machines `values`; none: the
-    machine as built."""
+def _measured_stage(mech, values, compensators, output, measured, options) -> Adjusted:
+    """The optimum of `output` as read (measured = (MeasurementError, reading errors (n, K)))
+    over `compensators`, by the mechanism's measured_adjuster; the value the true output."""
+    measurement, noise = measured
+    pl = plugins(mech)
+    objs = compensator_objects(mech, compensators)
+    names = [c.name for c in objs]
+    if pl.measured_adjuster is None or output != pl.adjusted_output \
+            or not pl.adjusts_strategy(names):
+        raise ParameterError("measurement_error", "needs a mechanism whose plug-in sets its "
+                             "compensators from a measured curve (the needle's, with its own "
+                             "compensators)", f"{mech.name}: {', '.join(names)}")
+    r = pl.measured_adjuster(mech, values or {}, tuple(objs), measurement.crank_angles_rad(),
+                             noise, **options)
+    known = ("value", "settings", "status", "at_bound")
+    return Adjusted(r["value"], dict(r["settings"]), r["status"], dict(r["at_bound"]),
+                    {k: v for k, v in r.items() if k not in known}, pl.name, "own")
+
+
+def _stage(mech, values, compensators, output, fast, options, measured=None) -> Adjusted:
+    """The joint optimum of `compensators` (names, or objects) on machines `values` (as read,
+    with `measured`); none: the machine as built."""
+    if measured is not None and _names(compensators):
+        return _measured_stage(mech, values, compensators, output, measured, options)
     if _names(compensators) or (fast and plugins(mech).adjusts_strategy(())):
         return adjusted(mech, values, compensators, output, fast=fast, **options)
     ev = mech.evaluate(values, [output])  # nothing to set: the machine as built
@@ -139,16 +170,17 @@ def fitting_order(mech, compensators) -> list:
 
 
 def set_in_order(mech, values, compensators, output, units: Mapping | None = None, *,
-                 fast: bool = True, **options) -> Adjusted:
+                 fast: bool = True, measured=None, **options) -> Adjusted:
     """Each machine adjusted as a fitter sets the compensators (the module docstring): in the
     fitting order, each imperfect one (a resolution or a setting error) at the joint optimum of
     those not yet set, rounded to its resolution, plus its error ``setting_error.from_unit(
     units[name])`` per machine, clipped to its box; the rest re-set optimally given it. With
     every compensator exact: the joint optimum (one call). The settings reported for an
-    imperfect compensator are the settings made (with their errors)."""
+    imperfect compensator are the settings made (with their errors). measured: (MeasurementError,
+    reading errors (n, K)) or None: every optimum is that of the output as read."""
     objs = compensator_objects(mech, compensators)
     if all(_exact(c) for c in objs):
-        return _stage(mech, values, compensators, output, fast, options)
+        return _stage(mech, values, compensators, output, fast, options, measured)
     order = fitting_order(mech, compensators)
     n = len(next(iter(values.values())))
     nominal = mech.nominal_values()
@@ -158,7 +190,7 @@ def set_in_order(mech, values, compensators, output, units: Mapping | None = Non
     for i, comp in enumerate(order):
         if _exact(comp):
             continue
-        a = _stage(mech, vals, _stage_arg(order[start:]), output, fast, options)
+        a = _stage(mech, vals, _stage_arg(order[start:]), output, fast, options, measured)
         first = a if first is None else first
         terms = a.terms if terms is None else terms
         for c in order[start:i + 1]:
@@ -180,7 +212,7 @@ def set_in_order(mech, values, compensators, output, units: Mapping | None = Non
             eps = 1e-6 * (c.high - c.low)
             made_bound[p] = (own <= c.low + eps) | (own >= _top(c) - eps)
         start = i + 1
-    last = _stage(mech, vals, _stage_arg(order[start:]), output, fast, options)
+    last = _stage(mech, vals, _stage_arg(order[start:]), output, fast, options, measured)
     extras = {}
     for k, v in last.extras.items():
         if isinstance(v, Mapping):  # per-compensator figures: each from the stage that set it
@@ -203,18 +235,21 @@ def _units(seed: int, mech, rows, n: int) -> dict[str, np.ndarray]:
     return {name: se.unit_draws(seed, name, 0, n) for name in names}
 
 
-def _adjust(mech, values, compensators, output, fast, options, units=None) -> Adjusted:
-    return set_in_order(mech, values, compensators, output, units, fast=fast, **options)
+def _adjust(mech, values, compensators, output, fast, options, units=None,
+            measured=None) -> Adjusted:
+    return set_in_order(mech, values, compensators, output, units, fast=fast,
+                        measured=measured, **options)
 
 
-def _chunk(mech, values, strategies, output, fast, options, threads, units=None):
+def _chunk(mech, values, strategies, output, fast, options, threads, units=None, measured=None):
     import numba
 
     before = numba.get_num_threads()
     if threads is not None:  # one numba thread per worker process (2 x 2 threads ran slower)
         numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     try:
-        return [_adjust(mech, values, s, output, fast, options, units) for s in strategies]
+        return [_adjust(mech, values, s, output, fast, options, units, measured)
+                for s in strategies]
     finally:
         numba.set_num_threads(before)
 
@@ -251,6 +286,7 @@ class StrategiesResult:
     adjusted: tuple[Adjusted, ...]
     resolutions: tuple[str, ...] = ()  # per row: each compensator's resolution, or "none"
     setting_errors: tuple[str, ...] = ()  # per row: each compensator's setting error, or "none"
+    measurement: str = "none"  # the reading the compensators are set from (none: the truth)
 
     @property
     def n(self) -> int:
@@ -290,6 +326,8 @@ class StrategiesResult:
                           else f"{k} -")
         setting = ({"resolution": self.resolutions[i], "setting_error": self.setting_errors[i]}
                    if self.resolutions else {})
+        if self.measurement != "none":  # a column only with the option (the tables before it)
+            setting["measurement_error"] = self.measurement if self.compensators[i] else "none"
         return {"strategy": name, "compensators": ",".join(self.compensators[i]) or "-",
                 **setting, **c, "yield": c["ok"] / c["n"], "yield_ci_low": float(ci.low),
                 "yield_ci_high": float(ci.high), **quantiles(a.value),
@@ -309,13 +347,15 @@ class StrategiesResult:
 
 def strategies(mech, tolerances, n: int, seed: int, strategies: Mapping | None = None,
                output: str | None = None, spec=None, *, fast: bool = True, n_jobs: int = 1,
-               progress=False, **options) -> StrategiesResult:
+               progress=False, measurement: MeasurementError | None = None,
+               **options) -> StrategiesResult:
     """The machines 0 .. n-1 of `seed` (`law.draw`) under each strategy (name -> compensators;
     None: `default_strategies`), `output` (default: that of the mechanism's first spec, else its
     first) adjusted and held to `spec` (default: the mechanism's spec of it; none: every machine
     that runs is ok). fast=False: the generic optimiser always; n_jobs, progress: chunks of
     CHUNK machines on worker processes; options go to the mechanism's strategy adjuster (e.g.
-    the needle's limit_um)."""
+    the needle's limit_um). measurement: the compensators set from a reading of the output
+    with this error (sewtol.measurement_error; None or sd 0: from the truth)."""
     if isinstance(n, bool) or int(n) != n or n < 2:
         raise ParameterError("n", "must be a whole number >= 2", n)
     check_seed(seed)
@@ -331,12 +371,21 @@ def strategies(mech, tolerances, n: int, seed: int, strategies: Mapping | None =
     values = machines(mech, dev)
     rows = list(strategies.values())
     units = _units(seed, mech, rows, int(n))
+    if measurement is not None and not isinstance(measurement, MeasurementError):
+        raise ParameterError("measurement", "must be a MeasurementError or None",
+                             type(measurement).__name__)
+    if measurement is not None and measurement.exact:
+        measurement = None
+    noise = None if measurement is None else measurement.sd_um * me.normal_draws(
+        seed, 0, int(n), measurement.positions)
     if n_jobs == 1 and not progress:
-        adj = [_adjust(mech, values, s, output, fast, options, units) for s in rows]
+        measured = None if noise is None else (measurement, noise)
+        adj = [_adjust(mech, values, s, output, fast, options, units, measured) for s in rows]
     else:
         parts = run_chunks(_chunk, [(mech, {k: v[a:b] for k, v in values.items()}, rows, output,
                                      fast, options, 1 if n_jobs != 1 else None,
-                                     {k: v[a:b] for k, v in units.items()})
+                                     {k: v[a:b] for k, v in units.items()},
+                                     None if noise is None else (measurement, noise[a:b]))
                                     for a, b in chunk_bounds(int(n), CHUNK)],
                            n_jobs=n_jobs, progress=progress, desc="strategies")
         adj = [_concat([p[i] for p in parts]) for i in range(len(rows))]
@@ -344,7 +393,8 @@ def strategies(mech, tolerances, n: int, seed: int, strategies: Mapping | None =
     return StrategiesResult(mech.name, output, mech.output(output).unit, spec, law.name,
                             int(seed), dev, tuple(strategies), tuple(tuple(_names(s))
                                                                      for s in rows), tuple(adj),
-                            tuple(r for r, _ in labels), tuple(e for _, e in labels))
+                            tuple(r for r, _ in labels), tuple(e for _, e in labels),
+                            me.label(measurement))
 
 
 def _unit(mech, c) -> str:
@@ -458,3 +508,69 @@ def yield_curve(mech, tolerances, n: int, seed: int, strategy, compensator: str,
                             zip(frame.yield_ci_low, frame.yield_ci_high, strict=True)),
                       tuple({k: float(row[k]) for k in ("p50", "p95", "p99")}
                             for _, row in frame.iterrows()))
+
+
+@dataclass(frozen=True)
+class MeasurementCurve:
+    """The yield of one strategy against the sd of the reading the compensators are set from:
+    the same machines and the same reading errors at every sd (only the scale changes), from
+    `measurement_curve`. sd 0 is the row set from the truth."""
+
+    mechanism: str
+    strategy: str
+    positions: int
+    tolerances: str
+    seed: int
+    n: int
+    sds_um: tuple[float, ...]
+    counts: tuple[dict, ...]  # per sd: ok, out_of_spec, cannot_close, dead_point, n
+    yield_ci: tuple[tuple[float, float], ...]
+    quantiles: tuple[dict, ...]  # per sd: p50, p95, p99 of the true adjusted output
+
+    @property
+    def yields(self) -> np.ndarray:
+        return np.array([c["ok"] / c["n"] for c in self.counts])
+
+    def to_dataframe(self) -> pd.DataFrame:
+        """One row per sd: ``measurement_sd_um``, the positions, the counts (they add up to n),
+        the yield with its 95 % Clopper-Pearson interval, the quantiles."""
+        return pd.DataFrame([{"strategy": self.strategy, "measurement_sd_um": w,
+                              "positions": self.positions,
+                              **{k: c[k] for k in (*STATUSES, "n")}, "yield": c["ok"] / c["n"],
+                              "yield_ci_low": lo, "yield_ci_high": hi, **q}
+                             for w, c, (lo, hi), q in zip(self.sds_um, self.counts,
+                                                           self.yield_ci, self.quantiles,
+                                                           strict=True)])
+
+    def to_dict(self) -> dict:
+        return {"mechanism": self.mechanism, "strategy": self.strategy,
+                "positions": self.positions, "tolerances": self.tolerances, "seed": self.seed,
+                "n": self.n,
+                "yield_ci_method": "Clopper-Pearson exact binomial interval of ok / n, 95 %",
+                "rows": self.to_dataframe().to_dict("records")}
+
+
+def measurement_curve(mech, tolerances, n: int, seed: int, strategy, sds_um,
+                      positions: int = me.DEFAULT_POSITIONS, output: str | None = None,
+                      spec=None, *, fast: bool = True, n_jobs: int = 1, progress=False,
+                      **options) -> MeasurementCurve:
+    """The yield of `strategy` on machines 0 .. n-1 of `seed` with its compensators set from a
+    reading of `output` at `positions` crank angles, each with a normal error of each sd of
+    `sds_um` (sd 0: from the truth). The same machines, setting errors and reading errors (up
+    to the scale) at every sd: common random numbers."""
+    sds = tuple(float(w) for w in sds_um)
+    if not sds or any(not (np.isfinite(w) and w >= 0) for w in sds):
+        raise ParameterError("sds_um", "must be finite numbers >= 0", sds_um)
+    frames = []
+    for w in sds:
+        r = strategies(mech, tolerances, n, seed, {"row": strategy}, output, spec, fast=fast,
+                       n_jobs=n_jobs, progress=progress,
+                       measurement=MeasurementError(w, positions), **options)
+        frames.append(r.to_dataframe().iloc[0])
+    name = getattr(strategy, "name", "+".join(_names(strategy)))
+    return MeasurementCurve(mech.name, name, int(positions), r.tolerances, int(seed), r.n, sds,
+                            tuple({k: int(row[k]) for k in (*STATUSES, "n")} for row in frames),
+                            tuple((float(row.yield_ci_low), float(row.yield_ci_high))
+                                  for row in frames),
+                            tuple({k: float(row[k]) for k in ("p50", "p95", "p99")}
+                                  for row in frames))

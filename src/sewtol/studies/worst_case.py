@@ -35,7 +35,8 @@ from sewtol.studies.adjusting import Adjusted, adjusted, evaluated
 from sewtol.studies.scan import checked
 from sewtol.tolerances import ToleranceSet
 
-MAX_CORNER_PARAMS = 12
+# 2**14 corners in one batch (the needle's sets with the housing have up to 14 tolerances)
+MAX_CORNER_PARAMS = 14
 # central-difference step of the local search, as a fraction of each tolerance width
 FD_STEP = 1e-4
 

@@ -236,6 +236,25 @@ def needle_strategy_adjuster(mech, values, compensators, limit_um: float = 10.0,
             "at_limit": dict(a.at_limit)}
 
 
+def needle_measured_adjuster(mech, values, compensators, phi_rad, noise_um,
+                             limit_um: float = 10.0, plateaus: bool = True) -> dict:
+    """The compensators set from a reading of d at the crank angles phi_rad with errors
+    noise_um (machines x angles, um; needle_208.measurement), the true SumDelta at those
+    settings; the strategy adjuster's keys plus ``measured_um`` (the SumDelta the fitter read).
+    Plateaus are not searched (a reading's optimum is one setting): low = high = the setting."""
+    from sewtol.mechanisms.needle_208.compensators import Strategy
+    from sewtol.mechanisms.needle_208.measurement import adjust_measured
+
+    c, _ = _batch(mech, values)
+    a, measured = adjust_measured(c, Strategy("adjusted", tuple(compensators)), limit_um,
+                                  phi_rad, noise_um)
+    return {"value": a.total_um, "settings": dict(a.settings), "status": a.status,
+            "at_bound": dict(a.at_limit), "total_um": a.total_um, "plus_um": a.plus_um,
+            "minus_um": a.minus_um, "low": dict(a.plateau_low), "high": dict(a.plateau_high),
+            "achieved_um": a.achieved_um, "total_before_um": a.total_before_um,
+            "at_limit": dict(a.at_limit), "measured_um": measured}
+
+
 def needle_failure_table(mech, values) -> dict[str, np.ndarray]:
     """Per machine at its values (beta as given): the first reason in assembly order it does
     not run (status.failure_reasons: status, group = the dyad, angle_deg, gap_mm,
@@ -273,6 +292,7 @@ def _plugins():
                    adjusted_output="SumDelta_um", adjuster_tol=ad.PLATEAU_TOL_UM,
                    strategy_adjuster=needle_strategy_adjuster,
                    strategy_parameters=frozenset(P.field_names(Needle208)),
+                   measured_adjuster=needle_measured_adjuster,
                    failure_table=needle_failure_table,
                    columns=COLUMNS, name="needle_208")
 

@@ -26,6 +26,7 @@ import pandas as pd
 from scipy import stats
 
 from sewtol.errors import ParameterError
+from sewtol.measurement_error import MeasurementError
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.needle_208 import beta as sb
 from sewtol.mechanisms.needle_208.adjustment import STATUSES, Adjustment, adjust, columns_of
@@ -52,7 +53,8 @@ if TYPE_CHECKING:
     from sewtol.studies.sobol import SobolResult
 
 OUTPUT = "SumDelta_um"
-MAX_CORNER_PARAMS = 10
+# 2**14 corners: the built-in sets with the housing (recommended_housing has 14 tolerances)
+MAX_CORNER_PARAMS = 14
 FIGURES = ("plus_um", "minus_um", "total_um")
 
 
@@ -235,7 +237,8 @@ def worst_case(nominal, tolerances: ToleranceSet | str, adjust: bool,
 
     tolerances = needle_set(tolerances)
     if len(tolerances.active().params) > MAX_CORNER_PARAMS:
-        raise ParameterError("tolerances", "worst case enumerates corners; at most 10 parameters",
+        raise ParameterError("tolerances", "worst case enumerates corners; at most "
+                             f"{MAX_CORNER_PARAMS} parameters",
                              len(tolerances.active().params))
     comps, options = None, {}
     if adjust:
@@ -356,6 +359,9 @@ class StrategiesResult:
     seed: int
     limit_um: float
     limits: dict  # param -> (lower, upper) deviation limits of the tolerance set
+    # the reading the compensators were set from (sewtol.measurement_error label; none: the
+    # true deviation)
+    measurement: str = "none"
 
     @property
     def n(self) -> int:
@@ -363,9 +369,13 @@ class StrategiesResult:
 
     def to_dataframe(self) -> pd.DataFrame:
         """One row per strategy; at_limit_NAME (the share of machines with compensator NAME at
-        an end of its range) sits after at_limit_share, NaN in a row without NAME."""
+        an end of its range) sits after at_limit_share, NaN in a row without NAME;
+        measurement_error after setting_error (none in a row that sets nothing)."""
         table = pd.concat([summarise_frame(a.to_dataframe(), a.strategy, a.limit_um)
                            for a in self.adjustments], ignore_index=True)
+        table.insert(list(table.columns).index("setting_error") + 1, "measurement_error",
+                     [self.measurement if a.strategy.compensators else "none"
+                      for a in self.adjustments])
         split = [f"at_limit_{c.name}" for a in self.adjustments for c in a.strategy.compensators]
         split = list(dict.fromkeys(split))
         rest = [c for c in table.columns if c not in split]
@@ -422,7 +432,7 @@ class StrategiesResult:
 def strategies_table(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed: int,
                      strategies: list[Strategy] | None = None, limit_um: float = 10.0,
                      n_jobs: int = 1, progress: bool | Callable[[int, int], None] = False,
-                     ) -> StrategiesResult:
+                     measurement: MeasurementError | None = None) -> StrategiesResult:
     """`sewtol needle strategies`: the strategies study (sewtol.studies.strategies) of the same
     n machines (one draw from `seed`) on `as_mechanism(nominal)`, each strategy's joint optimum
     by the needle's strategy adjuster (needle_208.adjustment), in the source's columns.
@@ -446,6 +456,9 @@ def strategies_table(nominal: Needle208, tolerances: ToleranceSet | str, n: int,
         Worker processes (chunks of machines; the same numbers for any n_jobs).
     progress : bool or callable
         A progress bar, or a callback progress(done, total).
+    measurement : sewtol.measurement_error.MeasurementError or None
+        Set the compensators from a reading of the needle bar's deviation with this error
+        (None or sd 0: from the true deviation, as before).
 
     Returns
     -------
@@ -470,7 +483,8 @@ def strategies_table(nominal: Needle208, tolerances: ToleranceSet | str, n: int,
     strategies = [s.check_names(valid) for s in strategies]
     r = ST.strategies(as_mechanism(nominal), tolerances, n, seed,
                       {s.name: s for s in strategies}, OUTPUT, Spec(OUTPUT, float(limit_um)),
-                      n_jobs=n_jobs, progress=progress, limit_um=limit_um)
+                      n_jobs=n_jobs, progress=progress, limit_um=limit_um,
+                      measurement=measurement)
     adjs = tuple(Adjustment(s, float(limit_um), a.extras["total_before_um"], a.value,
                             a.extras["plus_um"], a.extras["minus_um"], a.extras["achieved_um"],
                             a.status, a.settings, a.extras["low"], a.extras["high"],
@@ -478,7 +492,7 @@ def strategies_table(nominal: Needle208, tolerances: ToleranceSet | str, n: int,
                                                                   strict=True))
     return StrategiesResult(pd.DataFrame(r.deviations), adjs, tuple(tol.params), tolerances.name,
                             int(seed), float(limit_um),
-                            {t.param: (t.lower, t.upper) for t in tol.items})
+                            {t.param: (t.lower, t.upper) for t in tol.items}, r.measurement)
 
 
 def adjusted_montecarlo_model(nominal, dev, strategy: Strategy, limit_um: float):
@@ -744,7 +758,10 @@ def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 
     the widest tolerance) bisected in (0, max_mm). A strategy: its exact joint optimum; each
     reference tolerance keeps its own (possibly asymmetric) shape, both limits scaled by
     min(k a_i, max_mm) / h_i (h_i its half-width, slopes per h_i), k bisected geometrically
-    (it spans decades) up to where every tolerance reaches max_mm.
+    (it spans decades) up to where every tolerance reaches max_mm. A tolerance the strategy
+    cancels alone at its reference limits (SumDelta within 1e-3 um of the nominal's at both,
+    e.g. the guide bore's position under the guide shift) is held at its reference limits
+    (``held_at_reference``), not scaled.
 
     Parameters
     ----------
@@ -820,22 +837,35 @@ def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 
         del columns["lower"]
     else:
         half = np.array([0.5 * (t.upper - t.lower) for t in ref.items])
+        # a tolerance the strategy cancels alone at its reference limits (within the plateau
+        # tolerance, e.g. the guide bore's position under the guide shift) has no slope to
+        # shape it: scaled like the others it would take the cap at once and use up the
+        # compensator's range the others need (the housing sets: every other tolerance fell to
+        # 1e-9 mm), so it is held at its reference limits and the rest are allocated
+        held = np.array(slope) * half < 1e-3
+        if held.all():
+            held[:] = False
+        free = (c / s**2) ** (1.0 / 3.0)
+        shape = np.where(held, np.nan, free)
+        shape = np.where(held, half, shape / np.nanmax(shape))
 
         def limits(k):
-            f = np.minimum(k * shape, max_mm) / half
+            f = np.where(held, half, np.minimum(k * shape, max_mm)) / half
             return ToleranceSet("trial", tuple(Tolerance(t.param, t.lower * fi, t.upper * fi)
                                                for t, fi in zip(ref.items, f, strict=True)),
                                 dependence=ref.dependence)
 
         # k up to where every tolerance reaches the cap, so the cap never ends the search early
         a = A.allocate(mech, ref, OUTPUT, target, limit_um, None, n, seed,
-                       adjust=strategy.compensators, bracket=(0.0, float(max_mm / shape.min())),
+                       adjust=strategy.compensators, bracket=(0.0, float(max_mm / shape[~held].min())),
                        steps=10 if steps is None else steps, geometric=True, limits=limits,
                        limit_um=limit_um, plateaus=False)
-        columns = ALLOCATION_COLUMNS
+        columns = {**ALLOCATION_COLUMNS, "held_at_reference": "held_at_reference"}
     table = a.table.assign(cost_weight=c, slope_um_per_mm=s,
                            reference_lower=[t.lower for t in ref.items],
                            reference_upper=[t.upper for t in ref.items])
+    if strategy is not None:
+        table = table.assign(held_at_reference=held)
     return replace(a, table=table, columns=columns, yield_=a.yield_ if a.scale > 0 else 1.0,
                    adjust="beta" if strategy is None else strategy.name)
 
