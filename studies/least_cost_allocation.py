@@ -2,7 +2,7 @@
 beside today's allocation at equal yield, checked on fresh machines.
 
     python studies/least_cost_allocation.py needle --out reports/needle_208 [--n 2000 --seed 2026]
-    python studies/least_cost_allocation.py feed --out reports/feed_131-42-3 [--n 100 --seed 2026]
+    python studies/least_cost_allocation.py feed --out reports/feed_131-42-3 [--n 60 --seed 2026]
     python studies/least_cost_allocation.py needle --strategies beta --out /tmp/beta   # one each,
     python studies/least_cost_allocation.py combine --parts /tmp/beta /tmp/none --out DIR  # as one
 
@@ -18,8 +18,8 @@ feed: the 131-42+3 feed's lower dog step, within +-0.01 mm of nominal, 90 % with
 the feed chain's links (examples/tolerances/feed_131_cost.toml: the file's illustrative +-0.02 mm
 set with the same assumed cost); today's generic allocation is the common scale of that set
 (`sewtol run feed_131 allocation`). The feed's model takes about 10 ms a machine (720 angles,
-both dogs), so its search runs on 100 machines with a small budget: the restarts say how far
-they agree.
+both dogs), so its search runs on 60 machines with a small budget and no centre scan in the
+polish: the restarts say how far they agree.
 
 Writes DIR/allocation_cost.md/.csv (per strategy and parameter: today's limits and cost beside
 the least-cost ones, and what limits each side), DIR/allocation_cost_summary.md/.csv (totals,
@@ -155,6 +155,7 @@ def feed(args, out: Path) -> None:
                         restarts=args.restarts,
                         popsize=args.popsize, maxiter=args.maxiter, sweeps=args.sweeps,
                         shape=ref, shape_name="today (common scale of the set)",
+                        centre_scan=False,
                         check_n=args.check_n, check_seed=args.seed + 1)
     sec = time.perf_counter() - t0
     print(f"feed: cost {res.cost:.2f} vs common scale {res.compare['cost'][1]:.2f}, "
@@ -175,7 +176,7 @@ def feed(args, out: Path) -> None:
                               "half-width within [0.01, 4] x the reference's",
                 "search": f"differential evolution, {args.restarts} restarts, popsize "
                           f"{args.popsize} x 2d, {args.maxiter} generations, {args.sweeps} "
-                          "polish sweeps",
+                          "polish sweeps without the centre scan",
                 "units": "mm"}
     write(out, [side_by_side(res, "none", "today")], [summary(res, "none", sec)],
           [res.restarts.assign(strategy="none")], settings,
@@ -207,14 +208,14 @@ def main(argv=None) -> None:
     p.add_argument("--out", required=True)
     p.add_argument("--seed", type=int, default=2026)
     p.add_argument("--n", type=int, default=None, help="machines of the search (needle 2000, "
-                   "feed 100)")
+                   "feed 60)")
     p.add_argument("--check-n", type=int, default=None, help="fresh machines (needle 20000, "
-                   "feed 1000)")
+                   "feed 600)")
     p.add_argument("--target", type=float, default=None, help="needle 0.9973, feed 0.9")
     p.add_argument("--confidence", type=float, default=0.95)
     p.add_argument("--restarts", type=int, default=2)
     p.add_argument("--popsize", type=int, default=None, help="needle 3, feed 2")
-    p.add_argument("--maxiter", type=int, default=None, help="needle 15, feed 4")
+    p.add_argument("--maxiter", type=int, default=None, help="needle 12, feed 3")
     p.add_argument("--sweeps", type=int, default=None, help="needle 2, feed 1")
     p.add_argument("--strategies", default="beta,none,beta+shift",
                    help="needle: comma-separated, of beta, none, beta+shift")
@@ -226,8 +227,8 @@ def main(argv=None) -> None:
     is_needle = args.mechanism == "needle"
     if is_needle and args.max_half is None:
         args.max_half = 1.0
-    for key, n_val, f_val in (("n", 2000, 100), ("check_n", 20000, 1000),
-                              ("target", 0.9973, 0.9), ("popsize", 3, 2), ("maxiter", 15, 4),
+    for key, n_val, f_val in (("n", 2000, 60), ("check_n", 20000, 600),
+                              ("target", 0.9973, 0.9), ("popsize", 3, 2), ("maxiter", 12, 3),
                               ("sweeps", 2, 1)):
         if getattr(args, key) is None:
             setattr(args, key, n_val if is_needle else f_val)

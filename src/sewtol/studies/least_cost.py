@@ -273,14 +273,15 @@ def common_scale(zy: ZoneYield, lower, upper, max_half, need_ok: int,
 
 
 def polish(zy: ZoneYield, lower, upper, max_half, need_ok: int, sweeps: int = 2,
-           steps: int = POLISH_STEPS) -> tuple[np.ndarray, np.ndarray]:
+           steps: int = POLISH_STEPS, scan: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Each zone in turn pushed outward (`push`) and slid (`slide`), `sweeps` times; then
     moved back to the nominal where that keeps need_ok (`recentre`)."""
     lower, upper = np.array(lower, float), np.array(upper, float)
     for _ in range(sweeps):
         for i in range(len(lower)):
             lower, upper = push(zy, lower, upper, i, max_half, need_ok, steps)
-            lower, upper = slide(zy, lower, upper, i, max_half, need_ok, steps)
+            if scan:
+                lower, upper = slide(zy, lower, upper, i, max_half, need_ok, steps)
     return recentre(zy, lower, upper, need_ok)
 
 
@@ -437,6 +438,7 @@ def least_cost(mech, tolerances: ToleranceSet, output: str, target: float = 0.99
                confidence: float | None = 0.95, widen: float = 4.0, narrow: float = 0.01,
                max_half: float | dict | None = None,
                restarts: int = 2, popsize: int = 5, maxiter: int = 40, sweeps: int = 2,
+               centre_scan: bool = True,
                shape: ToleranceSet | None = None, shape_name: str = "common scale",
                check_n: int | None = None, check_seed: int | None = None,
                fast: bool = True, **options) -> LeastCost:
@@ -448,7 +450,8 @@ def least_cost(mech, tolerances: ToleranceSet, output: str, target: float = 0.99
     own), over the set's table. confidence: see `allowed_failures`. shape: the set whose largest
     common scale (same criterion, same machines) is the comparison (default the reference set);
     shape_name labels it. check_n (default 10 n) fresh machines of seed check_seed (default
-    seed + 1) re-estimate the yield of both; check_n 0: no check. adjust and options: the
+    seed + 1) re-estimate the yield of both; check_n 0: no check. centre_scan False: the
+    polish pushes the limits without scanning the centres (cheaper: for slow models). adjust and options: the
     compensators and the strategy adjuster's options, as `sewtol.studies.allocation.allocate`
     takes them; fast=False: the generic reference path."""
     mech.output(output)
@@ -556,7 +559,7 @@ def least_cost(mech, tolerances: ToleranceSet, output: str, target: float = 0.99
         found = objective(res.x)
         feasible = found <= cost_max
         if feasible:
-            lo, hi = polish(zy, lo, hi, max_half, need_ok, int(sweeps))
+            lo, hi = polish(zy, lo, hi, max_half, need_ok, int(sweeps), scan=centre_scan)
             cost = total_cost(models, 0.5 * (hi - lo))
         else:  # the search found no zone that keeps the target: reported, never polished
             cost = np.nan
