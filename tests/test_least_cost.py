@@ -299,11 +299,18 @@ def test_one_sided_limit_shifts_the_zones(mech):
     assert res.check is None
 
 
-def test_same_seed_same_allocation(mech):
-    kw = dict(n=100, seed=3, costs=RECIPROCAL, restarts=1, popsize=2, maxiter=3, check_n=200)
+@pytest.mark.parametrize("centre_scan", [True, False])
+def test_same_seed_same_allocation(mech, centre_scan):
+    kw = dict(n=100, seed=3, costs=RECIPROCAL, restarts=1, popsize=2, maxiter=3, check_n=200,
+              centre_scan=centre_scan)
     a = LC.least_cost(mech, mech.tolerance_sets["uniform"], "stroke_mm", 0.8, 20.02, 19.98, **kw)
     b = LC.least_cost(mech, mech.tolerance_sets["uniform"], "stroke_mm", 0.8, 20.02, 19.98, **kw)
     assert a.table.equals(b.table) and a.compare.equals(b.compare)
+    t = a.table.set_index("param")
+    ok = brute_counts([t.loc["r", "lower"], t.loc["L", "lower"]],
+                      [t.loc["r", "upper"], t.loc["L", "upper"]], ("uniform", "uniform"),
+                      draw_units(unit_streams(3, 100), 2, 0, 100), (19.98, 20.02))
+    assert 100 - ok == a.failures <= a.allowed_failures
 
 
 @pytest.mark.parametrize("kwargs, field", [({"target": 1.0}, "target"),
