@@ -192,7 +192,8 @@ def combine(args, out: Path) -> None:
               for k in ("allocation_cost", "summary", "restarts")}
     settings = {k: v for k, v in runs[0]["settings"].items()}
     write(out, frames["allocation_cost"], frames["summary"], frames["restarts"], settings,
-          {"study": runs[0]["study"], "args": [r["args"] for r in runs],
+          {"study": runs[0]["study"],
+           "args": [{k: v for k, v in r["args"].items() if k != "out"} for r in runs],
            "results": {k: v for r in runs for k, v in r["results"].items()},
            **version_record()})
 
