@@ -111,6 +111,7 @@ def needle(args, out: Path) -> None:
                             restarts=args.restarts,
                             popsize=args.popsize, maxiter=args.maxiter, sweeps=args.sweeps,
                             shape=rss.as_tolerance_set(), shape_name="today (RSS shape)",
+                            centre_scan=not args.no_centre_scan,
                             check_n=args.check_n, check_seed=args.seed + 1, **options)
         sec = time.perf_counter() - t0
         print(f"needle {name}: cost {res.cost:.2f} vs RSS {res.compare['cost'][1]:.2f}, "
@@ -134,7 +135,8 @@ def needle(args, out: Path) -> None:
                                   f"[0.01, 4] x the reference's and <= {args.max_half} mm",
                     "search": f"differential evolution, {args.restarts} restarts, popsize "
                               f"{args.popsize} x 2d, {args.maxiter} generations, {args.sweeps} "
-                              "polish sweeps",
+                              "polish sweeps" + (" without the centre scan"
+                                                 if args.no_centre_scan else ""),
                     "units": "mm"}
         write(out, rows, sums, restarts, settings,
               {"study": "least_cost_allocation needle", "args": vars(args), "results": runs,
@@ -190,7 +192,10 @@ def combine(args, out: Path) -> None:
     runs = [json.loads((Path(d) / "allocation_cost_run.json").read_text()) for d in args.parts]
     frames = {k: [pd.DataFrame(r["tables"][k]) for r in runs]
               for k in ("allocation_cost", "summary", "restarts")}
-    settings = {k: v for k, v in runs[0]["settings"].items()}
+    # each run's search budget goes with its rows (the parts may differ)
+    frames["summary"] = [f.assign(search=r["settings"]["search"])
+                         for f, r in zip(frames["summary"], runs, strict=True)]
+    settings = {**runs[0]["settings"], "search": "per strategy: the summary's search column"}
     write(out, frames["allocation_cost"], frames["summary"], frames["restarts"], settings,
           {"study": runs[0]["study"],
            "args": [{k: v for k, v in r["args"].items() if k != "out"} for r in runs],
@@ -218,6 +223,8 @@ def main(argv=None) -> None:
     p.add_argument("--popsize", type=int, default=None, help="needle 3, feed 2")
     p.add_argument("--maxiter", type=int, default=None, help="needle 12, feed 3")
     p.add_argument("--sweeps", type=int, default=None, help="needle 2, feed 1")
+    p.add_argument("--no-centre-scan", action="store_true",
+                   help="needle: polish by pushes alone (the feed always does)")
     p.add_argument("--strategies", default="beta,none,beta+shift",
                    help="needle: comma-separated, of beta, none, beta+shift")
     args = p.parse_args(argv)
