@@ -419,6 +419,8 @@ LAYOUT = [
     ("Sobol, SET tolerances", ["sobol_SET", "sobol_SET_second_order", "sobol_SET_convergence"],
      [("sobol_SET", "First-order and total Sobol indices with 95 % intervals")]),
     ("Tolerance limits and allocation", ["largest_tolerances", "allocation", "guides"], []),
+    # studies/least_cost_allocation.py (not in make report: about 10 min of CPU per strategy)
+    ("Least-cost allocation", ["allocation_cost_summary", "allocation_cost"], []),
     ("Adjustment strategies", ["strategies", "strategies_frames", "strategies_setting_error",
                                "strategies_SET_failures"],
      [("strategies_yield", "Yield by adjustment strategy"),

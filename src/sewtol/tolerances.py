@@ -16,6 +16,7 @@ TOML form (a file of one or more sets):
     correlation = [["AB", "BE", 0.9]]                           # sewtol.dependence
     relations = [{ expr = "AB - BE", lower = -0.01, upper = 0.01 }]   # sewtol.relations
     selective = { params = ["AB", "BE"], groups = 4, by = "count" }  # sewtol.selective
+    cost = { model = "reciprocal", AB = { a = 1.0, b = 0.02 } }      # sewtol.costs
 """
 
 from __future__ import annotations
@@ -29,7 +30,8 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from sewtol import dependence, relations, selective
+from sewtol import costs, dependence, relations, selective
+from sewtol.costs import CostModel
 from sewtol.dependence import Dependence
 from sewtol.errors import ParameterError
 from sewtol.relations import Relation
@@ -183,6 +185,9 @@ class ToleranceSet:
         AB - BE): the machines built are the joint law's conditioned on every one.
     selective : Selective or None
         Two parts measured, sorted into classes and matched at assembly (`sewtol.selective`).
+    cost : tuple of CostModel
+        What each tolerance costs to make, as a function of its half-width (`sewtol.costs`;
+        read by the least-cost allocation, sewtol.studies.least_cost); empty: not given.
     """
 
     name: str
@@ -192,6 +197,7 @@ class ToleranceSet:
     dependence: Dependence | None = None
     relations: tuple[Relation, ...] = ()
     selective: Selective | None = None
+    cost: tuple[CostModel, ...] = ()
 
     def __post_init__(self):
         seen = set()
@@ -211,6 +217,10 @@ class ToleranceSet:
             raise ParameterError(f"{self.selective.where}.params", f"names parameters the set "
                                  f"'{self.name}' does not tolerance",
                                  sorted(set(self.selective.params) - seen))
+        for c in self.cost:
+            if c.param not in seen:
+                raise ParameterError(c.where or f"cost.{c.param}", f"names a parameter the set "
+                                     f"'{self.name}' does not tolerance", c.param)
 
     def check_against(self, nominal) -> ToleranceSet:
         """Refuse a set that can draw a machine the parameter rules reject (a length <= 0, a
@@ -246,7 +256,8 @@ class ToleranceSet:
                             relations=self.relations,
                             # a part of zero width needs no sorting (every one is the same size)
                             selective=self.selective if self.selective is not None and set(
-                                self.selective.params) <= {t.param for t in items} else None)
+                                self.selective.params) <= {t.param for t in items} else None,
+                            cost=tuple(c for c in self.cost if c.param in {t.param for t in items}))
 
     def check_names(self, valid: list[str]) -> ToleranceSet:
         """This set, if every parameter is in `valid`; otherwise ParameterError listing the valid names."""
@@ -305,7 +316,7 @@ class ToleranceSet:
                       t.shift * factors.get(t.param, 1.0)) for t in self.items),
             self.description + (f" (scaled: {', '.join(f'{k} x{float(f):g}' for k, f in changed.items())})"
                                 if changed else ""), dependence=self.dependence,
-            relations=self.relations, selective=self.selective)
+            relations=self.relations, selective=self.selective, cost=self.cost)
 
     def as_dict(self) -> dict:
         """The set as plain data: per parameter its lower and upper limit and distribution."""
@@ -322,7 +333,8 @@ class ToleranceSet:
                     "params": list(tied.params), "matrix": [list(r) for r in tied.matrix]}}),
                 **({"relations": [r.as_dict() for r in self.relations]} if self.relations
                    else {}),
-                **({} if self.selective is None else {"selective": self.selective.as_dict()})}
+                **({} if self.selective is None else {"selective": self.selective.as_dict()}),
+                **({"cost": {c.param: c.as_dict() for c in self.cost}} if self.cost else {})}
 
 
 def _sym(param, pm, dist="uniform"):
@@ -480,11 +492,12 @@ def load_toml(path: str | Path, valid_params: list[str] | None = None) -> dict[s
         desc = str(body.get("description", ""))
         items = tuple(parse_item(name, k, v) for k, v in body.items()
                       if k != "description" and k not in dependence.KEYS
-                      and k not in (relations.KEY, selective.KEY))
+                      and k not in (relations.KEY, selective.KEY, costs.KEY))
         known = [t.param for t in items]
         ts = ToleranceSet(name, items, desc, dependence=dependence.parse(name, body, known),
                           relations=relations.parse(name, body, known),
-                          selective=selective.parse(name, body, known))
+                          selective=selective.parse(name, body, known),
+                          cost=costs.parse(name, body, known))
         if valid_params is not None:
             ts.check_names(valid_params)
         out[name] = ts

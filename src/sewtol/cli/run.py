@@ -29,14 +29,15 @@ from sewtol.cli.common import (
 from sewtol.errors import ParameterError
 
 STUDIES = ("nominal", "scan", "montecarlo", "sobol", "worst-case", "ppm", "allocation", "report",
-           "settings", "strategies", "shapley", "refine", "clearance")
+           "settings", "strategies", "shapley", "refine", "clearance", "least-cost")
 RUN_FORMATS = ("text", "table", "json", "csv")
 DEFAULT_N = {"montecarlo": 2000, "strategies": 2000, "sobol": 256, "ppm": 20000,
-             "allocation": 2000, "report": 1000, "shapley": 200, "clearance": 400}
+             "allocation": 2000, "report": 1000, "shapley": 200, "clearance": 400,
+             "least-cost": 2000}
 # --target: the smallest probability ppm must resolve; the yield allocation must keep
-DEFAULT_TARGET = {"ppm": 1e-6, "allocation": 0.9973}
+DEFAULT_TARGET = {"ppm": 1e-6, "allocation": 0.9973, "least-cost": 0.9973}
 # the studies whose limits default to the file's [[specs]] (--limit/--lower-limit override them)
-SPEC_STUDIES = ("montecarlo", "ppm", "allocation", "report", "strategies")
+SPEC_STUDIES = ("montecarlo", "ppm", "allocation", "report", "strategies", "least-cost")
 # which flags each study reads; any other given flag is refused in one line
 USES = {"nominal": (), "scan": ("output", "tolerances", "adjust"),
         "worst-case": ("output", "tolerances", "adjust"),
@@ -54,7 +55,10 @@ USES = {"nominal": (), "scan": ("output", "tolerances", "adjust"),
         "refine": ("output", "tolerances", "seed", "adjust", "vary", "keep", "require",
                    "restarts", "popsize", "maxiter", "plot"),
         "clearance": ("output", "tolerances", "n", "seed", "limit", "adjust", "target",
-                      "guide_diameter", "play_limit", "guide_fit")}
+                      "guide_diameter", "play_limit", "guide_fit"),
+        "least-cost": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "target",
+                       "adjust", "cost", "confidence", "check_n", "restarts", "popsize",
+                       "maxiter")}
 # the columns a table prints without --wide (JSON and CSV keep every column); `failed` sums
 # the failure counts where the table has no such column, so ok + out_of_spec + failed = n
 COMPACT = {"montecarlo": ("output", "case", "n", "ok", "out_of_spec", "failed", "mean", "std",
@@ -64,7 +68,8 @@ COMPACT = {"montecarlo": ("output", "case", "n", "ok", "out_of_spec", "failed", 
                           "p95")}
 # the library's keyword arguments named as `run`'s flags in its errors
 RUN_FLAGS = {**FLAGS, "adjust": "--adjust", "limit": "--limit", "lower_limit": "--lower-limit",
-             "target": "--target", "weights": "--weight"}
+             "target": "--target", "weights": "--weight", "costs": "--cost",
+             "confidence": "--confidence", "check_n": "--check-n"}
 
 
 def add_run(sub) -> None:
@@ -103,6 +108,19 @@ def add_run(sub) -> None:
     p.add_argument("--weight", action="append", default=None, metavar="NAME=W",
                    help="allocation: tolerance NAME scales as W times the common scale "
                         "(repeatable; default 1)")
+    p.add_argument("--cost", action="append", default=None,
+                   metavar="[NAME=]MODEL:a=A,b=B[,k=K|m=M]",
+                   help="least-cost: the cost model of tolerance NAME (without NAME: of every "
+                        "one the tolerance set's [cost] table leaves out); MODEL reciprocal "
+                        "(a + b/t), power (a + b/t^k) or exponential (a + b exp(-m t)), t the "
+                        "half-width (repeatable)")
+    p.add_argument("--confidence", type=float, default=None,
+                   help="least-cost: the target must hold with this one-sided confidence "
+                        "(Clopper-Pearson) on the search's machines (default 0.95; 0: the "
+                        "plain share)")
+    p.add_argument("--check-n", type=int, default=None,
+                   help="least-cost: fresh machines (seed --seed + 1) that re-estimate the "
+                        "allocated yield (default 10 x --n; 0: no check)")
     p.add_argument("--strategy", action="append", default=None, metavar="NAME=C1,C2",
                    help="strategies: a row NAME adjusting these [compensators.NAME] of the file "
                         "together (repeatable; default none, each compensator alone and all)")
@@ -116,11 +134,14 @@ def add_run(sub) -> None:
                    help="refine: a limit on an output of the refined design (repeatable; every "
                         "transmission output >= 40 deg is always required)")
     p.add_argument("--restarts", type=int, default=None,
-                   help="refine: differential-evolution restarts that must agree (default 3)")
+                   help="refine, least-cost: differential-evolution restarts that must agree "
+                        "(default 3; least-cost 2)")
     p.add_argument("--popsize", type=int, default=None,
-                   help="refine: population per refined parameter (default 10)")
+                   help="refine: population per refined parameter (default 10); least-cost: "
+                        "per searched variable (default 5)")
     p.add_argument("--maxiter", type=int, default=None,
-                   help="refine: generations of each restart (default 400)")
+                   help="refine, least-cost: generations of each restart (default 400; "
+                        "least-cost 40)")
     p.add_argument("--plot", default=None, metavar="FILE",
                    help="refine: the objective's curve today and refined (.png/.svg/.pdf)")
     p.add_argument("--guide-diameter", type=float, default=None, metavar="MM",
@@ -185,7 +206,8 @@ def resolve_tolerances(mech, spec):
 def _check_flags(args) -> None:
     for key in ("output", "tolerances", "n", "seed", "limit", "n_jobs", "adjust", "lower_limit",
                 "method", "target", "weight", "strategy", "vary", "keep", "require", "restarts",
-                "popsize", "maxiter", "plot", "guide_diameter", "play_limit", "guide_fit"):
+                "popsize", "maxiter", "plot", "guide_diameter", "play_limit", "guide_fit",
+                "cost", "confidence", "check_n"):
         value = getattr(args, key)
         if value is not None and key not in USES[args.study]:
             raise ParameterError("--" + key.replace("_", "-"), f"is not used by `run "
@@ -218,7 +240,7 @@ def _check_yield_flags(args) -> None:
         raise ParameterError("--lower-limit", f"must be below --limit {args.limit:g}",
                              args.lower_limit)
     minimum = {"montecarlo": 2, "ppm": 100, "allocation": 10, "report": 2,
-               "strategies": 2}[args.study]
+               "strategies": 2, "least-cost": 10}[args.study]
     if args.n < minimum:
         raise ParameterError("--n", f"must be >= {minimum} for `run {args.study}`", args.n)
     if args.study == "ppm":
@@ -318,6 +340,8 @@ def cmd_run(args) -> None:
         return _strategies(args, fmt, mech, tolerances)
     if args.study == "clearance":
         return _clearance(args, fmt, mech, tolerances)
+    if args.study == "least-cost":
+        return _least_cost(args, fmt, mech, tolerances)
     from sewtol.studies import montecarlo as MC
 
     res = _as_flags(MC.montecarlo, mech, tolerances, args.n, args.seed, outputs, args.limit,
@@ -325,6 +349,55 @@ def cmd_run(args) -> None:
     return _finish(args, fmt, mech, tolerances, res.to_dict(),
                    {"machines": res.machines, "summary": res.summary_frame()},
                    res.summary_frame())
+
+
+def _least_cost(args, fmt, mech, tolerances) -> None:
+    """`run FILE least-cost` (sewtol.studies.least_cost): the zones of least cost for the
+    target, today's common scale of the set beside them, both checked on fresh machines."""
+    import math
+
+    from sewtol import costs as C
+    from sewtol.protocol import plugins
+    from sewtol.studies import least_cost as LC
+
+    given = {}
+    for item in args.cost or []:
+        name, model = C.parse_flag(item)
+        if name is not None and name not in tolerances.params:
+            raise ParameterError("--cost", "must name a tolerance of set "
+                                 f"'{tolerances.name}' ({', '.join(tolerances.params)})", name)
+        if (name or "*") in given:
+            raise ParameterError("--cost", "gives the same parameter twice", name or "every")
+        given[name or "*"] = model
+    confidence = 0.95 if args.confidence is None else args.confidence
+    if not (math.isfinite(confidence) and 0 <= confidence < 1):
+        raise ParameterError("--confidence", "must be in [0, 1) (0: the plain share)",
+                             confidence)
+    if args.check_n is not None and args.check_n < 0:
+        raise ParameterError("--check-n", "must be a whole number >= 0", args.check_n)
+    fast = args.path != "generic"
+    args.path_used = (plugins(mech).name or "generic") if fast else "generic"
+    spec = args.spec
+    upper, lower = (None, None) if spec is None else (spec.upper, spec.lower)
+    res = _as_flags(partial(LC.least_cost, fast=fast, confidence=confidence or None,
+                            restarts=2 if args.restarts is None else args.restarts,
+                            popsize=5 if args.popsize is None else args.popsize,
+                            maxiter=40 if args.maxiter is None else args.maxiter,
+                            check_n=args.check_n),
+                    mech, tolerances, args.spec_output, args.target, upper, lower, args.n,
+                    args.seed, args.adjust, given)
+    _finish(args, fmt, mech, tolerances, res.to_dict(),
+            {"least_cost": res.table, "compare": res.compare, "restarts": res.restarts},
+            res.table)
+    if fmt == "table":
+        emit("table", frame=res.compare)
+        check = res.check
+        print(f"\nleast cost {res.cost:.6g} for yield >= {res.target:g} ({res.failures} of "
+              f"{res.n} machines fail, {res.allowed_failures} allowed)"
+              + ("" if check is None else
+                 f"; fresh machines: {check.yield_:.4f} [{check.ci_low:.4f}, "
+                 f"{check.ci_high:.4f}] of {check.n} (seed {check.seed}), "
+                 + ("meets the target" if check.meets else "BELOW the target")))
 
 
 def _strategies(args, fmt, mech, tolerances) -> None:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sewtol import dependence, relations, selective, setting_error
+from sewtol import costs, dependence, relations, selective, setting_error
 from sewtol.errors import ParameterError
 from sewtol.mechanism import expressions as X
 from sewtol.mechanism.clearance import offset_names, parse_clearances
@@ -495,7 +495,7 @@ def _tolerance_sets(ctx, table, pnames) -> dict[str, ToleranceSet]:
             if param == "description":
                 desc = _str(ctx, path + (param,), where, spec)
                 continue
-            if param in dependence.KEYS or param in (relations.KEY, selective.KEY):
+            if param in dependence.KEYS or param in (relations.KEY, selective.KEY, costs.KEY):
                 continue
             if param not in pnames:
                 ctx.fail(path + (param,), where, "must name a parameter of the file", param)
@@ -515,8 +515,9 @@ def _tolerance_sets(ctx, table, pnames) -> dict[str, ToleranceSet]:
             tied = dependence.parse(set_name, body, [t.param for t in items])
             limited = relations.parse(set_name, body, [t.param for t in items])
             sorted_ = selective.parse(set_name, body, [t.param for t in items])
+            priced = costs.parse(set_name, body, [t.param for t in items])
         except ParameterError as exc:
             ctx.fail(path, f"[tolerances.{set_name}]", f"{exc.field}: {exc.rule}", exc.value)
         out[set_name] = ToleranceSet(set_name, tuple(items), desc, dependence=tied,
-                                     relations=limited, selective=sorted_)
+                                     relations=limited, selective=sorted_, cost=priced)
     return out
