@@ -216,9 +216,16 @@ class _Problem:
     """The objective of m machines as a function of (rows, settings): loss, +inf where the
     machine cannot run at those settings."""
 
-    def __init__(self, mech, values, output, comps, objective):
+    def __init__(self, mech, values, output, comps, objective, compiled=False):
         cols, self.m = mech.columns(values)
         self.mech, self.output, self.comps, self.objective = mech, output, comps, objective
+        # the search's evaluations through the file's compiled kernel where it covers the
+        # output (sewtol.mechanism.compiled; equal to mech.evaluate to rounding), else numpy
+        self.model = None
+        if compiled:
+            from sewtol.mechanism.compiled import compiled as compile_model
+
+            self.model = compile_model(mech, [output])
         self.base = {k: np.asarray(v, float)[:, 0] for k, v in cols.items()}
         self.low = np.array([c.low for c in comps])
         self.high = np.array([c.high for c in comps])
@@ -238,7 +245,12 @@ class _Problem:
     def __call__(self, rows, X):
         if not len(rows):
             return np.zeros(0)
-        loss = self.objective.loss(self.evaluate(rows, X).outputs[self.output])
+        if self.model is not None:
+            self.evaluations += len(rows)
+            ev = self.model.evaluate(self.values(rows, X))
+        else:
+            ev = self.evaluate(rows, X)
+        loss = self.objective.loss(ev.outputs[self.output])
         return np.where(np.isnan(loss), np.inf, loss)
 
     def home(self):
@@ -249,7 +261,8 @@ class _Problem:
 
 def adjust(mech, values: dict | None, output: str, compensators,
            objective: Objective | str | None = None,
-           plateau_tol: float = PLATEAU_TOL, tol: float | None = None) -> Adjustment:
+           plateau_tol: float = PLATEAU_TOL, tol: float | None = None,
+           compiled: bool = True) -> Adjustment:
     """Set 1 to 3 compensators jointly on each machine for one output (see the module doc).
 
     Parameters
@@ -269,6 +282,11 @@ def adjust(mech, values: dict | None, output: str, compensators,
     tol : float or None
         The search stops when no cell's bound lies more than this (output unit) below the best
         value; None: TOL of the output's unit (TOL_OTHER for other units).
+    compiled : bool
+        Search on the file's compiled kernel where it covers the output (equal to
+        `FileMechanism.evaluate` to rounding); False: on `FileMechanism.evaluate` itself. The
+        answer (value, status) at the settings found comes from `FileMechanism.evaluate`
+        either way.
 
     Returns
     -------
@@ -280,7 +298,7 @@ def adjust(mech, values: dict | None, output: str, compensators,
     tol = TOL.get(unit, TOL_OTHER) if tol is None else tol
     if not (np.isfinite(plateau_tol) and plateau_tol >= 0):
         raise ParameterError("plateau_tol", "must be a number >= 0", plateau_tol)
-    f = _Problem(mech, values, output, comps, objective)
+    f = _Problem(mech, values, output, comps, objective, compiled)
     m, d = f.m, len(comps)
     # a continuous compensator: the centres of GRID[d] cells of its box
     axes = [c.settings() if c.step is not None
