@@ -239,12 +239,13 @@ def _generate(mech, names):
                 f"{v}bh = {v}b * {v}h",
                 f"{v}x = {ax} + ({v}ux * {v}a - {v}uy * {v}bh)",
                 f"{v}y = {ay} + ({v}ux * {v}bh + {v}uy * {v}a)",
-                # sin of the transmission angle: |cross(J - P1, J - P2)| / (r1 r2)
+                # sin of the transmission angle is |cross(J - P1, J - P2)| / (r1 r2): the
+                # division (monotone for r1 r2 > 0) after the smallest cross product
                 f"W[{ws}, j] = abs(({v}x - {ax}) * ({v}y - {by}) - ({v}y - {ay}) * "
-                f"({v}x - {bx})) / ({v}r1 * {v}r2)",
+                f"({v}x - {bx}))",
             ]
             s.final += [f"missed[i, {len(closures)}] = _missed(W[{wm}])",
-                        f"sgmin[i, {len(dyads)}] = _nanmin(W[{ws}])"]
+                        f"sgmin[i, {len(dyads)}] = _nanmin(W[{ws}]) / ({v}r1 * {v}r2)"]
             closures.append(g.name)
             dyads.append(g.name)
             pts[g.name] = (f"{v}x", f"{v}y")
