@@ -216,9 +216,16 @@ class _Problem:
     """The objective of m machines as a function of (rows, settings): loss, +inf where the
     machine cannot run at those settings."""
 
-    def __init__(self, mech, values, output, comps, objective):
+    def __init__(self, mech, values, output, comps, objective, compiled=False):
         cols, self.m = mech.columns(values)
         self.mech, self.output, self.comps, self.objective = mech, output, comps, objective
+        # the search's evaluations through the file's compiled kernel where it covers the
+        # output (sewtol.mechanism.compiled; equal to mech.evaluate to rounding), else numpy
+        self.model = None
+        if compiled:
+            from sewtol.mechanism.compiled import compiled as compile_model
+
+            self.model = compile_model(mech, [output])
         self.base = {k: np.asarray(v, float)[:, 0] for k, v in cols.items()}
         self.low = np.array([c.low for c in comps])
         self.high = np.array([c.high for c in comps])
@@ -238,7 +245,12 @@ class _Problem:
     def __call__(self, rows, X):
         if not len(rows):
             return np.zeros(0)
-        loss = self.objective.loss(self.evaluate(rows, X).outputs[self.output])
+        if self.model is not None:
+            self.evaluations += len(rows)
+            ev = self.model.evaluate(self.values(rows, X))
+        else:
+            ev = self.evaluate(rows, X)
+        loss = self.objective.loss(ev.outputs[self.output])
         return np.where(np.isnan(loss), np.inf, loss)
 
     def home(self):
@@ -249,7 +261,8 @@ class _Problem:
 
 def adjust(mech, values: dict | None, output: str, compensators,
            objective: Objective | str | None = None,
-           plateau_tol: float = PLATEAU_TOL, tol: float | None = None) -> Adjustment:
+           plateau_tol: float = PLATEAU_TOL, tol: float | None = None,
+           compiled: bool = True) -> Adjustment:
     """Set 1 to 3 compensators jointly on each machine for one output (see the module doc).
 
     Parameters
@@ -269,6 +282,11 @@ def adjust(mech, values: dict | None, output: str, compensators,
     tol : float or None
         The search stops when no cell's bound lies more than this (output unit) below the best
         value; None: TOL of the output's unit (TOL_OTHER for other units).
+    compiled : bool
+        Search on the file's compiled kernel where it covers the output (equal to
+        `FileMechanism.evaluate` to rounding); False: on `FileMechanism.evaluate` itself. The
+        answer (value, status) at the settings found comes from `FileMechanism.evaluate`
+        either way.
 
     Returns
     -------
@@ -280,7 +298,7 @@ def adjust(mech, values: dict | None, output: str, compensators,
     tol = TOL.get(unit, TOL_OTHER) if tol is None else tol
     if not (np.isfinite(plateau_tol) and plateau_tol >= 0):
         raise ParameterError("plateau_tol", "must be a number >= 0", plateau_tol)
-    f = _Problem(mech, values, output, comps, objective)
+    f = _Problem(mech, values, output, comps, objective, compiled)
     m, d = f.m, len(comps)
     # a continuous compensator: the centres of GRID[d] cells of its box
     axes = [c.settings() if c.step is not None
@@ -348,14 +366,20 @@ def _search(f, Y, P, shape, half, tol):
     H = np.tile(half, (m * g, 1))
     F = Y.ravel()
     SL, SR = slope[0].reshape(m * g, d), slope[1].reshape(m * g, d)
+    # every cell has an id, its place in the order cells are made; a cell that does not
+    # qualify now never will (its bound is fixed until it is cut, the best value only falls),
+    # so it leaves the active arrays for `done`: each round then costs the live cells only, and
+    # the active arrays keep the ids' order, so ties fall as they would over all cells
+    ids, made = np.arange(m * g), m * g
+    done = []
+    best = np.full(m, np.inf)
+    np.minimum.at(best, mach, F)
 
     def drops(H, SL, SR):
         return SAFETY * 2.0 * H * np.maximum(SL, SR)
 
     smallest = MIN_STEP * (f.high - f.low)
     for _ in range(MAX_ROUNDS if np.any(half > 0) else 0):
-        best = np.full(m, np.inf)
-        np.minimum.at(best, mach, F)
         D = drops(H, SL, SR)
         lb = np.maximum(F - D.sum(axis=1), f.objective.floor)
         cuttable = np.where(H > smallest, D, -1.0)
@@ -387,12 +411,24 @@ def _search(f, Y, P, shape, half, tol):
         SLs[0][r, ax] = np.maximum(inner, INHERIT * SL[sel][r, ax])
         SRs[2][r, ax] = np.maximum(inner, INHERIT * SR[sel][r, ax])
         F[sel], H[sel], SL[sel], SR[sel] = trio[:, 1], Hc, SLs[1], SRs[1]
-        mach = np.concatenate([mach, mach[sel], mach[sel]])
-        X = np.concatenate([X, Xs[0], Xs[2]])
-        H = np.concatenate([H, Hc, Hc])
-        F = np.concatenate([F, trio[:, 0], trio[:, 2]])
-        SL = np.concatenate([SL, SLs[0], SLs[2]])
-        SR = np.concatenate([SR, SRs[0], SRs[2]])
+        new_mach = np.concatenate([mach[sel], mach[sel]])
+        new_F = np.concatenate([trio[:, 0], trio[:, 2]])
+        np.minimum.at(best, new_mach, new_F)
+        done.append((ids[~want], mach[~want], X[~want], H[~want], F[~want], SL[~want],
+                     SR[~want]))
+        ids = np.concatenate([ids[want], made + np.arange(2 * k)])
+        made += 2 * k
+        mach = np.concatenate([mach[want], new_mach])
+        X = np.concatenate([X[want], Xs[0], Xs[2]])
+        H = np.concatenate([H[want], Hc, Hc])
+        F = np.concatenate([F[want], new_F])
+        SL = np.concatenate([SL[want], SLs[0], SLs[2]])
+        SR = np.concatenate([SR[want], SRs[0], SRs[2]])
+    # every cell again, in the order they were made
+    parts = done + [(ids, mach, X, H, F, SL, SR)]
+    ids, mach, X, H, F, SL, SR = (np.concatenate([c[i] for c in parts]) for i in range(7))
+    order = np.argsort(ids, kind="stable")
+    mach, X, H, F, SL, SR = mach[order], X[order], H[order], F[order], SL[order], SR[order]
     D = drops(H, SL, SR)
     order = np.lexsort((F, mach))
     first = order[np.searchsorted(mach[order], np.arange(m))]
