@@ -191,6 +191,95 @@ def random_offsets(mech, n: int, rng: np.random.Generator, *, rim: bool = False,
     return out
 
 
+# --- loaded mode: the contact direction follows the joint force ------------------------------
+
+
+@dataclass(frozen=True)
+class LoadedClearance:
+    """The loaded mode: each journal on its rim, r_j = c_j u_j, in the direction u_j of the
+    force it presses on its bearing with (`sewtol.mechanism.kinetostatics.joint_forces` under
+    `loads` at `rpm`), per machine and angle; the output's signal moves by
+    ``total`` = sum_j c_j J_j . u_j (first order; ``by_pair`` each pair's term). A pair whose
+    force is zero (below 1e-9 of the largest) leaves its journal centred (its place is not
+    determined by the load). ``crossings_deg``: joint -> per machine, the crank angles at which
+    the force's direction reverses (turns by more than 90 deg between two samples) and the
+    journal crosses its clearance, interpolated where the force's component along its former
+    direction passes zero."""
+
+    output: str
+    unit: str
+    q_deg: np.ndarray
+    rpm: float
+    radius_mm: dict
+    force_N: dict
+    offsets_mm: dict
+    total: np.ndarray
+    by_pair: dict
+    crossings_deg: dict
+
+    def to_dataframe(self) -> pd.DataFrame:
+        """One row per (machine, angle): the signal's move and each pair's force and term."""
+        m, k = self.total.shape
+        f = pd.DataFrame({"machine": np.repeat(np.arange(m), k), "q_deg": np.tile(self.q_deg, m),
+                          f"loaded_{self.unit}": self.total.reshape(-1)})
+        for j, v in self.by_pair.items():
+            f[f"{j}_force_N"] = np.abs(self.force_N[j]).reshape(-1)
+            f[f"{j}_force_deg"] = np.degrees(np.angle(self.force_N[j])).reshape(-1)
+            f[f"{j}_{self.unit}"] = v.reshape(-1)
+        return f
+
+    def crossings(self) -> pd.DataFrame:
+        """One row per crossing: pair, machine, crank angle (deg)."""
+        rows = [{"pair": j, "machine": i, "q_deg": float(q)}
+                for j, per in self.crossings_deg.items() for i, qs in enumerate(per) for q in qs]
+        return pd.DataFrame(rows, columns=["pair", "machine", "q_deg"])
+
+
+def _crossings(force: np.ndarray, q_deg: np.ndarray) -> list[tuple[float, ...]]:
+    """Per machine, the angles where the force's direction reverses between two samples (the
+    sampled turn closes on itself)."""
+    nxt = np.roll(force, -1, axis=-1)
+    a = np.abs(force)
+    u = force / np.where(a > 0, a, 1.0)
+    s0, s1 = a, (np.conjugate(u) * nxt).real  # the force's component along u, here and next
+    step = 360.0 / q_deg.size
+    out = []
+    for i in range(force.shape[0]):
+        k = np.flatnonzero((s1[i] < 0) & np.isfinite(s1[i]))
+        t = s0[i, k] / (s0[i, k] - s1[i, k])
+        out.append(tuple(float(v) for v in np.round((q_deg[k] + t * step) % 360.0, 6)))
+    return out
+
+
+def loaded(mech, values: dict | None, output: str, loads, rpm: float | None = None,
+           clearance: str = "max", h_mm: float = H_MM) -> LoadedClearance:
+    """The loaded mode on `output` for the machines of `values` (their journals centred to
+    find the forces): see `LoadedClearance`. `loads`: PointLoad objects
+    (`sewtol.mechanism.kinetostatics`); `rpm`: the crank speed (default the file's);
+    `clearance`: each pair's "max" or "min" radial clearance."""
+    from sewtol.mechanism.kinetostatics import joint_forces
+
+    c = radii(mech, clearance)
+    jf = joint_forces(mech, values, loads, rpm, h_mm)
+    jac = jacobian(mech, {k: v for k, v in (values or {}).items()
+                          if k in mech.parameter_names}, output, h_mm)
+    scale = max((float(np.nanmax(np.abs(f), initial=0.0)) for f in jf.force_N.values()),
+                default=0.0)
+    offsets, by = {}, {}
+    for j, f in jf.force_N.items():
+        a = np.abs(f)
+        loaded_ = a > 1e-9 * scale
+        r = np.where(loaded_, c[j] * f / np.where(loaded_, a, 1.0), 0.0)
+        offsets[j] = r
+        by[j] = (np.conjugate(jac[j]) * r).real  # J_j . r_j
+    total = sum(by.values())
+    q_deg = np.degrees(mech.angles_rad())
+    crossings = {j: _crossings(np.where(np.abs(f) > 1e-9 * scale, f, 0.0), q_deg)
+                 for j, f in jf.force_N.items()}
+    return LoadedClearance(output, mech.output(output).unit, q_deg, jf.rpm, c, jf.force_N,
+                           offsets, total, by, crossings)
+
+
 def fit_gap_um(fit: str, diameter_mm: float) -> tuple[float, float]:
     """The diametral clearance range (um) of a clearance fit (refused otherwise)."""
     f = iso_fit(fit, diameter_mm)
