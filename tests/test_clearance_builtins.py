@@ -33,6 +33,12 @@ def test_every_builtin_takes_pin_clearances(name, tmp_path):
                          "--format", "json")
     assert code == 0, err
     assert strict_loads(out)
+    # the journals as further variables beside the file's first tolerance set
+    code, out, err = run("run", str(f), "montecarlo", "--n", "4", "--seed", "1",
+                         "--clearances", "disc", "--format", "json")
+    assert code == 0, err
+    got = strict_loads(out)
+    assert got["tolerances"].endswith("+clearances")
     signals = [o.name for o in mech.outputs if o.type in K.SIGNAL_TYPES]
     if signals and a.status[0] == "ok":
         wc = K.worst_case(mech, None, signals[0])

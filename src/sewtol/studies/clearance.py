@@ -34,7 +34,7 @@ import pandas as pd
 
 from sewtol.errors import ParameterError
 from sewtol.fits import iso_fit
-from sewtol.mechanism.clearance import offset_names
+from sewtol.mechanism.clearance import offset_names, polar_names
 from sewtol.mechanism.model import resolved
 from sewtol.mechanism.outputs import OUTPUT_TYPES
 
@@ -189,6 +189,62 @@ def random_offsets(mech, n: int, rng: np.random.Generator, *, rim: bool = False,
         dx, dy = offset_names(c.joint)
         out[dx], out[dy] = rho * np.cos(t), rho * np.sin(t)
     return out
+
+
+# --- clearances as variables of every study ---------------------------------------------------
+
+VARIABLE_MODES = ("disc", "rim")
+
+
+def clearance_variables(mech, tolerances, mode: str = "disc"):
+    """The mechanism and tolerance set with each revolute pair's journal as two further
+    variables beside the link tolerances, so that every study of the one stack (Monte-Carlo,
+    Sobol, Shapley, ppm, strategies) draws them: the offset r = sqrt(r2) (cos phi, sin phi)
+    (`sewtol.mechanism.clearance.polar_names`), phi uniform in [0, 360) deg and
+
+    - ``disc``: r2 uniform in [0, c^2], the journal uniform over its clearance's disc
+      (r = c sqrt(U));
+    - ``rim``: on the rim, r = c (r2's nominal is c^2; phi alone scatters);
+
+    c the pair's largest radial clearance (of a fit: the loosest pair it allows).
+
+    Returns (mechanism, tolerance set): a copy of the file whose parameters include r2 and phi
+    (nominal 0, or c_max^2 on the rim) and that names no fast path (a plug-in does not see
+    the journals), and the set named ``NAME+clearances`` with the pairs' items after the
+    links'. Refused: a file without revolute clearances, a set that already names them, an
+    unknown mode."""
+    import dataclasses
+
+    from sewtol.mechanism.spec import Parameter
+    from sewtol.protocol import tolerance_set
+    from sewtol.tolerances import Tolerance, ToleranceSet
+
+    if mode not in VARIABLE_MODES:
+        raise ParameterError("clearances", f"must be one of {', '.join(VARIABLE_MODES)}", mode)
+    pairs = revolute(mech)
+    ts = tolerance_set(mech, tolerances)
+    params, items = list(mech.parameters), list(ts.items)
+    for c in pairs:
+        r2, phi = polar_names(c.joint)
+        hi = c.radial_max_mm ** 2
+        nominal = hi if mode == "rim" else 0.0
+        params += [Parameter(r2, nominal, "mm2", "finite",
+                             f"square of the journal's offset in pair {c.joint}"),
+                   Parameter(phi, 0.0, "deg", "finite",
+                             f"direction of the journal's offset in pair {c.joint}")]
+        if mode == "disc":
+            items.append(Tolerance(r2, 0.0, hi, "uniform"))
+        items.append(Tolerance(phi, 0.0, 360.0, "uniform"))
+    names = {p.name for p in mech.parameters}
+    clash = sorted(names & {p.name for p in params[len(mech.parameters):]})
+    if clash:
+        raise ParameterError("parameters", "already name a journal's polar offset", clash)
+    header = dataclasses.replace(mech.header, fast_path=None)
+    varied = dataclasses.replace(mech, parameters=tuple(params), header=header)
+    return varied, ToleranceSet(f"{ts.name}+clearances", tuple(items),
+                                (ts.description + "; " if ts.description else "")
+                                + f"journals {mode}", dependence=ts.dependence,
+                                relations=ts.relations, selective=ts.selective)
 
 
 # --- loaded mode: the contact direction follows the joint force ------------------------------
