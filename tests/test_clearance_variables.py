@@ -94,3 +94,17 @@ def test_clearance_variables_refuse_in_one_line():
         from sewtol.mechanism import loads
         from test_clearance_model import FOUR_BAR
         K.clearance_variables(loads(FOUR_BAR, "f.toml"), LINKS, "disc")
+
+
+def test_sobol_share_sums_the_indices_by_source_and_pair():
+    mech = four_bar()
+    share = K.sobol_share(mech, LINKS, "L_x_mm", 256, 11)
+    f = share.indices
+    assert set(f["source"]) == {"link", "pin"} and len(f) == 1 + 2 * len(RADII)
+    for source, k in ((s, k) for s in ("link", "pin") for k in ("S1", "ST")):
+        assert share.sources.set_index("source").loc[source, k] == pytest.approx(
+            f.loc[f["source"] == source, k].sum(), abs=1e-15)
+    by = share.by_pair.set_index("pair")
+    assert by.loc["O", "ST"] == pytest.approx(f.loc[f["pair"] == "O", "ST"].sum(), abs=1e-15)
+    # the pins at M and D do not move the crank pin: their indices vanish (to SALib's noise)
+    assert abs(by.loc["M", "ST"]) < 1e-12 and abs(by.loc["D", "ST"]) < 1e-12

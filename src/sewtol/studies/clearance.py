@@ -247,6 +247,54 @@ def clearance_variables(mech, tolerances, mode: str = "disc"):
                                 relations=ts.relations, selective=ts.selective)
 
 
+@dataclass(frozen=True)
+class SobolShare:
+    """The Sobol indices of one output with the journals as variables (`clearance_variables`)
+    beside the link tolerances: ``indices`` per input (source ``link`` or ``pin``; a pin's
+    ``pair``), ``by_pair`` each pair's first-order and total index (r2 and phi together: their
+    closed index S1_r2 + S1_phi is a lower bound of the pair's first-order share, the sum of
+    their totals an upper bound of its total), ``sources`` the sums over the links and over the
+    pins (a source's share of the variance lies between the sum of its S1 and the sum of its
+    ST)."""
+
+    mechanism: str
+    tolerances: str
+    output: str
+    mode: str
+    n: int
+    seed: int
+    indices: pd.DataFrame
+    by_pair: pd.DataFrame
+    sources: pd.DataFrame
+
+    def to_dataframe(self) -> pd.DataFrame:
+        return self.indices
+
+
+def sobol_share(mech, tolerances, output: str, n: int, seed: int, *, mode: str = "disc",
+                **options) -> SobolShare:
+    """The pins against the links by Sobol indices on `output` as evaluated (no adjustment):
+    `sewtol.studies.sobol.sobol` on `clearance_variables` (n base samples, seeded; `options`
+    go to it). See `SobolShare`."""
+    from sewtol.studies.sobol import sobol
+
+    varied, ts = clearance_variables(mech, tolerances, mode)
+    res = sobol(varied, ts, output, n, seed, fast=False, **options)
+    f = res.to_dataframe()
+    f = f[f["case"] == f["case"].iloc[0]].copy()
+    pair = {}
+    for c in revolute(mech):
+        for name in polar_names(c.joint):
+            pair[name] = c.joint
+    f.insert(0, "source", ["pin" if p in pair else "link" for p in f["param"]])
+    f.insert(1, "pair", [pair.get(p, "") for p in f["param"]])
+    pins = f[f["source"] == "pin"]
+    by_pair = (pins.groupby("pair", sort=False)[["S1", "ST"]].sum().reset_index())
+    sources = f.groupby("source", sort=False)[["S1", "ST"]].sum().reset_index()
+    return SobolShare(mech.name, ts.name, output, mode, int(res.n), int(seed),
+                      f.reset_index(drop=True), by_pair, sources)
+
+
 # --- loaded mode: the contact direction follows the joint force ------------------------------
 
 
