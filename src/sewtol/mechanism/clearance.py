@@ -75,6 +75,16 @@ def pair_offsets(clearances, cols: dict) -> dict:
     return out
 
 
+PAIR_SUFFIXES = ("_dx_mm", "_dy_mm", "_r2_mm2")  # the pair parameters' and polar offsets' names
+
+
+def journals_off_centre(state) -> bool:
+    """Whether any machine of an evaluation's state has a journal off its bearing's centre (an
+    output computed from the parameters by a closed form of its own does not see them)."""
+    return any(k.endswith(PAIR_SUFFIXES) and np.any(np.asarray(v) != 0)
+               for k, v in state.values.items())
+
+
 def shifted(point, r):
     """The point moved by the constant offset r (its transfer functions unchanged)."""
     return engine.Motion(point.p + r, point.dp, point.ddp)

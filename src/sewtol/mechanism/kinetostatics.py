@@ -136,9 +136,10 @@ def joint_forces(mech, values: dict | None, loads, rpm: float | None = None,
     """The force in every revolute pair with a clearance of `mech` (their journals centred),
     per machine of `values` and crank angle, under `loads` (PointLoad) at `rpm` (default the
     file's): Q_j = sum_k (dp_k/dr_j)^T P_k, see the module's docstring."""
-    from sewtol.studies.clearance import revolute  # the pairs, refused when there are none
-
-    pairs = revolute(mech)
+    pairs = tuple(c for c in getattr(mech, "clearances", ()) if c.pair == "revolute")
+    if not pairs:
+        raise ParameterError("clearances", "the mechanism file declares no revolute "
+                                           "[[clearances]]", getattr(mech, "name", mech))
     loads = tuple(loads)
     if not loads or not all(isinstance(ld, PointLoad) for ld in loads):
         raise ParameterError("loads", "must be one or more PointLoad", loads)

@@ -17,6 +17,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from sewtol.errors import ParameterError
+from sewtol.mechanism.clearance import journals_off_centre
 from sewtol.mechanisms.feed_131 import model as fd
 
 N_GRID = 720
@@ -175,13 +176,7 @@ _last: list = [lambda: None, {}]
 # on the closed form's path moved by the tooth's displacement delta(phi) = the groups' point -
 # the closed form's (periodic linear interpolation between the state's angles; delta is a smooth
 # function of a few um): the crossings of the level solve y(phi) + delta_y(phi) = L.
-PAIR_SUFFIXES = ("_dx_mm", "_dy_mm", "_r2_mm2")  # the pair parameters' names (clearance.py)
 TEETH = {"lower": "Q1", "upper": "Q2"}
-
-
-def journals_off_centre(state) -> bool:
-    return any(k.endswith(PAIR_SUFFIXES) and np.any(np.asarray(v) != 0)
-               for k, v in state.values.items())
 
 
 class JournalShift:
