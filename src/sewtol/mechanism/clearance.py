@@ -81,8 +81,9 @@ PAIR_SUFFIXES = ("_dx_mm", "_dy_mm", "_r2_mm2")  # the pair parameters' and pola
 def journals_off_centre(state) -> bool:
     """Whether any machine of an evaluation's state has a journal off its bearing's centre (an
     output computed from the parameters by a closed form of its own does not see them)."""
+    values = getattr(state, "values", None) or {}  # a kernel called without a state: none
     return any(k.endswith(PAIR_SUFFIXES) and np.any(np.asarray(v) != 0)
-               for k, v in state.values.items())
+               for k, v in values.items())
 
 
 def shifted(point, r):
