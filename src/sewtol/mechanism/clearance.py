@@ -141,6 +141,14 @@ class Clearance:
     def radial_max_mm(self) -> float:
         return self.clearance_max_mm / 2
 
+    @property
+    def tilt_max_deg(self) -> float | None:
+        """A prismatic pair's largest tilt of the slider in its guide, atan(gap / length) (small:
+        gap / length rad); None for a revolute pair."""
+        if self.length_mm is None:
+            return None
+        return math.degrees(math.atan2(self.clearance_max_mm, self.length_mm))
+
 
 def _finite(v) -> bool:
     return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
