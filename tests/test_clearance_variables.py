@@ -108,3 +108,18 @@ def test_sobol_share_sums_the_indices_by_source_and_pair():
     assert by.loc["O", "ST"] == pytest.approx(f.loc[f["pair"] == "O", "ST"].sum(), abs=1e-15)
     # the pins at M and D do not move the crank pin: their indices vanish (to SALib's noise)
     assert abs(by.loc["M", "ST"]) < 1e-12 and abs(by.loc["D", "ST"]) < 1e-12
+
+
+def test_run_sobol_with_clearances_and_the_studies_that_refuse_the_flag(tmp_path):
+    from cli_helpers import run, strict_loads
+    from test_clearance_model import CLEARANCES, FOUR_BAR
+
+    f = tmp_path / "four_bar.toml"
+    f.write_text(FOUR_BAR + '\n[tolerances.crank]\na = 0.02\n' + CLEARANCES)
+    code, out, err = run("run", str(f), "sobol", "--output", "L_x_mm", "--n", "16",
+                         "--seed", "3", "--clearances", "disc", "--format", "json")
+    assert code == 0, err
+    rows = {r["param"] for r in strict_loads(out)["rows"]}
+    assert rows == {"a"} | {f"{j}_{k}" for j in RADII for k in ("r2_mm2", "phi_deg")}
+    code, out, err = run("run", str(f), "scan", "--clearances", "disc")
+    assert code == 2 and err.count("\n") == 1 and "--clearances" in err and "scan" in err, err
