@@ -136,8 +136,9 @@ def report(args, share, worst, fits, reach, pins) -> str:
         f"- machines: {args.n} per tolerance set, seed {args.seed} (the Monte-Carlo's draw); "
         "journals: uniform in their circle, radial clearance uniform between the fit's "
         "smallest and largest, held over the turn (stream SeedSequence(seed, spawn_key=(1,)))",
-        "- model: rigid links, small clearances, no impact dynamics, no load (the journal's "
-        "place is chosen, not found from the joint force); worst case to first order "
+        "- model: rigid links, small clearances, no impact dynamics; no load in the sections "
+        "before the last (the journal's place is chosen, not found from the joint force: the "
+        "loaded mode, at the end, finds it); worst case to first order "
         "(sum c_j |J_j|, J_j by central differences of the real model)",
         "",
         "## The pins",
