@@ -113,8 +113,10 @@ def report(args, mech, mc, sob) -> str:
         "",
         md_table(sob.sources, 3),
         "",
-        f"Pairs that move the step (ST > 1e-6; the other {len(pairs) - len(moving)} pairs, of "
-        "the upper dog's and the lift chains, do not):",
+        f"Pairs that move the step (ST > 1e-6; the other {len(pairs) - len(moving)} pairs do "
+        "not). At this N the indices carry bootstrap half-widths up to "
+        f"{sob.indices['S1_conf'].max():.2f} (S1) and {sob.indices['ST_conf'].max():.2f} (ST) "
+        "(clearance_sobol.csv): an S1 above its ST is that noise.",
         "",
         md_table(moving, 3),
         "",
