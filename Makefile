@@ -55,6 +55,7 @@ ifeq ($(strip $(TOLERANCES)),)
 	$(BIN)/python studies/needle_208_index.py --out $(REPORTS)
 	$(BIN)/python studies/feed_131_report.py --out $(REPORTS) --n-jobs 2 --progress \
 		--figure-format $(FIGURE_FORMAT)
+	$(BIN)/python studies/feed_131_clearances.py --out $(REPORTS)
 	$(BIN)/python studies/m6_needle_report.py --out $(REPORTS)
 	$(BIN)/python studies/presser_foot_report.py --out $(REPORTS)
 	$(BIN)/python -m sewtol run spatial_crank_rocker report --seed 2026 \

@@ -4,7 +4,8 @@ the criterion.
 The needle file (the built-in needle_208) with H7/g6 on 8 mm pins at its seven revolute pairs
 (F, L, M, A, B, C, D: the issue's example of a designer's first choice), and an 8 mm needle-bar
 guide rod (assumed: the sources give no diameter). Writes reports/needle_208/clearances.md,
-clearance_share.csv, clearance_worst.csv, clearance_guide_fits.csv and clearances_run.json.
+clearance_share.csv, clearance_worst.csv, clearance_guide_fits.csv, clearance_sobol.csv,
+clearance_loaded.csv, clearance_crossings.csv and clearances_run.json.
 
     python studies/needle_208_clearances.py [--out reports] [--seed 2026] [--n 400]
 """
@@ -15,11 +16,13 @@ import argparse
 import json
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from sewtol import mechanisms as M
 from sewtol.io import write_text_atomic
 from sewtol.mechanism import loads
+from sewtol.mechanism.kinetostatics import PointLoad
 from sewtol.provenance import now, version_record
 from sewtol.studies import clearance as K
 from sewtol.tolerances import load_toml
@@ -29,6 +32,13 @@ PLAY_LIMIT_UM, TARGET_YIELD = 20.0, 0.95
 PINS = "".join(f'\n[[clearances]]\njoint = "{j}"\nfit = "{PIN_FIT}"\ndiameter_mm = '
                f"{PIN_DIAMETER_MM:g}\n" for j in "FLMABCD")
 STRATEGIES = ((), ("beta",), ("beta", "guide_shift"))
+# the loaded mode's assumed values: the 208's masses are not published; its needle bar is taken
+# as the M6's (the new design on the same frame: 0.0136 kg, published); links massless; the
+# needle's force is not stated by the sources: 5 N against the bar's motion over the whole turn
+# (an assumption, a round value of a needle's penetration and friction); the speeds are the
+# source's (main shaft up to 4000-5000 rpm)
+BAR_KG, NEEDLE_N, SPEEDS_RPM = 0.0136, 5.0, (4000.0, 5000.0)
+SOBOL_N = 256  # base samples of the Sobol share (21 inputs: 23 x 256 machines per set)
 
 
 def needle_with_pins():
@@ -69,6 +79,10 @@ def main(argv=None) -> None:
         worst = s.worst
         worst.attrs["tolerances"] = name
     share = pd.concat(shares, ignore_index=True)
+    sobol = pd.concat([K.sobol_share(mech, sets[name], "SumDelta_um", SOBOL_N, args.seed)
+                       .sources.assign(tolerances=name)
+                       for name in ("recommended", "allocated") if name in sets],
+                      ignore_index=True)
     fits, reaching = [], []
     for name, ts in sets.items():
         for adjust in STRATEGIES:
@@ -89,6 +103,9 @@ def main(argv=None) -> None:
                 "loosest_fit_95pct_run_and_play": both[1] or "none"})
     fits = pd.concat(fits, ignore_index=True)
     reach = pd.DataFrame(reaching)
+    loaded, crossings = loaded_mode(mech)
+    loaded.to_csv(folder / "clearance_loaded.csv", index=False)
+    crossings.to_csv(folder / "clearance_crossings.csv", index=False)
     share.to_csv(folder / "clearance_share.csv", index=False)
     worst.to_csv(folder / "clearance_worst.csv", index=False)
     fits.to_csv(folder / "clearance_guide_fits.csv", index=False)
@@ -97,11 +114,15 @@ def main(argv=None) -> None:
                          "fit": [c.fit for c in mech.clearances],
                          "radial_min_um": [1e3 * c.radial_min_mm for c in mech.clearances],
                          "radial_max_um": [1e3 * c.radial_max_mm for c in mech.clearances]})
-    write_text_atomic(folder / "clearances.md", report(args, share, worst, fits, reach, pins))
+    sobol.to_csv(folder / "clearance_sobol.csv", index=False)
+    write_text_atomic(folder / "clearances.md", report(args, share, worst, fits, reach, pins)
+                      + sobol_report(args, sobol) + loaded_report(loaded, crossings))
     write_text_atomic(folder / "clearances_run.json", json.dumps({
         "study": "studies/needle_208_clearances.py", "made": now(), "n": args.n,
         "seed": args.seed, "pins": PINS.strip(), "guide_diameter_mm": GUIDE_DIAMETER_MM,
         "play_limit_um": PLAY_LIMIT_UM, "target_yield": TARGET_YIELD,
+        "loaded": {"bar_kg": BAR_KG, "needle_force_N": NEEDLE_N, "rpm": list(SPEEDS_RPM)},
+        "sobol_n": SOBOL_N,
         "tolerance_sets": {k: v.as_record() for k, v in sets.items()}, **version_record()},
         indent=2) + "\n")
 
@@ -122,8 +143,9 @@ def report(args, share, worst, fits, reach, pins) -> str:
         f"- machines: {args.n} per tolerance set, seed {args.seed} (the Monte-Carlo's draw); "
         "journals: uniform in their circle, radial clearance uniform between the fit's "
         "smallest and largest, held over the turn (stream SeedSequence(seed, spawn_key=(1,)))",
-        "- model: rigid links, small clearances, no impact dynamics, no load (the journal's "
-        "place is chosen, not found from the joint force); worst case to first order "
+        "- model: rigid links, small clearances, no impact dynamics; no load in the sections "
+        "before the last (the journal's place is chosen, not found from the joint force: the "
+        "loaded mode, at the end, finds it); worst case to first order "
         "(sum c_j |J_j|, J_j by central differences of the real model)",
         "",
         "## The pins",
@@ -167,6 +189,100 @@ def report(args, share, worst, fits, reach, pins) -> str:
         md_table(fits[["tolerances", "strategy", "fit", "gap_min_um", "gap_max_um", "runs",
                        "binds", "failed", "play_ok", "play_median_um", "runs_share",
                        "yield"]], 3),
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def sobol_report(args, sobol: pd.DataFrame) -> str:
+    lines = [
+        "## Their share by Sobol indices, SumDelta as built",
+        "",
+        f"The journals as variables beside the links (uniform over the disc of the fit's largest "
+        f"clearance: |r|^2 and phi uniform), SumDelta without adjustment, {SOBOL_N} base "
+        f"samples, seed {args.seed}; the indices summed over each source (a source's share of "
+        "the variance lies between its S1 and its ST; SumDelta, max d + max -d, is far from "
+        "additive, so the two differ much).",
+        "",
+        md_table(sobol[["tolerances", "source", "S1", "ST"]], 3),
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def load_cases(mech) -> dict:
+    """The loaded mode's load cases on the needle-bar pin E (see BAR_KG, NEEDLE_N)."""
+    guide = 90.0 - mech.nominal_values()["guide_angle"]  # the guide's direction from +x
+    bar = PointLoad("E", mass_kg=BAR_KG, doc="needle bar: weight and inertia")
+    needle = PointLoad("E", force_N=NEEDLE_N, direction_deg=guide, against_motion=True,
+                       doc="needle force against the bar's motion")
+    return {"bar": (bar,), f"bar + needle {NEEDLE_N:g} N": (bar, needle)}
+
+
+def loaded_mode(mech) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The nominal machine's pins in loaded mode (largest clearance), per speed and load case:
+    per pair the largest force, the crossings, the largest move of d; per case d's move and
+    SumDelta with the journals where the load puts them."""
+    output = "SumDelta_um"
+    d0 = K.signal(mech, mech.state(), output)[0]
+    wc = K.worst_case(mech, None, output).total[0]
+    rows, cross = [], []
+    for rpm in SPEEDS_RPM:
+        for case, ld in load_cases(mech).items():
+            res = K.loaded(mech, None, output, ld, rpm=rpm)
+            d = d0 + res.total[0]
+            rows.append({"rpm": rpm, "load": case, "pair": "all",
+                         "force_max_N": np.nan, "crossings": sum(len(v[0]) for v in
+                                                                 res.crossings_deg.values()),
+                         "move_min_um": float(res.total[0].min()),
+                         "move_max_um": float(res.total[0].max()),
+                         "worst_case_max_um": float(wc.max()),
+                         "SumDelta_ideal_um": float(max(d0.max(), 0) + max(-d0.min(), 0)),
+                         "SumDelta_loaded_um": float(max(d.max(), 0) + max(-d.min(), 0))})
+            for j in res.by_pair:
+                f = np.abs(res.force_N[j][0])
+                rows.append({"rpm": rpm, "load": case, "pair": j,
+                             "force_max_N": float(f.max()), "force_min_N": float(f.min()),
+                             "crossings": len(res.crossings_deg[j][0]),
+                             "move_min_um": float(res.by_pair[j][0].min()),
+                             "move_max_um": float(res.by_pair[j][0].max())})
+                cross += [{"rpm": rpm, "load": case, "pair": j, "q_deg": q}
+                          for q in res.crossings_deg[j][0]]
+    return pd.DataFrame(rows), pd.DataFrame(cross, columns=["rpm", "load", "pair", "q_deg"])
+
+
+def loaded_report(loaded: pd.DataFrame, crossings: pd.DataFrame) -> str:
+    summary = loaded[loaded.pair == "all"]
+    per_pair = loaded[loaded.pair != "all"]
+    angles = (crossings.groupby(["rpm", "load", "pair"], sort=False)["q_deg"]
+              .apply(lambda q: ", ".join(f"{v:.1f}" for v in q)).reset_index()
+              .rename(columns={"q_deg": "crossing_angles_deg"}))
+    lines = [
+        "## Loaded mode: the journals where the joint forces put them",
+        "",
+        "The nominal machine, each journal on the rim of its largest clearance in the direction "
+        "of the force it presses its bearing with, from a quasi-static force analysis "
+        "(kinetostatics at a uniform crank speed: virtual work through the pair parameters; the "
+        "same analysis reproduces the M6 needle's Newton-Euler reactions to 1e-6 N). Assumed "
+        f"values: the needle bar at E, {BAR_KG:g} kg (the M6's published needle bar, the new "
+        "design on the same frame; the 208's masses are not published), its weight and inertia; "
+        f"links massless; a needle force of {NEEDLE_N:g} N along the guide against the bar's "
+        "motion over the whole turn (the sources state none); the guide holds the bar's "
+        "direction and carries no side load (the drive runs in its clearance). move: the "
+        "first-order move of d (sum_j c_j J_j . u_j) against the worst case W.",
+        "",
+        md_table(summary.drop(columns=["pair", "force_max_N", "force_min_N"]), 2),
+        "",
+        "Per pair: the force's range over the turn, how often its direction reverses (the "
+        "journal crosses its clearance, an impact the model does not follow) and its term of "
+        "the move:",
+        "",
+        md_table(per_pair.drop(columns=["worst_case_max_um", "SumDelta_ideal_um",
+                                        "SumDelta_loaded_um"]), 2),
+        "",
+        "Crossing angles (crank angle, deg):",
+        "",
+        md_table(angles, 1) if not angles.empty else "none",
         "",
     ]
     return "\n".join(lines)

@@ -33,6 +33,20 @@ def test_every_builtin_takes_pin_clearances(name, tmp_path):
                          "--format", "json")
     assert code == 0, err
     assert strict_loads(out)
+    # the journals as further variables beside the file's first tolerance set
+    code, out, err = run("run", str(f), "montecarlo", "--n", "4", "--seed", "1",
+                         "--clearances", "disc", "--format", "json")
+    if name == "presser_foot":
+        # its contact outputs come from a kernel of its own that does not see the journals:
+        # refused in one line, never the ideal pairs' answer; its outputs of points run
+        assert code == 2 and err.count("\n") == 1 and "presser_contact" in err, err
+        point_output = next(o.name for o in mech.outputs if o.type != "custom")
+        code, out, err = run("run", str(f), "montecarlo", "--n", "4", "--seed", "1",
+                             "--clearances", "disc", "--output", point_output,
+                             "--format", "json")
+    assert code == 0, err
+    got = strict_loads(out)
+    assert got["tolerances"].endswith("+clearances")
     signals = [o.name for o in mech.outputs if o.type in K.SIGNAL_TYPES]
     if signals and a.status[0] == "ok":
         wc = K.worst_case(mech, None, signals[0])

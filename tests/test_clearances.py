@@ -114,3 +114,9 @@ def test_a_second_clearance_on_the_same_pair_and_a_clearances_table_are_refused(
         "prismatic", "revolute"]
     with pytest.raises(ParameterError, match=r"\[\[clearances\]\]: must be an array of tables"):
         loads(BASE + '\n[clearances]\nB = 0.01\n', "m6.toml")
+
+
+def test_a_prismatic_pairs_tilt_is_its_gap_over_its_length():
+    c = Clearance("J", "prismatic", 0.005, 0.029, length_mm=30.0)
+    assert c.tilt_max_deg == pytest.approx(np.degrees(np.arctan(0.029 / 30.0)), rel=1e-15)
+    assert Clearance("B", "revolute", 0.005, 0.029).tilt_max_deg is None

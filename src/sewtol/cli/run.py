@@ -42,16 +42,16 @@ SPEC_STUDIES = ("montecarlo", "ppm", "allocation", "report", "strategies", "leas
 USES = {"nominal": (), "scan": ("output", "tolerances", "adjust"),
         "worst-case": ("output", "tolerances", "adjust"),
         "montecarlo": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "n_jobs",
-                       "adjust"),
-        "sobol": ("output", "tolerances", "n", "seed"),
-        "shapley": ("output", "tolerances", "n", "seed", "adjust"),
+                       "adjust", "clearances"),
+        "sobol": ("output", "tolerances", "n", "seed", "clearances"),
+        "shapley": ("output", "tolerances", "n", "seed", "adjust", "clearances"),
         "ppm": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "method", "target",
-                "adjust", "n_jobs"),
+                "adjust", "n_jobs", "clearances"),
         "allocation": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "target",
                        "weight", "adjust"),
         "report": ("output", "tolerances", "n", "seed", "limit", "lower_limit"), "settings": (),
         "strategies": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "n_jobs",
-                       "strategy"),
+                       "strategy", "clearances"),
         "refine": ("output", "tolerances", "seed", "adjust", "vary", "keep", "require",
                    "restarts", "popsize", "maxiter", "plot"),
         "clearance": ("output", "tolerances", "n", "seed", "limit", "adjust", "target",
@@ -151,6 +151,10 @@ def add_run(sub) -> None:
     p.add_argument("--guide-fit", action="append", default=None, metavar="FIT",
                    help="clearance: a guide fit to rate, e.g. H7/g6 (repeatable; default "
                         "H6/h5 ... H11/c11)")
+    p.add_argument("--clearances", choices=("disc", "rim"), default=None,
+                   help="montecarlo, sobol, shapley, ppm, strategies: the journals of the file's "
+                        "revolute [[clearances]] as further variables beside the tolerances "
+                        "(disc: uniform over the clearance's disc; rim: on its rim)")
     p.add_argument("--format", choices=RUN_FORMATS, default="text")
     wide_option(p)
     p.add_argument("--out", default=None, metavar="DIR",
@@ -207,7 +211,7 @@ def _check_flags(args) -> None:
     for key in ("output", "tolerances", "n", "seed", "limit", "n_jobs", "adjust", "lower_limit",
                 "method", "target", "weight", "strategy", "vary", "keep", "require", "restarts",
                 "popsize", "maxiter", "plot", "guide_diameter", "play_limit", "guide_fit",
-                "cost", "confidence", "check_n"):
+                "cost", "confidence", "check_n", "clearances"):
         value = getattr(args, key)
         if value is not None and key not in USES[args.study]:
             raise ParameterError("--" + key.replace("_", "-"), f"is not used by `run "
@@ -298,6 +302,12 @@ def cmd_run(args) -> None:
     if args.study == "refine":
         return _refine(args, fmt, mech)
     tolerances = resolve_tolerances(mech, args.tolerances)
+    if args.clearances is not None:
+        from sewtol.studies.clearance import clearance_variables
+
+        mech, tolerances = clearance_variables(mech, tolerances, args.clearances)
+        args.path_reason = (f"--clearances {args.clearances}: the journals are inputs the "
+                            "fast path does not have")
     if args.path_reason is None:
         args.path_reason = _tolerances_refusal(tolerances)
     if args.path_reason is None:  # the needle commands check their folder (open_store)

@@ -51,15 +51,39 @@ def offset_names(joint: str) -> tuple[str, str]:
     return f"{joint}_dx_mm", f"{joint}_dy_mm"
 
 
+def polar_names(joint: str) -> tuple[str, str]:
+    """The journal's offset in polar form, as parameters a study may vary
+    (`sewtol.studies.clearance.clearance_variables`): the square of its length (mm^2: uniform
+    in [0, c^2] is a journal uniform over the clearance's disc) and its direction (deg)."""
+    return f"{joint}_r2_mm2", f"{joint}_phi_deg"
+
+
 def pair_offsets(clearances, cols: dict) -> dict:
     """joint -> complex offset r = dx + i dy (mm, shaped (m, 1)) of every revolute pair with a
-    clearance, from the evaluation's columns."""
+    clearance, from the evaluation's columns; plus sqrt(r2) e^(i phi) where the columns hold
+    the polar form too (`polar_names`)."""
     out = {}
     for c in clearances:
         if c.pair == "revolute":
             dx, dy = offset_names(c.joint)
-            out[c.joint] = np.asarray(cols[dx], float) + 1j * np.asarray(cols[dy], float)
+            r = np.asarray(cols[dx], float) + 1j * np.asarray(cols[dy], float)
+            r2, phi = polar_names(c.joint)
+            if r2 in cols and phi in cols:
+                rho = np.sqrt(np.maximum(np.asarray(cols[r2], float), 0.0))
+                r = r + rho * np.exp(1j * np.radians(np.asarray(cols[phi], float)))
+            out[c.joint] = r
     return out
+
+
+PAIR_SUFFIXES = ("_dx_mm", "_dy_mm", "_r2_mm2")  # the pair parameters' and polar offsets' names
+
+
+def journals_off_centre(state) -> bool:
+    """Whether any machine of an evaluation's state has a journal off its bearing's centre (an
+    output computed from the parameters by a closed form of its own does not see them)."""
+    values = getattr(state, "values", None) or {}  # a kernel called without a state: none
+    return any(k.endswith(PAIR_SUFFIXES) and np.any(np.asarray(v) != 0)
+               for k, v in values.items())
 
 
 def shifted(point, r):
@@ -116,6 +140,14 @@ class Clearance:
     @property
     def radial_max_mm(self) -> float:
         return self.clearance_max_mm / 2
+
+    @property
+    def tilt_max_deg(self) -> float | None:
+        """A prismatic pair's largest tilt of the slider in its guide, atan(gap / length) (small:
+        gap / length rad); None for a revolute pair."""
+        if self.length_mm is None:
+            return None
+        return math.degrees(math.atan2(self.clearance_max_mm, self.length_mm))
 
 
 def _finite(v) -> bool:

@@ -34,7 +34,7 @@ import pandas as pd
 
 from sewtol.errors import ParameterError
 from sewtol.fits import iso_fit
-from sewtol.mechanism.clearance import offset_names
+from sewtol.mechanism.clearance import offset_names, polar_names
 from sewtol.mechanism.model import resolved
 from sewtol.mechanism.outputs import OUTPUT_TYPES
 
@@ -189,6 +189,199 @@ def random_offsets(mech, n: int, rng: np.random.Generator, *, rim: bool = False,
         dx, dy = offset_names(c.joint)
         out[dx], out[dy] = rho * np.cos(t), rho * np.sin(t)
     return out
+
+
+# --- clearances as variables of every study ---------------------------------------------------
+
+VARIABLE_MODES = ("disc", "rim")
+
+
+def clearance_variables(mech, tolerances, mode: str = "disc"):
+    """The mechanism and tolerance set with each revolute pair's journal as two further
+    variables beside the link tolerances, so that every study of the one stack (Monte-Carlo,
+    Sobol, Shapley, ppm, strategies) draws them: the offset r = sqrt(r2) (cos phi, sin phi)
+    (`sewtol.mechanism.clearance.polar_names`), phi uniform in [0, 360) deg and
+
+    - ``disc``: r2 uniform in [0, c^2], the journal uniform over its clearance's disc
+      (r = c sqrt(U));
+    - ``rim``: on the rim, r = c (r2's nominal is c^2; phi alone scatters);
+
+    c the pair's largest radial clearance (of a fit: the loosest pair it allows).
+
+    Returns (mechanism, tolerance set): a copy of the file whose parameters include r2 and phi
+    (nominal 0, or c_max^2 on the rim) and that names no fast path (a plug-in does not see
+    the journals), and the set named ``NAME+clearances`` with the pairs' items after the
+    links'. Refused: a file without revolute clearances, a set that already names them, an
+    unknown mode."""
+    import dataclasses
+
+    from sewtol.mechanism.spec import Parameter
+    from sewtol.protocol import tolerance_set
+    from sewtol.tolerances import Tolerance, ToleranceSet
+
+    if mode not in VARIABLE_MODES:
+        raise ParameterError("clearances", f"must be one of {', '.join(VARIABLE_MODES)}", mode)
+    pairs = revolute(mech)
+    ts = tolerance_set(mech, tolerances)
+    params, items = list(mech.parameters), list(ts.items)
+    for c in pairs:
+        r2, phi = polar_names(c.joint)
+        hi = c.radial_max_mm ** 2
+        nominal = hi if mode == "rim" else 0.0
+        params += [Parameter(r2, nominal, "mm2", "finite",
+                             f"square of the journal's offset in pair {c.joint}"),
+                   Parameter(phi, 0.0, "deg", "finite",
+                             f"direction of the journal's offset in pair {c.joint}")]
+        if mode == "disc":
+            items.append(Tolerance(r2, 0.0, hi, "uniform"))
+        items.append(Tolerance(phi, 0.0, 360.0, "uniform"))
+    names = {p.name for p in mech.parameters}
+    clash = sorted(names & {p.name for p in params[len(mech.parameters):]})
+    if clash:
+        raise ParameterError("parameters", "already name a journal's polar offset", clash)
+    header = dataclasses.replace(mech.header, fast_path=None)
+    varied = dataclasses.replace(mech, parameters=tuple(params), header=header)
+    return varied, ToleranceSet(f"{ts.name}+clearances", tuple(items),
+                                (ts.description + "; " if ts.description else "")
+                                + f"journals {mode}", dependence=ts.dependence,
+                                relations=ts.relations, selective=ts.selective)
+
+
+@dataclass(frozen=True)
+class SobolShare:
+    """The Sobol indices of one output with the journals as variables (`clearance_variables`)
+    beside the link tolerances: ``indices`` per input (source ``link`` or ``pin``; a pin's
+    ``pair``), ``by_pair`` each pair's first-order and total index (r2 and phi together: their
+    closed index S1_r2 + S1_phi is a lower bound of the pair's first-order share, the sum of
+    their totals an upper bound of its total), ``sources`` the sums over the links and over the
+    pins (a source's share of the variance lies between the sum of its S1 and the sum of its
+    ST)."""
+
+    mechanism: str
+    tolerances: str
+    output: str
+    mode: str
+    n: int
+    seed: int
+    indices: pd.DataFrame
+    by_pair: pd.DataFrame
+    sources: pd.DataFrame
+
+    def to_dataframe(self) -> pd.DataFrame:
+        return self.indices
+
+
+def sobol_share(mech, tolerances, output: str, n: int, seed: int, *, mode: str = "disc",
+                **options) -> SobolShare:
+    """The pins against the links by Sobol indices on `output` as evaluated (no adjustment):
+    `sewtol.studies.sobol.sobol` on `clearance_variables` (n base samples, seeded; `options`
+    go to it). See `SobolShare`."""
+    from sewtol.studies.sobol import sobol
+
+    varied, ts = clearance_variables(mech, tolerances, mode)
+    res = sobol(varied, ts, output, n, seed, fast=False, **options)
+    f = res.to_dataframe()
+    f = f[f["case"] == f["case"].iloc[0]].copy()
+    pair = {}
+    for c in revolute(mech):
+        for name in polar_names(c.joint):
+            pair[name] = c.joint
+    f.insert(0, "source", ["pin" if p in pair else "link" for p in f["param"]])
+    f.insert(1, "pair", [pair.get(p, "") for p in f["param"]])
+    pins = f[f["source"] == "pin"]
+    by_pair = (pins.groupby("pair", sort=False)[["S1", "ST"]].sum().reset_index())
+    sources = f.groupby("source", sort=False)[["S1", "ST"]].sum().reset_index()
+    return SobolShare(mech.name, ts.name, output, mode, int(res.n), int(seed),
+                      f.reset_index(drop=True), by_pair, sources)
+
+
+# --- loaded mode: the contact direction follows the joint force ------------------------------
+
+
+@dataclass(frozen=True)
+class LoadedClearance:
+    """The loaded mode: each journal on its rim, r_j = c_j u_j, in the direction u_j of the
+    force it presses on its bearing with (`sewtol.mechanism.kinetostatics.joint_forces` under
+    `loads` at `rpm`), per machine and angle; the output's signal moves by
+    ``total`` = sum_j c_j J_j . u_j (first order; ``by_pair`` each pair's term). A pair whose
+    force is zero (below 1e-9 of the largest) leaves its journal centred (its place is not
+    determined by the load). ``crossings_deg``: joint -> per machine, the crank angles at which
+    the force's direction reverses (turns by more than 90 deg between two samples) and the
+    journal crosses its clearance, interpolated where the force's component along its former
+    direction passes zero."""
+
+    output: str
+    unit: str
+    q_deg: np.ndarray
+    rpm: float
+    radius_mm: dict
+    force_N: dict
+    offsets_mm: dict
+    total: np.ndarray
+    by_pair: dict
+    crossings_deg: dict
+
+    def to_dataframe(self) -> pd.DataFrame:
+        """One row per (machine, angle): the signal's move and each pair's force and term."""
+        m, k = self.total.shape
+        f = pd.DataFrame({"machine": np.repeat(np.arange(m), k), "q_deg": np.tile(self.q_deg, m),
+                          f"loaded_{self.unit}": self.total.reshape(-1)})
+        for j, v in self.by_pair.items():
+            f[f"{j}_force_N"] = np.abs(self.force_N[j]).reshape(-1)
+            f[f"{j}_force_deg"] = np.degrees(np.angle(self.force_N[j])).reshape(-1)
+            f[f"{j}_{self.unit}"] = v.reshape(-1)
+        return f
+
+    def crossings(self) -> pd.DataFrame:
+        """One row per crossing: pair, machine, crank angle (deg)."""
+        rows = [{"pair": j, "machine": i, "q_deg": float(q)}
+                for j, per in self.crossings_deg.items() for i, qs in enumerate(per) for q in qs]
+        return pd.DataFrame(rows, columns=["pair", "machine", "q_deg"])
+
+
+def _crossings(force: np.ndarray, q_deg: np.ndarray) -> list[tuple[float, ...]]:
+    """Per machine, the angles where the force's direction reverses between two samples (the
+    sampled turn closes on itself)."""
+    nxt = np.roll(force, -1, axis=-1)
+    a = np.abs(force)
+    u = force / np.where(a > 0, a, 1.0)
+    s0, s1 = a, (np.conjugate(u) * nxt).real  # the force's component along u, here and next
+    step = 360.0 / q_deg.size
+    out = []
+    for i in range(force.shape[0]):
+        k = np.flatnonzero((s1[i] < 0) & np.isfinite(s1[i]))
+        t = s0[i, k] / (s0[i, k] - s1[i, k])
+        out.append(tuple(float(v) for v in np.round((q_deg[k] + t * step) % 360.0, 6)))
+    return out
+
+
+def loaded(mech, values: dict | None, output: str, loads, rpm: float | None = None,
+           clearance: str = "max", h_mm: float = H_MM) -> LoadedClearance:
+    """The loaded mode on `output` for the machines of `values` (their journals centred to
+    find the forces): see `LoadedClearance`. `loads`: PointLoad objects
+    (`sewtol.mechanism.kinetostatics`); `rpm`: the crank speed (default the file's);
+    `clearance`: each pair's "max" or "min" radial clearance."""
+    from sewtol.mechanism.kinetostatics import joint_forces
+
+    c = radii(mech, clearance)
+    jf = joint_forces(mech, values, loads, rpm, h_mm)
+    jac = jacobian(mech, {k: v for k, v in (values or {}).items()
+                          if k in mech.parameter_names}, output, h_mm)
+    scale = max((float(np.nanmax(np.abs(f), initial=0.0)) for f in jf.force_N.values()),
+                default=0.0)
+    offsets, by = {}, {}
+    for j, f in jf.force_N.items():
+        a = np.abs(f)
+        loaded_ = a > 1e-9 * scale
+        r = np.where(loaded_, c[j] * f / np.where(loaded_, a, 1.0), 0.0)
+        offsets[j] = r
+        by[j] = (np.conjugate(jac[j]) * r).real  # J_j . r_j
+    total = sum(by.values())
+    q_deg = np.degrees(mech.angles_rad())
+    crossings = {j: _crossings(np.where(np.abs(f) > 1e-9 * scale, f, 0.0), q_deg)
+                 for j, f in jf.force_N.items()}
+    return LoadedClearance(output, mech.output(output).unit, q_deg, jf.rpm, c, jf.force_N,
+                           offsets, total, by, crossings)
 
 
 def fit_gap_um(fit: str, diameter_mm: float) -> tuple[float, float]:

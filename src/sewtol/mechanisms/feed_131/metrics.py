@@ -12,11 +12,12 @@ in). Crossings and the extreme rise are polished by Newton steps on the analytic
 from __future__ import annotations
 
 import weakref
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from sewtol.errors import ParameterError
+from sewtol.mechanism.clearance import journals_off_centre
 from sewtol.mechanisms.feed_131 import model as fd
 
 N_GRID = 720
@@ -129,8 +130,10 @@ class PairFigures:
 
 
 def pair_figures(c: dict, n_grid: int = N_GRID, lo: DogFigures | None = None,
-                 up: DogFigures | None = None) -> PairFigures:
-    """Both dogs' figures (`lo`, `up`: already computed ones) and how they grip together."""
+                 up: DogFigures | None = None, shift: dict | None = None) -> PairFigures:
+    """Both dogs' figures (`lo`, `up`: already computed ones) and how they grip together.
+    `shift`: tooth -> callable(phi) giving its move by the journals (`JournalShift`), added to
+    the closed form's path (the dogs' entries in `lo`, `up` already moved)."""
     lo = dog_figures(c, "lower", n_grid) if lo is None else lo
     up = dog_figures(c, "upper", n_grid) if up is None else up
     # from the later entry, both dogs grip until the first exit
@@ -140,8 +143,11 @@ def pair_figures(c: dict, n_grid: int = N_GRID, lo: DogFigures | None = None,
     span = np.linspace(0, 2 * np.pi, n_grid, endpoint=False).reshape(1, -1)
     phi = np.nan_to_num(start).reshape(-1, 1) + span
     out = fd.chains(c, phi)
-    x1, y1 = out["Q1"].p.real, out["Q1"].p.imag
-    x2, y2 = out["Q2"].p.real, out["Q2"].p.imag
+    q1, q2 = out["Q1"].p, out["Q2"].p
+    if shift:
+        q1, q2 = q1 + shift["Q1"](phi), q2 + shift["Q2"](phi)
+    x1, y1 = q1.real, q1.imag
+    x2, y2 = q2.real, q2.imag
     level = np.asarray(c["plate_mm"], float).reshape(-1, 1) if np.ndim(c["plate_mm"]) else \
         c["plate_mm"]
     both = (y1 > level) & (y2 < level + np.asarray(c["material_mm"], float))
@@ -165,17 +171,67 @@ MEASURES = ("lower_step_mm", "upper_step_mm", "differential_ratio", "mismatch_mm
 _last: list = [lambda: None, {}]
 
 
+# Joint clearances (sewtol.mechanism.clearance): the closed form does not see a journal off its
+# centre, the file's groups do. Where a state's journals are off centre, the figures are found
+# on the closed form's path moved by the tooth's displacement delta(phi) = the groups' point -
+# the closed form's (periodic linear interpolation between the state's angles; delta is a smooth
+# function of a few um): the crossings of the level solve y(phi) + delta_y(phi) = L.
+TEETH = {"lower": "Q1", "upper": "Q2"}
+
+
+class JournalShift:
+    """delta(phi) of a tooth for the machines of a state: callable on angles (m, j) (rad)."""
+
+    def __init__(self, state, c, key):
+        q = np.asarray(state.q_rad, float)
+        closed = fd.chains(c, q.reshape(1, -1))[key].p
+        self.q, self.delta = q, np.broadcast_to(state.points[key].p - closed, state.shape)
+
+    def __call__(self, phi):
+        phi = np.broadcast_to(np.asarray(phi, float), (self.delta.shape[0], np.shape(phi)[-1]))
+        out = np.full(phi.shape, np.nan, complex)
+        for i in range(phi.shape[0]):
+            ok = np.isfinite(phi[i])
+            out[i, ok] = np.interp(phi[i, ok], self.q, self.delta[i], period=2 * np.pi)
+        return out
+
+
+def _moved(c, fig: DogFigures, which: str, shift: JournalShift, iters: int = 6) -> DogFigures:
+    """A dog's figures with its step and crossings moved by the journals: Newton steps on
+    y(phi) + delta_y(phi) = level from the closed form's crossing (the tooth's slope y' of the
+    closed form: delta's own is of the order of the clearances)."""
+    key, moved = TEETH[which], {}
+    level = np.asarray(c["plate_mm"], float) + (np.asarray(c["material_mm"], float)
+                                                if which == "upper" else 0.0)
+    level = np.reshape(level, (-1, 1)) if np.ndim(level) else level
+    for name in ("entry", "exit"):
+        phi = np.radians(getattr(fig, f"{name}_phi_deg")).reshape(-1, 1)
+        for _ in range(iters):
+            q, _ = _tooth(c, np.nan_to_num(phi), key)
+            phi = phi - (q.p.imag + shift(phi).imag - level) / q.dp.imag
+        q, _ = _tooth(c, np.nan_to_num(phi), key)
+        moved[name] = ((q.p.real + shift(phi).real).ravel(),
+                       np.mod(np.degrees(phi.ravel()), 360.0))
+    return replace(fig, feed_step_mm=moved["entry"][0] - moved["exit"][0],
+                   entry_phi_deg=moved["entry"][1], exit_phi_deg=moved["exit"][1])
+
+
 def _figures_of(state, which: str):
     if _last[0]() is not state:
         _last[:] = [weakref.ref(state), {}]
     memo = _last[1]
     if which not in memo:
         c = {"dog_bar_program": np.zeros((state.shape[0], 1)), **state.values}
+        off = journals_off_centre(state)
         if which == "pair":
+            shift = {k: JournalShift(state, c, k) for k in TEETH.values()} if off else None
             memo[which] = pair_figures(c, lo=_figures_of(state, "lower"),
-                                       up=_figures_of(state, "upper"))
+                                       up=_figures_of(state, "upper"), shift=shift)
         else:
-            memo[which] = dog_figures(c, which)
+            fig = dog_figures(c, which)
+            if off:
+                fig = _moved(c, fig, which, JournalShift(state, c, TEETH[which]))
+            memo[which] = fig
     return memo[which]
 
 

@@ -37,6 +37,7 @@ import numpy as np
 import pandas as pd
 
 from sewtol.errors import ParameterError
+from sewtol.mechanism.clearance import journals_off_centre
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.presser_foot import kernel as K
 
@@ -423,6 +424,12 @@ def presser_contact_output(state, measure: str = "separation_mm", **fields) -> n
     (m, 1) or numbers); `state` is not needed (the contact cycle is sampled by the kernel)."""
     if measure not in MEASURES:
         raise ParameterError("measure", "must be one of " + ", ".join(MEASURES), measure)
+    if journals_off_centre(state):
+        # the contact kernel is a closed form of the parameters: it would silently give the
+        # ideal pairs' answer
+        raise ParameterError(f"output presser_contact ({measure})", "is computed by the "
+                             "presser's own kernel, which does not see joint clearances: study "
+                             "an output of the file's points with journals off centre", measure)
     values = {k: np.asarray(v, float).reshape(-1) for k, v in fields.items()}
     return presser_contact(values, **{k: k for k in values})[measure]
 
