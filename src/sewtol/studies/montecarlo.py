@@ -340,7 +340,7 @@ def _file_model(record, dev, mech, outputs, compensator=None, target=None, fast=
         out = {**ev.outputs, "status": ev.status, "failed_group": ev.failed_group}
     if compensator is not None:
         comps = [compensator] if isinstance(compensator, str) else compensator
-        a = adjusted(mech, values, comps, target, fast=fast)
+        a = adjusted(mech, values, comps, target, fast=fast, figures=False)
         out[f"{target}_adjusted"] = a.value
         for param, setting in a.settings.items():
             out[f"{param}_setting"] = setting
