@@ -146,8 +146,21 @@ def available_memory_bytes() -> int | None:
     return min(limits.values()) if limits else None
 
 
-def check_memory(n: int, columns: int, what: str = "n", value=None) -> None:
-    """Refuse a study whose result table cannot fit in the memory available now."""
+def largest_that_fits(have_bytes: int, columns: int, rows_per_unit: int = 1,
+                      power_of_two: bool = False) -> int:
+    """The largest n whose n * rows_per_unit rows of `columns` columns fit in have_bytes (the
+    estimate of `check_memory`); the largest power of two with power_of_two (Sobol)."""
+    n = int(have_bytes) // (int(columns) * BYTES_PER_CELL * max(1, int(rows_per_unit)))
+    if power_of_two and n >= 1:
+        n = 1 << (n.bit_length() - 1)
+    return n
+
+
+def check_memory(n: int, columns: int, what: str = "n", value=None, rows_per_unit: int = 1,
+                 power_of_two: bool = False) -> None:
+    """Refuse a study whose result table cannot fit in the memory available now, before it
+    starts, naming the largest `what` that fits (`value` rows per unit of it: n rows are
+    value * rows_per_unit)."""
     need = int(n) * int(columns) * BYTES_PER_CELL
     limits = memory_limits_bytes()
     if not limits:
@@ -155,9 +168,11 @@ def check_memory(n: int, columns: int, what: str = "n", value=None) -> None:
     source = min(limits, key=limits.get)
     have = limits[source]
     if need > have:
+        fits = largest_that_fits(have, columns, rows_per_unit, power_of_two)
         raise ParameterError(what, f"needs about {need / 2**30:.3g} GiB for {columns} columns of "
                              f"{int(n)} rows, more than the memory this process may still use "
-                             f"({have / 2**30:.3g} GiB, {source})", n if value is None else value)
+                             f"({have / 2**30:.3g} GiB, {source}): at most {what} = {fits} "
+                             "fits", n if value is None else value)
 
 
 def _chunk(model, nominal, law: InputLaw, window, kwargs):
