@@ -209,9 +209,9 @@ def _watch_parent(pid: int, every_s: float = 0.25) -> None:
 
 def numba_threads_local(n_jobs: int) -> int:
     """In one of n_jobs local worker processes: NUMBA_NUM_THREADS // n_jobs numba threads (at
-    least 1), so the workers together run no more threads than the cores numba sees (two
-    workers of two threads each on two cores spent a seventh of their time in the kernel's
-    scheduler). The kernels' loops are over independent machines: no number depends on it."""
+    least 1), so the workers together run no more threads than the cores numba sees (the
+    strategies study already did this in its chunks). The kernels' loops are over independent
+    machines: no number depends on it."""
     import numba
 
     share = max(1, numba.config.NUMBA_NUM_THREADS // max(1, n_jobs))
