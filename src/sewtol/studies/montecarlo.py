@@ -220,15 +220,24 @@ def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
                                 for a, b in bounds],
                        n_jobs=n_jobs, progress=progress, desc=desc, backend=backend, store=store,
                        validate=validate, scheduler=scheduler)
-    frames = []
-    for dev, out in parts:
-        f = pd.DataFrame(dict(dev))
-        for k, v in out.items():
-            f[k] = v
-        frames.append(f)
-    machines = pd.concat(frames, ignore_index=True)
-    machines.insert(0, "machine", np.arange(len(machines)))
-    return machines
+    return _joined(parts)
+
+
+def _joined(parts: list) -> pd.DataFrame:
+    """The chunks' (deviations, outputs) as one table (machine, deviations, outputs), joined
+    column by column: each chunk's array of a column is dropped as soon as it is copied, so
+    the chunks and the table are never held whole at once (one DataFrame per chunk and
+    pd.concat held both, and set 10 columns per chunk one by one)."""
+    names = list(parts[0][0]) + [k for k in parts[0][1] if k not in parts[0][0]]
+    cols = {"machine": np.arange(sum(len(next(iter(d.values()))) for d, _ in parts))}
+    for k in names:
+        pieces = []
+        for dev, out in parts:
+            src = dev if k in dev else out
+            pieces.append(np.asarray(src.pop(k)))
+        cols[k] = np.concatenate(pieces) if len(pieces) > 1 else pieces[0]
+        del pieces
+    return pd.DataFrame(cols, copy=False)
 
 
 def draw_deviations(tolerances: ToleranceSet, n: int, seed: int) -> dict[str, np.ndarray]:
