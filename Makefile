@@ -116,6 +116,7 @@ $(BENCH)/.installed: pyproject.toml $(LOCK)
 bench: $(BENCH)/.installed
 	$(BENCH)/bin/python benchmarks/throughput.py --json
 	$(BENCH)/bin/python benchmarks/studies.py --json
+	$(BENCH)/bin/python benchmarks/cli.py --json
 
 clean:
 	rm -rf $(VENV) $(BENCH) $(LATEST) .venv-lock .pytest_cache .hypothesis build site src/*.egg-info
