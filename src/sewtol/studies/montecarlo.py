@@ -744,12 +744,29 @@ def named_failures(mech, failure_table, frame: pd.DataFrame, params, output: str
             k.removesuffix("_setting"): np.where(np.isfinite(v), v, nominal[k.removesuffix(
                 "_setting")]) for k, v in frame.items() if k.endswith("_setting")}}
     frame = frame.copy()
+    n = len(frame)
     for suffix, vals in cases.items():
         value = frame[f"{output}{suffix}"].to_numpy(float)
-        why, failed = dict(failure_table(mech, vals)), np.isnan(value)
+        failed = np.isnan(value)
+        # the reasons of the machines that fail only (each machine's reason is its own): the
+        # table of all n machines held every parameter column n long, twice over; with none
+        # failing, machine 0 gives the columns' names and types, its values unused
+        rows = failed if failed.any() else np.arange(n) == 0
+        why = dict(failure_table(mech, {k: (v[rows] if np.shape(v)[:1] == (n,) else v)
+                                        for k, v in vals.items()}))
         passes = np.where(spec is None or spec.passes(value), "ok", "out_of_spec").astype(object)
-        frame[f"status{suffix}"] = np.where(failed, why.pop("status"), passes)
-        frame[f"failed_group{suffix}"] = np.where(failed, why.pop("group"), "")
+        frame[f"status{suffix}"] = _scatter(passes, failed, why.pop("status"), object)
+        frame[f"failed_group{suffix}"] = _scatter(np.full(n, "", object), failed,
+                                                  why.pop("group"), object)
         for k, v in why.items():
-            frame[f"fail_{k}{suffix}"] = np.where(failed, v, np.nan)
+            v = np.asarray(v)
+            frame[f"fail_{k}{suffix}"] = _scatter(np.full(n, np.nan, np.result_type(v, float)),
+                                                  failed, v)
     return frame
+
+
+def _scatter(out: np.ndarray, rows: np.ndarray, values, dtype=None) -> np.ndarray:
+    """out with out[rows] = values (the values of the rows where mask `rows` holds)."""
+    if rows.any():
+        out[rows] = np.asarray(values, dtype)
+    return out
