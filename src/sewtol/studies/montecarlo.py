@@ -743,7 +743,9 @@ def named_failures(mech, failure_table, frame: pd.DataFrame, params, output: str
         cases["_adjusted"] = {**values, **{
             k.removesuffix("_setting"): np.where(np.isfinite(v), v, nominal[k.removesuffix(
                 "_setting")]) for k, v in frame.items() if k.endswith("_setting")}}
-    frame = frame.copy()
+    # a shallow copy: the columns set below replace the caller's (pandas >= 2 never writes a
+    # whole-column assignment into the array it replaces), no deep copy of the table
+    frame = frame.copy(deep=False)
     n = len(frame)
     for suffix, vals in cases.items():
         value = frame[f"{output}{suffix}"].to_numpy(float)
@@ -754,7 +756,8 @@ def named_failures(mech, failure_table, frame: pd.DataFrame, params, output: str
         rows = failed if failed.any() else np.arange(n) == 0
         why = dict(failure_table(mech, {k: (v[rows] if np.shape(v)[:1] == (n,) else v)
                                         for k, v in vals.items()}))
-        passes = np.where(spec is None or spec.passes(value), "ok", "out_of_spec").astype(object)
+        passes = np.broadcast_to(np.where(spec is None or spec.passes(value), "ok",
+                                          "out_of_spec").astype(object), (n,)).copy()
         frame[f"status{suffix}"] = _scatter(passes, failed, why.pop("status"), object)
         frame[f"failed_group{suffix}"] = _scatter(np.full(n, "", object), failed,
                                                   why.pop("group"), object)
