@@ -124,6 +124,7 @@ bench: $(BENCH)/.installed
 	$(BENCH)/bin/python benchmarks/throughput.py --json
 	$(BENCH)/bin/python benchmarks/studies.py --json
 	$(BENCH)/bin/python benchmarks/generic_vs_fused.py --json
+	$(BENCH)/bin/python benchmarks/cli.py --json
 
 clean:
 	rm -rf $(VENV) $(BENCH) $(LATEST) .venv-lock .pytest_cache .hypothesis build site src/*.egg-info

@@ -355,7 +355,12 @@ def test_the_memory_estimate_honours_the_address_space_limit(tmp_path):
     assert p.returncode == 2 and p.stdout == "" and p.stderr.count("\n") == 1, p.stderr[-2000:]
     assert p.stderr.startswith("sewtol: error: --n: needs about 1.67 GiB for 28 columns of "
                                "2000000 rows, more than the memory this process may still use (")
-    assert p.stderr.endswith(" GiB, address-space limit (ulimit -v)) (got 2000000)\n")
+    # the n that fits: the largest whose estimate (28 columns of 32 bytes) is within what is left
+    left = float(p.stderr.split("may still use (")[1].split(" GiB")[0]) * 2**30
+    fits = int(p.stderr.split("at most n = ")[1].split(" fits")[0])
+    assert 0 < fits < 2_000_000 and abs(fits * 28 * 32 - left) <= 0.005 * left + 28 * 32
+    assert p.stderr.endswith(f" GiB, address-space limit (ulimit -v)): at most n = {fits} fits "
+                             "(got 2000000)\n")
     assert not (tmp_path / "D").exists()
 
 
@@ -372,10 +377,18 @@ def test_the_memory_estimate_honours_a_container_limit(tmp_path, monkeypatch, ve
                         files if version == "v1" else files[::-1])
     assert montecarlo.memory_limits_bytes()["container memory limit (cgroup)"] == 3 * 2**28
     montecarlo.check_memory(100_000, 28)  # 0.09 GB fits
+    # 0.75 GiB / (28 columns x 32 bytes) = 898,779.4 rows: n = 898,779 fits, one more does not
     with pytest.raises(ParameterError, match=r"needs about 0\.834 GiB for 28 columns of 1000000 "
                        r"rows, more than the memory this process may still use \(0\.75 GiB, "
-                       r"container memory limit \(cgroup\)\)"):
+                       r"container memory limit \(cgroup\)\): at most n = 898779 fits"):
         montecarlo.check_memory(1_000_000, 28)
+    montecarlo.check_memory(898_779, 28)
+    with pytest.raises(ParameterError, match="at most n = 898779 fits"):
+        montecarlo.check_memory(898_780, 28)
+    # Sobol: n base samples of 10 rows each, n a power of two: 251,658 samples of 10 columns fit
+    # in 0.75 GiB, so 2**17 = 131,072 is the largest n (2**18 = 262,144 does not)
+    with pytest.raises(ParameterError, match="at most n = 131072 fits"):
+        montecarlo.check_memory(2**20 * 10, 10, value=2**20, rows_per_unit=10, power_of_two=True)
     limit.write_text("max\n")  # v2's "no limit", and v1's page-rounded 2**63 - 1
     assert "container memory limit (cgroup)" not in montecarlo.memory_limits_bytes()
     limit.write_text("9223372036854771712\n")

@@ -144,3 +144,26 @@ def test_sobol_confidence_intervals_repeat_for_seed_zero():
     for seed in (0, 5):
         a, b = (case_indices(problem, None, y, 16, seed).indices for _ in range(2))
         assert a.equals(b), seed
+
+
+def test_named_failures_leaves_the_callers_table_as_it_was(nominal):
+    """named_failures takes a shallow copy: its new status columns never reach the frame it
+    was given (the failing machines' reasons come from the plug-in on those machines only)."""
+    from sewtol.mechanisms.needle_208.tables import as_mechanism
+    from sewtol.protocol import plugins
+    from sewtol.studies.montecarlo import _file_model, named_failures, sample_machines
+
+    mech = as_mechanism(nominal)
+    wild = ToleranceSet("wild", (Tolerance("CD", -25.0, 0.0),))
+    frame = sample_machines(_file_model, mech.parameter_record(), wild, 60, seed=1, mech=mech,
+                            outputs=["SumDelta_um"], fast=True)
+    before = frame.copy()
+    named = named_failures(mech, plugins(mech).failure_table, frame, ("CD",), "SumDelta_um",
+                           None, None)
+    assert frame.equals(before) and list(frame) == list(before)
+    failed = named["SumDelta_um"].isna().to_numpy()
+    assert 0 < failed.sum() < 60
+    assert (named["status"][~failed] == "ok").all()
+    assert set(named["status"][failed]) <= {"cannot_close", "dead_point", "unexplained"}
+    assert named["failed_group"][failed].str.len().gt(0).all()
+    assert (named["failed_group"][~failed] == "").all()

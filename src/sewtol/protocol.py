@@ -84,9 +84,13 @@ class Plugins:
         may lie from the kernel's on each machine (the generic path samples the crank angle;
         the bound is derived, not tuned). The suite holds the two within it.
     adjuster : callable or None
-        ``adjuster(mech, values, boxes) -> dict`` with ``value`` (the optimum of the adjusted
-        output per machine) and ``settings`` (compensator parameter -> array): the exact
-        optimum over `boxes` (parameter -> (low, high), absolute settings).
+        ``adjuster(mech, values, boxes, figures=True) -> dict`` with ``value`` (the optimum of
+        the adjusted output per machine) and ``settings`` (compensator parameter -> array): the
+        exact optimum over `boxes` (parameter -> (low, high), absolute settings). With
+        ``figures=False`` the caller reads only ``value``, ``settings``, ``status``,
+        ``at_bound``, ``low`` and ``high``, and the adjuster may leave out its further figures
+        (the Monte-Carlo's chunks: the needle's exact figures at the settings cost more than
+        the optimum).
     adjuster_sets : tuple of frozenset
         The sets of compensator parameters the adjuster solves exactly.
     adjusted_output : str or None

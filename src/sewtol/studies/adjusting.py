@@ -71,12 +71,14 @@ def _objects(compensators) -> bool:
 
 
 def adjusted(mech, values: dict | None, compensators, output: str, *, fast: bool = True,
-             objective=None, **options) -> Adjusted:
+             objective=None, figures: bool = True, **options) -> Adjusted:
     """Each machine of `values` (absolute parameter values; the rest nominal) adjusted: `output`
     minimised over the compensators (see the module docstring), or brought to a target or
     centred in a spec (`objective`: sewtol.adjuster.Objective or "target=T", "centre=L,U";
     the plug-ins minimise, so another objective takes the generic adjuster). `options` go to
-    the plug-in (e.g. limit_um, plateaus for the needle's strategy adjuster)."""
+    the plug-in (e.g. limit_um, plateaus for the needle's strategy adjuster); figures=False
+    tells the exact adjuster that only the value, settings, status, bounds and plateaus are
+    read (Plugins.adjuster), so it may skip its further figures."""
     from sewtol.adjuster import Objective
 
     mech.output(output)
@@ -92,7 +94,7 @@ def adjusted(mech, values: dict | None, compensators, output: str, *, fast: bool
         compensators = {c.name: (c.low, c.high) for c in compensators}
     boxes = _boxes(mech, compensators)
     if pl is not None and output == pl.adjusted_output and pl.adjusts(boxes):
-        return _of(pl.adjuster(mech, values or {}, boxes), pl.name)
+        return _of(pl.adjuster(mech, values or {}, boxes, figures=figures), pl.name)
     return _generic(mech, values, boxes, output, objective)
 
 

@@ -146,8 +146,21 @@ def available_memory_bytes() -> int | None:
     return min(limits.values()) if limits else None
 
 
-def check_memory(n: int, columns: int, what: str = "n", value=None) -> None:
-    """Refuse a study whose result table cannot fit in the memory available now."""
+def largest_that_fits(have_bytes: int, columns: int, rows_per_unit: int = 1,
+                      power_of_two: bool = False) -> int:
+    """The largest n whose n * rows_per_unit rows of `columns` columns fit in have_bytes (the
+    estimate of `check_memory`); the largest power of two with power_of_two (Sobol)."""
+    n = int(have_bytes) // (int(columns) * BYTES_PER_CELL * max(1, int(rows_per_unit)))
+    if power_of_two and n >= 1:
+        n = 1 << (n.bit_length() - 1)
+    return n
+
+
+def check_memory(n: int, columns: int, what: str = "n", value=None, rows_per_unit: int = 1,
+                 power_of_two: bool = False) -> None:
+    """Refuse a study whose result table cannot fit in the memory available now, before it
+    starts, naming the largest `what` that fits (`value` rows per unit of it: n rows are
+    value * rows_per_unit)."""
     need = int(n) * int(columns) * BYTES_PER_CELL
     limits = memory_limits_bytes()
     if not limits:
@@ -155,9 +168,11 @@ def check_memory(n: int, columns: int, what: str = "n", value=None) -> None:
     source = min(limits, key=limits.get)
     have = limits[source]
     if need > have:
+        fits = largest_that_fits(have, columns, rows_per_unit, power_of_two)
         raise ParameterError(what, f"needs about {need / 2**30:.3g} GiB for {columns} columns of "
                              f"{int(n)} rows, more than the memory this process may still use "
-                             f"({have / 2**30:.3g} GiB, {source})", n if value is None else value)
+                             f"({have / 2**30:.3g} GiB, {source}): at most {what} = {fits} "
+                             "fits", n if value is None else value)
 
 
 def _chunk(model, nominal, law: InputLaw, window, kwargs):
@@ -205,15 +220,24 @@ def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
                                 for a, b in bounds],
                        n_jobs=n_jobs, progress=progress, desc=desc, backend=backend, store=store,
                        validate=validate, scheduler=scheduler)
-    frames = []
-    for dev, out in parts:
-        f = pd.DataFrame(dict(dev))
-        for k, v in out.items():
-            f[k] = v
-        frames.append(f)
-    machines = pd.concat(frames, ignore_index=True)
-    machines.insert(0, "machine", np.arange(len(machines)))
-    return machines
+    return _joined(parts)
+
+
+def _joined(parts: list) -> pd.DataFrame:
+    """The chunks' (deviations, outputs) as one table (machine, deviations, outputs), joined
+    column by column: each chunk's array of a column is dropped as soon as it is copied, so
+    the chunks and the table are never held whole at once (one DataFrame per chunk and
+    pd.concat held both, and set 10 columns per chunk one by one)."""
+    names = list(parts[0][0]) + [k for k in parts[0][1] if k not in parts[0][0]]
+    cols = {"machine": np.arange(sum(len(next(iter(d.values()))) for d, _ in parts))}
+    for k in names:
+        pieces = []
+        for dev, out in parts:
+            src = dev if k in dev else out
+            pieces.append(np.asarray(src.pop(k)))
+        cols[k] = np.concatenate(pieces) if len(pieces) > 1 else pieces[0]
+        del pieces
+    return pd.DataFrame(cols, copy=False)
 
 
 def draw_deviations(tolerances: ToleranceSet, n: int, seed: int) -> dict[str, np.ndarray]:
@@ -340,7 +364,7 @@ def _file_model(record, dev, mech, outputs, compensator=None, target=None, fast=
         out = {**ev.outputs, "status": ev.status, "failed_group": ev.failed_group}
     if compensator is not None:
         comps = [compensator] if isinstance(compensator, str) else compensator
-        a = adjusted(mech, values, comps, target, fast=fast)
+        a = adjusted(mech, values, comps, target, fast=fast, figures=False)
         out[f"{target}_adjusted"] = a.value
         for param, setting in a.settings.items():
             out[f"{param}_setting"] = setting
@@ -719,13 +743,33 @@ def named_failures(mech, failure_table, frame: pd.DataFrame, params, output: str
         cases["_adjusted"] = {**values, **{
             k.removesuffix("_setting"): np.where(np.isfinite(v), v, nominal[k.removesuffix(
                 "_setting")]) for k, v in frame.items() if k.endswith("_setting")}}
-    frame = frame.copy()
+    # a shallow copy: the columns set below replace the caller's (pandas >= 2 never writes a
+    # whole-column assignment into the array it replaces), no deep copy of the table
+    frame = frame.copy(deep=False)
+    n = len(frame)
     for suffix, vals in cases.items():
         value = frame[f"{output}{suffix}"].to_numpy(float)
-        why, failed = dict(failure_table(mech, vals)), np.isnan(value)
-        passes = np.where(spec is None or spec.passes(value), "ok", "out_of_spec").astype(object)
-        frame[f"status{suffix}"] = np.where(failed, why.pop("status"), passes)
-        frame[f"failed_group{suffix}"] = np.where(failed, why.pop("group"), "")
+        failed = np.isnan(value)
+        # the reasons of the machines that fail only (each machine's reason is its own): the
+        # table of all n machines held every parameter column n long, twice over; with none
+        # failing, machine 0 gives the columns' names and types, its values unused
+        rows = failed if failed.any() else np.arange(n) == 0
+        why = dict(failure_table(mech, {k: (v[rows] if np.shape(v)[:1] == (n,) else v)
+                                        for k, v in vals.items()}))
+        passes = np.broadcast_to(np.where(spec is None or spec.passes(value), "ok",
+                                          "out_of_spec").astype(object), (n,)).copy()
+        frame[f"status{suffix}"] = _scatter(passes, failed, why.pop("status"), object)
+        frame[f"failed_group{suffix}"] = _scatter(np.full(n, "", object), failed,
+                                                  why.pop("group"), object)
         for k, v in why.items():
-            frame[f"fail_{k}{suffix}"] = np.where(failed, v, np.nan)
+            v = np.asarray(v)
+            frame[f"fail_{k}{suffix}"] = _scatter(np.full(n, np.nan, np.result_type(v, float)),
+                                                  failed, v)
     return frame
+
+
+def _scatter(out: np.ndarray, rows: np.ndarray, values, dtype=None) -> np.ndarray:
+    """out with out[rows] = values (the values of the rows where mask `rows` holds)."""
+    if rows.any():
+        out[rows] = np.asarray(values, dtype)
+    return out

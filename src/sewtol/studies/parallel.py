@@ -207,11 +207,27 @@ def _watch_parent(pid: int, every_s: float = 0.25) -> None:
     threading.Thread(target=loop, name="sewtol-parent-watch", daemon=True).start()
 
 
-def _indexed(fn: Callable, i: int, args: Sequence, parent_pid: int | None, on_cluster: bool):
+def numba_threads_local(n_jobs: int) -> int:
+    """In one of n_jobs local worker processes: NUMBA_NUM_THREADS // n_jobs numba threads (at
+    least 1), so the workers together run no more threads than the cores numba sees (the
+    strategies study already did this in its chunks). The kernels' loops are over independent
+    machines: no number depends on it."""
+    import numba
+
+    share = max(1, numba.config.NUMBA_NUM_THREADS // max(1, n_jobs))
+    numba.set_num_threads(share)
+    return share
+
+
+def _indexed(fn: Callable, i: int, args: Sequence, parent_pid: int | None, on_cluster: bool,
+             n_jobs: int = 1):
     """Chunk i's result with its index (results arrive in any order). A local worker process
-    watches the main process (parent_pid); a cluster's workers outlive it by design."""
+    watches the main process (parent_pid) and takes its share of the numba threads; a
+    cluster's workers outlive it by design."""
     if parent_pid is not None:
         _watch_parent(parent_pid)
+        if n_jobs > 1:
+            numba_threads_local(n_jobs)
     if on_cluster:
         numba_threads_on_worker()
     return i, fn(*args)
@@ -284,7 +300,9 @@ def run_chunks(fn: Callable, args: Sequence, n_jobs: int = 1, progress=False,
             parent = os.getpid() if local else None
             results = joblib.Parallel(n_jobs=n_jobs, return_as="generator_unordered",
                                       batch_size=batch)(
-                joblib.delayed(_indexed)(fn, i, args[i], parent, on_cluster) for i in todo)
+                joblib.delayed(_indexed)(fn, i, args[i], parent, on_cluster,
+                                         joblib.effective_n_jobs(n_jobs) if local else 1)
+                for i in todo)
         for i, r in results:
             out[i] = r
             if store is not None:

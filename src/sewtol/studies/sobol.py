@@ -117,7 +117,8 @@ def check_sobol(nominal, tolerances: ToleranceSet, n, seed, second_order: bool =
                              tolerances.name)
     tolerances.check_against(nominal)
     # the sample matrix (N (D + 2) or N (2D + 2) rows of D columns) and two outputs per row
-    check_memory(int(n) * rows_per_sample(d, second_order), d + 2, value=n)
+    check_memory(int(n) * rows_per_sample(d, second_order), d + 2, value=n,
+                 rows_per_unit=rows_per_sample(d, second_order), power_of_two=True)
 
 
 def sample(problem: dict, n: int, seed: int, second_order: bool = False) -> np.ndarray:

@@ -222,6 +222,20 @@ def _with_outer(name, c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um, angle_g
         cc[name] = (own + rel).reshape(-1, 1)
         return _inner(cc, inner_boxes, r_lo, r_hi, engine, h_deg, tol_um)
 
+    def minimum_at(rel, rows):
+        """The inner minimum (column 11) at `rel` of the machines `rows` (a mask), NaN for
+        the others: every machine's optimum is its own, so a subset gives the same numbers,
+        and the golden sections below skip the machines whose result they discard."""
+        if rows.all():
+            return run(rel)[:, 11]
+        got = np.full(n, np.nan)
+        if rows.any():
+            cc = {k: (v[rows] if np.shape(v)[:1] == (n,) else v) for k, v in c.items()}
+            cc[name] = (own[rows] + rel[rows]).reshape(-1, 1)
+            got[rows] = _inner(cc, inner_boxes, r_lo[rows], r_hi[rows], engine, h_deg,
+                               tol_um)[:, 11]
+        return got
+
     if ahi == alo:
         out = run(np.full(n, alo))
         return _result(out, boxes, code, tol_um, (name, (np.full(n, alo),) * 3))
@@ -248,8 +262,11 @@ def _with_outer(name, c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um, angle_g
         b = grid[np.minimum(i + 1, grid.size - 1)]
         x1 = b - invphi * (b - a)
         x2 = a + invphi * (b - a)
-        f1 = run(x1)[:, 11]
-        f2 = run(x2)[:, 11]
+        # a machine without an i-th local minimum is carried along (its bracket narrows as
+        # every other's, so the loop ends when it did) but never evaluated: its result is
+        # discarded below (better = has & ...)
+        f1 = minimum_at(x1, has)
+        f2 = minimum_at(x2, has)
         for _ in range(40):
             if np.all(b - a < 1e-9):
                 break
@@ -261,7 +278,7 @@ def _with_outer(name, c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um, angle_g
             nf1 = np.where(left, np.nan, f2)
             nf2 = np.where(left, f1, np.nan)
             x1, x2 = nx1, nx2
-            fresh = run(np.where(left, x1, x2))[:, 11]
+            fresh = minimum_at(np.where(left, x1, x2), has)
             f1 = np.where(left, fresh, nf1)
             f2 = np.where(left, nf2, fresh)
         for xx, ff in ((x1, f1), (x2, f2)):

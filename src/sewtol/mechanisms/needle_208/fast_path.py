@@ -191,26 +191,30 @@ def needle_kernel_bound(mech, values) -> dict[str, np.ndarray]:
     return {name: bound for name in sumdelta_outputs(mech)}
 
 
-def needle_adjuster(mech, values, boxes: dict) -> dict:
+def needle_adjuster(mech, values, boxes: dict, figures: bool = True) -> dict:
     """The exact joint optimum of beta (and the guide shift) per machine: the sliding-window
     solution of mechanisms/needle_208/adjust.py. boxes: parameter -> (low, high), absolute.
     `value` is the kernel's SumDelta at the settings (within PLATEAU_TOL_UM of the minimum);
-    `total_um`, `plus_um`, `minus_um` the exact figures there (needle_208.metrics)."""
+    `total_um`, `plus_um`, `minus_um` the exact figures there (needle_208.metrics), left out
+    with figures=False (the numpy reference costs twice the optimum: the Monte-Carlo reads
+    only the value and the settings)."""
     from sewtol.mechanisms.needle_208 import adjust as ad
     from sewtol.mechanisms.needle_208 import metrics as nm
 
     c, _ = _batch(mech, values)
     boxes = {k: tuple(map(float, v)) for k, v in boxes.items()}
     r = ad.optimise(c, boxes)
+    out = {"value": r.total_um, "minimum": r.min_total_um, "settings": dict(r.settings),
+           "low": dict(r.low), "high": dict(r.high), "status": r.status,
+           "at_bound": dict(r.at_bound)}
+    if not figures:
+        return out
     dead = ~np.isfinite(r.settings["beta"])
     # the figures at the settings; a machine no setting runs is figured at the box centres
     figs = nm.deviation_figures(nm.with_values(c, **{
         k: np.where(dead, 0.5 * (boxes[k][0] + boxes[k][1]), v) for k, v in r.settings.items()}))
-    return {"value": r.total_um, "minimum": r.min_total_um, "settings": dict(r.settings),
-            "low": dict(r.low), "high": dict(r.high), "status": r.status,
-            "at_bound": dict(r.at_bound),
-            **{k: np.where(dead, np.nan, getattr(figs, k))
-               for k in ("total_um", "plus_um", "minus_um")}}
+    return {**out, **{k: np.where(dead, np.nan, getattr(figs, k))
+                      for k in ("total_um", "plus_um", "minus_um")}}
 
 
 def needle_strategy_adjuster(mech, values, compensators, limit_um: float = 10.0,

@@ -1,0 +1,156 @@
+"""The command line end to end: start-up, peak RSS of the whole process tree against n, and the
+wall time of 10^6 needle machines, each beside a reference run made in the same minute.
+
+    python benchmarks/cli.py --json
+    python benchmarks/cli.py --reference-src /path/to/other/checkout/src --json
+
+Every figure is a median over --repeats runs of a fresh `python -m sewtol ...` process (after
+one warm-up run, so numba's cache is on disk and nothing is compiled in a timed run). Wall time,
+CPU time (user + sys of the process and its workers, from wait4) and the peak resident memory
+of the whole process tree (psutil: the sum over the process and all its descendants, sampled
+every 20 ms; /usr/bin/time's %M is the largest single process only) are measured per run.
+
+(a) start-up: `needle montecarlo --n 1000` (target <= 1 s wall warm), against `python -c pass`
+    and `python -c "import numpy, pandas, numba"` (what no sewtol can undercut);
+(b) peak RSS against n: `needle montecarlo --n N --n-jobs 2` for N in --rss-n (target: flat,
+    <= 500 MB at any n);
+(c) `needle montecarlo --n 1000000 --n-jobs 2` end to end (target <= 10 s wall idle, or <= 20
+    CPU-s with peak RSS <= 500 MB).
+With --reference-src every sewtol command runs again, interleaved run by run, with that
+checkout's sources first on PYTHONPATH, and the ratio this/reference is printed. The machine
+is shared: the load average at start and end is printed with the figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+TARGETS = {"startup_n1000_wall_s": 1.0, "million_wall_s": 10.0, "million_cpu_s": 20.0,
+           "peak_rss_mb": 500.0}
+
+
+def load() -> list[float]:
+    return [float(x) for x in Path("/proc/loadavg").read_text().split()[:3]]
+
+
+def tree_rss(proc) -> int:
+    """Resident bytes of proc and all its descendants now (0 for those already gone)."""
+    import psutil
+
+    total = 0
+    try:
+        procs = [proc, *proc.children(recursive=True)]
+    except psutil.Error:
+        return 0
+    for p in procs:
+        try:
+            total += p.memory_info().rss
+        except psutil.Error:
+            pass
+    return total
+
+
+def run(cmd: list[str], src: Path | None) -> dict:
+    """One run of cmd: wall s, CPU s of it and its children, peak tree RSS (MB), exit code."""
+    import psutil
+
+    env = dict(os.environ)
+    if src is not None:
+        env["PYTHONPATH"] = str(src)
+    env.pop("SEWTOL_SCHEDULER", None)
+    t0 = time.perf_counter()
+    p = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    ps = psutil.Process(p.pid)
+    peak = 0
+    while True:
+        try:
+            pid, status, usage = os.wait4(p.pid, os.WNOHANG)
+        except ChildProcessError:
+            break
+        if pid:
+            break
+        peak = max(peak, tree_rss(ps))
+        time.sleep(0.02)
+    wall = time.perf_counter() - t0
+    p.returncode = os.waitstatus_to_exitcode(status)
+    err = p.stderr.read().decode(errors="replace")
+    p.stderr.close()
+    if p.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd)} failed ({p.returncode}): {err[-500:]}")
+    # wait4's usage covers the process and the children it waited for (joblib's workers)
+    return {"wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime,
+            "peak_rss_mb": max(peak, usage.ru_maxrss * 1024) / 2**20}
+
+
+def medians(cmd, src, reference, repeats, warm: bool = True) -> dict:
+    """Medians of repeats runs (one warm-up first unless warm is False), this checkout and the
+    reference interleaved run by run; ratios this / reference."""
+    sides = {"this": src} | ({"reference": reference} if reference is not None else {})
+    for s in sides.values() if warm else ():
+        run(cmd, s)  # warm-up: numba's cache on disk, the files in the page cache
+    got = {k: [] for k in sides}
+    for _ in range(repeats):
+        for k, s in sides.items():
+            got[k].append(run(cmd, s))
+    out = {k: {m: statistics.median(r[m] for r in runs) for m in runs[0]}
+           for k, runs in got.items()}
+    if reference is not None:
+        out["ratio"] = {m: out["this"][m] / out["reference"][m] for m in out["this"]}
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--json", action="store_true")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--reference-src", type=Path, default=None,
+                    help="another checkout's src/ to run beside this one (ratios this/ref)")
+    ap.add_argument("--rss-n", type=int, nargs="+", default=[10_000, 100_000, 1_000_000],
+                    help="n of the peak-RSS curve (default 1e4 1e5 1e6)")
+    ap.add_argument("--n-million", type=int, default=1_000_000,
+                    help="machines of the end-to-end run (default 10^6)")
+    ap.add_argument("--skip", nargs="*", default=[], choices=["startup", "rss", "million"])
+    args = ap.parse_args(argv)
+    src = ROOT / "src"
+    py = [sys.executable]
+    mc = [*py, "-m", "sewtol", "needle", "montecarlo"]
+    res: dict = {"load_start": load(), "targets": TARGETS, "python": sys.executable,
+                 "reference_src": None if args.reference_src is None else str(args.reference_src)}
+    if "startup" not in args.skip:
+        res["startup"] = {
+            "python_pass": medians([*py, "-c", "pass"], None, None, args.repeats),
+            "import_numpy_pandas_numba": medians(
+                [*py, "-c", "import numpy, pandas, numba"], None, None, args.repeats),
+            "needle_montecarlo_n1000": medians([*mc, "--n", "1000"], src, args.reference_src,
+                                               args.repeats)}
+    if "rss" not in args.skip:
+        res["peak_rss_vs_n"] = {str(n): medians([*mc, "--n", str(n), "--n-jobs", "2"], src,
+                                                args.reference_src, 1, warm=False)
+                                for n in args.rss_n}  # the start-up runs warmed the cache
+    if "million" not in args.skip:
+        res["million"] = medians([*mc, "--n", str(args.n_million), "--n-jobs", "2"], src,
+                                 args.reference_src, args.repeats)
+        res["million"]["n"] = args.n_million
+    res["load_end"] = load()
+    if args.json:
+        print(json.dumps(res, indent=2))
+    else:
+        print(f"load average {res['load_start']} -> {res['load_end']}")
+        for key in ("startup", "peak_rss_vs_n"):
+            for name, r in res.get(key, {}).items():
+                print(f"{key} {name}: {r}")
+        if "million" in res:
+            print(f"million: {res['million']}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
