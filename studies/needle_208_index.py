@@ -174,6 +174,30 @@ def _best_everywhere(st: pd.DataFrame, name: str, strategy: str) -> tuple[bool, 
     return all(best), frames
 
 
+TYPICAL_READING_SD_UM = 3.0  # a dial gauge graduated in 0.01 mm (docs/adjustment.md)
+
+
+def _reading_clause(out: Path, name: str, strategy: str) -> str:
+    """What the yield becomes when the compensators are set from a reading of the needle path
+    with a dial gauge's typical error, from strategies_measurement_error.csv (the recommended
+    strategy's row, or the largest strategy the measurement study ran); empty without it."""
+    path = out / "strategies_measurement_error.csv"
+    if not path.exists():
+        return ""
+    m = _csv(path)
+    m = m[(m.tolerances == name) & (m.measurement_sd_um == TYPICAL_READING_SD_UM)
+          & ~m.strategy.str.endswith(IDEAL_SUFFIX)]
+    if m.empty:
+        return ""
+    row = m[m.strategy == strategy]
+    row = (row if not row.empty else m.loc[[m.strategy.str.len().idxmax()]]).iloc[0]
+    return (f" These settings are made from the true deviation; made from a reading of the "
+            f"needle path with a {TYPICAL_READING_SD_UM:g} µm sd (a 0.01 mm dial gauge), "
+            f"{row.strategy} gives {pct(row['yield'])} (95 % interval "
+            f"{span(row.yield_ci_low, row.yield_ci_high)}, n = {int(row.n)}; "
+            "[strategies_measurement_error.md](strategies_measurement_error.md)).")
+
+
 def headline(out: Path, sets: list[str]) -> tuple[tuple[str, str], ...]:
     """The report's first three lines: the yield of the designed machine, the one adjustment to
     add (with the yield it buys and its setting precision) and how far that depends on the
@@ -207,6 +231,7 @@ def headline(out: Path, sets: list[str]) -> tuple[tuple[str, str], ...]:
                 do_line += (f" {real} gives {pct(g.loc[real, 'yield'])} at that precision, "
                             f"{pct(g.loc[s, 'yield'])} only with every compensator set exactly "
                             "(an idealisation).")
+        do_line += _reading_clause(out, name, rec.strategy)
     if frames_n < 2:
         frame_line = (f"not assessed: this run computed the strategies on {DEFAULT_FRAME} only "
                       "(needle_208_strategies_frames.py computes the others).")
@@ -422,10 +447,12 @@ LAYOUT = [
     # studies/least_cost_allocation.py (not in make report: about 10 min of CPU per strategy)
     ("Least-cost allocation", ["allocation_cost_summary", "allocation_cost"], []),
     ("Adjustment strategies", ["strategies", "strategies_frames", "strategies_setting_error",
-                               "strategies_SET_failures"],
+                               "strategies_measurement_error", "strategies_SET_failures"],
      [("strategies_yield", "Yield by adjustment strategy"),
       ("strategies_setting_error", "Yield of beta + shift + angle against the guide angle's "
        "setting error (default sd 0.01 deg dotted)"),
+      ("strategies_measurement_error", "Yield against the error of the reading the "
+       "compensators are set from"),
       ("strategies_SET_beta_shift_beta_hist", "beta setting, beta + shift (SET)"),
       ("strategies_SET_beta_shift_guide_shift_um_hist", "guide shift, beta + shift (SET)"),
       ("strategies_SET_all_beta_hist", "beta setting, all compensators (SET)"),
@@ -437,6 +464,7 @@ LAYOUT = [
     ("Tolerances as a joint distribution", ["joint_correlation", "joint_relation",
                                             "joint_selective"], []),
     ("Joint clearances", ["clearances"], []),
+    ("Housing tolerances", ["housing_share"], []),
 ]
 
 
@@ -518,6 +546,11 @@ def main(argv=None) -> None:
                 "not assessed in this run (frames.md is written by needle_208_frames.py)")],
         "Joint clearances": clearance_conclusions(out) or [Conclusion(
             "not assessed in this run (clearances.md is written by needle_208_clearances.py)")],
+        "Housing tolerances": [Conclusion(
+            f"{_json(out / 'housing_share.json')['headline']} "
+            "([housing_share.md](housing_share.md))")]
+            if _json(out / "housing_share.json").get("headline") else [Conclusion(
+            "not assessed in this run (housing_share.md is written by needle_208_housing.py)")],
         f"Nominal machine (frame {DEFAULT_FRAME})": nominal_conclusion(out),
     }
     intro = ("The frame of the 208 (the positions of the upper shaft A and the rear rocker pivot "
