@@ -17,9 +17,10 @@ over the whole turn):
 - guide refitted: the links, the pivots A and D (+-2 mm) and the guide's inclination (+-0.5 deg)
   change, and the guide is shifted to its best place (beta and the guide shift adjusted).
 
-The smallest set: greedy forward selection over the links (housing kept), each candidate set
-searched by one short differential evolution with a minimax polish of its best and of today's
-design; the smallest size reached is then confirmed by searching every set one link smaller.
+The smallest set: forward selection on the influence ranking (the k links of largest degree of
+influence at the housing-kept optimum), each set searched by one short differential evolution
+with a minimax polish of its best and of today's design; the size reached is then confirmed by
+searching every set one link smaller.
 
 Robust design (sewtol.studies.robust): the yield on the base set with beta alone (and beta +
 guide shift) maximised over the nominal design (links, the angle CBE, the pivots, the guide's
@@ -82,12 +83,12 @@ def _subset_search(mech, subset, seed):
                      popsize=8, maxiter=40, polish="minimax", local_search=True)
 
 
-def smallest_set(mech, target_um: float, seed: int, log, exhaustive_max: int = 3):
-    """Greedy forward selection: add the link whose set reaches the lowest SumDelta, until
-    target_um; then every set of the size below the one found (up to exhaustive_max links) is
-    searched too, to confirm that none reaches the target. Returns (the set, its result, the
-    rows of every set searched)."""
-    rows, chosen, found, res_found = [], [], None, None
+def smallest_set(mech, ranking, target_um: float, seed: int, log, exhaustive_max: int = 4):
+    """Forward selection on the influence ranking: the k most influential links at the
+    housing-kept optimum, k = 1, 2, ..., until one set reaches target_um; then every set one
+    link smaller (when it has at most exhaustive_max links) is searched too, to confirm that
+    none reaches the target. Returns (the set, its result, the rows of every set searched)."""
+    rows, found, res_found = [], None, None
     seen = {}
 
     def run(subset, stage):
@@ -105,23 +106,46 @@ def smallest_set(mech, target_um: float, seed: int, log, exhaustive_max: int = 3
             log(f"  {stage} {','.join(key)}: {r.objective_after:.4f} um")
         return seen[key]
 
-    while len(chosen) < len(LINKS):
-        trial = {p: run(chosen + [p], "greedy") for p in LINKS if p not in chosen}
-        p_best = min(trial, key=lambda p: trial[p].objective_after)
-        chosen = chosen + [p_best]
-        if trial[p_best].objective_after <= target_um:
-            found, res_found = chosen, trial[p_best]
+    for k in range(1, len(ranking) + 1):
+        r = run(ranking[:k], "ranking")
+        if r.objective_after <= target_um:
+            found, res_found = list(ranking[:k]), r
             break
-    if found and len(found) - 1 <= exhaustive_max:
+    if found and 1 <= len(found) - 1 <= exhaustive_max:
         for subset in itertools.combinations(LINKS, len(found) - 1):
-            run(list(subset), "exhaustive")
-        # a smaller set that reached the target would be the answer
-        for subset in itertools.combinations(LINKS, len(found) - 1):
-            r = seen[tuple(sorted(subset))]
-            if r.objective_after <= target_um:
+            r = run(list(subset), "exhaustive")
+            if r.objective_after <= target_um:  # a smaller set reaches it: that is the answer
                 found, res_found = list(subset), r
                 break
     return found, res_found, pd.DataFrame(rows)
+
+
+BRUTE_N = 20000  # designs of the dense sampling around each optimum
+BRUTE_FRACTION = 0.02  # its half-width: 2 % of each parameter's box
+
+
+def brute_force(mech, res, adjust, seed) -> dict:
+    """A dense brute force around the optimum: BRUTE_N designs (Latin hypercube) within +-2 %
+    of each box around it, clipped to the box, every one adjusted exactly and held to the
+    constraints; the lowest found beside the optimum."""
+    from scipy.stats import qmc
+
+    names = list(res.bounds)
+    lo = np.array([res.bounds[k][0] for k in names])
+    hi = np.array([res.bounds[k][1] for k in names])
+    x0 = np.array([res.refined[k] for k in names])
+    half = BRUTE_FRACTION * (hi - lo)
+    u = qmc.LatinHypercube(d=len(names), rng=np.random.default_rng(seed)).random(BRUTE_N)
+    X = np.clip(x0 - half + 2 * half * u, lo, hi)
+    prob = RF.DesignProblem(mech, res.objective, res.bounds, adjust, res.constraints, True)
+    f = np.concatenate([prob(X[i:i + 500].T) for i in range(0, BRUTE_N, 500)])
+    feasible = f < RF.PENALTY
+    k = int(np.argmin(f))
+    return {"n": BRUTE_N, "half_width_of_box": BRUTE_FRACTION,
+            "feasible": int(feasible.sum()), "lowest_um": float(f[k]),
+            "optimum_um": float(res.objective_after),
+            "lowest_minus_optimum_um": float(f[k] - res.objective_after),
+            "lowest_at": dict(zip(names, map(float, X[k]), strict=True))}
 
 
 ROBUST_N = 200  # machines per design in the search (common random numbers)
@@ -130,14 +154,34 @@ CBE_BOX_DEG = 5.0
 ROBUST_LINKS = ["LF", "AB", "BC", "BE", "CD"]  # LM and AM act only through the swing, as LF
 
 
-def robust_bounds(mech) -> dict:
+LOCAL_LINK = 0.02  # the local box: +-2 % of a link around today's and the refined value
+LOCAL_PIVOT_MM = 0.5
+LOCAL_SHIFT_UM = 300.0
+
+
+def robust_bounds(mech, around: dict | None = None) -> dict:
+    """The design box of the robust search: the links +-10 %, the pivots +-2 mm, the guide
+    angle +-0.5 deg, CBE +-5 deg, the guide's place +-2 mm; with `around` (a refined design)
+    the local box spanning today's and that design's values, widened by +-2 % of each link,
+    +-0.5 mm of each pivot and +-0.3 mm of the guide's place (the yield is 0 almost everywhere
+    in the wide box: the straight designs are a thin set in it)."""
     b = RF.default_bounds(mech, ROBUST_LINKS + PIVOTS + ["guide_angle"])
-    cbe = mech.nominal_values()["CBE"]
-    return {**b, "CBE": (cbe - CBE_BOX_DEG, cbe + CBE_BOX_DEG),
-            "guide_shift_um": REFIT["guide_shift_um"]}
+    nominal = mech.nominal_values()
+    cbe = nominal["CBE"]
+    b = {**b, "CBE": (cbe - CBE_BOX_DEG, cbe + CBE_BOX_DEG),
+         "guide_shift_um": REFIT["guide_shift_um"]}
+    if around is None:
+        return b
+    out = {}
+    for k, (lo, hi) in b.items():
+        a, z = sorted((nominal[k], around.get(k, nominal[k])))
+        w = (LOCAL_LINK * nominal[k] if k in ROBUST_LINKS else LOCAL_PIVOT_MM if k in PIVOTS
+             else LOCAL_SHIFT_UM if k == "guide_shift_um" else hi - lo)
+        out[k] = (max(lo, a - w), min(hi, z + w))
+    return out
 
 
-def robust_runs(mech, seed: int, log) -> dict:
+def robust_runs(mech, seed: int, log, work_dir: Path) -> dict:
     """The robust-design searches (sewtol.studies.robust): yield on the base set maximised
     with beta alone (two restarts), with beta + guide shift, and an epsilon-constraint sweep of
     the nominal SumDelta with a wider stroke band (+-1 mm) for the front."""
@@ -146,22 +190,41 @@ def robust_runs(mech, seed: int, log) -> dict:
     stroke0 = RF.keep(mech, "stroke_um", STROKE_TOL_UM, ["beta"])
     today_stroke = 0.5 * (stroke0.lower + stroke0.upper)
     tight = RF.default_constraints(mech) + [stroke0]
-    wide = RF.default_constraints(mech) + [RF.Constraint(
-        "stroke_um", today_stroke - 1000.0, today_stroke + 1000.0, 1000.0,
-        "stroke within +-1 mm of today's (the front's band)")]
     common = dict(nominal_adjust=["beta"], error_of=("stroke_um", today_stroke), n=ROBUST_N,
                   seed=seed, popsize=5)
+    # the stroke held at today's by the crank radius (solved per design, LF inside its +-10 %)
+    lf = RF.default_bounds(mech, ["LF"])["LF"]
+    hold = ("stroke_um", today_stroke, "LF", lf)
+    without_lf = {k: v for k, v in bounds.items() if k != "LF"}
+    # the housing-kept refined design rides in the first populations; the local box spans
+    # it and today's
+    with open(work_dir / "housing_kept.pkl", "rb") as fh:
+        kept = pickle.load(fh)[0].refined
+    common["init_designs"] = [kept]
+    local = {k: v for k, v in robust_bounds(mech, kept).items() if k != "LF"}
     out = {}
-    plan = [("beta", dict(adjust=["beta"], constraints=tight, restarts=2, maxiter=40)),
+    plan = [("beta_wide", dict(adjust=["beta"], constraints=tight, restarts=1, maxiter=20,
+                               hold=hold, bounds=without_lf)),
+            ("beta", dict(adjust=["beta"], constraints=tight, restarts=2, maxiter=30,
+                          hold=hold, bounds=local)),
             ("beta_shift", dict(adjust=["beta", "guide_shift"], constraints=tight, restarts=1,
-                                maxiter=30)),
-            ("front_free", dict(adjust=["beta"], constraints=wide, restarts=1, maxiter=30))]
+                                maxiter=20, hold=hold, bounds=local))]
     for eps in (1.5, 3.0):
-        plan.append((f"front_eps{eps:g}", dict(adjust=["beta"], constraints=wide, restarts=1,
-                                               maxiter=25, nominal_limit=eps)))
+        plan.append((f"front_eps{eps:g}", dict(adjust=["beta"], constraints=tight,
+                                               restarts=1, maxiter=20, nominal_limit=eps,
+                                               hold=hold, bounds=local)))
+    if (work_dir / "robust_beta.pkl").exists():  # the wide-box run made before: kept as is
+        with open(work_dir / "robust_beta.pkl", "rb") as fh:
+            first = pickle.load(fh)
+        if first.bounds == {k: tuple(map(float, v)) for k, v in without_lf.items()}:
+            out["beta_wide"] = first
+            plan = plan[1:]
     for name, kw in plan:
         t = time.perf_counter()
-        out[name] = RB.robust(mech, bounds, base, **common, **kw)
+        kw = dict(kw)
+        out[name] = RB.robust(mech, kw.pop("bounds"), base, **common, **kw)
+        with open(work_dir / f"robust_{name}.pkl", "wb") as fh:  # each run kept as it ends
+            pickle.dump(out[name], fh)
         r = out[name]
         log(f"  robust {name}: yield {r.figures['yield'].tolist()} (today, robust), "
             f"{time.perf_counter() - t:.0f} s")
@@ -189,12 +252,27 @@ def run_phase(phase: str, mech, seed: int, out: Path, log) -> None:
                         seed=seed, restarts=4, popsize=8, maxiter=200, polish="minimax",
                         tolerances=base)
     elif phase == "smallest_set":
-        today = RF.DesignProblem(mech, "SumDelta_um", {}, KEPT, (), True).outputs_at(
-            mech.nominal_values(), [])["SumDelta_um"]
-        found, res, subsets = smallest_set(mech, today / 3, seed, log)
+        with open(out / "housing_kept.pkl", "rb") as fh:
+            kept, _ = pickle.load(fh)
+        infl = kept.influence.sort_values("influence", key=abs, ascending=False)
+        ranking = list(infl["parameter"])
+        log("forward selection on the degree of influence at the housing-kept optimum: "
+            + ", ".join(ranking))
+        found, res, subsets = smallest_set(mech, ranking, kept.objective_before / 3, seed, log)
         res = (res, subsets)
     elif phase == "robust":
-        res = robust_runs(mech, seed, log)
+        res = robust_runs(mech, seed, log, out)
+    elif phase == "confirm":
+        res = {}
+        if (out / "confirm.pkl").exists():  # a variant already confirmed is kept
+            with open(out / "confirm.pkl", "rb") as fh:
+                res = pickle.load(fh)[0]
+        for variant, adjust in (("housing_kept", KEPT), ("guide_refitted", REFIT)):
+            if variant not in res and (out / f"{variant}.pkl").exists():
+                with open(out / f"{variant}.pkl", "rb") as fh:
+                    r, _ = pickle.load(fh)
+                res[variant] = brute_force(mech, r, adjust, seed)
+                log(f"  {variant}: {res[variant]}")
     else:
         raise SystemExit(f"unknown phase {phase}")
     with open(out / f"{phase}.pkl", "wb") as fh:
@@ -245,6 +323,19 @@ def _md(frame, fmt=".4f") -> str:
     return frame.to_markdown(index=False, floatfmt=fmt)
 
 
+def _robust_record(mech, r, today_stroke_um) -> dict:
+    """A robust design as --set parameters (beta at its nominal optimum) with its nominal
+    SumDelta and stroke error (um), as the file evaluates them."""
+    prob = RF.DesignProblem(mech, "SumDelta_um", {}, KEPT, (), True)
+    o = prob.outputs_at(r.best, ["stroke_um"])
+    values = {**r.best, **o["_settings"]}
+    return {"parameters": {p: float(v) for p, v in values.items() if v != r.start.get(p)},
+            "nominal_SumDelta_um": o["SumDelta_um"],
+            "stroke_error_um": o["stroke_um"] - today_stroke_um,
+            "yield_search": float(r.figures.set_index("design").loc["robust", "yield"]),
+            "n_search": r.n, "adjust": list(r.adjust)}
+
+
 def write(mech, work: Path, out: Path, seed: int, designs_file, no_yields: bool, log):
     """Turn the phases' pickles (work) into reports/needle_208/refine_* (out)."""
     import matplotlib
@@ -253,8 +344,8 @@ def write(mech, work: Path, out: Path, seed: int, designs_file, no_yields: bool,
     import matplotlib.pyplot as plt
 
 
-    results, timings, subsets, small, robust = {}, {}, None, None, {}
-    for phase in ("housing_kept", "guide_refitted", "smallest_set", "robust"):
+    results, timings, subsets, small, robust, brute = {}, {}, None, None, {}, {}
+    for phase in ("housing_kept", "guide_refitted", "smallest_set", "robust", "confirm"):
         if not (work / f"{phase}.pkl").exists():
             continue
         with open(work / f"{phase}.pkl", "rb") as fh:
@@ -263,6 +354,8 @@ def write(mech, work: Path, out: Path, seed: int, designs_file, no_yields: bool,
             small, subsets = res
         elif phase == "robust":
             robust = res
+        elif phase == "confirm":
+            brute = res
         else:
             results[phase] = res
     if small is not None:
@@ -317,10 +410,19 @@ def write(mech, work: Path, out: Path, seed: int, designs_file, no_yields: bool,
             md += ["Each start polished by the minimax (epigraph SLSQP) polish:", "",
                    _md(r.polished, ".6f"), ""]
         md += ["Degree of influence at the optimum:", "", _md(r.influence), "",
-               *[f"- {line}" for line in r.confirmation()], ""]
+               *[f"- {line}" for line in r.confirmation()]]
+        if k in brute:
+            b = brute[k]
+            md += [f"- dense brute force around the optimum: {b['n']} designs (Latin "
+                   f"hypercube, +-{100 * b['half_width_of_box']:g} % of each box, beta"
+                   + (" and the shift" if k == "guide_refitted" else "") + " exact at each, "
+                   f"{b['feasible']} feasible): the lowest {b['lowest_um']:.4f} um, "
+                   f"{b['lowest_minus_optimum_um']:+.4f} um from the optimum"]
+        md += [""]
     if subsets is not None:
         md += ["## Smallest set of links reaching 3x (housing kept)", "",
-               "Greedy forward selection, then every set one link smaller (exhaustive); each "
+               "Forward selection on the influence ranking, then every set one link smaller "
+               "(exhaustive); each "
                "set: one differential evolution (8 per parameter, 40 generations), the minimax "
                "polish of its best and of today's design.", "", _md(subsets), ""]
     for name, r in robust.items():
@@ -355,7 +457,7 @@ def write(mech, work: Path, out: Path, seed: int, designs_file, no_yields: bool,
               "designs": {k: _design_record(r) for k, r in results.items()},
               "robust": {k: r.to_dict() for k, r in robust.items()},
               "yield_checks": checks.to_dict("records"), "sensitivity": sens.to_dict("records"),
-              "yields": yields, "timings_s": timings,
+              "yields": yields, "timings_s": timings, "brute_force": brute,
               "results": {k: r.to_dict() for k, r in results.items()}}
     (out / "refine.json").write_text(json.dumps(record, indent=1, default=float))
     pd.concat([r.parameters.assign(variant=k) for k, r in results.items()]).to_csv(
@@ -376,7 +478,9 @@ def write(mech, work: Path, out: Path, seed: int, designs_file, no_yields: bool,
     drawn = {"today": start, **{k: r.refined for k, r in results.items()
                                 if k in ("housing_kept", "guide_refitted")}}
     if "beta" in robust:
-        drawn["robust (beta)"] = robust["beta"].best
+        o = RF.DesignProblem(mech, "SumDelta_um", {}, KEPT, (), True).outputs_at(
+            robust["beta"].best, [])
+        drawn["robust (beta)"] = {**robust["beta"].best, **o["_settings"]}
     fig, ax = plt.subplots(figsize=(8, 7))
     plot_linkage(mech, drawn, ax)
     ax.set_title("208 needle drive at crank angle 90 deg: today (grey) and the refined / "
@@ -413,12 +517,7 @@ def write(mech, work: Path, out: Path, seed: int, designs_file, no_yields: bool,
         Path(designs_file).write_text(json.dumps(
             {"seed": seed, "today_SumDelta_um": today_um,
              "designs": {k: _design_record(r) for k, r in results.items()},
-             "robust": {k: {"parameters": {p: v for p, v in r.best.items()
-                                           if v != r.start.get(p)},
-                            "nominal_SumDelta_um": float(r.figures.set_index("design")
-                                                         .loc["robust", "nominal"]),
-                            "stroke_error_um": float(r.figures.set_index("design")
-                                                     .loc["robust", "error"])}
+             "robust": {k: _robust_record(mech, r, first.before["stroke_um"])
                         for k, r in robust.items() if k in ("beta", "beta_shift")}},
             indent=1, default=float) + "\n")
 
@@ -433,7 +532,7 @@ def main(argv=None) -> None:
                     help="skip the Monte-Carlo yields (write the designs only)")
     ap.add_argument("--phase", default="all",
                     choices=("all", "housing_kept", "guide_refitted", "smallest_set", "robust",
-                             "write"))
+                             "confirm", "write"))
     args = ap.parse_args(argv)
     out = Path(args.out)
     work = Path(args.work) if args.work else out
@@ -444,7 +543,7 @@ def main(argv=None) -> None:
         print(text, flush=True)
 
     mech = load_mechanism("needle_208")
-    phases = ("housing_kept", "guide_refitted", "smallest_set", "robust")
+    phases = ("housing_kept", "guide_refitted", "smallest_set", "robust", "confirm")
     if args.phase != "write":
         for phase in (phases if args.phase == "all" else (args.phase,)):
             run_phase(phase, mech, args.seed, work, log)

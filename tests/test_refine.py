@@ -234,10 +234,11 @@ def test_robust_design_checked_by_both_independent_models(name):
         r = model(values)
         assert r["closes"]
         assert r["SumDelta_um"] == pytest.approx(d["nominal_SumDelta_um"], abs=ADJUSTER_TOL_UM)
-        # stroke error against today's stroke (both sampled alike: the sampling error cancels
-        # to 1e-6 mm)
+        # the claim is the file's stroke (720 samples): each sampled extreme lies below the
+        # exact one by at most h^2 |x''| / 8 = 0.11 um (h = 0.5 deg, |x''| <= 12 mm/rad^2,
+        # half the stroke), so a difference of two strokes within 0.25 um
         assert (r["stroke_mm"] - today["stroke_mm"]) * 1e3 == pytest.approx(
-            d["stroke_error_um"], abs=1e-2)
+            d["stroke_error_um"], abs=0.25)
 
 
 def _two_links(mech, seed, polish):

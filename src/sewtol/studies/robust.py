@@ -13,9 +13,10 @@ The nominal design itself is held by `constraints` (refine.Constraint; outputs o
 design with the compensators `nominal_adjust` set, e.g. the stroke within +-0.1 mm and every
 transmission angle >= 40 deg) and, for an epsilon-constraint sweep, by `nominal_limit` (its
 adjusted objective at most that value). Search: scipy differential evolution from `restarts`
-children of one seed (rng.spawn), vectorised over the population; a tie-break below one
-machine's worth (half the mean of min(objective / limit, 2), divided by n) guides the search
-across the yield's plateaus. Every design the search evaluates is archived with its yield,
+children of one seed (rng.spawn), vectorised over the population, today's design and any
+`init_designs` in the first population; a tie-break below one machine's worth (half the mean
+of objective / (objective + limit), divided by n) guides the search across the yield's
+plateaus. Every design the search evaluates is archived with its yield,
 nominal objective and the first kept output's error (the stroke error on the needle): the
 non-dominated designs of that archive approximate the Pareto front (pymoo is not a dependency:
 no NSGA-II; an epsilon-constraint sweep of `nominal_limit` adds designs along the front).
@@ -74,7 +75,9 @@ class RobustResult:
     def to_dataframe(self) -> pd.DataFrame:
         """The design's parameters: today, best, change, box, at a bound."""
         rows = []
-        for k, (lo, hi) in self.bounds.items():
+        held = self.options.get("hold")
+        boxes = {**self.bounds, **({held[2]: tuple(held[3])} if held else {})}
+        for k, (lo, hi) in boxes.items():
             v = self.best[k]
             eps = 1e-4 * (hi - lo)
             rows.append({"parameter": k, "today": self.start[k], "robust": v,
@@ -135,7 +138,7 @@ class _Yield:
     """Penalised -yield of designs (DE's vectorised call), with an archive."""
 
     def __init__(self, mech, objective, bounds, tolerances, adjust, nominal_adjust, limit,
-                 constraints, nominal_limit, deviations, error_of, fast):
+                 constraints, nominal_limit, deviations, error_of, fast, hold=None):
         self.mech = mech
         self.objective = objective
         self.names = list(bounds)
@@ -150,13 +153,41 @@ class _Yield:
         self.fast = fast
         self.start = mech.nominal_values()
         self.rows: list[np.ndarray] = []
+        self.hold = hold
+        self.hold_names = [] if hold is None else [hold[2]]
+
+    def held(self, values: dict) -> tuple[dict, np.ndarray]:
+        """The designs with the held output brought to its target by its parameter (secant
+        iterations from the parameter's own value, vectorised over designs), and where that
+        converged inside the parameter's box."""
+        if self.hold is None:
+            return values, np.ones(len(next(iter(values.values()))), bool)
+        output, target, p, (lo, hi) = self.hold
+        m = len(next(iter(values.values())))
+        x0 = np.asarray(values.get(p, np.full(m, self.start[p])), float)
+
+        def g(x):
+            ev = self.mech.evaluate({**values, p: x}, [output])
+            return np.asarray(ev.outputs[output], float) - target
+
+        x1 = x0 * (1 + 1e-3)
+        g0, g1 = g(x0), g(x1)
+        for _ in range(6):
+            with np.errstate(divide="ignore", invalid="ignore"):
+                x2 = x1 - g1 * (x1 - x0) / (g1 - g0)
+            x2 = np.where(np.isfinite(x2), x2, x1)
+            x0, g0, x1 = x1, g1, x2
+            g1 = g(x1)
+        ok = np.isfinite(g1) & (np.abs(g1) <= 1e-6 * max(abs(target), 1.0)) \
+            & (x1 >= lo) & (x1 <= hi)
+        return {**values, p: np.where(ok, x1, x0)}, ok
 
     def figures(self, X):
         """(yield, nominal objective, error, feasible, tie-break) of designs X (S, k)."""
         from sewtol.studies.adjusting import adjusted
 
         S = X.shape[0]
-        values = self.nominal.values(X)
+        values, held = self.held(self.nominal.values(X))
         y0, settings, ok0 = self.nominal.adjusted(values)
         full = {**values, **{k: np.where(np.isfinite(v), v, self.start[k])
                              for k, v in settings.items()}}
@@ -172,6 +203,7 @@ class _Yield:
                 err = ev.outputs[self.error_of[0]] - self.error_of[1]
         if self.nominal_limit is not None:
             viol = viol + np.maximum(y0 - self.nominal_limit, 0.0) / max(self.nominal_limit, 1.0)
+        viol = viol + np.where(held, 0.0, 1.0)
         feasible = ok0 & (viol == 0)
         # the machines: every design with the same n deviations (common random numbers)
         mach = {k: np.repeat(v, self.n) for k, v in values.items()}
@@ -184,21 +216,24 @@ class _Yield:
         good = (st == "ok") & np.isfinite(v)
         passed = good & (v <= self.limit)
         yld = passed.mean(axis=1)
-        tie = np.where(good, np.minimum(v / self.limit, 2.0), 2.0).mean(axis=1) / 2
-        return yld, np.where(ok0, y0, np.nan), err, feasible, tie, viol
+        # v / (v + limit) in [0, 1): grows with every machine's objective, never flat
+        tie = np.where(good, v / (np.abs(v) + self.limit), 1.0).mean(axis=1)
+        extra = [values[k] for k in self.hold_names]
+        return yld, np.where(ok0, y0, np.nan), err, feasible, tie, viol, extra
 
     def __call__(self, X):
         X = np.asarray(X, float)
         single = X.ndim == 1
         Xs = X.reshape(len(self.names), -1).T
-        yld, nom, err, feas, tie, viol = self.figures(Xs)
-        self.rows.append(np.column_stack([Xs, yld, nom, err, feas]))
+        yld, nom, err, feas, tie, viol, extra = self.figures(Xs)
+        self.rows.append(np.column_stack([Xs, *extra, yld, nom, err, feas]))
         f = np.where(feas, -yld + 0.5 * tie / self.n, PENALTY + np.minimum(viol, 1e3))
         return float(f[0]) if single else f
 
     def archive(self) -> pd.DataFrame:
         a = pd.DataFrame(np.vstack(self.rows),
-                         columns=[*self.names, "yield", "nominal", "error", "feasible"])
+                         columns=[*self.names, *self.hold_names, "yield", "nominal", "error",
+                                  "feasible"])
         return a[a["feasible"] > 0].drop(columns="feasible").reset_index(drop=True)
 
 
@@ -206,7 +241,9 @@ def robust(mech, bounds: Mapping[str, tuple[float, float]], tolerances, *,
            adjust: Sequence[str] = ("beta",), nominal_adjust: Sequence[str] | None = None,
            objective: str | None = None, limit: float | None = None,
            constraints: Sequence[Constraint] = (), nominal_limit: float | None = None,
-           error_of: tuple[str, float] | None = None, n: int = 200, seed: int = 0,
+           error_of: tuple[str, float] | None = None,
+           hold: tuple[str, float, str, tuple[float, float]] | None = None,
+           init_designs: Sequence[Mapping] = (), n: int = 200, seed: int = 0,
            restarts: int = 2, popsize: int = 5, maxiter: int = 30,
            fast: bool = True) -> RobustResult:
     """Maximise the yield over the nominal design (see the module docstring).
@@ -231,6 +268,13 @@ def robust(mech, bounds: Mapping[str, tuple[float, float]], tolerances, *,
         The nominal design's adjusted objective at most this (an epsilon constraint).
     error_of : (output, reference) or None
         The archive's `error` column: that output of the nominal design minus reference.
+    hold : (output, target, parameter, (low, high)) or None
+        Hold an output of the nominal design at a target by solving for one parameter (not a
+        design parameter; inside its box) on every design: a thin constraint such as a stroke
+        within +-0.1 mm is then met by construction instead of by chance.
+    init_designs : mappings
+        Designs (parameter -> value; clipped to the box) put in every restart's first
+        population beside today's, e.g. the straightness-refined ones.
     n, seed
         Machines per design and the seed of their deviations (the restarts' Generators are
         children of the same seed's Generator).
@@ -257,8 +301,10 @@ def robust(mech, bounds: Mapping[str, tuple[float, float]], tolerances, *,
     names = list(bounds)
     dev = InputLaw.of(tolerances.active()).draw(int(n), seed)
     nominal_adjust = list(adjust) if nominal_adjust is None else list(nominal_adjust)
+    if hold is not None and hold[2] in bounds:
+        raise ParameterError("hold", "its parameter must not be a design parameter", hold[2])
     prob = _Yield(mech, objective, bounds, tolerances, adjust, nominal_adjust, limit,
-                  constraints, nominal_limit, dev, error_of, fast)
+                  constraints, nominal_limit, dev, error_of, fast, hold)
     lo = np.array([bounds[k][0] for k in names])
     hi = np.array([bounds[k][1] for k in names])
     start = {k: float(v) for k, v in mech.nominal_values().items()}
@@ -272,23 +318,26 @@ def robust(mech, bounds: Mapping[str, tuple[float, float]], tolerances, *,
         if inside:
             pop = lo + rng.random((popsize * len(names), len(names))) * (hi - lo)
             pop[0] = x_today
+            for j, dsg in enumerate(init_designs, start=1):
+                pop[j] = np.clip([float(dsg.get(k, start[k])) for k in names], lo, hi)
             init = pop
         r = differential_evolution(prob, list(zip(lo, hi, strict=True)), rng=rng,
                                    popsize=popsize, maxiter=maxiter, tol=1e-8, polish=False,
                                    init=init, vectorized=True, updating="deferred",
                                    mutation=(0.5, 1.0), recombination=0.9)
-        yld, nom, err, feas, _, _ = prob.figures(np.atleast_2d(r.x))
+        yld, nom, err, feas, _, _, extra = prob.figures(np.atleast_2d(r.x))
         rows.append({"restart": i, "yield": float(yld[0]), "nominal": float(nom[0]),
                      "error": float(err[0]), "feasible": bool(feas[0]),
                      **dict(zip(names, map(float, r.x), strict=True)),
+                     **{k: float(e[0]) for k, e in zip(prob.hold_names, extra, strict=True)},
                      "generations": int(r.nit), "seconds": time.perf_counter() - t})
     table = pd.DataFrame(rows)
     ok = table[table["feasible"]]
     pick = (ok if len(ok) else table)["yield"].idxmax()
-    best = {**start, **{k: float(table.loc[pick, k]) for k in names}}
+    best = {**start, **{k: float(table.loc[pick, k]) for k in names + prob.hold_names}}
     fig = []
     for label, x in (("today", x_today), ("robust", np.array([best[k] for k in names]))):
-        yld, nom, err, feas, _, _ = prob.figures(x[None, :])
+        yld, nom, err, feas, _, _, _ = prob.figures(x[None, :])
         fig.append({"design": label, "yield": float(yld[0]), "nominal": float(nom[0]),
                     "error": float(err[0]), "feasible": bool(feas[0])})
     archive = prob.archive()
@@ -300,7 +349,7 @@ def robust(mech, bounds: Mapping[str, tuple[float, float]], tolerances, *,
         figures=pd.DataFrame(fig), restarts=table, archive=archive, front=front_of(archive),
         seconds=time.perf_counter() - t0,
         options={"restarts": restarts, "popsize": popsize, "maxiter": maxiter,
-                 "nominal_adjust": nominal_adjust, "error_of": error_of})
+                 "nominal_adjust": nominal_adjust, "error_of": error_of, "hold": hold})
 
 
 def yield_check(mech, design: Mapping, tolerances, adjust: Sequence[str], objective: str,
