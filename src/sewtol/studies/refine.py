@@ -86,7 +86,7 @@ class Constraint:
             v = v + np.maximum(y - self.upper, 0.0)
         return np.where(np.isnan(y), np.inf, v / self.scale)
 
-    def active(self, y, rel: float = 1e-3) -> bool:
+    def active(self, y, rel: float = 1e-2) -> bool:
         """True where the value holds and lies on a limit (within rel * scale of it)."""
         y = float(y)
         return bool(self.violation(y) == 0 and any(
@@ -492,7 +492,7 @@ def refine(mech: Mechanism, parameters: Sequence[str] | Mapping | None = None, *
            restarts: int = 3, popsize: int = 12, maxiter: int = 200, tol: float = 1e-7,
            polish: bool | str = True, polish_evaluations: int = 1500,
            local_search: bool = True, tolerances: ToleranceSet | None = None,
-           fast: bool = True) -> RefineResult:
+           fast: bool = True, starts: pd.DataFrame | None = None) -> RefineResult:
     """Minimise `objective` of the adjusted nominal design over `parameters` (see the module
     docstring).
 
@@ -530,6 +530,9 @@ def refine(mech: Mechanism, parameters: Sequence[str] | Mapping | None = None, *
         The steps of the degree of influence (else 1 % of each value).
     fast : bool
         Use the mechanism's plug-ins (exact adjuster, kernel) where they apply.
+    starts : DataFrame or None
+        Restarts already run (an earlier result's `restarts` table, a column per refined
+        parameter): the search is not repeated, these are polished (to re-polish a search).
 
     Returns
     -------
@@ -577,7 +580,13 @@ def refine(mech: Mechanism, parameters: Sequence[str] | Mapping | None = None, *
     hi = np.array([bounds[n][1] for n in names])
 
     rows = []
-    for child_seed, rng in zip(range(restarts), np.random.default_rng(seed).spawn(restarts),
+    if starts is not None:
+        missing = [n for n in names if n not in starts.columns]
+        if missing:
+            raise ParameterError("starts", "must hold a column per refined parameter", missing)
+        rows = starts.to_dict("records")
+    searched = 0 if starts is not None else restarts
+    for child_seed, rng in zip(range(searched), np.random.default_rng(seed).spawn(searched),
                                strict=True):
         t = time.perf_counter()
         prob.nfev = 0
@@ -699,9 +708,13 @@ def _minimax_rounds(prob, mech, objective, start, names, x0, bounds, boxes, cons
     design = {**start, **dict(zip(names, x_best, strict=True)),
               **{k: float(v[0]) for k, v in settings.items() if np.isfinite(v[0])}}
     for _ in range(rounds):
-        vals, _, _ = minimax_polish(mech, objective, design, bounds, boxes, constraints)
-        x = np.array([vals[n] for n in names], float)
-        f = float(prob(x))
+        for margin in (1e-3, 1e-2):  # a wider margin where the exact re-reading fails one
+            vals, _, _ = minimax_polish(mech, objective, design, bounds, boxes, constraints,
+                                        margin=margin)
+            x = np.array([vals[n] for n in names], float)
+            f = float(prob(x))
+            if f < PENALTY:
+                break
         if not f < f_best - gain_tol:
             if f < f_best:
                 x_best, f_best = x, f
@@ -713,7 +726,8 @@ def _minimax_rounds(prob, mech, objective, start, names, x0, bounds, boxes, cons
 
 def minimax_polish(mech, objective: str, design: Mapping, bounds: Mapping,
                    adjust_boxes: Mapping, constraints: Sequence[Constraint] = (),
-                   samples: int = 2880, maxiter: int = 200, step: float = 1e-6):
+                   samples: int = 2880, maxiter: int = 200, step: float = 1e-6,
+                   margin: float = 1e-3):
     """A local polish for a minimax objective: SLSQP on the epigraph form of a line_deviation
     output with measure sum_extremes (the needle's SumDelta).
 
@@ -722,10 +736,12 @@ def minimax_polish(mech, objective: str, design: Mapping, bounds: Mapping,
     minimise t_plus + t_minus over the refined parameters, the compensators' settings (inside
     their boxes) and t_plus, t_minus >= 0, subject to d(q_k) <= t_plus and -d(q_k) <= t_minus at
     `samples` driving angles and to `constraints` (Chebyshev approximation, Polukhin's own
-    criterion). The Jacobian is a forward difference (`step` of each box), all columns in one
-    vectorised evaluation. Returns (values, t_plus + t_minus on the samples, SLSQP's message):
-    the values hold every refined parameter and compensator; the caller re-reads the objective
-    with its exact adjuster (the sampled maximum lies below the exact one)."""
+    criterion), each constraint held `margin` (in its scale) inside its limit, so that the
+    exact re-reading (the compensators re-optimised) still meets it. The Jacobian is a forward
+    difference (`step` of each box), all columns in one vectorised evaluation. Returns
+    (values, t_plus + t_minus on the samples, SLSQP's message): the values hold every refined
+    parameter and compensator; the caller re-reads the objective with its exact adjuster
+    (the sampled maximum lies below the exact one)."""
     from scipy.optimize import minimize
 
     o = mech.output(objective)
@@ -757,9 +773,9 @@ def minimax_polish(mech, objective: str, design: Mapping, bounds: Mapping,
             for c in constraints:
                 y = np.asarray(ev.outputs[c.output], float)
                 if c.lower is not None:
-                    cols.append((y - c.lower) / c.scale)
+                    cols.append((y - c.lower) / c.scale - margin)
                 if c.upper is not None:
-                    cols.append((c.upper - y) / c.scale)
+                    cols.append((c.upper - y) / c.scale - margin)
         marg = np.stack(cols, axis=1) if cols else np.zeros((len(d), 0))
         return np.nan_to_num(d, nan=1e6), np.nan_to_num(marg, nan=-1e3)
 
