@@ -157,22 +157,28 @@ def figures_root(p: dict, samples: int = 3600) -> dict:
     along = (np.conjugate(u) * E).real
     h = 2 * np.pi / samples
 
-    def extreme(values, sign):
-        k = int(np.argmax(sign * values))
+    def extreme(values, sign, near):
+        # at a minimax optimum several peaks are (nearly) equal: every sampled peak within
+        # `near` of the highest is refined, the highest refined one is the extreme
+        v = sign * values
+        peaks = np.flatnonzero((v >= np.roll(v, 1)) & (v >= np.roll(v, -1))
+                               & (v >= v.max() - near))
+        best = -np.inf
+        for k in peaks:
+            def f(phi, k=k):
+                x1, x2, _ = solve(phi, X1[k], X2[k])
+                e = E_of(x1, x2)
+                w = ((np.conjugate(n) * (e - G)).real * 1e3 if values is d
+                     else (np.conjugate(u) * e).real)
+                return -sign * w
 
-        def f(phi):
-            x1, x2, _ = solve(phi, X1[k], X2[k])
-            e = E_of(x1, x2)
-            v = (np.conjugate(n) * (e - G)).real * 1e3 if values is d else (np.conjugate(u)
-                                                                          * e).real
-            return -sign * v
+            r = minimize_scalar(f, bounds=(phis[k] - h, phis[k] + h), method="bounded",
+                                options={"xatol": 1e-10})
+            best = max(best, v[k], -r.fun)
+        return best * sign
 
-        r = minimize_scalar(f, bounds=(phis[k] - h, phis[k] + h), method="bounded",
-                            options={"xatol": 1e-10})
-        return max(sign * values[k], -r.fun) * sign
-
-    dmax, dmin = extreme(d, 1.0), extreme(d, -1.0)
+    dmax, dmin = extreme(d, 1.0, 1e-2), extreme(d, -1.0, 1e-2)
     return {"closes": closes,
             "SumDelta_um": float(max(dmax, 0) + max(-dmin, 0)),
-            "stroke_mm": float(extreme(along, 1.0) - extreme(along, -1.0)),
+            "stroke_mm": float(extreme(along, 1.0, 1e-5) - extreme(along, -1.0, 1e-5)),
             "d_um": d}
