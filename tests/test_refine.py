@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from cli_helpers import run
-from refine_reference import figures
+from refine_reference import figures, figures_root
 from sewtol.errors import ParameterError
 from sewtol.mechanism import load
 from sewtol.mechanisms import params as P
@@ -25,6 +25,7 @@ from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208.model import Needle208, check_assembly, transmission_extremes
 from sewtol.protocol import plugins
 from sewtol.studies import refine as RF
+from sewtol.studies import robust as RB
 from sewtol.studies.adjusting import adjusted
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -197,3 +198,106 @@ def test_cli_refine_json_contract():
     assert code == 0
     outputs = json.loads(out2)["outputs"]
     assert outputs["stroke_um"] == pytest.approx(obj["refined"]["stroke_um"], abs=1e-9)
+
+
+ROBUST = tuple(json.loads(DESIGNS_FILE.read_text()).get("robust", {})) if DESIGNS_FILE.exists() \
+    else ()
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_refined_design_checked_by_root_based_positions(name):
+    """A second plain route (scipy.optimize.root on the loop closures, extremes refined in the
+    crank angle): the claimed SumDelta within the adjuster's plateau tolerance, the stroke in
+    its band, and the same figures as the circle-intersection model to 1e-6."""
+    d, refined = _design(name)
+    values = refined.nominal_values()
+    r = figures_root(values)
+    assert r["closes"]
+    assert r["SumDelta_um"] == pytest.approx(d["refined"]["SumDelta_um"], abs=ADJUSTER_TOL_UM)
+    stroke = next(c for c in d["constraints"] if c["output"] == "stroke_um")
+    assert stroke["lower"] <= r["stroke_mm"] * 1e3 <= stroke["upper"]
+    dense = figures(values)
+    # the dense sampling lies below the refined extremes, by at most h^2 |d''| / 8
+    assert 0.0 <= r["SumDelta_um"] - dense["SumDelta_um"] <= 1e-6
+    assert r["stroke_mm"] == pytest.approx(dense["stroke_mm"], abs=1e-6)
+
+
+@pytest.mark.parametrize("name", ROBUST)
+def test_robust_design_checked_by_both_independent_models(name):
+    """The robust designs' nominal SumDelta (beta set) and stroke error, as the study claims
+    them, re-evaluated by the two independent models."""
+    d = json.loads(DESIGNS_FILE.read_text())["robust"][name]
+    refined = load(FILE, d["parameters"])
+    values = refined.nominal_values()
+    today = figures(load(FILE).nominal_values())
+    for model in (figures, figures_root):
+        r = model(values)
+        assert r["closes"]
+        assert r["SumDelta_um"] == pytest.approx(d["nominal_SumDelta_um"], abs=ADJUSTER_TOL_UM)
+        # the claim is the file's stroke (720 samples): each sampled extreme lies below the
+        # exact one by at most h^2 |x''| / 8 = 0.11 um (h = 0.5 deg, |x''| <= 12 mm/rad^2,
+        # half the stroke), so a difference of two strokes within 0.25 um
+        assert (r["stroke_mm"] - today["stroke_mm"]) * 1e3 == pytest.approx(
+            d["stroke_error_um"], abs=0.25)
+
+
+def _two_links(mech, seed, polish):
+    cons = RF.default_constraints(mech) + [RF.keep(mech, "stroke_um", 100.0, ["beta"])]
+    return RF.refine(mech, ["AB", "BE"], adjust=["beta"], constraints=cons, seed=seed,
+                     restarts=2, popsize=6, maxiter=8, polish=polish, local_search=True)
+
+
+def test_minimax_polish_restarts_agree_and_match_a_brute_force(mech):
+    """AB and BE alone (housing kept, stroke held): short restarts disagree; the minimax polish
+    of each (and of today's design) lands on one optimum, and a dense grid over the box (beta
+    exact at every point, the constraints applied) finds nothing lower."""
+    r = _two_links(mech, 5, "minimax")
+    assert r.polished is not None and len(r.polished) == 3  # two restarts and today's
+    assert r.polished_spread <= 2e-3
+    assert r.objective_after <= r.restarts["objective"].min() + 1e-12
+    assert r.outputs_frame()["holds"].all()
+    prob = RF.DesignProblem(mech, "SumDelta_um", r.bounds, ["beta"], r.constraints, True)
+    (lo_a, hi_a), (lo_b, hi_b) = r.bounds["AB"], r.bounds["BE"]
+    # the optimum lies on a narrow valley (stroke held): the grid is dense around it
+    a = np.linspace(max(lo_a, r.refined["AB"] - 0.05), min(hi_a, r.refined["AB"] + 0.05), 41)
+    b = np.linspace(max(lo_b, r.refined["BE"] - 0.2), min(hi_b, r.refined["BE"] + 0.2), 81)
+    A, B = np.meshgrid(a, b)
+    f = prob(np.vstack([A.ravel(), B.ravel()]))
+    assert f.min() >= r.objective_after - 2e-3
+
+
+def test_minimax_polish_refuses_other_objectives(mech):
+    with pytest.raises(ParameterError, match="objective: must be a line_deviation"):
+        RF.minimax_polish(mech, "stroke_um", mech.nominal_values(), {"AB": (9.0, 11.0)},
+                          {"beta": (10.0, 35.0)})
+    with pytest.raises(ParameterError, match="polish: must be"):
+        RF.refine(mech, ["AB"], polish="newton")
+
+
+def test_robust_yield_is_common_random_numbers_and_never_below_today(mech):
+    """The search's yield of today's design is the fresh count on the same machines (same n,
+    same seed); the best design found is at least as good (today's design rides in the first
+    population); same seed, same answer; the front is non-dominated."""
+    base = mech.tolerance_sets["base"]
+    cons = RF.default_constraints(mech) + [RF.keep(mech, "stroke_um", 100.0, ["beta"])]
+    bounds = RF.default_bounds(mech, ["AB", "BE", "CD"])
+    kw = dict(adjust=["beta"], constraints=cons, n=60, seed=4, restarts=1, popsize=3,
+              maxiter=3, error_of=("stroke_um", 23885.55))
+    r = RB.robust(mech, bounds, base, **kw)
+    today = r.figures.set_index("design").loc["today"]
+    check = RB.yield_check(mech, mech.nominal_values(), base, ["beta"], "SumDelta_um", 10.0,
+                           60, 4)
+    assert today["yield"] == pytest.approx(check["yield"], abs=1e-12)
+    assert check["ok"] + check["out_of_spec"] + check["failed"] == 60
+    assert check["yield_ci_low"] <= check["yield"] <= check["yield_ci_high"]
+    best = r.figures.set_index("design").loc["robust"]
+    assert best["yield"] >= today["yield"]
+    again = RB.robust(mech, bounds, base, **kw)
+    assert again.best == r.best
+    obj = np.column_stack([r.front["nominal"], -r.front["yield"], np.abs(r.front["error"])])
+    for i in range(len(obj)):
+        assert not np.any(np.all(obj <= obj[i], axis=1) & np.any(obj < obj[i], axis=1))
+    allp = np.column_stack([r.archive["nominal"], -r.archive["yield"],
+                            np.abs(r.archive["error"])])
+    for row in allp:  # every archived design is dominated by or equal to a front member
+        assert np.any(np.all(obj <= row, axis=1))

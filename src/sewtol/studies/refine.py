@@ -86,7 +86,7 @@ class Constraint:
             v = v + np.maximum(y - self.upper, 0.0)
         return np.where(np.isnan(y), np.inf, v / self.scale)
 
-    def active(self, y, rel: float = 1e-3) -> bool:
+    def active(self, y, rel: float = 1e-2) -> bool:
         """True where the value holds and lies on a limit (within rel * scale of it)."""
         y = float(y)
         return bool(self.violation(y) == 0 and any(
@@ -117,7 +117,7 @@ def keep(mech, output: str, tol: float, adjust=None, objective: str | None = Non
     (the compensators `adjust` minimising `objective`, default the first output)."""
     if not (np.isfinite(tol) and tol > 0):
         raise ParameterError(f"{output}.tol", "must be a positive number", tol)
-    today = _Problem(mech, objective or mech.output_names[0], {}, adjust, (),
+    today = DesignProblem(mech, objective or mech.output_names[0], {}, adjust, (),
                      fast=True).outputs_at(mech.nominal_values(), [output])
     y0 = float(today[output])
     if not np.isfinite(y0):
@@ -169,7 +169,7 @@ def default_bounds(mech, names: Sequence[str]) -> dict[str, tuple[float, float]]
     return out
 
 
-class _Problem:
+class DesignProblem:
     """The penalised objective over designs x (parameters in `names` order)."""
 
     def __init__(self, mech, objective, bounds, adjust, constraints, fast):
@@ -274,6 +274,15 @@ class RefineResult:
     seed: int
     seconds: float
     options: dict = field(default_factory=dict)
+    polished: pd.DataFrame | None = None
+
+    @property
+    def polished_spread(self) -> float:
+        """Largest minus smallest objective over the polished starts (NaN without them)."""
+        if self.polished is None:
+            return float("nan")
+        r = self.polished["objective"]
+        return float(r.max() - r.min())
 
     @property
     def objective_before(self) -> float:
@@ -316,7 +325,14 @@ class RefineResult:
             f"{self.objective} = {r['objective'].min():.4f} ... {r['objective'].max():.4f} {u} "
             f"(spread {self.spread:.4f} {u}); the widest parameter spread is {widest} "
             f"{wide.get(widest, 0.0):.4g}",
-            f"Nelder-Mead polish of the best restart gained {self.polished_gain:.4f} {u}",
+            (f"Nelder-Mead polish of the best restart gained {self.polished_gain:.4f} {u}"
+             if self.polished is None else
+             f"minimax (SLSQP, epigraph) polish of each of {len(self.polished)} starts "
+             f"(every restart's best" + (", today's design" if "today" in
+                                         list(self.polished["start"]) else "")
+             + f") reached {self.polished['objective'].min():.4f} ... "
+             f"{self.polished['objective'].max():.4f} {u} (spread {self.polished_spread:.4f} "
+             f"{u}); it gained {self.polished_gain:.4f} {u} on the best restart"),
             f"Nelder-Mead from today's design alone stops at {self.local_from_start:.4f} {u} "
             f"(a local optimum; the global search reaches {self.objective_after:.4f} {u})",
             "parameters on a bound of their box: " + (", ".join(self.active_bounds) or "none"),
@@ -369,6 +385,8 @@ class RefineResult:
             "active_constraints": self.active_constraints,
             "restarts": self.restarts.to_dict("records"),
             "spread": self.spread, "polished_gain": self.polished_gain,
+            "polished": None if self.polished is None else self.polished.to_dict("records"),
+            "polished_spread": self.polished_spread,
             "local_from_start": self.local_from_start,
             "confirmation": self.confirmation(),
             "influence": self.influence.to_dict("records"),
@@ -405,7 +423,7 @@ def influence(mech, design: dict, names: Sequence[str], objective: str, adjust=N
     """Degree of influence of each parameter on the adjusted objective at `design` (see the
     module docstring): slope (central difference at dp/10), slope * dp, and the objective's
     change at p + dp and p - dp; constraints are not applied."""
-    prob = _Problem(mech, objective, {n: (0.0, 0.0) for n in names}, adjust, (), fast)
+    prob = DesignProblem(mech, objective, {n: (0.0, 0.0) for n in names}, adjust, (), fast)
     steps = {n: _tol_step(mech, n, design[n], tolerances, bounds) for n in names}
     rows, cols = [], {n: [] for n in names}
     offsets = []
@@ -472,8 +490,9 @@ def refine(mech: Mechanism, parameters: Sequence[str] | Mapping | None = None, *
            objective: str | None = None, adjust: Sequence[str] | Mapping | None = None,
            constraints: Sequence[Constraint] | None = None, seed: int = 0,
            restarts: int = 3, popsize: int = 12, maxiter: int = 200, tol: float = 1e-7,
-           polish: bool = True, polish_evaluations: int = 1500, local_search: bool = True,
-           tolerances: ToleranceSet | None = None, fast: bool = True) -> RefineResult:
+           polish: bool | str = True, polish_evaluations: int = 1500,
+           local_search: bool = True, tolerances: ToleranceSet | None = None,
+           fast: bool = True, starts: pd.DataFrame | None = None) -> RefineResult:
     """Minimise `objective` of the adjusted nominal design over `parameters` (see the module
     docstring).
 
@@ -498,8 +517,11 @@ def refine(mech: Mechanism, parameters: Sequence[str] | Mapping | None = None, *
         Differential evolution: restarts, population per parameter, generations.
     tol : float
         Differential evolution's relative convergence tolerance.
-    polish : bool
-        Polish the best restart by Nelder-Mead.
+    polish : bool or str
+        True or "nelder-mead": polish the best restart by Nelder-Mead; "minimax": polish
+        every restart's best (and, with `local_search`, today's design) by `minimax_polish`
+        (a line_deviation objective with measure sum_extremes), the refined design being the
+        best polished one; `polished` then holds a row per start; False: no polish.
     polish_evaluations : int
         The most designs each Nelder-Mead (the polish, the local search) evaluates.
     local_search : bool
@@ -508,6 +530,9 @@ def refine(mech: Mechanism, parameters: Sequence[str] | Mapping | None = None, *
         The steps of the degree of influence (else 1 % of each value).
     fast : bool
         Use the mechanism's plug-ins (exact adjuster, kernel) where they apply.
+    starts : DataFrame or None
+        Restarts already run (an earlier result's `restarts` table, a column per refined
+        parameter): the search is not repeated, these are polished (to re-polish a search).
 
     Returns
     -------
@@ -545,7 +570,7 @@ def refine(mech: Mechanism, parameters: Sequence[str] | Mapping | None = None, *
         if not (isinstance(v, (int, np.integer)) and v >= 1):
             raise ParameterError(k, "must be an integer >= 1", v)
     constraints = default_constraints(mech) if constraints is None else list(constraints)
-    prob = _Problem(mech, objective, bounds, adjust, constraints, fast)
+    prob = DesignProblem(mech, objective, bounds, adjust, constraints, fast)
     names = prob.names
     nominal = mech.nominal_values()
     start = {k: float(v) for k, v in nominal.items()}
@@ -555,7 +580,13 @@ def refine(mech: Mechanism, parameters: Sequence[str] | Mapping | None = None, *
     hi = np.array([bounds[n][1] for n in names])
 
     rows = []
-    for child_seed, rng in zip(range(restarts), np.random.default_rng(seed).spawn(restarts),
+    if starts is not None:
+        missing = [n for n in names if n not in starts.columns]
+        if missing:
+            raise ParameterError("starts", "must hold a column per refined parameter", missing)
+        rows = starts.to_dict("records")
+    searched = 0 if starts is not None else restarts
+    for child_seed, rng in zip(range(searched), np.random.default_rng(seed).spawn(searched),
                                strict=True):
         t = time.perf_counter()
         prob.nfev = 0
@@ -580,7 +611,29 @@ def refine(mech: Mechanism, parameters: Sequence[str] | Mapping | None = None, *
                   "adaptive": True}
     gain = 0.0
     t_polish = time.perf_counter()
-    if polish:
+    polished = None
+    if polish not in (True, False, "nelder-mead", "minimax"):
+        raise ParameterError("polish", "must be True, False, 'nelder-mead' or 'minimax'", polish)
+    if polish == "minimax":
+        boxes = _adjust_boxes(mech, prob.adjust)
+        starts = [(int(r_["restart"]), np.array([r_[n] for n in names], float))
+                  for _, r_ in table.iterrows()]
+        if inside and local_search:
+            starts.append(("today", x_today))
+        prow_ = []
+        for label, x0 in starts:
+            t = time.perf_counter()
+            x, f = _minimax_rounds(prob, mech, objective, start, names, x0, bounds, boxes,
+                                   constraints)
+            prow_.append({"start": label, "objective": f,
+                          **{n: float(v) for n, v in zip(names, x, strict=True)},
+                          "seconds": time.perf_counter() - t})
+        polished = pd.DataFrame(prow_)
+        k = int(polished["objective"].idxmin())
+        if polished.loc[k, "objective"] < f_best:
+            gain = f_best - float(polished.loc[k, "objective"])
+            x_best = np.array([polished.loc[k, n] for n in names], float)
+    elif polish:
         r = minimize(scaled, (x_best - lo) / (hi - lo), method="Nelder-Mead",
                      bounds=[(0.0, 1.0)] * len(names), options=nm_options)
         if r.fun < f_best:
@@ -634,12 +687,134 @@ def refine(mech: Mechanism, parameters: Sequence[str] | Mapping | None = None, *
         refined=refined, before=before, after=after, parameters=pd.DataFrame(prow),
         restarts=table, polished_gain=gain, local_from_start=local, influence=infl,
         curve_before=cb, curve_after=ca, seed=int(seed), seconds=time.perf_counter() - t0,
+        polished=polished,
         options={"adjust_boxes": _adjust_boxes(mech, prob.adjust), "restarts": restarts,
                  "popsize": popsize, "maxiter": maxiter, "tol": tol,
                  "polish": polish, "polish_evaluations": polish_evaluations,
                  "local_search": local_search, "penalty": PENALTY,
                  "seconds_search": t_polish - t0, "seconds_polish": t_local - t_polish,
                  "seconds_local_search": t_end - t_local})
+
+
+def _minimax_rounds(prob, mech, objective, start, names, x0, bounds, boxes, constraints,
+                    rounds: int = 4, gain_tol: float = 1e-5):
+    """minimax_polish from x0, repeated from its own result while it gains more than
+    gain_tol; each result is re-read exactly (prob: the compensators re-adjusted, constraints
+    applied). Returns (x, penalised objective) of the best."""
+    x_best = np.asarray(x0, float)
+    f_best = float(prob(x_best))
+    # the compensators start at their adjusted settings
+    _, settings, _ = prob.adjusted(prob.values(x_best[None, :]))
+    design = {**start, **dict(zip(names, x_best, strict=True)),
+              **{k: float(v[0]) for k, v in settings.items() if np.isfinite(v[0])}}
+    for _ in range(rounds):
+        for margin in (1e-3, 1e-2):  # a wider margin where the exact re-reading fails one
+            vals, _, _ = minimax_polish(mech, objective, design, bounds, boxes, constraints,
+                                        margin=margin)
+            x = np.array([vals[n] for n in names], float)
+            f = float(prob(x))
+            if f < PENALTY:
+                break
+        if not f < f_best - gain_tol:
+            if f < f_best:
+                x_best, f_best = x, f
+            break
+        x_best, f_best = x, f
+        design = {**design, **vals}
+    return x_best, f_best
+
+
+def minimax_polish(mech, objective: str, design: Mapping, bounds: Mapping,
+                   adjust_boxes: Mapping, constraints: Sequence[Constraint] = (),
+                   samples: int = 2880, maxiter: int = 200, step: float = 1e-6,
+                   margin: float = 1e-3):
+    """A local polish for a minimax objective: SLSQP on the epigraph form of a line_deviation
+    output with measure sum_extremes (the needle's SumDelta).
+
+    SumDelta = max(max d, 0) + max(-min d, 0) is not smooth where two extremes of d(q) trade,
+    which is where its optimum lies; a Nelder-Mead stalls there. In epigraph form it is smooth:
+    minimise t_plus + t_minus over the refined parameters, the compensators' settings (inside
+    their boxes) and t_plus, t_minus >= 0, subject to d(q_k) <= t_plus and -d(q_k) <= t_minus at
+    `samples` driving angles and to `constraints` (Chebyshev approximation, Polukhin's own
+    criterion), each constraint held `margin` (in its scale) inside its limit, so that the
+    exact re-reading (the compensators re-optimised) still meets it. The Jacobian is a forward
+    difference (`step` of each box), all columns in one vectorised evaluation. Returns
+    (values, t_plus + t_minus on the samples, SLSQP's message): the values hold every refined
+    parameter and compensator; the caller re-reads the objective with its exact adjuster
+    (the sampled maximum lies below the exact one)."""
+    from scipy.optimize import minimize
+
+    o = mech.output(objective)
+    if o.type != "line_deviation" or o.fields.get("measure") != "sum_extremes":
+        raise ParameterError("objective", "must be a line_deviation output with measure "
+                             "sum_extremes for the minimax polish", objective)
+    names = list(bounds) + [k for k in adjust_boxes if k not in bounds]
+    box = {**{k: tuple(map(float, v)) for k, v in adjust_boxes.items()},
+           **{k: tuple(map(float, v)) for k, v in bounds.items()}}
+    lo = np.array([box[n][0] for n in names])
+    hi = np.array([box[n][1] for n in names])
+    q = np.arange(samples) * 2 * np.pi / samples
+    fixed = {k: float(v) for k, v in design.items() if k not in names}
+    nz = len(names)
+
+    def values(Z):
+        X = lo + np.clip(Z, 0.0, 1.0) * (hi - lo)
+        m = X.shape[0]
+        return {**{k: np.full(m, v) for k, v in fixed.items()},
+                **{n: X[:, i] for i, n in enumerate(names)}}
+
+    def g_of(Z):
+        """(curves (m, q), constraint margins (m, c)): margins >= 0 where a limit holds."""
+        v = values(Z)
+        d = mech.curve(objective, v, q)
+        cols = []
+        if constraints:
+            ev = mech.evaluate(v, [c.output for c in constraints])
+            for c in constraints:
+                y = np.asarray(ev.outputs[c.output], float)
+                if c.lower is not None:
+                    cols.append((y - c.lower) / c.scale - margin)
+                if c.upper is not None:
+                    cols.append((c.upper - y) / c.scale - margin)
+        marg = np.stack(cols, axis=1) if cols else np.zeros((len(d), 0))
+        return np.nan_to_num(d, nan=1e6), np.nan_to_num(marg, nan=-1e3)
+
+    cache = {}
+
+    def evaluated(z):
+        key = z.tobytes()
+        if key not in cache:
+            Z = np.vstack([z[:nz], z[:nz] + step * np.eye(nz)])
+            d, marg = g_of(Z)
+            cache.clear()
+            cache[key] = (d, marg)
+        return cache[key]
+
+    def cons(z):
+        d, marg = evaluated(z)
+        return np.concatenate([z[nz] - d[0], z[nz + 1] + d[0], marg[0]])
+
+    def jac(z):
+        d, marg = evaluated(z)
+        dd = ((d[1:] - d[0]) / step).T  # (q, nz)
+        dm = ((marg[1:] - marg[0]) / step).T
+        k = d.shape[1]
+        top = np.hstack([-dd, np.ones((k, 1)), np.zeros((k, 1))])
+        mid = np.hstack([dd, np.zeros((k, 1)), np.ones((k, 1))])
+        bot = np.hstack([dm, np.zeros((dm.shape[0], 2))])
+        return np.vstack([top, mid, bot])
+
+    x0 = np.array([float(design[n]) for n in names])
+    z0 = (x0 - lo) / (hi - lo)
+    d0, _ = g_of(z0[None, :])
+    z0 = np.concatenate([np.clip(z0, 0, 1), [max(d0[0].max(), 0.0), max(-d0[0].min(), 0.0)]])
+    r = minimize(lambda z: z[nz] + z[nz + 1], z0,
+                 jac=lambda z: np.r_[np.zeros(nz), 1.0, 1.0], method="SLSQP",
+                 bounds=[(0.0, 1.0)] * nz + [(0.0, None)] * 2,
+                 constraints=[{"type": "ineq", "fun": cons, "jac": jac}],
+                 options={"maxiter": maxiter, "ftol": 1e-10})
+    x = lo + np.clip(r.x[:nz], 0.0, 1.0) * (hi - lo)
+    return {n: float(v) for n, v in zip(names, x, strict=True)}, float(r.fun), str(r.message)
 
 
 def _box(name, v) -> tuple[float, float]:
