@@ -465,6 +465,13 @@ LAYOUT = [
                                             "joint_selective"], []),
     ("Joint clearances", ["clearances"], []),
     ("Housing tolerances", ["housing_share"], []),
+    # studies/needle_208_refine.py (not in make report: its searches take 20-45 min)
+    ("Design refinement", ["refine_summary"],
+     [("refine_linkage", "The refined linkages drawn over today's (what was held fixed: the "
+       "main shaft F, the guide's point N1, the branches)"),
+      ("refine_deviation", "d(phi) of today's design and of the refined designs"),
+      ("refine_pareto", "Robust design: nominal SumDelta against the yield with beta alone "
+       "(non-dominated designs)")]),
 ]
 
 
