@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from sewtol.intervals import clopper_pearson
 from sewtol.io import write_text_atomic
 from sewtol.mechanisms.needle_208.compensators import STRATEGY_ROWS as STRATEGY_COMPENSATORS
 from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME
@@ -99,16 +100,6 @@ def pct(x: float) -> str:
 
 def span(lo: float, hi: float) -> str:
     return f"{100 * lo:.1f}–{100 * hi:.1f} %"
-
-
-def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
-    """The exact binomial interval of k / n (the strategies tables' interval)."""
-    from scipy.stats import beta
-
-    a = (1 - level) / 2
-    lo = 0.0 if k == 0 else float(beta.ppf(a, k, n - k + 1))
-    hi = 1.0 if k == n else float(beta.ppf(1 - a, k + 1, n - k))
-    return lo, hi
 
 
 def strategy_frames(out: Path) -> pd.DataFrame | None:

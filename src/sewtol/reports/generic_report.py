@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
 from sewtol.errors import ParameterError
+from sewtol.intervals import clopper_pearson
 from sewtol.io import write_bytes_atomic, write_text_atomic
 from sewtol.reports.tables import to_csv, write_table
 from sewtol.studies import generic as G
@@ -189,14 +189,14 @@ def build(mech, tolerances, n: int = 1000, seed: int = 0, limit_output: str | No
     yield_row = None
     if limit_output is not None:
         c = mc.counts(limit_output)
-        ci = stats.binomtest(c["ok"], c["n"]).proportion_ci(0.95, method="exact")
+        ci_low, ci_high = clopper_pearson(c["ok"], c["n"])
         yield_row = {"output": limit_output, "limit": upper, "lower_limit": lower,
                      "condition": limits_text(limit_output, upper, lower,
                                               mech.output(limit_output).unit),
                      "n": c["n"], "ok": c["ok"], "out_of_limits": c["out_of_spec"],
                      "cannot_close": c["cannot_close"], "dead_point": c["dead_point"],
-                     "yield": c["ok"] / c["n"], "ci_low": float(ci.low),
-                     "ci_high": float(ci.high)}
+                     "yield": c["ok"] / c["n"], "ci_low": ci_low,
+                     "ci_high": ci_high}
     return GenericReport(mech, tolerances, int(n), int(seed), limit_output, upper, lower, nom,
                          sc, dominance(sc), wc, wc_notes, mc.summary_frame(), machines,
                          yield_row, notes)

@@ -24,10 +24,10 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
 from sewtol.dependence import Dependence
 from sewtol.errors import ParameterError
+from sewtol.intervals import clopper_pearson
 from sewtol.law import InputLaw, draw_units, unit_streams
 from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
@@ -85,13 +85,13 @@ class Allocation:
 
     def to_dict(self) -> dict:
         # yield NaN: no scale down to 2**-20 reaches the target (no interval either)
-        ci = stats.binomtest(int(round(self.yield_ * self.n)), self.n).proportion_ci(
-            0.95, method="exact") if np.isfinite(self.yield_) else None
+        ci = clopper_pearson(round(self.yield_ * self.n), self.n) \
+            if np.isfinite(self.yield_) else None
         return {"mechanism": self.mechanism, "output": self.output, "limit": self.upper,
                 "lower_limit": self.lower, "adjust": self.adjust,
                 "tolerances": self.tolerances, "target": self.target, "n": self.n,
                 "seed": self.seed, "scale": self.scale, "yield": self.yield_,
-                "yield_ci95": [float(ci.low), float(ci.high)] if ci else [None, None],
+                "yield_ci95": list(ci) if ci else [None, None],
                 "capped": self.capped,
                 "method": self.method, "rows": self.table.to_dict("records"),
                 "trials": self.trials.to_dict("records")}

@@ -48,6 +48,7 @@ from scipy import optimize, stats
 
 from sewtol.costs import CostModel
 from sewtol.errors import ParameterError
+from sewtol.intervals import clopper_pearson
 from sewtol.law import InputLaw, draw_units, unit_streams
 from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
@@ -80,12 +81,6 @@ def allowed_failures(n: int, target: float, confidence: float | None) -> int:
     low = np.where(ok > 0, stats.beta.ppf(1.0 - confidence, np.maximum(ok, 1), f + 1), 0.0)
     good = np.flatnonzero(low >= target)
     return int(good.max()) if good.size else -1
-
-
-def exact_interval(ok: int, n: int, level: float = 0.95) -> tuple[float, float]:
-    """The two-sided Clopper-Pearson interval of the yield ok / n."""
-    ci = stats.binomtest(int(ok), int(n)).proportion_ci(level, method="exact")
-    return float(ci.low), float(ci.high)
 
 
 @dataclass(frozen=True)
@@ -206,7 +201,7 @@ class LeastCost:
             "(studies.least_cost)", dependence=self.dependence)
 
     def to_dict(self) -> dict:
-        lo, hi = exact_interval(self.n - self.failures, self.n)
+        lo, hi = clopper_pearson(self.n - self.failures, self.n)
         return {"mechanism": self.mechanism, "output": self.output, "limit": self.upper,
                 "lower_limit": self.lower, "adjust": self.adjust, "tolerances": self.tolerances,
                 "target": self.target, "confidence": self.confidence, "n": self.n,
@@ -597,7 +592,7 @@ def least_cost(mech, tolerances: ToleranceSet, output: str, target: float = 0.99
         zf = ZoneYield(mech, tol, output, spec, fresh, adjust, fast, options)
         for key, (a, b) in (("least_cost", (lo, hi)), ("common", (c_lo, c_hi))):
             f_ok, f_out, f_cannot = zf.counts(a, b)
-            ci = exact_interval(f_ok, check_n)
+            ci = clopper_pearson(f_ok, check_n)
             checks[key] = FreshCheck(check_n, check_seed, f_ok, f_out, f_cannot,
                                      f_ok / check_n, *ci, float(target))
     compare = pd.DataFrame([

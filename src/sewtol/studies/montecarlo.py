@@ -29,9 +29,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
 from sewtol.errors import ParameterError
+from sewtol.intervals import clopper_pearson
 from sewtol.law import STREAM, InputLaw, draw_units, stream_window, unit_streams  # noqa: F401 re-exports draw_units
 from sewtol.mechanism.spec import Spec
 from sewtol.protocol import NO_PLUGINS, machines, plugins
@@ -498,9 +498,7 @@ class MonteCarloResult:
 
     def yield_ci(self, case: str = "adjusted", level: float = 0.95) -> tuple[float, float]:
         """Clopper-Pearson interval of the yield."""
-        ci = stats.binomtest(self.counts(case)["ok"], self.n).proportion_ci(
-            confidence_level=level, method="exact")
-        return float(ci.low), float(ci.high)
+        return clopper_pearson(self.counts(case)["ok"], self.n, level)
 
     def quantiles(self, case: str) -> dict:
         """p50, p95 and p99 of a case's output; failed machines rank as infinitely bad, so they

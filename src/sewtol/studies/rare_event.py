@@ -44,6 +44,7 @@ import pandas as pd
 from scipy import special, stats
 
 from sewtol.errors import ParameterError
+from sewtol.intervals import clopper_pearson
 from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
 from sewtol.studies.adjusting import adjusted, evaluated, failures_of
@@ -335,12 +336,10 @@ def _examples(ls: LimitState, z, value, labels, per_mode: int) -> pd.DataFrame:
 def _binomial(k: int, n: int) -> tuple[float, float, float, float, float]:
     """k failures in n plain Monte-Carlo samples: p = k/n, c.o.v. sqrt((1-p)/(n p)), the
     Clopper-Pearson 95 % interval and the 95 % upper bound (one-sided when k = 0)."""
-    ci = stats.binomtest(k, n).proportion_ci(confidence_level=0.95, method="exact")
-    upper = float(ci.high) if k > 0 else \
-        float(stats.binomtest(k, n).proportion_ci(confidence_level=0.90, method="exact").high)
+    low, high = clopper_pearson(k, n)
+    upper = high if k > 0 else clopper_pearson(k, n, 0.90)[1]
     p = k / n
-    return (p, float(np.sqrt((1 - p) / (n * p))) if k > 0 else float("nan"), float(ci.low),
-            float(ci.high), upper)
+    return (p, float(np.sqrt((1 - p) / (n * p))) if k > 0 else float("nan"), low, high, upper)
 
 
 def _check_common(rng, n, name="n", minimum=2):

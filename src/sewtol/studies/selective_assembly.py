@@ -21,9 +21,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
 from sewtol.errors import ParameterError
+from sewtol.intervals import clopper_pearson
 from sewtol.law import STREAM, InputLaw, unit_streams
 from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
@@ -123,7 +123,7 @@ def selective_assembly(mech, tolerances: ToleranceSet, output: str, pair: tuple[
         lots = [law.ranks(np.random.default_rng(ss).random((STREAM, law.dim))) for ss in streams]
         unmatched = sum(STREAM - len(law.matched(lot)) for lot in lots)
         y = counts["ok"] / n
-        ci = stats.binomtest(counts["ok"], int(n)).proportion_ci(0.95, method="exact")
+        ci_low, ci_high = clopper_pearson(counts["ok"], n)
         lo, hi = 0.0, 1.0
         if plain_yield(1.0) < y:
             for _ in range(FACTOR_STEPS):
@@ -132,7 +132,7 @@ def selective_assembly(mech, tolerances: ToleranceSet, output: str, pair: tuple[
         else:
             lo = 1.0
         rows.append({"groups": int(k), "by": by, "n": int(n), **counts, "yield": y,
-                     "yield_ci_low": float(ci.low), "yield_ci_high": float(ci.high),
+                     "yield_ci_low": ci_low, "yield_ci_high": ci_high,
                      "lots": len(lots), "lot_parts": STREAM, "unmatched_each": unmatched,
                      "unmatched_share": unmatched / (len(lots) * STREAM),
                      "tightening_factor": lo,

@@ -41,11 +41,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
 from sewtol import measurement_error as me
 from sewtol import setting_error as se
 from sewtol.errors import ParameterError
+from sewtol.intervals import clopper_pearson
 from sewtol.measurement_error import MeasurementError
 from sewtol.mechanism.spec import Compensator as FileCompensator
 from sewtol.protocol import input_law, machines, plugins
@@ -316,7 +316,7 @@ class StrategiesResult:
     def row(self, i: int) -> dict:
         name, a = self.names[i], self.adjusted[i]
         c = self.counts(name)
-        ci = stats.binomtest(c["ok"], c["n"]).proportion_ci(0.95, method="exact")
+        ci_low, ci_high = clopper_pearson(c["ok"], c["n"])
         runs = np.isin(self.status(name), ("ok", "out_of_spec"))
         spread = []
         for k, v in a.settings.items():
@@ -329,8 +329,8 @@ class StrategiesResult:
         if self.measurement != "none":  # a column only with the option (the tables before it)
             setting["measurement_error"] = self.measurement if self.compensators[i] else "none"
         return {"strategy": name, "compensators": ",".join(self.compensators[i]) or "-",
-                **setting, **c, "yield": c["ok"] / c["n"], "yield_ci_low": float(ci.low),
-                "yield_ci_high": float(ci.high), **quantiles(a.value),
+                **setting, **c, "yield": c["ok"] / c["n"], "yield_ci_low": ci_low,
+                "yield_ci_high": ci_high, **quantiles(a.value),
                 "settings": "; ".join(spread)}
 
     def to_dataframe(self) -> pd.DataFrame:

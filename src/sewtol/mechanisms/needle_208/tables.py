@@ -23,9 +23,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
 from sewtol.errors import ParameterError
+from sewtol.intervals import clopper_pearson
 from sewtol.measurement_error import MeasurementError
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.needle_208 import beta as sb
@@ -315,7 +315,7 @@ def summarise_frame(machines: pd.DataFrame, strategy: Strategy, limit_um: float)
         raise ParameterError("status", f"must be one of {', '.join(STATUSES)} for every machine",
                              sorted(set(status) - set(STATUSES)))
     k = counts["ok"]
-    ci = stats.binomtest(k, n).proportion_ci(confidence_level=0.95, method="exact")
+    ci_low, ci_high = clopper_pearson(k, n)
     x = np.where(np.isfinite(total), total, np.inf)
     q = {f"p{p}_um": float(np.quantile(x, p / 100, method="higher")) for p in (50, 95, 99)}
     run = total[np.isfinite(total)]
@@ -327,8 +327,8 @@ def summarise_frame(machines: pd.DataFrame, strategy: Strategy, limit_um: float)
                                                   strategy_setting(strategy), strict=True)),
            "n": n, "ok": k,
            "out_of_spec": counts["out of spec"], "cannot_assemble": counts["cannot assemble"],
-           "dead_point": counts["dead point"], "yield": k / n, "yield_ci_low": float(ci.low),
-           "yield_ci_high": float(ci.high), **q, "Cpk": cpk}
+           "dead_point": counts["dead point"], "yield": k / n, "yield_ci_low": ci_low,
+           "yield_ci_high": ci_high, **q, "Cpk": cpk}
     ok = status == "ok"
     any_limit = np.zeros(n, bool)
     for comp in strategy.compensators:
