@@ -457,42 +457,36 @@ def grouped_bars(labels, series: dict, ax=None, ylabel: str = "", title: str = "
     return ax
 
 
-def yield_vs_setting_error(curve, ax=None, label: str | None = None):
-    """The yield of a strategy (%) against one compensator's setting error, with its 95 %
-    interval as a band (`sewtol.studies.strategies.yield_curve`'s result)."""
-    ax = ax or plt.gca()
-    w = np.asarray(curve.widths, float)
+def _yield_band(ax, curve, widths, label, xlabel: str, against: str):
+    """A yield curve (%) against an error's width, its 95 % interval as a band."""
+    w = np.asarray(widths, float)
     y = curve.yields * 100
     lo, hi = (np.array([c[i] for c in curve.yield_ci]) * 100 for i in (0, 1))
     line, = ax.plot(w, y, marker="o", ms=3, label=label or f"{curve.strategy}")
     ax.fill_between(w, lo, hi, color=line.get_color(), alpha=0.2, lw=0)
-    unit = curve.unit.replace("um", MICRO)
-    what = "sd" if curve.dist == "normal" else "half-width"
-    ax.set_xlabel(f"{curve.compensator} setting error, {curve.dist} {what} ({unit})")
+    ax.set_xlabel(xlabel)
     ax.set_ylabel("yield (%)")
     ax.set_ylim(-2, 102)
-    ax.set_title(f"Yield against the setting error, {curve.n} machines "
+    ax.set_title(f"Yield against the {against}, {curve.n} machines "
                  f"({curve.tolerances}, 95 % interval)", fontsize=9)
     ax.grid(True, lw=0.3)
     ax.legend(fontsize=7)
     return ax
+
+
+def yield_vs_setting_error(curve, ax=None, label: str | None = None):
+    """The yield of a strategy (%) against one compensator's setting error, with its 95 %
+    interval as a band (`sewtol.studies.strategies.yield_curve`'s result)."""
+    unit = curve.unit.replace("um", MICRO)
+    what = "sd" if curve.dist == "normal" else "half-width"
+    return _yield_band(ax or plt.gca(), curve, curve.widths, label,
+                       f"{curve.compensator} setting error, {curve.dist} {what} ({unit})",
+                       "setting error")
 
 
 def yield_vs_measurement_error(curve, ax=None, label: str | None = None):
     """The yield of a strategy (%) against the sd of the reading its compensators are set from,
     with its 95 % interval as a band (`sewtol.studies.strategies.measurement_curve`'s result)."""
-    ax = ax or plt.gca()
-    w = np.asarray(curve.sds_um, float)
-    y = curve.yields * 100
-    lo, hi = (np.array([c[i] for c in curve.yield_ci]) * 100 for i in (0, 1))
-    line, = ax.plot(w, y, marker="o", ms=3, label=label or f"{curve.strategy}")
-    ax.fill_between(w, lo, hi, color=line.get_color(), alpha=0.2, lw=0)
-    ax.set_xlabel(f"reading error of the needle path, normal sd ({MICRO}) at "
-                  f"{curve.positions} positions")
-    ax.set_ylabel("yield (%)")
-    ax.set_ylim(-2, 102)
-    ax.set_title(f"Yield against the measurement error, {curve.n} machines "
-                 f"({curve.tolerances}, 95 % interval)", fontsize=9)
-    ax.grid(True, lw=0.3)
-    ax.legend(fontsize=7)
-    return ax
+    return _yield_band(ax or plt.gca(), curve, curve.sds_um, label,
+                       f"reading error of the needle path, normal sd ({MICRO}) at "
+                       f"{curve.positions} positions", "measurement error")
