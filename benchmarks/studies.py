@@ -38,8 +38,8 @@ from sewtol.mechanisms.needle_208.fast_path import fixed_sumdelta_um
 from sewtol.mechanisms.needle_208.kernels import fused as KB
 from sewtol.mechanisms.needle_208.kernels import positions as K
 from sewtol.mechanisms.needle_208.model import Needle208
-from sewtol.mechanisms.needle_208.tables import montecarlo, needle_sobol
 from sewtol.studies.sobol import problem_of, sample
+from sewtol.tables.needle_208 import montecarlo, needle_sobol
 from sewtol.tolerances import NEEDLE_208_SETS
 
 TARGETS = {"million_beta_s": 10.0, "million_beta_shift_s": 20.0, "sobol_2e14_s": 10.0,

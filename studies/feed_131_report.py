@@ -17,13 +17,13 @@ import numpy as np
 
 from sewtol.io import to_json, write_text_atomic
 from sewtol.mechanisms.feed_131 import analysis as feed
-from sewtol.mechanisms.feed_131 import tables as T
 from sewtol.mechanisms.feed_131.model import Feed131
 from sewtol.mechanisms.params import as_dict
 from sewtol.provenance import now, run_record
 from sewtol.reports import plots
 from sewtol.reports.html import Conclusion, Figure, Report, Section, markdown_index, render
 from sewtol.reports.tables import write_table
+from sewtol.tables import feed_131 as T
 
 FIGURES = [("tooth_paths", "Middle-tooth paths with entry/exit and a dot every 30 deg of phi"),
            ("xy_vs_phi", "x and y of the middle teeth against phi; each dog's working part shaded"),

@@ -11,7 +11,7 @@ machines, the recommended set's parameters with the cost of examples/tolerances/
 (sum of 1/t, equal weights: today's cost model), per strategy (beta set per machine in 10..35
 deg, as today's allocation; no adjustment; beta + guide shift). Today's allocation is the
 RSS-shaped one (reports/needle_208/allocation.md: t_i ~ (c_i / s_i^2)^(1/3)), recomputed per
-strategy (sewtol.mechanisms.needle_208.tables.allocate) and brought to the same criterion on the
+strategy (sewtol.tables.needle_208.allocate) and brought to the same criterion on the
 same machines by its largest common scale.
 
 feed: the 131-42+3 feed's lower dog step, within +-0.01 mm of nominal, 90 % with 95 % confidence,
@@ -38,12 +38,12 @@ import pandas as pd
 
 import sewtol
 from sewtol.mechanisms.needle_208 import beta as sb
-from sewtol.mechanisms.needle_208 import tables as T
 from sewtol.mechanisms.needle_208.compensators import strategy_of
 from sewtol.provenance import version_record
 from sewtol.reports.tables import write_table
 from sewtol.studies import allocation as AL
 from sewtol.studies import least_cost as LC
+from sewtol.tables import needle_208 as T
 from sewtol.tolerances import load_toml
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -21,8 +21,8 @@ from sewtol.io import write_text_atomic
 from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME, frame_names, load_frame
 from sewtol.mechanisms.needle_208.model import Needle208
 from sewtol.mechanisms.needle_208.single import nominal_figures
-from sewtol.mechanisms.needle_208.tables import largest_tolerances, montecarlo, needle_sobol, scan
 from sewtol.reports import plots
+from sewtol.tables.needle_208 import largest_tolerances, montecarlo, needle_sobol, scan
 from sewtol.tolerances import NEEDLE_208_SETS
 
 LINKS = ["LF", "LM", "AM", "AB", "BC", "BE", "CD"]

@@ -29,9 +29,9 @@ import pandas as pd
 from sewtol.io import write_text_atomic
 from sewtol.mechanisms.needle_208.compensators import exact, strategy_of
 from sewtol.mechanisms.needle_208.model import Needle208
-from sewtol.mechanisms.needle_208.tables import needle_sobol, strategies_table
 from sewtol.provenance import now, run_record
 from sewtol.reports.tables import write_table
+from sewtol.tables.needle_208 import needle_sobol, strategies_table
 from sewtol.tolerances import NEEDLE_208_HOUSING, NEEDLE_208_HOUSING_SETS
 
 SET = "base_housing"

@@ -25,7 +25,6 @@ from sewtol.dependence import Dependence
 from sewtol.intervals import clopper_pearson
 from sewtol.io import write_text_atomic
 from sewtol.law import InputLaw
-from sewtol.mechanisms.needle_208 import tables as T
 from sewtol.mechanisms.needle_208.compensators import strategy_of
 from sewtol.mechanisms.needle_208.model import Needle208
 from sewtol.protocol import machines
@@ -34,6 +33,7 @@ from sewtol.relations import Relation
 from sewtol.reports.tables import write_table
 from sewtol.studies.rare_event import output_of
 from sewtol.studies.selective_assembly import selective_assembly
+from sewtol.tables import needle_208 as T
 from sewtol.tolerances import NEEDLE_208_SETS
 
 RHOS = (0.0, 0.5, 0.9, 0.99, 0.999)

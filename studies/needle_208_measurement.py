@@ -27,10 +27,10 @@ from sewtol.measurement_error import DEFAULT_POSITIONS  # noqa: E402
 from sewtol.mechanism.spec import Spec  # noqa: E402
 from sewtol.mechanisms.needle_208.compensators import default_strategies  # noqa: E402
 from sewtol.mechanisms.needle_208.model import Needle208  # noqa: E402
-from sewtol.mechanisms.needle_208.tables import as_mechanism  # noqa: E402
 from sewtol.reports import plots  # noqa: E402
 from sewtol.reports.tables import write_table  # noqa: E402
 from sewtol.studies.strategies import measurement_curve  # noqa: E402
+from sewtol.tables.needle_208 import as_mechanism  # noqa: E402
 from sewtol.tolerances import NEEDLE_208_SETS  # noqa: E402
 
 SDS_UM = (0.0, 0.25, 0.5, 1.0, 2.0, 3.0)

@@ -31,14 +31,14 @@ import pandas as pd  # noqa: E402
 
 from sewtol.errors import ParameterError  # noqa: E402
 from sewtol.io import write_text_atomic  # noqa: E402
-from sewtol.mechanisms.needle_208 import tables as NR
 from sewtol.mechanisms.needle_208.model import Needle208  # noqa: E402
-from sewtol.mechanisms.needle_208.tables import allocate  # noqa: E402
 from sewtol.mechanisms.params import as_dict  # noqa: E402
 from sewtol.provenance import now, run_record  # noqa: E402
 from sewtol.reports import plots  # noqa: E402
 from sewtol.reports.tables import write_table  # noqa: E402
 from sewtol.studies import rare_event as R  # noqa: E402
+from sewtol.tables import needle_208 as NR
+from sewtol.tables.needle_208 import allocate  # noqa: E402
 from sewtol.tolerances import NEEDLE_208_SETS, ToleranceSet  # noqa: E402
 
 LIMIT_UM = 10.0

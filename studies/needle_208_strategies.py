@@ -29,12 +29,12 @@ from sewtol.errors import ParameterError  # noqa: E402
 from sewtol.io import write_text_atomic  # noqa: E402
 from sewtol.mechanisms.needle_208.compensators import default_strategies  # noqa: E402
 from sewtol.mechanisms.needle_208.model import Needle208  # noqa: E402
-from sewtol.mechanisms.needle_208.tables import as_mechanism, strategies_table  # noqa: E402
 from sewtol.mechanisms.params import field_names  # noqa: E402
 from sewtol.provenance import now, run_record  # noqa: E402
 from sewtol.reports import plots  # noqa: E402
 from sewtol.reports.tables import write_table  # noqa: E402
 from sewtol.studies.strategies import yield_curve  # noqa: E402
+from sewtol.tables.needle_208 import as_mechanism, strategies_table  # noqa: E402
 from sewtol.tolerances import NEEDLE_208_SETS, resolve_all  # noqa: E402
 
 SETS = ("base", "recommended")

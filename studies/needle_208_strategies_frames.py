@@ -26,10 +26,10 @@ from sewtol.errors import ParameterError
 from sewtol.io import write_text_atomic
 from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME, frame_names
 from sewtol.mechanisms.needle_208.model import Needle208
-from sewtol.mechanisms.needle_208.tables import strategies_table
 from sewtol.mechanisms.params import field_names
 from sewtol.provenance import now, run_record
 from sewtol.reports.tables import write_table
+from sewtol.tables.needle_208 import strategies_table
 from sewtol.tolerances import NEEDLE_208_SETS, resolve_all
 
 SETS = ("base", "recommended")

@@ -21,7 +21,11 @@ from sewtol.errors import ParameterError
 from sewtol.io import to_json, write_text_atomic
 from sewtol.mechanisms.needle_208.model import Needle208
 from sewtol.mechanisms.needle_208.single import deviation_table
-from sewtol.mechanisms.needle_208.tables import (
+from sewtol.mechanisms.params import as_dict, field_names
+from sewtol.provenance import now, run_record
+from sewtol.reports import plots
+from sewtol.reports.tables import write_table
+from sewtol.tables.needle_208 import (
     allocate,
     compare_guides,
     largest_tolerances,
@@ -30,10 +34,6 @@ from sewtol.mechanisms.needle_208.tables import (
     scan,
     worst_case_table,
 )
-from sewtol.mechanisms.params import as_dict, field_names
-from sewtol.provenance import now, run_record
-from sewtol.reports import plots
-from sewtol.reports.tables import write_table
 from sewtol.tolerances import NEEDLE_208_SETS, resolve_all
 
 SCAN_COLUMNS = {"param": "parameter", "side": "limit", "delta_mm": "deviation (mm)",

@@ -19,10 +19,10 @@ import pandas as pd
 from sewtol.io import to_json, write_text_atomic
 from sewtol.mechanisms.params import as_dict
 from sewtol.mechanisms.presser_foot import model as PF
-from sewtol.mechanisms.presser_foot import tables as S
 from sewtol.provenance import now, run_record
 from sewtol.reports import plots
 from sewtol.reports.tables import write_table
+from sewtol.tables import presser_foot as S
 
 
 def main(argv=None) -> None:

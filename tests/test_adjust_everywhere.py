@@ -92,8 +92,8 @@ def test_sobol_adjust_beta_matches_todays_adjusted_case():
 
 def test_sobol_model_chunk_calls_adjust():
     from cli_helpers import beta_adjusted, fixed_um
-    from sewtol.mechanisms.needle_208.tables import as_mechanism, held
     from sewtol.studies.sobol import case_values, problem_of, sample
+    from sewtol.tables.needle_208 import as_mechanism, held
 
     tol = NEEDLE_208_SETS["base"]
     nom = Needle208.nominal()
@@ -141,7 +141,7 @@ def test_guides_cli_adjust_beta_equals_montecarlo_yields():
 
 
 def test_guides_with_guide_shift_beats_beta_alone():
-    from sewtol.mechanisms.needle_208.tables import compare_guides
+    from sewtol.tables.needle_208 import compare_guides
 
     nom, tol = Needle208.nominal(), NEEDLE_208_SETS["base"]
     beta = compare_guides(nom, tol, 200, 1, strategy=strategy_of(("beta",)))
@@ -178,7 +178,7 @@ def test_allocation_cli_beta_and_shift_widens_ab_be():
 
 def test_allocation_yield_is_what_it_reports():
     """Recompute the strategy allocation's yield on its common random numbers with adjust()."""
-    from sewtol.mechanisms.needle_208.tables import allocate
+    from sewtol.tables.needle_208 import allocate
 
     nom, tol = Needle208.nominal(), NEEDLE_208_SETS["base"]
     st = strategy_of(("beta", "guide_shift_um"))
@@ -211,7 +211,7 @@ def test_worst_case_with_a_strategy():
     one cannot rise either; the strategy 'beta' agrees with the beta-only path at the corners."""
     from sewtol.mechanisms.needle_208.compensators import strategy_of
     from sewtol.mechanisms.needle_208.model import Needle208
-    from sewtol.mechanisms.needle_208.tables import worst_case_table
+    from sewtol.tables.needle_208 import worst_case_table
     from sewtol.tolerances import NEEDLE_208_SETS
 
     p, ts = Needle208.nominal(), NEEDLE_208_SETS["base"]

@@ -8,7 +8,7 @@ import numpy as np
 
 from cli_helpers import run
 from sewtol import Needle208
-from sewtol.mechanisms.needle_208.tables import largest_tolerances
+from sewtol.tables.needle_208 import largest_tolerances
 
 
 def test_largest_tolerances_command_prints_the_api_table_with_its_context():

@@ -13,8 +13,8 @@ from scipy import stats
 from cli_helpers import run, strict_loads
 from sewtol.cli import resolve_progress
 from sewtol.errors import ParameterError
-from sewtol.mechanisms.needle_208.tables import montecarlo
 from sewtol.studies.sobol import case_indices, sample
+from sewtol.tables.needle_208 import montecarlo
 from sewtol.tolerances import NEEDLE_208_SETS, Tolerance, ToleranceSet, load_toml
 
 
@@ -277,8 +277,8 @@ def test_pareto_of_the_needle_is_mostly_interaction(nominal):
 
 
 def test_feed_scan_from_the_cli_is_the_library_scan():
-    from sewtol.mechanisms.feed_131 import tables as feed
     from sewtol.mechanisms.feed_131.model import Feed131
+    from sewtol.tables import feed_131 as feed
 
     code, out, err = run("feed", "scan", "--format", "json", "--set", "b=25")
     assert code == 0, err
@@ -292,9 +292,9 @@ def test_feed_scan_from_the_cli_is_the_library_scan():
 
 
 def test_feed_montecarlo_and_sobol_from_the_cli(tmp_path):
-    from sewtol.mechanisms.feed_131 import tables as feed
     from sewtol.mechanisms.feed_131.model import Feed131
     from sewtol.studies.montecarlo import EXPLAINED, REMAINDER
+    from sewtol.tables import feed_131 as feed
 
     out = tmp_path / "mc"
     code, text, err = run("feed", "montecarlo", "--n", "100", "--seed", "3", "--format", "json",
@@ -387,7 +387,7 @@ def test_adjusted_scan_flags_the_same_rows():
 def test_second_order_shows_the_ab_be_interaction_of_the_needle(nominal):
     """Base set: AB and BE have S1 ~ 0.13 but ST ~ 0.87; S2 names the partner: AB x BE carries
     the gap (0.75 +/- 0.27 at N = 256; 0.78 +/- 0.14 at N = 1024)."""
-    from sewtol.mechanisms.needle_208.tables import needle_sobol
+    from sewtol.tables.needle_208 import needle_sobol
 
     res = needle_sobol(nominal, NEEDLE_208_SETS["base"], 256, seed=1, second_order=True)
     assert res.model_runs == 256 * (2 * 6 + 2)
@@ -473,7 +473,7 @@ def test_a_flag_has_one_type_default_and_arity_in_every_command():
 
 def test_montecarlo_and_compare_guides_agree_on_the_same_machine(nominal):
     """Trap 1 in the API: the guide comparison's nominal row is montecarlo's fixed case."""
-    from sewtol.mechanisms.needle_208.tables import compare_guides
+    from sewtol.tables.needle_208 import compare_guides
 
     shifted = nominal.override(guide_shift_um=20.0)
     table = compare_guides(shifted, NEEDLE_208_SETS["base"], 150, 3,

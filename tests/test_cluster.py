@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 
 from sewtol.cli import main
-from sewtol.mechanisms.needle_208.tables import as_mechanism, montecarlo, needle_sobol
 from sewtol.studies import parallel
 from sewtol.studies.checkpoint import ChunkStore
 from sewtol.studies.montecarlo import _file_model, sample_machines
+from sewtol.tables.needle_208 import as_mechanism, montecarlo, needle_sobol
 from sewtol.tolerances import NEEDLE_208_SETS
 
 distributed = pytest.importorskip("distributed")

@@ -71,7 +71,7 @@ def address(tmp_path_factory):
 
 
 def test_two_worker_processes_give_the_local_numbers(address, nominal):
-    from sewtol.mechanisms.needle_208.tables import montecarlo
+    from sewtol.tables.needle_208 import montecarlo
     from sewtol.tolerances import NEEDLE_208_SETS
 
     rec = NEEDLE_208_SETS["recommended"]

@@ -15,7 +15,7 @@ from cli_helpers import run, stretched_CD, strict_loads
 from sewtol.errors import AssemblyError, ParameterError
 from sewtol.mechanisms.needle_208 import model as nd
 from sewtol.mechanisms.needle_208.model import Needle208
-from sewtol.mechanisms.needle_208.tables import montecarlo
+from sewtol.tables.needle_208 import montecarlo
 from sewtol.tolerances import NEEDLE_208_SETS, Tolerance, ToleranceSet
 
 

@@ -257,8 +257,8 @@ def test_beta_only_yield_under_the_copula_matches_an_independent_model(rho, seed
     ot = pytest.importorskip("openturns")
     sys.path.insert(0, str(Path(__file__).parent))
     from cli_helpers import beta_adjusted
-    from sewtol.mechanisms.needle_208 import tables as T
     from sewtol.mechanisms.needle_208.compensators import strategy_of
+    from sewtol.tables import needle_208 as T
     from sewtol.tolerances import NEEDLE_208_SETS
 
     n = 4000
@@ -283,8 +283,8 @@ def test_needle_allocation_draws_its_trials_from_the_copula(monkeypatch):
     """The needle's allocation builds its own trial sets (shapes scaled by k): they keep the
     set's copula, so AB and BE tied at 0.99 allow a larger common scale than untied at a 99 %
     yield after beta (the same seed, the same uniforms: only the ties differ)."""
-    from sewtol.mechanisms.needle_208 import tables as T
     from sewtol.studies import allocation as A
+    from sewtol.tables import needle_208 as T
     from sewtol.tolerances import NEEDLE_208_SETS
 
     seen = []

@@ -9,8 +9,8 @@ from sewtol.errors import AssemblyError, ParameterError
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.feed_131 import analysis as feed
 from sewtol.mechanisms.feed_131 import model as fd
-from sewtol.mechanisms.feed_131 import tables as T
 from sewtol.mechanisms.feed_131.model import Feed131
+from sewtol.tables import feed_131 as T
 
 
 @pytest.fixture(scope="module")

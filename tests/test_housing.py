@@ -14,7 +14,7 @@ from sewtol.errors import ParameterError
 from sewtol.mechanism import load
 from sewtol.mechanisms import mechanism_file
 from sewtol.mechanisms.needle_208.compensators import strategy_of
-from sewtol.mechanisms.needle_208.tables import allocate
+from sewtol.tables.needle_208 import allocate
 from sewtol.tolerances import (
     NEEDLE_208_HOUSING,
     NEEDLE_208_HOUSING_SETS,

@@ -308,9 +308,9 @@ def test_strategies_in_chunks_are_the_strategies_in_one_piece():
     them: machine by machine the same numbers as one piece (compared exactly)."""
     from sewtol.mechanisms.needle_208.compensators import default_strategies
     from sewtol.mechanisms.needle_208.model import Needle208
-    from sewtol.mechanisms.needle_208.tables import as_mechanism
     from sewtol.protocol import machines
     from sewtol.studies import strategies as S
+    from sewtol.tables.needle_208 import as_mechanism
     from sewtol.tolerances import NEEDLE_208_SETS
 
     mech = as_mechanism(Needle208.nominal())

@@ -259,10 +259,10 @@ def test_a_newcomer_adds_a_folder_and_runs_it_by_name(tmp_path, monkeypatch):
     assert {p.name: p.read_bytes() for p in (SRC / "studies").glob("*.py")} == studies_before
 
 
-@pytest.mark.parametrize("name", ["feed_131", "presser_foot"])
+@pytest.mark.parametrize("name", ["needle_208", "feed_131", "presser_foot", "m6_needle"])
 def test_folder_holds_no_module_named_after_a_study(name):
-    """Their tolerance studies run through sewtol.studies; the folder keeps the model, its own
-    analysis and the adapter to the studies' tables (feed_131/tables.py, presser_foot/tables.py)."""
+    """Their studies run through sewtol.studies; the folder keeps the model, its data, kernels and
+    adjusters, and the tables in the source's columns live in sewtol.tables."""
     studies = {"scan.py", "montecarlo.py", "sobol.py", "ppm.py", "allocation.py", "strategies.py",
-               "guides.py", "studies.py"}
-    assert not studies & {p.name for p in (SRC / "mechanisms" / name).glob("*.py")}
+               "guides.py", "studies.py", "tables.py", "worst_case.py", "rare_event.py"}
+    assert not studies & {p.name for p in (SRC / "mechanisms" / name).rglob("*.py")}

@@ -20,9 +20,9 @@ from sewtol.mechanisms.needle_208.adjust import PLATEAU_TOL_UM
 from sewtol.mechanisms.needle_208.adjustment import adjust, columns_of
 from sewtol.mechanisms.needle_208.compensators import Strategy, exact, strategy_of
 from sewtol.mechanisms.needle_208.measurement import adjust_measured
-from sewtol.mechanisms.needle_208.tables import as_mechanism, needle_set, strategies_table
 from sewtol.protocol import input_law
 from sewtol.studies import strategies as ST
+from sewtol.tables.needle_208 import as_mechanism, needle_set, strategies_table
 
 SEED = 2026
 

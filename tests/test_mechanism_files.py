@@ -356,7 +356,7 @@ def test_transmission_outputs_match_the_exact_extremes():
 
 
 def test_generic_worst_case_equals_builtin_fixed_beta_worst_case(nominal):
-    from sewtol.mechanisms.needle_208.tables import worst_case
+    from sewtol.tables.needle_208 import worst_case
     from sewtol.tolerances import NEEDLE_208_SETS
 
     built = worst_case(nominal, NEEDLE_208_SETS["base"], adjust=False)
@@ -450,7 +450,7 @@ def test_adjusted_case_matches_the_builtin_beta_optimum(nominal):
 
 
 def test_adjusted_scan_equals_the_builtin_scan(nominal):
-    from sewtol.mechanisms.needle_208.tables import scan
+    from sewtol.tables.needle_208 import scan
     from sewtol.tolerances import NEEDLE_208_SETS
 
     mech = load(NEEDLE)

@@ -15,7 +15,7 @@ from scipy.optimize import brentq
 from sewtol.errors import ParameterError
 from sewtol.mechanisms.presser_foot import kernel as K
 from sewtol.mechanisms.presser_foot import model as PF
-from sewtol.mechanisms.presser_foot import tables as S
+from sewtol.tables import presser_foot as S
 
 R, L, A = 17.5, 42.0, 8.0
 

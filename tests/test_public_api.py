@@ -16,7 +16,7 @@ def test_every_public_name_resolves():
 
 
 def test_a_study_from_the_public_namespace_equals_the_module_path():
-    from sewtol.mechanisms.needle_208.tables import montecarlo
+    from sewtol.tables.needle_208 import montecarlo
     from sewtol.tolerances import NEEDLE_208_SETS
 
     ts = sewtol.tolerance_set("recommended")

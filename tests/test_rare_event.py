@@ -12,8 +12,8 @@ from scipy import special, stats
 
 from cli_helpers import run, strict_loads
 from sewtol.errors import ParameterError
-from sewtol.mechanisms.needle_208 import tables as NR
 from sewtol.studies import rare_event as R
+from sewtol.tables import needle_208 as NR
 from sewtol.tolerances import Tolerance, ToleranceSet
 
 PHI_M5 = float(special.ndtr(-5.0))  # 2.867e-7

@@ -232,9 +232,9 @@ def test_worst_case_searches_the_polytope_the_relations_leave():
 def test_needle_worst_case_with_ab_minus_be_limited_is_lower_and_keeps_the_relation():
     """Fixed beta: 123.5 um over the base box; with |AB - BE| <= 0.01 the worst machine keeps
     the relation and no machine of the conditioned law (4000 drawn) is worse."""
-    from sewtol.mechanisms.needle_208 import tables as T
     from sewtol.protocol import machines
     from sewtol.studies.adjusting import evaluated
+    from sewtol.tables import needle_208 as T
 
     nominal = Needle208.nominal()
     held = replace(NEEDLE_208_SETS["base"], name="held",

@@ -17,8 +17,8 @@ from sewtol.mechanisms.feed_131 import analysis as feed
 from sewtol.mechanisms.feed_131.model import Feed131
 from sewtol.mechanisms.needle_208 import model as nd
 from sewtol.mechanisms.needle_208.model import Needle208
-from sewtol.mechanisms.needle_208.tables import montecarlo
 from sewtol.mechanisms.params import field_names
+from sewtol.tables.needle_208 import montecarlo
 from sewtol.tolerances import Tolerance, ToleranceSet
 
 

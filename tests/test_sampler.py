@@ -8,16 +8,16 @@ import numpy as np
 
 from sewtol.mechanism import load
 from sewtol.mechanisms.needle_208 import compensators as C
-from sewtol.mechanisms.needle_208.tables import (
+from sewtol.studies import allocation as AL
+from sewtol.studies import montecarlo as mc
+from sewtol.studies import rare_event as PPM
+from sewtol.studies import rare_event as R
+from sewtol.tables.needle_208 import (
     allocate,
     montecarlo,
     needle_limit_state,
     strategies_table,
 )
-from sewtol.studies import allocation as AL
-from sewtol.studies import montecarlo as mc
-from sewtol.studies import rare_event as PPM
-from sewtol.studies import rare_event as R
 from sewtol.tolerances import NEEDLE_208_SETS
 
 FILE = str(Path(__file__).parent / "data" / "crank_slider.toml")

@@ -110,10 +110,10 @@ def test_needle_selective_assembly_against_tightening():
     the plain Monte-Carlo; the tightening factor f on AB and BE alone reaches that yield
     unmatched (same machines) and f + 2^-12 does not. Measured (n 2000, seed 1): 9.3, 15.9,
     27.7 % at k 1, 2, 4; AB, BE +/-0.027 and +/-0.014 mm give the same."""
-    from sewtol.mechanisms.needle_208 import tables as T
     from sewtol.protocol import machines
     from sewtol.studies.rare_event import output_of
     from sewtol.studies.selective_assembly import FACTOR_STEPS, selective_assembly
+    from sewtol.tables import needle_208 as T
 
     mech = T.as_mechanism(Needle208.nominal())
     beta = {"beta": (10.0, 35.0)}

@@ -17,11 +17,11 @@ from sewtol.law import STREAM
 from sewtol.mechanism import loads
 from sewtol.mechanisms import mechanism_file
 from sewtol.mechanisms.needle_208 import compensators as C
-from sewtol.mechanisms.needle_208.tables import as_mechanism, needle_set, strategies_table
 from sewtol.protocol import input_law, machines
 from sewtol.setting_error import SettingError
 from sewtol.studies import strategies as ST
 from sewtol.studies.adjusting import adjusted
+from sewtol.tables.needle_208 import as_mechanism, needle_set, strategies_table
 
 ROOT = Path(__file__).resolve().parents[1]
 T = C.NEEDLE_COMPENSATORS

@@ -10,8 +10,8 @@ from SALib.analyze import sobol as sobol_analyze
 
 from cli_helpers import run, strict_loads
 from sewtol.mechanism import load
-from sewtol.mechanisms.needle_208.tables import needle_sobol
 from sewtol.studies import sobol as so
+from sewtol.tables.needle_208 import needle_sobol
 from sewtol.tolerances import Tolerance, ToleranceSet
 
 PI = np.pi

@@ -10,8 +10,8 @@ from sewtol.mechanisms.needle_208 import compensators as C
 from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208.adjustment import adjust, columns_of, shift_optimum
 from sewtol.mechanisms.needle_208.kernels import positions as KP
-from sewtol.mechanisms.needle_208.tables import strategies_table, summarise_frame
 from sewtol.studies.montecarlo import draw_deviations
+from sewtol.tables.needle_208 import strategies_table, summarise_frame
 from sewtol.tolerances import NEEDLE_208_SETS
 
 PHI = np.linspace(0.0, 2 * np.pi, 8001)
@@ -353,7 +353,7 @@ def test_cli_strategies_takes_a_frame_and_prints_strict_json(tmp_path):
 
 
 def test_allocation_takes_a_strategy(nominal):
-    from sewtol.mechanisms.needle_208.tables import allocate
+    from sewtol.tables.needle_208 import allocate
 
     ref = NEEDLE_208_SETS["recommended"]
     shift = C.strategy_of(("beta", "guide_shift_um"))

@@ -13,7 +13,7 @@ import pandas as pd
 from sewtol.mechanisms.needle_208.compensators import default_strategies
 from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME, frame_names
 from sewtol.mechanisms.needle_208.model import Needle208
-from sewtol.mechanisms.needle_208.tables import strategies_table
+from sewtol.tables.needle_208 import strategies_table
 from sewtol.tolerances import NEEDLE_208_SETS
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -6,9 +6,9 @@ import pytest
 
 from sewtol.errors import ParameterError
 from sewtol.mechanisms.needle_208 import beta as sb
-from sewtol.mechanisms.needle_208.tables import montecarlo, scan, worst_case
 from sewtol.optimize import bisect_root
 from sewtol.studies.sobol import case_indices, sample
+from sewtol.tables.needle_208 import montecarlo, scan, worst_case
 from sewtol.tolerances import NEEDLE_208_SETS, Tolerance, ToleranceSet
 
 
@@ -149,9 +149,9 @@ def test_sobol_confidence_intervals_repeat_for_seed_zero():
 def test_named_failures_leaves_the_callers_table_as_it_was(nominal):
     """named_failures takes a shallow copy: its new status columns never reach the frame it
     was given (the failing machines' reasons come from the plug-in on those machines only)."""
-    from sewtol.mechanisms.needle_208.tables import as_mechanism
     from sewtol.protocol import plugins
     from sewtol.studies.montecarlo import _file_model, named_failures, sample_machines
+    from sewtol.tables.needle_208 import as_mechanism
 
     mech = as_mechanism(nominal)
     wild = ToleranceSet("wild", (Tolerance("CD", -25.0, 0.0),))

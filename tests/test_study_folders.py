@@ -19,8 +19,8 @@ from cli_helpers import run
 from sewtol.errors import ParameterError
 from sewtol.io import write_text_atomic
 from sewtol.mechanisms.needle_208.model import Needle208
-from sewtol.mechanisms.needle_208.tables import montecarlo
 from sewtol.studies.checkpoint import LOCK_NAME, ChunkStore
+from sewtol.tables.needle_208 import montecarlo
 from sewtol.tolerances import NEEDLE_208_SETS
 
 

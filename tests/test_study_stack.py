@@ -13,7 +13,6 @@ from sewtol.errors import ParameterError
 from sewtol.mechanism import load
 from sewtol.mechanisms import mechanism_file
 from sewtol.mechanisms.needle_208 import fast_path as FP
-from sewtol.mechanisms.needle_208 import tables as T
 from sewtol.mechanisms.needle_208.adjust import PLATEAU_TOL_UM
 from sewtol.mechanisms.needle_208.compensators import strategy_of
 from sewtol.studies import generic as G
@@ -21,6 +20,7 @@ from sewtol.studies import scan as S
 from sewtol.studies import settings as ST
 from sewtol.studies import worst_case as W
 from sewtol.studies.adjusting import adjusted, evaluated
+from sewtol.tables import needle_208 as T
 from sewtol.tolerances import NEEDLE_208_SETS
 
 

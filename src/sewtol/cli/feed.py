@@ -97,8 +97,8 @@ def cmd_feed_regulator(args):
 
 def _feed_tolerances(args, params):
     from sewtol.mechanisms.feed_131.model import Feed131
-    from sewtol.mechanisms.feed_131.tables import default_tolerances
     from sewtol.mechanisms.params import field_names
+    from sewtol.tables.feed_131 import default_tolerances
     from sewtol.tolerances import resolve
 
     builtin = {"assumed": default_tolerances(params)}
@@ -139,8 +139,8 @@ def _feed_write(args, kind, params, tolerances, started, obj, frames, **extra):
 
 
 def cmd_feed_scan(args):
-    from sewtol.mechanisms.feed_131.tables import scan
     from sewtol.provenance import now
+    from sewtol.tables.feed_131 import scan
 
     params, tolerances = _feed_study(args)
     started = now()
@@ -154,9 +154,9 @@ def cmd_feed_scan(args):
 
 
 def cmd_feed_montecarlo(args):
-    from sewtol.mechanisms.feed_131 import tables as feed
     from sewtol.provenance import now
     from sewtol.studies.montecarlo import check_sampling
+    from sewtol.tables import feed_131 as feed
 
     check_n(args.n, minimum=CONTRIBUTOR_BINS + 1)
     params, tolerances = _feed_study(args)
@@ -198,9 +198,9 @@ def _contributor_figure(contrib, ax):
 
 
 def cmd_feed_sobol(args):
-    from sewtol.mechanisms.feed_131 import tables as feed
     from sewtol.provenance import now
     from sewtol.studies.sobol import check_power_of_two
+    from sewtol.tables import feed_131 as feed
 
     as_flags(check_power_of_two, args.n)  # its error names --n
     check_n(args.n_screen, "--n-screen", minimum=100)

@@ -104,7 +104,7 @@ def _at_beta_star(args, params, strategy=None):
 
 def _fixed_record(args, params, strategy=None) -> dict:
     """The fixed case's beta, what it means, and whether that beta* lies on a range bound."""
-    from sewtol.mechanisms.needle_208.tables import FIXED_BETA_MEANS
+    from sewtol.tables.needle_208 import FIXED_BETA_MEANS
 
     return {"fixed_beta_deg": float(params.beta), "fixed_beta_means": FIXED_BETA_MEANS["optimum"],
             "fixed_beta_at_bound": _beta_star_figures(args, params, strategy).beta_at_bound}
@@ -227,7 +227,7 @@ def cmd_needle_deviation(args):
 
 
 def cmd_needle_scan(args):
-    from sewtol.mechanisms.needle_208.tables import scan
+    from sewtol.tables.needle_208 import scan
 
     strategy = _strategy(args)
     _check_beta_range(args)
@@ -288,12 +288,12 @@ def _plateau_notes(frame, range_deg) -> list[str]:
 
 
 def cmd_needle_montecarlo(args):
-    """Beta fixed and adjusted per machine (needle_208.tables.montecarlo), or with --adjust the
+    """Beta fixed and adjusted per machine (tables.needle_208.montecarlo), or with --adjust the
     per-machine table of one strategy, each with its study folder and cluster. `run FILE
     montecarlo` on the needle fast path runs this command itself (args.file_inputs names the
     file in run.json), so both print the same bytes."""
-    from sewtol.mechanisms.needle_208.tables import montecarlo
     from sewtol.studies.montecarlo import CHUNK, check_sampling
+    from sewtol.tables.needle_208 import montecarlo
 
     check_n(args.n)
     check_study(args)
@@ -408,8 +408,8 @@ def _strategy_record(strategy) -> dict:
 
 def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
     """needle montecarlo --adjust: the per-machine table of one strategy and its summary."""
-    from sewtol.mechanisms.needle_208.tables import adjusted_montecarlo_model, summarise_frame
     from sewtol.studies.montecarlo import CHUNK, sample_machines
+    from sewtol.tables.needle_208 import adjusted_montecarlo_model, summarise_frame
 
     params = _at_beta_star(args, params, strategy)
     inputs = study_inputs(args, "montecarlo_adjusted", params, tolerances, limit_um=limit,
@@ -449,8 +449,8 @@ def _measurement(args):
 
 def cmd_needle_strategies(args):
     from sewtol.mechanisms.needle_208.compensators import Strategy, default_strategies
-    from sewtol.mechanisms.needle_208.tables import strategies_table
     from sewtol.provenance import now
+    from sewtol.tables.needle_208 import strategies_table
 
     check_n(args.n)
     check_study(args)
@@ -507,9 +507,9 @@ def _adjust_options(p):
 
 
 def cmd_needle_sobol(args):
-    from sewtol.mechanisms.needle_208.tables import needle_sobol
     from sewtol.provenance import now
     from sewtol.studies.sobol import CHUNK, check_power_of_two, check_sobol
+    from sewtol.tables.needle_208 import needle_sobol
 
     as_flags(check_power_of_two, args.n)  # its error names --n
     check_study(args)
@@ -581,7 +581,7 @@ def _small_study(args):
 
 
 def cmd_needle_guides(args):
-    from sewtol.mechanisms.needle_208.tables import compare_guides
+    from sewtol.tables.needle_208 import compare_guides
 
     strategy, params, tolerances = _small_study(args)
     _check_beta_range(args)
@@ -604,7 +604,7 @@ def cmd_needle_guides(args):
 
 
 def cmd_needle_allocation(args):
-    from sewtol.mechanisms.needle_208.tables import allocate
+    from sewtol.tables.needle_208 import allocate
 
     if not (np.isfinite(args.target) and 0 < args.target < 1):
         raise ParameterError("--target", "must be a yield strictly between 0 and 1",
@@ -638,7 +638,7 @@ def allocation_figure(table, reference: str, target: float, ax):
 
 
 def cmd_needle_worst_case(args):
-    from sewtol.mechanisms.needle_208.tables import MAX_CORNER_PARAMS, worst_case_table
+    from sewtol.tables.needle_208 import MAX_CORNER_PARAMS, worst_case_table
 
     strategy = _strategy(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
@@ -672,8 +672,8 @@ def cmd_needle_worst_case(args):
 
 def cmd_needle_largest_tolerances(args):
     from sewtol.mechanisms.needle_208.model import LENGTHS, Needle208
-    from sewtol.mechanisms.needle_208.tables import largest_tolerances
     from sewtol.mechanisms.params import field_names
+    from sewtol.tables.needle_208 import largest_tolerances
     from sewtol.tolerances import is_branch
 
     _check_beta_range(args)
@@ -701,9 +701,9 @@ def cmd_needle_largest_tolerances(args):
 
 
 def cmd_needle_ppm(args):
-    from sewtol.mechanisms.needle_208 import tables as NR
     from sewtol.provenance import now
     from sewtol.studies import rare_event as R
+    from sewtol.tables import needle_208 as NR
 
     check_study(args)
     _check_beta_range(args)

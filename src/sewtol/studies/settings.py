@@ -9,7 +9,7 @@ machines draws the same ones from its seed on every row: common random numbers).
 
 `figures(machine, setting) -> dict` is the study of each row; the default is the nominal
 machine's status and every output (`sewtol run FILE settings --set NAME:PARAM=V,...`). A
-mechanism's own comparison (the needle's guide placements, needle_208/tables.py) is an instance
+mechanism's own comparison (the needle's guide placements, tables/needle_208.py) is an instance
 with its own figures.
 """
 

@@ -17,8 +17,8 @@ the exact SumDelta kernel, the exact beta / beta + guide-shift adjuster, the str
 adjuster, the failure naming and the source's column names as data).
 
 No study lives here: every study is written once in sewtol.studies and runs on this machine as
-a protocol mechanism; ``tables.py`` (``as_mechanism``) gives their tables in the source's
-columns and words (scan, worst case, Monte-Carlo, strategies, Sobol, ppm, allocation, the guide
+a protocol mechanism; ``sewtol.tables.needle_208`` (``as_mechanism``) gives their tables in
+the source's columns and words (scan, worst case, Monte-Carlo, strategies, Sobol, ppm, allocation, the guide
 settings compared). ``calibration.py`` reconstructs the unpublished frame.
 """
 

@@ -3,7 +3,7 @@
 ``mechanism.toml`` is the crank-slider as data with the contact cycle as a custom output;
 ``model.py`` the crank-slider and the foot on its spring, with the fitted stiffness and mass
 and the spring's identifiability bound; ``kernel.py`` the event-driven contact dynamics (numba);
-``tables.py`` its Monte-Carlo and scan tables.
+``sewtol.tables.presser_foot`` its Monte-Carlo and scan tables.
 """
 
 # the custom output kind a mechanism file may name, and the module that registers it
