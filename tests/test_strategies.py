@@ -11,7 +11,7 @@ from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208.adjustment import adjust, columns_of, shift_optimum
 from sewtol.mechanisms.needle_208.kernels import positions as KP
 from sewtol.studies.montecarlo import draw_deviations
-from sewtol.tables.needle_208 import strategies_table, summarise_frame
+from sewtol.tables.needle_208 import adjusted_summary, strategies_table
 from sewtol.tolerances import NEEDLE_208_SETS
 
 PHI = np.linspace(0.0, 2 * np.pi, 8001)
@@ -199,6 +199,7 @@ def test_discrete_never_beats_continuous(nominal):
 def test_adding_a_compensator_never_lowers_the_yield(nominal):
     res = strategies_table(nominal, NEEDLE_208_SETS["base"], 6, seed=3)
     table = res.to_dataframe().set_index("strategy")
+    adj = dict(zip(res.names, res.adjustments, strict=True))
     assert list(table.index) == ["none", "beta", "beta+shift", "beta+shift+angle",
                                  "beta+shift+angle exact", "beta+CD", "all"]
     # counts add up to n in every row
@@ -211,7 +212,7 @@ def test_adding_a_compensator_never_lowers_the_yield(nominal):
         for a, b in zip(chain, chain[1:], strict=False):
             assert table.loc[b, "yield"] >= table.loc[a, "yield"]
             # machine by machine too (the same machines in every row), to the stated precision
-            assert np.all(res.get(b).total_um <= res.get(a).total_um + 0.01)
+            assert np.all(adj[b].total_um <= adj[a].total_um + 0.01)
     # the source's practice: beta plus a guide move buys more than beta alone on base tolerances
     assert table.loc["beta+shift", "p50_um"] < table.loc["beta", "p50_um"]
     # at_limit split into one column per compensator, each the share of its machines' flags
@@ -220,7 +221,7 @@ def test_adding_a_compensator_never_lowers_the_yield(nominal):
     at = columns.index("at_limit_share")
     assert columns[at + 1:at + 5] == split and "at_limit" in columns
     for strategy in table.index:
-        names = [c.name for c in res.get(strategy).strategy.compensators]
+        names = [c.name for c in adj[strategy].strategy.compensators]
         flags = {c: res.machines(strategy)[f"{c}_at_limit"].to_numpy(bool) for c in names}
         for col in split:
             name = col.removeprefix("at_limit_")
@@ -239,7 +240,7 @@ def test_machine_that_cannot_assemble_keeps_its_row(nominal):
     assert np.isnan(adj.total_um[1]) and np.isnan(adj.settings["beta"][1])
     frame = adj.to_dataframe()
     assert len(frame) == 3 and frame.loc[1, "status"] == "cannot assemble"
-    row = summarise_frame(adj.to_dataframe(), adj.strategy, adj.limit_um).iloc[0]
+    row = adjusted_summary(nominal, adj.to_dataframe(), adj.strategy, adj.limit_um).iloc[0]
     assert row["ok"] + row["out_of_spec"] + row["cannot_assemble"] + row["dead_point"] == 3
     assert row["cannot_assemble"] == 1
     assert row["p99_um"] == np.inf

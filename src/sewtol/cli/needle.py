@@ -409,7 +409,7 @@ def _strategy_record(strategy) -> dict:
 def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
     """needle montecarlo --adjust: the per-machine table of one strategy and its summary."""
     from sewtol.studies.montecarlo import CHUNK, sample_machines
-    from sewtol.tables.needle_208 import adjusted_montecarlo_model, summarise_frame
+    from sewtol.tables.needle_208 import adjusted_montecarlo_model, adjusted_summary
 
     params = _at_beta_star(args, params, strategy)
     inputs = study_inputs(args, "montecarlo_adjusted", params, tolerances, limit_um=limit,
@@ -421,7 +421,7 @@ def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
                                    args.seed, args.n_jobs, args.progress, store=store,
                                    chunk_size=CHUNK, scheduler=client, strategy=strategy,
                                    limit_um=limit)
-        summary = summarise_frame(machines, strategy, limit)
+        summary = adjusted_summary(params, machines, strategy, limit)
         record = {**summary.iloc[0].to_dict(), "seed": args.seed, "tolerances": tolerances.name,
                   "compensators": _strategy_record(strategy),
                   **_fixed_record(args, params, strategy),

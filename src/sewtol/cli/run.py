@@ -516,7 +516,8 @@ def _inputs(args, mech, tolerances) -> dict:
 def _finish(args, fmt, mech, tolerances, obj, frames, frame) -> None:
     from sewtol.provenance import now
 
-    obj = {**obj, "context": _run_context(args, mech, tolerances)}
+    # a study's own context (strategies: its rows, output and spec) adds to the run's
+    obj = {**obj, "context": {**_run_context(args, mech, tolerances), **obj.get("context", {})}}
 
     if args.out:
         write_outputs(args, args.study.replace("-", "_"), _inputs(args, mech, tolerances), now(),

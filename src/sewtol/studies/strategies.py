@@ -37,7 +37,7 @@ for every row and every level of `measurement_curve` (only the scale changes); s
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
@@ -48,10 +48,10 @@ from sewtol.errors import ParameterError
 from sewtol.intervals import clopper_pearson
 from sewtol.measurement_error import MeasurementError
 from sewtol.mechanism.spec import Compensator as FileCompensator
-from sewtol.protocol import input_law, machines, plugins
+from sewtol.protocol import input_law, machines, plugins, tolerance_set
 from sewtol.setting_error import SettingError
 from sewtol.studies.adjusting import Adjusted, adjusted
-from sewtol.studies.montecarlo import WORDS, check_seed, quantiles
+from sewtol.studies.montecarlo import WORDS, check_seed, contributors, quantiles
 from sewtol.studies.parallel import chunk_bounds, run_chunks
 
 # machines per chunk with n_jobs != 1 or a progress bar: the machines are adjusted one by one,
@@ -270,6 +270,96 @@ def _concat(parts: list[Adjusted]) -> Adjusted:
                     parts[0].terms)
 
 
+# a row's columns in the generic words and order; a mechanism's `Plugins.columns["strategies"]`
+# (generic name -> its name, in its order) picks and renames them, "at_limit_*" standing for
+# the at_limit_NAME column of every compensator of the table
+COLUMNS = ("strategy", "compensators", "resolution", "setting_error", "measurement_error",
+           *STATUSES, "failed", "n", "yield", "yield_ci_low", "yield_ci_high", "p50", "p95",
+           "p99", "Cpk", "at_limit_share", "at_limit_*", "achieved_yield", "distinct_settings",
+           "settings")
+
+
+def cpk(values, spec) -> float:
+    """Cpk over the machines that run (finite values): (U - mean) / 3 s, (mean - L) / 3 s or
+    the smaller of the two; NaN without a spec, with fewer than two values or no scatter."""
+    run = np.asarray(values, float)
+    run = run[np.isfinite(run)]
+    if spec is None or run.size < 2 or not np.std(run, ddof=1) > 0:
+        return float("nan")
+    s = np.std(run, ddof=1)
+    sides = ([] if spec.upper is None else [(spec.upper - run.mean()) / (3 * s)]) + \
+        ([] if spec.lower is None else [(run.mean() - spec.lower) / (3 * s)])
+    return float(min(sides))
+
+
+def status_of(a: Adjusted, spec) -> np.ndarray:
+    """Per machine: ok, out_of_spec, cannot_close or dead_point (the protocol's words)."""
+    s = np.array([WORDS.get(w, w) for w in a.status], dtype=object)
+    if spec is not None:
+        s[(s == "ok") & ~spec.passes(np.asarray(a.value, float))] = "out_of_spec"
+    return s
+
+
+def row(name: str, compensators, a: Adjusted, spec, labels=("none", "none"),
+        measurement: str = "none") -> dict:
+    """One strategy's figures in the generic words (COLUMNS): the counts (they add up to n),
+    the yield and its Clopper-Pearson interval, p50/p95/p99 of the adjusted output, Cpk, the
+    share of machines with any / each compensator at an end of its box (the adjuster's
+    ``at_limit`` where it reports one, else its ``at_bound``), the achieved yield (the
+    adjuster's ``achieved_um`` where it reports one: the worst within half a resolution), the
+    distinct settings of each stepped compensator over the ok machines, and each setting's
+    spread. `compensators`: the row's compensator objects (or names of parameters)."""
+    status = status_of(a, spec)
+    c = {k: int(np.sum(status == k)) for k in STATUSES}
+    c["failed"] = c["cannot_close"] + c["dead_point"]
+    c["n"] = n = int(status.size)
+    ci_low, ci_high = clopper_pearson(c["ok"], n)
+    comps = [(getattr(x, "name", x), _parameter(x) if hasattr(x, "low") else x, x)
+             for x in compensators]
+    limit = a.extras.get("at_limit", {})
+    at = {name_: np.asarray(limit[name_] if name_ in limit else a.at_bound[key], bool)
+          for name_, key, _ in comps}
+    achieved = np.asarray(a.extras.get("achieved_um", a.value), float)
+    ok, runs = status == "ok", np.isin(status, ("ok", "out_of_spec"))
+    spread = []
+    for k, v in a.settings.items():
+        x = np.asarray(v, float)[runs]
+        bound = float(np.mean(np.asarray(a.at_bound.get(k, np.zeros(n)), bool)))
+        spread.append(f"{k} {x.min():.6g}..{x.max():.6g} (at bound {bound:.1%})" if x.size
+                      else f"{k} -")
+    return {"strategy": name, "compensators": ",".join(x for x, _, _ in comps) or "-",
+            "resolution": labels[0], "setting_error": labels[1],
+            "measurement_error": measurement if comps else "none", **c, "yield": c["ok"] / n,
+            "yield_ci_low": ci_low, "yield_ci_high": ci_high, **quantiles(a.value),
+            "Cpk": cpk(a.value, spec),
+            "at_limit_share": float(np.logical_or.reduce([*at.values(), np.zeros(n, bool)])
+                                    .mean()),
+            **{f"at_limit_{k}": float(np.mean(v)) for k, v in at.items()},
+            "at_limit": ", ".join(f"{k} {np.mean(v):.1%}" for k, v in at.items()),
+            "achieved_yield": float(np.mean(np.isfinite(achieved) if spec is None
+                                            else spec.passes(achieved))),
+            "distinct_settings": ", ".join(
+                f"{x} {np.unique(np.round(np.asarray(a.settings[k], float)[ok], 9)).size}"
+                for x, k, obj in comps if getattr(obj, "step", None) is not None),
+            "settings": "; ".join(spread)}
+
+
+def table(rows: list[dict], columns: Mapping | None = None) -> pd.DataFrame:
+    """Rows of `row` as one table: every column of COLUMNS (measurement_error only where a row
+    was set from a reading), or `columns` (a mechanism's words, in its order); at_limit_NAME
+    of every compensator of the table, NaN in a row without it."""
+    split = list(dict.fromkeys(k for r in rows for k in r if k.startswith("at_limit_")
+                               and k not in ("at_limit_share", "at_limit_*")))
+    if columns is None:
+        columns = {k: k for k in COLUMNS if k != "measurement_error"
+                   or any(r[k] != "none" for r in rows)}
+    names = {}
+    for k, v in columns.items():
+        names.update({c: c for c in split} if k == "at_limit_*" else {k: v})
+    return pd.DataFrame([{names[k]: r.get(k, np.nan) for k in names} for r in rows],
+                        columns=list(names.values()))
+
+
 @dataclass(frozen=True)
 class StrategiesResult:
     """The machines (deviations), each strategy's adjusted batch and the spec they meet."""
@@ -282,11 +372,12 @@ class StrategiesResult:
     seed: int
     deviations: dict
     names: tuple[str, ...]
-    compensators: tuple[tuple[str, ...], ...]
+    rows: tuple  # per row: its compensators as given (names, a map parameter -> box, objects)
     adjusted: tuple[Adjusted, ...]
-    resolutions: tuple[str, ...] = ()  # per row: each compensator's resolution, or "none"
-    setting_errors: tuple[str, ...] = ()  # per row: each compensator's setting error, or "none"
+    labels: tuple[tuple[str, str], ...] = ()  # per row: (resolution, setting error) labels
     measurement: str = "none"  # the reading the compensators are set from (none: the truth)
+    limits: dict = field(default_factory=dict)  # param -> (lower, upper) of the tolerance set
+    columns: Mapping | None = None  # the mechanism's words (Plugins.columns["strategies"])
 
     @property
     def n(self) -> int:
@@ -300,49 +391,60 @@ class StrategiesResult:
 
     def status(self, name: str) -> np.ndarray:
         """Per machine: ok, out_of_spec, cannot_close or dead_point after the strategy."""
-        a = self.get(name)
-        s = np.array([WORDS.get(w, w) for w in a.status], dtype=object)
-        if self.spec is not None:
-            s[(s == "ok") & ~self.spec.passes(np.asarray(a.value, float))] = "out_of_spec"
-        return s
-
-    def counts(self, name: str) -> dict[str, int]:
-        s = self.status(name)
-        c = {k: int(np.sum(s == k)) for k in STATUSES}
-        c["failed"] = c["cannot_close"] + c["dead_point"]
-        c["n"] = int(s.size)
-        return c
+        return status_of(self.get(name), self.spec)
 
     def row(self, i: int) -> dict:
-        name, a = self.names[i], self.adjusted[i]
-        c = self.counts(name)
-        ci_low, ci_high = clopper_pearson(c["ok"], c["n"])
-        runs = np.isin(self.status(name), ("ok", "out_of_spec"))
-        spread = []
-        for k, v in a.settings.items():
-            x = np.asarray(v, float)[runs]
-            at = float(np.mean(np.asarray(a.at_bound.get(k, np.zeros(self.n)), bool)))
-            spread.append(f"{k} {x.min():.6g}..{x.max():.6g} (at bound {at:.1%})" if x.size
-                          else f"{k} -")
-        setting = ({"resolution": self.resolutions[i], "setting_error": self.setting_errors[i]}
-                   if self.resolutions else {})
-        if self.measurement != "none":  # a column only with the option (the tables before it)
-            setting["measurement_error"] = self.measurement if self.compensators[i] else "none"
-        return {"strategy": name, "compensators": ",".join(self.compensators[i]) or "-",
-                **setting, **c, "yield": c["ok"] / c["n"], "yield_ci_low": ci_low,
-                "yield_ci_high": ci_high, **quantiles(a.value),
-                "settings": "; ".join(spread)}
+        """Row i in the generic words (`row`)."""
+        r = self.rows[i]
+        comps = list(r) if isinstance(r, Mapping) else list(getattr(r, "compensators", r))
+        return row(self.names[i], comps, self.adjusted[i], self.spec,
+                   self.labels[i] if self.labels else ("none", "none"), self.measurement)
 
     def to_dataframe(self) -> pd.DataFrame:
-        """One row per strategy (see the module docstring)."""
-        return pd.DataFrame([self.row(i) for i in range(len(self.names))])
+        """One row per strategy (`row`), in the mechanism's words where it has them."""
+        return table([self.row(i) for i in range(len(self.names))], self.columns)
 
     def to_dict(self) -> dict:
-        return {"mechanism": self.mechanism, "n": self.n, "seed": self.seed,
-                "tolerances": self.tolerances, "output": self.output, "unit": self.unit,
-                "spec": None if self.spec is None else self.spec.to_dict(),
-                "yield_ci_method": "Clopper-Pearson exact binomial interval of ok / n, 95 %",
+        """`context` (what decides the numbers, the output and its spec) and `rows`."""
+        return {"context": {"mechanism": self.mechanism, "tolerances": self.tolerances,
+                            "seed": self.seed, "n": self.n, "strategy": list(self.names),
+                            "output": self.output, "unit": self.unit,
+                            "spec": None if self.spec is None else self.spec.to_dict(),
+                            "measurement_error": self.measurement,
+                            "yield_ci_method": "Clopper-Pearson exact binomial interval of "
+                                               "ok / n, 95 %"},
                 "rows": self.to_dataframe().to_dict("records")}
+
+    def failure_contributors(self, strategy: str, bins: int = 10) -> pd.DataFrame:
+        """Which tolerances drive the machines still out of spec after `strategy`.
+
+        Two views side by side: the correlation-ratio shares (montecarlo.contributors) of the
+        adjusted output over all machines that run and over the out-of-spec ones alone, and
+        the conditional shift of each deviation: the mean of (deviation - mid) / half-width
+        over the failing machines, with mid and half-width those of the tolerance (about 0 for
+        a tolerance that does not matter, towards +/-1 for one whose limit the failures sit
+        at), and the mean |z| over the failing machines next to that over all machines.
+        """
+        params = list(self.deviations)
+        frame = pd.DataFrame(self.deviations)
+        frame["_adjusted"] = self.get(strategy).value
+        fail = self.status(strategy) == "out_of_spec"
+        out = pd.DataFrame({"param": params})
+        all_c = contributors(frame, params, "_adjusted", bins).set_index("param")
+        out["share_all_pct"] = out.param.map(all_c["share_pct"])
+        if fail.sum() > bins + 1:
+            f_c = contributors(frame[fail], params, "_adjusted", bins).set_index("param")
+            out["share_failing_pct"] = out.param.map(f_c["share_pct"])
+        else:
+            out["share_failing_pct"] = np.nan
+        lo, hi = np.array([self.limits[p] for p in params]).T[:, :, None]
+        z = (frame[params].to_numpy().T.copy() - 0.5 * (hi + lo)) / (0.5 * (hi - lo))
+        out["mean_z_failing"] = z[:, fail].mean(axis=1) if fail.any() else np.nan
+        out["mean_abs_z_failing"] = np.abs(z[:, fail]).mean(axis=1) if fail.any() else np.nan
+        out["mean_abs_z_all"] = np.abs(z).mean(axis=1)
+        out.insert(1, "n_failing", int(fail.sum()))
+        return out.sort_values("mean_abs_z_failing", ascending=False, na_position="last") \
+            .reset_index(drop=True)
 
 
 def strategies(mech, tolerances, n: int, seed: int, strategies: Mapping | None = None,
@@ -389,12 +491,14 @@ def strategies(mech, tolerances, n: int, seed: int, strategies: Mapping | None =
                                     for a, b in chunk_bounds(int(n), CHUNK)],
                            n_jobs=n_jobs, progress=progress, desc="strategies")
         adj = [_concat([p[i] for p in parts]) for i in range(len(rows))]
-    labels = [setting_labels(mech, s) for s in rows]
-    return StrategiesResult(mech.name, output, mech.output(output).unit, spec, law.name,
-                            int(seed), dev, tuple(strategies), tuple(tuple(_names(s))
-                                                                     for s in rows), tuple(adj),
-                            tuple(r for r, _ in labels), tuple(e for _, e in labels),
-                            me.label(measurement))
+    active = tolerance_set(mech, tolerances).active()
+    return StrategiesResult(
+        mech.name, output, mech.output(output).unit, spec, law.name, int(seed), dev,
+        tuple(strategies), tuple(s if isinstance(s, Mapping) or hasattr(s, "compensators")
+                                 else tuple(compensator_objects(mech, s)) for s in rows),
+        tuple(adj), tuple(setting_labels(mech, s) for s in rows), me.label(measurement),
+        {t.param: (t.lower, t.upper) for t in active.items},
+        plugins(mech).columns.get("strategies") if fast else None)
 
 
 def _unit(mech, c) -> str:
@@ -498,7 +602,7 @@ def yield_curve(mech, tolerances, n: int, seed: int, strategy, compensator: str,
             for w in widths}
     r = strategies(mech, tolerances, n, seed, rows, output, spec, fast=fast, n_jobs=n_jobs,
                    progress=progress, **options)
-    frame = r.to_dataframe()
+    frame = table([r.row(i) for i in range(len(r.names))])  # the generic words
     name = getattr(strategy, "name", "+".join(objs))
     return YieldCurve(mech.name, name, compensator, dist, _unit(mech, objs[compensator]),
                       r.tolerances, int(seed), r.n, widths,
@@ -566,11 +670,11 @@ def measurement_curve(mech, tolerances, n: int, seed: int, strategy, sds_um,
         r = strategies(mech, tolerances, n, seed, {"row": strategy}, output, spec, fast=fast,
                        n_jobs=n_jobs, progress=progress,
                        measurement=MeasurementError(w, positions), **options)
-        frames.append(r.to_dataframe().iloc[0])
+        frames.append(r.row(0))
     name = getattr(strategy, "name", "+".join(_names(strategy)))
     return MeasurementCurve(mech.name, name, int(positions), r.tolerances, int(seed), r.n, sds,
                             tuple({k: int(row[k]) for k in (*STATUSES, "n")} for row in frames),
-                            tuple((float(row.yield_ci_low), float(row.yield_ci_high))
+                            tuple((float(row["yield_ci_low"]), float(row["yield_ci_high"]))
                                   for row in frames),
                             tuple({k: float(row[k]) for k in ("p50", "p95", "p99")}
                                   for row in frames))

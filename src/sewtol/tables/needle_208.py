@@ -25,18 +25,17 @@ import numpy as np
 import pandas as pd
 
 from sewtol.errors import ParameterError
-from sewtol.intervals import clopper_pearson
 from sewtol.measurement_error import MeasurementError
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.needle_208 import beta as sb
-from sewtol.mechanisms.needle_208.adjustment import STATUSES, Adjustment, adjust, columns_of
+from sewtol.mechanisms.needle_208.adjustment import Adjustment, adjust, columns_of
 from sewtol.mechanisms.needle_208.single import nominal_figures
 from sewtol.studies import montecarlo as MC
+from sewtol.studies import strategies as ST
 from sewtol.studies.montecarlo import (
     CHUNK,
     MonteCarloResult,
     check_sampling,
-    contributors,
     draw_deviations,
 )
 from sewtol.studies.settings import Setting, compare
@@ -289,144 +288,57 @@ def worst_case_table(nominal: Needle208, tolerances: ToleranceSet | str,
                                     strategy=strategy if a else None) for a in (False, True)])
 
 
-def strategy_setting(strategy: Strategy) -> tuple[str, str]:
-    """(resolution, setting error) of a strategy's row: ``NAME VALUE UNIT`` per compensator that
-    has one, "none" where all are exact."""
-    from sewtol import setting_error as se
-
-    res = [f"{c.name} {c.resolution:g} {c.unit}".rstrip() for c in strategy.compensators
-           if c.resolution]
-    err = [f"{c.name} {se.label(c.setting_error, c.unit)}" for c in strategy.compensators
-           if c.setting_error is not None]
-    return "; ".join(res) or "none", "; ".join(err) or "none"
-
-
-def summarise_frame(machines: pd.DataFrame, strategy: Strategy, limit_um: float) -> pd.DataFrame:
-    """The row of the strategies table (counts, yield and interval, SumDelta quantiles, Cpk,
-    at-limit shares, achieved yield, distinct settings) of a per-machine table written by
-    Adjustment.to_dataframe()."""
-    total = machines["total_after_um"].to_numpy(float)
-    status, achieved = machines["status"].to_numpy(), machines["achieved_um"].to_numpy(float)
-    at_limit = {c.name: machines[f"{c.name}_at_limit"].to_numpy(bool)
-                for c in strategy.compensators}
-    n = total.size
-    counts = {s: int(np.sum(status == s)) for s in STATUSES}
-    if sum(counts.values()) != n:
-        raise ParameterError("status", f"must be one of {', '.join(STATUSES)} for every machine",
-                             sorted(set(status) - set(STATUSES)))
-    k = counts["ok"]
-    ci_low, ci_high = clopper_pearson(k, n)
-    x = np.where(np.isfinite(total), total, np.inf)
-    q = {f"p{p}_um": float(np.quantile(x, p / 100, method="higher")) for p in (50, 95, 99)}
-    run = total[np.isfinite(total)]
-    if run.size >= 2 and np.std(run, ddof=1) > 0:
-        cpk = float((limit_um - run.mean()) / (3 * np.std(run, ddof=1)))
-    else:
-        cpk = float("nan")
-    row = {"strategy": strategy.name, **dict(zip(("resolution", "setting_error"),
-                                                  strategy_setting(strategy), strict=True)),
-           "n": n, "ok": k,
-           "out_of_spec": counts["out of spec"], "cannot_assemble": counts["cannot assemble"],
-           "dead_point": counts["dead point"], "yield": k / n, "yield_ci_low": ci_low,
-           "yield_ci_high": ci_high, **q, "Cpk": cpk}
-    ok = status == "ok"
-    any_limit = np.zeros(n, bool)
-    for comp in strategy.compensators:
-        any_limit |= at_limit[comp.name]
-    row["at_limit_share"] = float(any_limit.mean())
-    for comp in strategy.compensators:  # one column per compensator: its share at an end
-        row[f"at_limit_{comp.name}"] = float(np.mean(at_limit[comp.name]))
-    # the combined text the committed reports (strategies.csv/.md, report.html) were made with
-    row["at_limit"] = ", ".join(f"{c.name} {np.mean(at_limit[c.name]):.1%}"
-                                for c in strategy.compensators)
-    row["achieved_yield"] = float(np.mean(achieved <= limit_um))
-    setting = {c.name: next(k for k in machines.columns if k.startswith(f"{c.name}_setting"))
-               for c in strategy.compensators}
-    row["distinct_settings"] = ", ".join(
-        f"{c.name} {np.unique(np.round(machines[setting[c.name]].to_numpy(float)[ok], 9)).size}"
-        for c in strategy.compensators if c.discrete)
-    return pd.DataFrame([row])
-
-
 @dataclass(frozen=True)
-class StrategiesResult:
-    """The strategies table, the per-machine adjustments and the deviations they share."""
+class StrategiesResult(ST.StrategiesResult):
+    """The strategies study's result (sewtol.studies.strategies: its table in the needle's
+    words, `failure_contributors`) with the needle's per-machine view of each row."""
 
-    deviations: pd.DataFrame
-    adjustments: tuple[Adjustment, ...]
-    params: tuple[str, ...]
-    tolerances: str
-    seed: int
-    limit_um: float
-    limits: dict  # param -> (lower, upper) deviation limits of the tolerance set
-    # the reading the compensators were set from (sewtol.measurement_error label; none: the
-    # true deviation)
-    measurement: str = "none"
+    limit_um: float = sb.DEFAULT_LIMIT_UM
 
     @property
-    def n(self) -> int:
-        return len(self.deviations)
+    def params(self) -> tuple[str, ...]:
+        return tuple(self.deviations)
 
-    def to_dataframe(self) -> pd.DataFrame:
-        """One row per strategy; at_limit_NAME (the share of machines with compensator NAME at
-        an end of its range) sits after at_limit_share, NaN in a row without NAME;
-        measurement_error after setting_error (none in a row that sets nothing)."""
-        table = pd.concat([summarise_frame(a.to_dataframe(), a.strategy, a.limit_um)
-                           for a in self.adjustments], ignore_index=True)
-        table.insert(list(table.columns).index("setting_error") + 1, "measurement_error",
-                     [self.measurement if a.strategy.compensators else "none"
-                      for a in self.adjustments])
-        split = [f"at_limit_{c.name}" for a in self.adjustments for c in a.strategy.compensators]
-        split = list(dict.fromkeys(split))
-        rest = [c for c in table.columns if c not in split]
-        at = rest.index("at_limit_share") + 1
-        return table[rest[:at] + split + rest[at:]]
+    @property
+    def adjustments(self) -> tuple[Adjustment, ...]:
+        """Each row as needle_208.adjustment.Adjustment (its settings, plateaus, at-limit flags
+        and achieved SumDelta per machine)."""
+        return tuple(Adjustment(s, self.limit_um, a.extras["total_before_um"], a.value,
+                                a.extras["plus_um"], a.extras["minus_um"],
+                                a.extras["achieved_um"], a.status, a.settings, a.extras["low"],
+                                a.extras["high"], a.extras["at_limit"])
+                     for s, a in zip(self.rows, self.adjusted, strict=True))
 
     def machines(self, strategy: str) -> pd.DataFrame:
         """Deviations, criterion before and after, settings, at-limit flags and status."""
-        adj = self.get(strategy)
-        f = self.deviations.copy()
+        self.get(strategy)  # refused in one line when not a row
+        f = pd.DataFrame(self.deviations)
         f.insert(0, "machine", np.arange(self.n))
-        return pd.concat([f, adj.to_dataframe()], axis=1)
+        return pd.concat([f, self.adjustments[self.names.index(strategy)].to_dataframe()],
+                         axis=1)
 
-    def get(self, strategy: str) -> Adjustment:
-        for a in self.adjustments:
-            if a.strategy.name == strategy:
-                return a
-        names = [a.strategy.name for a in self.adjustments]
-        raise ParameterError("strategy", f"not in this table; rows are {', '.join(names)}",
-                             strategy)
 
-    def failure_contributors(self, strategy: str, bins: int = 10) -> pd.DataFrame:
-        """Which tolerances drive the machines still out of spec after adjustment.
+def adjusted_summary(nominal: Needle208, machines: pd.DataFrame, strategy: Strategy,
+                     limit_um: float) -> pd.DataFrame:
+    """`needle montecarlo --adjust`: the strategies table's row (sewtol.studies.strategies.row,
+    in the needle's words, without measurement_error) of a per-machine table written by
+    Adjustment.to_dataframe()."""
+    from sewtol.mechanism.spec import Spec
+    from sewtol.protocol import plugins
+    from sewtol.studies.adjusting import Adjusted
 
-        Two views side by side: the correlation-ratio shares (montecarlo.contributors) of the
-        adjusted SumDelta over all machines that run and over the out-of-spec ones alone, and
-        the conditional shift of each deviation: the mean of (deviation - mid) / half-width
-        over the failing machines, with mid and half-width those of the tolerance (about 0 for a
-        tolerance that does not matter, towards +/-1 for one whose limit the failures sit at),
-        and the mean |z| over the failing machines next to that over all machines.
-        """
-        adj = self.get(strategy)
-        frame = self.deviations.copy()
-        frame["total_after_um"] = adj.total_um
-        fail = adj.status == "out of spec"
-        out = pd.DataFrame({"param": list(self.params)})
-        all_c = contributors(frame, self.params, "total_after_um", bins).set_index("param")
-        out["share_all_pct"] = out.param.map(all_c["share_pct"])
-        if fail.sum() > bins + 1:
-            f_c = contributors(frame[fail], self.params, "total_after_um", bins).set_index("param")
-            out["share_failing_pct"] = out.param.map(f_c["share_pct"])
-        else:
-            out["share_failing_pct"] = np.nan
-        lo, hi = np.array([self.limits[p] for p in self.params]).T[:, :, None]
-        z = (frame[list(self.params)].to_numpy().T.copy() - 0.5 * (hi + lo)) / (0.5 * (hi - lo))
-        out["mean_z_failing"] = z[:, fail].mean(axis=1) if fail.any() else np.nan
-        out["mean_abs_z_failing"] = np.abs(z[:, fail]).mean(axis=1) if fail.any() else np.nan
-        out["mean_abs_z_all"] = np.abs(z).mean(axis=1)
-        out.insert(1, "n_failing", int(fail.sum()))
-        return out.sort_values("mean_abs_z_failing", ascending=False, na_position="last") \
-            .reset_index(drop=True)
+    mech = as_mechanism(nominal)
+    names = [c.name for c in strategy.compensators]
+    a = Adjusted(machines["total_after_um"].to_numpy(float),
+                 {k: machines[next(c for c in machines if c.startswith(f"{k}_setting"))]
+                  .to_numpy(float) for k in names}, machines["status"].to_numpy(), {},
+                 {"achieved_um": machines["achieved_um"].to_numpy(float),
+                  "at_limit": {k: machines[f"{k}_at_limit"].to_numpy(bool) for k in names}})
+    columns = {k: v for k, v in plugins(mech).columns["strategies"].items()
+               if k != "measurement_error"}
+    return ST.table([ST.row(strategy.name, strategy.compensators, a,
+                            Spec(OUTPUT, float(limit_um)), ST.setting_labels(mech, strategy))],
+                    columns)
 
 
 def strategies_table(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed: int,
@@ -469,7 +381,6 @@ def strategies_table(nominal: Needle208, tolerances: ToleranceSet | str, n: int,
     """
     from sewtol.mechanism.spec import Spec
     from sewtol.mechanisms.needle_208.compensators import default_strategies
-    from sewtol.studies import strategies as ST
 
     tolerances = needle_set(tolerances)
     if not (np.isfinite(limit_um) and limit_um > 0):
@@ -485,14 +396,7 @@ def strategies_table(nominal: Needle208, tolerances: ToleranceSet | str, n: int,
                       {s.name: s for s in strategies}, OUTPUT, Spec(OUTPUT, float(limit_um)),
                       n_jobs=n_jobs, progress=progress, limit_um=limit_um,
                       measurement=measurement)
-    adjs = tuple(Adjustment(s, float(limit_um), a.extras["total_before_um"], a.value,
-                            a.extras["plus_um"], a.extras["minus_um"], a.extras["achieved_um"],
-                            a.status, a.settings, a.extras["low"], a.extras["high"],
-                            a.extras["at_limit"]) for s, a in zip(strategies, r.adjusted,
-                                                                  strict=True))
-    return StrategiesResult(pd.DataFrame(r.deviations), adjs, tuple(tol.params), tolerances.name,
-                            int(seed), float(limit_um),
-                            {t.param: (t.lower, t.upper) for t in tol.items}, r.measurement)
+    return StrategiesResult(**vars(r), limit_um=float(limit_um))
 
 
 def adjusted_montecarlo_model(nominal, dev, strategy: Strategy, limit_um: float):

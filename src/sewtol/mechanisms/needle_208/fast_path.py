@@ -281,7 +281,17 @@ COLUMNS = {"montecarlo": {
        for k, v in (("status", "status"), ("failed_group", "fail_dyad"),
                     ("fail_angle_deg", "fail_angle_deg"), ("fail_gap_mm", "fail_gap_mm"),
                     ("fail_transmission_deg", "fail_transmission_deg"))},
-    "beta_picks": "beta_picks_deg"}}
+    "beta_picks": "beta_picks_deg"},
+    # the strategies table (sewtol.studies.strategies.COLUMNS; at_limit_* the per-compensator
+    # shares): the source's counts cannot_assemble / dead_point and quantiles in um
+    "strategies": {
+        **{k: k for k in ("strategy", "resolution", "setting_error", "measurement_error", "n",
+                          "ok", "out_of_spec")},
+        "cannot_close": "cannot_assemble", "dead_point": "dead_point",
+        **{k: k for k in ("yield", "yield_ci_low", "yield_ci_high")},
+        "p50": "p50_um", "p95": "p95_um", "p99": "p99_um",
+        **{k: k for k in ("Cpk", "at_limit_share", "at_limit_*", "at_limit", "achieved_yield",
+                          "distinct_settings")}}}
 
 
 def _plugins():
