@@ -524,7 +524,8 @@ def _finish(args, fmt, mech, tolerances, obj, frames, frame) -> None:
                       obj, frames, None)
     emit(fmt, obj=obj, frame=frame, compact=COMPACT.get(args.study), wide=args.wide)
 
-FAST_PATH_STUDIES = ("scan", "worst-case", "montecarlo", "sobol", "ppm", "allocation")
+FAST_PATH_STUDIES = ("scan", "worst-case", "montecarlo", "sobol", "ppm", "allocation",
+                     "strategies")
 
 
 # the needle commands that report the fixed and the adjusted case together (so with and without
@@ -575,6 +576,11 @@ def _fast_path_refusal(args, mech) -> str | None:
     if args.study == "allocation" and upper is not None and upper != sb.DEFAULT_LIMIT_UM:
         return (f"{flag} {upper:g}: `needle allocation` keeps SumDelta within "
                 f"{sb.DEFAULT_LIMIT_UM:g} um")
+    if args.study == "strategies" and upper is not None and upper != sb.DEFAULT_LIMIT_UM:
+        return (f"{flag} {upper:g}: `needle strategies` keeps SumDelta within "
+                f"{sb.DEFAULT_LIMIT_UM:g} um")
+    if args.study == "strategies" and args.strategy is not None:
+        return "--strategy: `needle strategies` compares its own rows"
     if args.weight is not None:
         return "--weight: `needle allocation` weighs every tolerance alike"
     if args.out and args.study in ("worst-case", "allocation"):
@@ -608,16 +614,18 @@ def _needle_namespace(args, mech, tolerances=None):
     if study != "allocation" and args.adjust is not None:
         comp = mech.compensators[args.adjust]
         ns.beta_range = [float(comp.low), float(comp.high)]
-    if study in BOTH_CASES:
-        ns.adjust = None  # the needle command's default: fixed and adjusted
+    if study in BOTH_CASES or study == "strategies":
+        ns.adjust = None  # the needle command's default: fixed and adjusted, or its rows
     elif args.adjust is None:
         ns.adjust = "none"
     else:  # beta adjusted: the default of needle scan and allocation, --adjust beta of ppm
         ns.adjust = "beta" if study == "ppm" else None
-    if study in ("montecarlo", "sobol", "ppm", "allocation"):
+    if study in ("montecarlo", "sobol", "ppm", "allocation", "strategies"):
         ns.seed = args.seed
-    if study in ("montecarlo", "sobol", "allocation"):
+    if study in ("montecarlo", "sobol", "allocation", "strategies"):
         ns.n = args.n
+    if study == "strategies":
+        ns.n_jobs = args.n_jobs
     if study in ("montecarlo", "ppm"):
         # the limit in force; the file's spec of the needle's own default 10 um is passed as
         # the default, so `run` and `needle` print the same bytes

@@ -7,10 +7,13 @@ strategies', not sampling noise. A strategy is a set of compensators: names of t
 mechanism's compensators, a map parameter -> box, or compensator objects (the needle's
 Strategy); each machine is adjusted through `sewtol.studies.adjusting.adjusted` (the
 mechanism's plug-in where it takes the set, else the generic optimiser), an empty set leaves
-the machine as built. Per row: counts ok + out_of_spec + cannot_close + dead_point = n
-(against the output's spec), the yield with its Clopper-Pearson interval, p50/p95/p99 of the
-adjusted output (a machine that cannot run ranks as infinitely bad), and each compensator's
-settings spread over the machines that run with the share at an end of its box.
+the machine as built. Per row (`row`, the one implementation for every mechanism): counts
+ok + out_of_spec + cannot_close + dead_point = n (against the output's spec), the yield with its
+Clopper-Pearson interval, p50/p95/p99 of the adjusted output (a machine that cannot run ranks as
+infinitely bad), Cpk, the share of machines with any / each compensator at an end of its box,
+the achieved yield, the distinct settings of stepped compensators, and each compensator's
+settings spread over the machines that run with the share at an end of its box. A mechanism's
+own words for these columns are data: `Plugins.columns["strategies"]` (the needle's).
 
 Setting the compensators as a fitter does (`set_in_order`): where a compensator has a
 resolution or a setting error (sewtol.setting_error), the fitter sets the compensators one at a

@@ -375,9 +375,11 @@ def strategies_table(nominal: Needle208, tolerances: ToleranceSet | str, n: int,
     Returns
     -------
     StrategiesResult
-        ``to_dataframe()``: per strategy the counts (ok, out of spec, cannot assemble, dead
-        point; they add up to n), the yield and its interval, SumDelta quantiles (um), Cpk,
-        at-limit shares and distinct settings; ``machines(name)`` per machine.
+        ``to_dataframe()``: the generic row (sewtol.studies.strategies.row) in the needle's
+        words (its Plugins.columns["strategies"]): per strategy the counts (ok, out_of_spec,
+        cannot_assemble, dead_point; they add up to n), the yield and its interval, SumDelta
+        quantiles (um), Cpk, at-limit shares, achieved yield and distinct settings;
+        ``machines(name)`` per machine; ``failure_contributors(name)``.
     """
     from sewtol.mechanism.spec import Spec
     from sewtol.mechanisms.needle_208.compensators import default_strategies
