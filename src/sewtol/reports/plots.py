@@ -487,6 +487,6 @@ def yield_vs_setting_error(curve, ax=None, label: str | None = None):
 def yield_vs_measurement_error(curve, ax=None, label: str | None = None):
     """The yield of a strategy (%) against the sd of the reading its compensators are set from,
     with its 95 % interval as a band (`sewtol.studies.strategies.measurement_curve`'s result)."""
-    return _yield_band(ax or plt.gca(), curve, curve.sds_um, label,
+    return _yield_band(ax or plt.gca(), curve, curve.widths, label,
                        f"reading error of the needle path, normal sd ({MICRO}) at "
                        f"{curve.positions} positions", "measurement error")

@@ -238,12 +238,6 @@ def _units(seed: int, mech, rows, n: int) -> dict[str, np.ndarray]:
     return {name: se.unit_draws(seed, name, 0, n) for name in names}
 
 
-def _adjust(mech, values, compensators, output, fast, options, units=None,
-            measured=None) -> Adjusted:
-    return set_in_order(mech, values, compensators, output, units, fast=fast,
-                        measured=measured, **options)
-
-
 def _chunk(mech, values, strategies, output, fast, options, threads, units=None, measured=None):
     import numba
 
@@ -251,8 +245,8 @@ def _chunk(mech, values, strategies, output, fast, options, threads, units=None,
     if threads is not None:  # one numba thread per worker process (2 x 2 threads ran slower)
         numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     try:
-        return [_adjust(mech, values, s, output, fast, options, units, measured)
-                for s in strategies]
+        return [set_in_order(mech, values, s, output, units, fast=fast, measured=measured,
+                             **options) for s in strategies]
     finally:
         numba.set_num_threads(before)
 
@@ -485,7 +479,8 @@ def strategies(mech, tolerances, n: int, seed: int, strategies: Mapping | None =
         seed, 0, int(n), measurement.positions)
     if n_jobs == 1 and not progress:
         measured = None if noise is None else (measurement, noise)
-        adj = [_adjust(mech, values, s, output, fast, options, units, measured) for s in rows]
+        adj = [set_in_order(mech, values, s, output, units, fast=fast, measured=measured,
+                            **options) for s in rows]
     else:
         parts = run_chunks(_chunk, [(mech, {k: v[a:b] for k, v in values.items()}, rows, output,
                                      fast, options, 1 if n_jobs != 1 else None,
@@ -523,49 +518,57 @@ def setting_labels(mech, compensators) -> tuple[str, str]:
 
 
 @dataclass(frozen=True)
-class YieldCurve:
-    """The yield of one strategy against one compensator's setting error: the same machines
-    and the same error draws at every level (only the width changes), from `yield_curve`."""
+class Curve:
+    """The yield of one strategy against the width of one error: a compensator's setting error
+    (`yield_curve`: compensator, dist, unit) or the reading the compensators are set from
+    (`measurement_curve`: positions). The same machines and the same draws at every width (only
+    the scale changes), so width 0 is the row without that error."""
 
     mechanism: str
     strategy: str
-    compensator: str
-    dist: str  # "normal" (widths are standard deviations) or "uniform" (half-widths)
-    unit: str
     tolerances: str
     seed: int
     n: int
     widths: tuple[float, ...]
-    counts: tuple[dict, ...]  # per width: ok, out_of_spec, cannot_close, dead_point, n
-    yield_ci: tuple[tuple[float, float], ...]
-    quantiles: tuple[dict, ...]  # per width: p50, p95, p99 of the adjusted output
-
-    @property
-    def key(self) -> str:
-        return "sd" if self.dist == "normal" else "half_width"
+    rows: tuple[dict, ...]  # per width: its `row` (the generic words)
+    column: str  # the width's: sd_UNIT or half_width_UNIT, or measurement_sd_um
+    compensator: str = ""
+    dist: str = ""  # "normal" (widths are standard deviations) or "uniform" (half-widths)
+    unit: str = ""
+    positions: int = 0  # the reading's crank positions (a measurement curve)
 
     @property
     def yields(self) -> np.ndarray:
-        return np.array([c["ok"] / c["n"] for c in self.counts])
+        return np.array([r["ok"] / r["n"] for r in self.rows])
+
+    @property
+    def yield_ci(self) -> tuple[tuple[float, float], ...]:
+        return tuple((float(r["yield_ci_low"]), float(r["yield_ci_high"])) for r in self.rows)
+
+    def _head(self) -> dict:
+        return {"positions": self.positions} if self.positions else \
+            {"compensator": self.compensator, "dist": self.dist}
 
     def to_dataframe(self) -> pd.DataFrame:
-        """One row per width: the width (``sd_UNIT`` or ``half_width_UNIT``), the counts (they
-        add up to n), the yield with its 95 % Clopper-Pearson interval, the quantiles."""
-        col = f"{self.key}_{self.unit}" if self.unit else self.key
-        return pd.DataFrame([{"strategy": self.strategy, "compensator": self.compensator,
-                              "dist": self.dist, col: w,
-                              **{k: c[k] for k in (*STATUSES, "n")}, "yield": c["ok"] / c["n"],
-                              "yield_ci_low": lo, "yield_ci_high": hi, **q}
-                             for w, c, (lo, hi), q in zip(self.widths, self.counts,
-                                                           self.yield_ci, self.quantiles,
-                                                           strict=True)])
+        """One row per width: the width's column (with a setting error's compensator and dist
+        before it, or a reading's positions after it), the counts (they add up to n), the
+        yield with its 95 % Clopper-Pearson interval, the quantiles."""
+        keys = (*STATUSES, "n", "yield", "yield_ci_low", "yield_ci_high", "p50", "p95", "p99")
+        return pd.DataFrame([{"strategy": self.strategy, **({self.column: w, **self._head()}
+                                                             if self.positions else
+                                                             {**self._head(), self.column: w}),
+                              **{k: r[k] for k in keys}}
+                             for w, r in zip(self.widths, self.rows, strict=True)])
 
     def to_dict(self) -> dict:
-        return {"mechanism": self.mechanism, "strategy": self.strategy,
-                "compensator": self.compensator, "dist": self.dist, "unit": self.unit,
+        return {"mechanism": self.mechanism, "strategy": self.strategy, **self._head(),
+                **({} if self.positions else {"unit": self.unit}),
                 "tolerances": self.tolerances, "seed": self.seed, "n": self.n,
                 "yield_ci_method": "Clopper-Pearson exact binomial interval of ok / n, 95 %",
                 "rows": self.to_dataframe().to_dict("records")}
+
+
+YieldCurve = MeasurementCurve = Curve  # the names of the two curves before they were one
 
 
 def with_setting_error(mech, compensators, name: str, error: SettingError | None):
@@ -585,7 +588,7 @@ def with_setting_error(mech, compensators, name: str, error: SettingError | None
 
 def yield_curve(mech, tolerances, n: int, seed: int, strategy, compensator: str, widths,
                 dist: str | None = None, output: str | None = None, spec=None, *,
-                fast: bool = True, n_jobs: int = 1, progress=False, **options) -> YieldCurve:
+                fast: bool = True, n_jobs: int = 1, progress=False, **options) -> Curve:
     """The yield of `strategy` (names of the mechanism's compensators, or a strategy object)
     on machines 0 .. n-1 of `seed` with `compensator`'s setting error at each of `widths`
     (its unit; the sd of a normal error or the half-width of a uniform one; `dist` default:
@@ -605,62 +608,16 @@ def yield_curve(mech, tolerances, n: int, seed: int, strategy, compensator: str,
             for w in widths}
     r = strategies(mech, tolerances, n, seed, rows, output, spec, fast=fast, n_jobs=n_jobs,
                    progress=progress, **options)
-    frame = table([r.row(i) for i in range(len(r.names))])  # the generic words
-    name = getattr(strategy, "name", "+".join(objs))
-    return YieldCurve(mech.name, name, compensator, dist, _unit(mech, objs[compensator]),
-                      r.tolerances, int(seed), r.n, widths,
-                      tuple({k: int(row[k]) for k in (*STATUSES, "n")}
-                            for _, row in frame.iterrows()),
-                      tuple((float(lo), float(hi)) for lo, hi in
-                            zip(frame.yield_ci_low, frame.yield_ci_high, strict=True)),
-                      tuple({k: float(row[k]) for k in ("p50", "p95", "p99")}
-                            for _, row in frame.iterrows()))
-
-
-@dataclass(frozen=True)
-class MeasurementCurve:
-    """The yield of one strategy against the sd of the reading the compensators are set from:
-    the same machines and the same reading errors at every sd (only the scale changes), from
-    `measurement_curve`. sd 0 is the row set from the truth."""
-
-    mechanism: str
-    strategy: str
-    positions: int
-    tolerances: str
-    seed: int
-    n: int
-    sds_um: tuple[float, ...]
-    counts: tuple[dict, ...]  # per sd: ok, out_of_spec, cannot_close, dead_point, n
-    yield_ci: tuple[tuple[float, float], ...]
-    quantiles: tuple[dict, ...]  # per sd: p50, p95, p99 of the true adjusted output
-
-    @property
-    def yields(self) -> np.ndarray:
-        return np.array([c["ok"] / c["n"] for c in self.counts])
-
-    def to_dataframe(self) -> pd.DataFrame:
-        """One row per sd: ``measurement_sd_um``, the positions, the counts (they add up to n),
-        the yield with its 95 % Clopper-Pearson interval, the quantiles."""
-        return pd.DataFrame([{"strategy": self.strategy, "measurement_sd_um": w,
-                              "positions": self.positions,
-                              **{k: c[k] for k in (*STATUSES, "n")}, "yield": c["ok"] / c["n"],
-                              "yield_ci_low": lo, "yield_ci_high": hi, **q}
-                             for w, c, (lo, hi), q in zip(self.sds_um, self.counts,
-                                                           self.yield_ci, self.quantiles,
-                                                           strict=True)])
-
-    def to_dict(self) -> dict:
-        return {"mechanism": self.mechanism, "strategy": self.strategy,
-                "positions": self.positions, "tolerances": self.tolerances, "seed": self.seed,
-                "n": self.n,
-                "yield_ci_method": "Clopper-Pearson exact binomial interval of ok / n, 95 %",
-                "rows": self.to_dataframe().to_dict("records")}
+    unit, key = _unit(mech, objs[compensator]), "sd" if dist == "normal" else "half_width"
+    return Curve(mech.name, getattr(strategy, "name", "+".join(objs)), r.tolerances, int(seed),
+                 r.n, widths, tuple(r.row(i) for i in range(len(r.names))),
+                 f"{key}_{unit}" if unit else key, compensator, dist, unit)
 
 
 def measurement_curve(mech, tolerances, n: int, seed: int, strategy, sds_um,
                       positions: int = me.DEFAULT_POSITIONS, output: str | None = None,
                       spec=None, *, fast: bool = True, n_jobs: int = 1, progress=False,
-                      **options) -> MeasurementCurve:
+                      **options) -> Curve:
     """The yield of `strategy` on machines 0 .. n-1 of `seed` with its compensators set from a
     reading of `output` at `positions` crank angles, each with a normal error of each sd of
     `sds_um` (sd 0: from the truth). The same machines, setting errors and reading errors (up
@@ -668,16 +625,11 @@ def measurement_curve(mech, tolerances, n: int, seed: int, strategy, sds_um,
     sds = tuple(float(w) for w in sds_um)
     if not sds or any(not (np.isfinite(w) and w >= 0) for w in sds):
         raise ParameterError("sds_um", "must be finite numbers >= 0", sds_um)
-    frames = []
+    rows = []
     for w in sds:
         r = strategies(mech, tolerances, n, seed, {"row": strategy}, output, spec, fast=fast,
                        n_jobs=n_jobs, progress=progress,
                        measurement=MeasurementError(w, positions), **options)
-        frames.append(r.row(0))
-    name = getattr(strategy, "name", "+".join(_names(strategy)))
-    return MeasurementCurve(mech.name, name, int(positions), r.tolerances, int(seed), r.n, sds,
-                            tuple({k: int(row[k]) for k in (*STATUSES, "n")} for row in frames),
-                            tuple((float(row["yield_ci_low"]), float(row["yield_ci_high"]))
-                                  for row in frames),
-                            tuple({k: float(row[k]) for k in ("p50", "p95", "p99")}
-                                  for row in frames))
+        rows.append(r.row(0))
+    return Curve(mech.name, getattr(strategy, "name", "+".join(_names(strategy))), r.tolerances,
+                 int(seed), r.n, sds, tuple(rows), "measurement_sd_um", positions=int(positions))
