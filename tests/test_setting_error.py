@@ -167,8 +167,8 @@ def test_rows_state_resolution_and_setting_error_and_the_realistic_row_is_below_
     assert t.loc["beta+shift+angle exact", "yield"] == 1.0
     assert t.loc["beta+shift+angle", "yield"] < 1.0
     # the same machines: the exact row is never worse than the one set with an error
-    assert np.all(res.get("beta+shift+angle exact").total_um
-                  <= res.get("beta+shift+angle").total_um + 2e-3)
+    assert np.all(res.get("beta+shift+angle exact").value
+                  <= res.get("beta+shift+angle").value + 2e-3)
 
 
 def test_same_seed_same_table_for_any_chunking(mech, monkeypatch):
