@@ -397,19 +397,16 @@ def presser_contact(values: dict[str, np.ndarray], **fields) -> dict[str, np.nda
     contact has lost_deg = separation_mm = 0 and NaN angles, and status "never_lost"."""
     resolved = {}
     for name, (_, default, _) in PRESSER_CONTACT_FIELDS.items():
+        spec = fields.get(name, default)
         if name == "measure":
             continue
-        spec = fields.get(name, default)
         if spec is None:
             raise ParameterError(name, "is a required field of output kind presser_contact",
                                  None)
-        if isinstance(spec, str):
-            if spec not in values:
-                raise ParameterError(name, "names no parameter; valid names are "
-                                     + ", ".join(values), spec)
-            resolved[name] = values[spec]
-        else:
-            resolved[name] = spec
+        if isinstance(spec, str) and spec not in values:
+            raise ParameterError(name, "names no parameter; valid names are "
+                                 + ", ".join(values), spec)
+        resolved[name] = values[spec] if isinstance(spec, str) else spec
     unknown = sorted(set(fields) - set(PRESSER_CONTACT_FIELDS))
     if unknown:
         raise ParameterError(unknown[0], "unknown field of output kind presser_contact; valid "
