@@ -23,6 +23,7 @@ from sewtol.provenance import now, run_record
 from sewtol.reports import plots
 from sewtol.reports.html import Conclusion, Figure, Report, Section, markdown_index, render
 from sewtol.reports.tables import write_table
+from sewtol.studies import summaries as SU
 from sewtol.tables import feed_131 as T
 
 FIGURES = [("tooth_paths", "Middle-tooth paths with entry/exit and a dot every 30 deg of phi"),
@@ -223,7 +224,7 @@ def main(argv=None) -> None:
     ax.set_title("Stitch regulator: forward, neutral, reverse", fontsize=10)
     plots.save(f, out / "regulator.png", args.figure_format)
 
-    ts = T.default_tolerances()
+    ts = T.tolerance_sets()["assumed"]
     tset = {**settings, "tolerance set": ts.description, "seed": args.seed}
     sc = T.scan(p, ts)
     sc = sc.reindex(sc["change_lower_step_mm"].abs().sort_values(ascending=False).index)
@@ -232,9 +233,9 @@ def main(argv=None) -> None:
                 floatfmt=".5f")
     mc = T.montecarlo(p, ts, args.n_mc, args.seed, n_jobs=args.n_jobs, progress=args.progress,
                          scheduler=args.scheduler)
-    write_table(T.montecarlo_summary(mc), out, "montecarlo",
+    write_table(SU.output_summary(mc, T.OUTPUTS), out, "montecarlo",
                 f"Monte-Carlo of {args.n_mc} feed mechanisms", tset, floatfmt=".5f")
-    contrib = T.contributor_table(mc, ts)
+    contrib = SU.contributor_table(mc, ts, T.CONTRIBUTOR_OUTPUTS)
     write_table(contrib, out, "contributors", "Contributors (bias-corrected eta^2) per output",
                 tset)
     sob, chosen = T.sobol(p, ts, args.n_sobol, args.seed, mc, n_jobs=args.n_jobs,
@@ -250,7 +251,7 @@ def main(argv=None) -> None:
                 {**tset, "base samples N": args.n_sobol})
 
     fmt = "svg" if args.figure_format == "svg" else "png"
-    summary = T.montecarlo_summary(mc)
+    summary = SU.output_summary(mc, T.OUTPUTS)
     conclusions = {
         "What holds under every reading of the source, and what depends on it":
             reading_conclusions(res.summary()),

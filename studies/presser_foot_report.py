@@ -92,9 +92,10 @@ def main(argv=None) -> None:
                 settings, floatfmt=".4f")
 
     # 3. tolerance studies
+    sets = S.tolerance_sets()
     mc_rows, count_rows = [], []
     for name in ("assumed", "spring"):
-        tol = S.PRESSER_SETS[name]
+        tol = sets[name]
         mc = S.montecarlo(nom, tol, args.n_mc, args.seed)
         summ = mc.summary_frame()
         summ.insert(0, "tolerances", name)
@@ -103,13 +104,13 @@ def main(argv=None) -> None:
     write_table(pd.concat(mc_rows, ignore_index=True), out, "montecarlo",
                 f"Monte-Carlo, {args.n_mc} machines per set, seed {args.seed}: contact outputs "
                 "over the machines with status ok",
-                {**settings, **{f"set {k}": v.description for k, v in S.PRESSER_SETS.items()},
+                {**settings, **{f"set {k}": v.description for k, v in sets.items()},
                  "quantiles": "p0.135 and p99.865 are the +/-3 sigma equivalents"},
                 floatfmt=".4f")
     write_table(pd.DataFrame(count_rows), out, "montecarlo_counts",
                 "Monte-Carlo status counts (ok + never_lost + never_held + not_regained + "
                 "cannot_assemble = n; the ok_ columns are modes among ok)", settings)
-    sc = S.scan(nom, S.PRESSER_SETS["assumed"])
+    sc = S.scan(nom, sets["assumed"])
     write_table(sc, out, "scan", "One tolerance at a time at its limits (set 'assumed')",
                 settings, floatfmt=".4f")
 
@@ -146,8 +147,10 @@ def main(argv=None) -> None:
     write_text_atomic(out / "index.md", "\n".join(index) + "\n")
     record = run_record(started, {"mechanism": "presser_foot", "params": as_dict(nom),
                                   "seed": args.seed, "n_mc": args.n_mc,
-                                  "tolerances": {k: v.as_dict()
-                                                 for k, v in S.PRESSER_SETS.items()}},
+                                  # in the model's names, as params and the scan
+                                  "tolerances": {k: {S.field_names()[p]: d for p, d in
+                                                     v.as_dict().items()}
+                                                 for k, v in sets.items()}},
                         argv=argv)
     write_text_atomic(out / "run.json", to_json(record))
 

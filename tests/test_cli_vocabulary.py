@@ -284,16 +284,16 @@ def test_feed_scan_from_the_cli_is_the_library_scan():
     assert code == 0, err
     d = strict_loads(out)
     p = Feed131().override(b=25.0)
-    ref = feed.scan(p, feed.default_tolerances(p))
+    ref = feed.scan(p, feed.tolerance_sets()["assumed"])
     got = pd.DataFrame(d["rows"])
     assert list(got["param"]) == list(ref["param"])
     assert np.allclose(got["change_lower_step_mm"], ref["change_lower_step_mm"], atol=1e-12)
-    assert d["context"]["tolerances"] == "feed_assumed" and d["context"]["b_deg"] == 25.0
+    assert d["context"]["tolerances"] == "assumed" and d["context"]["b_deg"] == 25.0
 
 
 def test_feed_montecarlo_and_sobol_from_the_cli(tmp_path):
-    from sewtol.mechanisms.feed_131.model import Feed131
     from sewtol.studies.montecarlo import EXPLAINED, REMAINDER
+    from sewtol.studies.summaries import important_parameters
     from sewtol.tables import feed_131 as feed
 
     out = tmp_path / "mc"
@@ -317,13 +317,12 @@ def test_feed_montecarlo_and_sobol_from_the_cli(tmp_path):
                           "--format", "json")
     assert code == 0, err
     s = strict_loads(text)
-    p = Feed131()
-    ts = feed.default_tolerances(p)
+    ts = feed.tolerance_sets()["assumed"]
     screen = pd.read_csv(out / "machines.csv")  # the same 100 machines (seed 3)
     screen = screen.rename(columns={f"dev_{k}_mm": k for k in ts.params})
     assert s["context"]["screening_machines"] == 100
     for output, names in s["parameters"].items():  # each output over the tolerances it needs
-        assert names == feed.important_parameters(screen, ts, output)
+        assert names == important_parameters(screen, ts, output)
         rows = [r for r in s["indices"] if r["output"] == output]
         assert sorted(r["param"] for r in rows) == sorted(names)
     code, _, err = run("feed", "sobol", "--n", "8")

@@ -117,7 +117,7 @@ def test_regulator_forward_neutral_reverse():
 
 def test_scan_rows_equal_direct_calls():
     p = Feed131()
-    ts = T.default_tolerances()
+    ts = T.tolerance_sets()["assumed"]
     sc = T.scan(p, ts)
     row = sc[(sc.param == "O3C") & (sc.side == "upper")].iloc[0]
     direct = feed.metrics(p.override(O3C=p.O3C + 0.05))
@@ -126,7 +126,7 @@ def test_scan_rows_equal_direct_calls():
 
 
 def test_feed_montecarlo_reproducible():
-    ts = T.default_tolerances()
+    ts = T.tolerance_sets()["assumed"]
     a = T.montecarlo(Feed131(), ts, 300, seed=4)
     b = T.montecarlo(Feed131(), ts, 300, seed=4, n_jobs=2)
     assert a.equals(b)
@@ -286,7 +286,7 @@ def test_feed_sobol_each_output_over_its_own_parameters():
     from sewtol.studies.sobol import case_indices, problem_of, sample
 
     p = Feed131()
-    ts = T.default_tolerances()
+    ts = T.tolerance_sets()["assumed"]
     mc = T.montecarlo(p, ts, 200, seed=3)
     res, chosen = T.sobol(p, ts, 16, seed=5, machines=mc, chunk_size=20,
                              which=("lower_step_mm", "differential_ratio"))

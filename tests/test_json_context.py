@@ -30,9 +30,9 @@ NEEDLE = [
     (("ppm", "--budget", "200", "--target", "0.1", "--seed", "8"), ("base", 8, None, "beta")),
 ]
 FEED = [
-    (("scan",), ("feed_assumed", None, None, "none")),
-    (("montecarlo", "--n", "40", "--seed", "3"), ("feed_assumed", 3, 40, "none")),
-    (("sobol", "--n", "16", "--n-screen", "100", "--seed", "4"), ("feed_assumed", 4, 16, "none")),
+    (("scan",), ("assumed", None, None, "none")),
+    (("montecarlo", "--n", "40", "--seed", "3"), ("assumed", 3, 40, "none")),
+    (("sobol", "--n", "16", "--n-screen", "100", "--seed", "4"), ("assumed", 4, 16, "none")),
 ]
 RUN = [
     ((SLIDER, "nominal"), (None, None, None, "none")),

@@ -198,8 +198,8 @@ def test_the_follow_threshold_separates_kinematic_from_flying_cycles():
 
 def test_montecarlo_counts_add_up_and_repeat_for_the_same_seed():
     nom = PF.PresserFoot()
-    a = S.montecarlo(nom, S.PRESSER_SETS["assumed"], 400, 7)
-    b = S.montecarlo(nom, S.PRESSER_SETS["assumed"], 400, 7)
+    a = S.montecarlo(nom, S.tolerance_sets()["assumed"], 400, 7)
+    b = S.montecarlo(nom, S.tolerance_sets()["assumed"], 400, 7)
     assert a.machines.equals(b.machines)
     c = a.counts()
     assert sum(c[s] for s in PF.STATUS) == 400
@@ -210,7 +210,7 @@ def test_montecarlo_counts_add_up_and_repeat_for_the_same_seed():
                                                                   + m.material_mm)
     np.testing.assert_allclose(m.separation_mm[ok], sep[ok], atol=1e-9)
     # the spring family alone moves nothing
-    fam = S.montecarlo(nom, S.PRESSER_SETS["spring"], 200, 3)
+    fam = S.montecarlo(nom, S.tolerance_sets()["spring"], 200, 3)
     assert fam.summary_frame()["std"].max() < 1e-9
 
 
@@ -294,8 +294,14 @@ def test_the_mechanism_file_is_the_model():
              "phase": "phase_deg", "y_m": "material_mm", "m_kg": "mass_kg",
              "k_n_per_mm": "stiffness_n_per_mm", "F_n": "preload_n", "zeta": "damping_ratio"}
     assert {names[k]: v for k, v in par.items()} == {f: getattr(nom, f) for f in names.values()}
-    assumed = {t.param: t.upper for t in S.PRESSER_SETS["assumed"].items}
-    assert {names[k]: v for k, v in doc["tolerances"]["assumed"].items()} == assumed
+    # the tables read the model's names off the file's presser_contact fields
+    assert S.field_names() == names
+    # the assumed set as documented (docs/presser_foot.md): crank +/-0.02, rod and offset
+    # +/-0.05, material +/-0.1 mm; spring rate, mass and preload +/-10 % (0.4466, 0.05 kg, 8 N)
+    assumed = {names[k]: v for k, v in doc["tolerances"]["assumed"].items()
+               if k != "description"}
+    assert assumed == {"crank_mm": 0.02, "rod_mm": 0.05, "offset_mm": 0.05, "material_mm": 0.1,
+                       "stiffness_n_per_mm": 0.045, "mass_kg": 0.005, "preload_n": 0.8}
     kinds = {o["kind"] for o in doc["outputs"] if o["type"] == "custom"}
     assert kinds == {"presser_contact"}
     for out in doc["outputs"]:

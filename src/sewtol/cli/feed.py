@@ -95,28 +95,21 @@ def cmd_feed_regulator(args):
     save_plot(args, lambda ax: plots().regulator_curve(sweep, params.b, ax=ax))
 
 
-def _feed_tolerances(args, params):
-    from sewtol.mechanisms.feed_131.model import Feed131
-    from sewtol.mechanisms.params import field_names
-    from sewtol.tables.feed_131 import default_tolerances
-    from sewtol.tolerances import resolve
-
-    builtin = {"assumed": default_tolerances(params)}
-    tolerances = resolve(args.tolerances, builtin, field_names(Feed131))
-    if not tolerances.active().items:
-        raise ParameterError("--tolerances", "has no tolerance with a non-zero width",
-                             tolerances.name)
-    return tolerances.check_against(params)
-
-
 def _feed_study(args):
-    """The feed's nominal (it must assemble) and tolerance set, every flag checked first."""
+    """The feed's nominal (it must assemble) and tolerance set (a set of the feed's file, or
+    FILE.toml[:SET]), every flag checked first."""
+    from sewtol.cli.run import resolve_tolerances
     from sewtol.mechanisms.feed_131.analysis import metrics
+    from sewtol.tables.feed_131 import as_mechanism
 
     check_study(args)
     params = _feed_params(args)
     metrics(params)  # refuses, in one line, a nominal feed that cannot run
-    return params, _feed_tolerances(args, params)
+    tolerances = resolve_tolerances(as_mechanism(params), args.tolerances)
+    if not tolerances.active().items:
+        raise ParameterError("--tolerances", "has no tolerance with a non-zero width",
+                             tolerances.name)
+    return params, tolerances.check_against(params)
 
 
 def _feed_context(args, params, tolerances) -> dict:
@@ -156,6 +149,7 @@ def cmd_feed_scan(args):
 def cmd_feed_montecarlo(args):
     from sewtol.provenance import now
     from sewtol.studies.montecarlo import check_sampling
+    from sewtol.studies.summaries import contributor_table, output_summary
     from sewtol.tables import feed_131 as feed
 
     check_n(args.n, minimum=CONTRIBUTOR_BINS + 1)
@@ -164,8 +158,8 @@ def cmd_feed_montecarlo(args):
     started = now()
     machines = feed.montecarlo(params, tolerances, args.n, args.seed, n_jobs=args.n_jobs,
                                progress=args.progress)
-    summary = feed.montecarlo_summary(machines)
-    contrib = feed.contributor_table(machines, tolerances)
+    summary = output_summary(machines, feed.OUTPUTS)
+    contrib = contributor_table(machines, tolerances, feed.CONTRIBUTOR_OUTPUTS)
     obj = {"context": _feed_context(args, params, tolerances),
            "summary": summary.to_dict(orient="records"),
            "contributors": contrib.to_dict(orient="records"),
@@ -261,8 +255,9 @@ def add_feed(sub) -> None:
     def study(p, n=None, n_help=""):
         machine_options(p, example="b=25")
         p.add_argument("--tolerances", default="assumed",
-                       help="assumed (links and frame pivots +/-0.05 mm, uniform), FILE.toml or "
-                            "FILE.toml:SET (default assumed)")
+                       help="a set of the feed's mechanism file: assumed (links and frame "
+                            "pivots +/-0.05 mm, uniform) or links; FILE.toml or FILE.toml:SET "
+                            "(default assumed)")
         if n is None:
             return
         p.add_argument("--n", type=int, default=n, help=n_help)

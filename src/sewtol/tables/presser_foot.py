@@ -1,59 +1,72 @@
-"""The presser foot's tolerance tables: Monte-Carlo (the one sampler, `InputLaw.draw`) and
-one-at-a-time scan of its contact cycle on the kernel (model.evaluate; docs/presser_foot.md).
-
-Every machine gets a status (mechanisms.presser_foot.STATUS); the counts add up to n. Among
-the "ok" machines three modes are counted as well: the principal interval began by the force
-(the foot flew before the material), bounces at re-contact, and turns with more than one lost
-interval (e.g. a hop off the seat on the way up besides the stop on the material).
+"""The presser foot's tables: the generic Monte-Carlo, scan and output summary (sewtol.studies)
+on the folder's mechanism.toml (outputs of kind presser_contact: the contact cycle and its
+modes; the tolerance sets), read in the model's words: its field names (crank_mm, ... for the
+file's r, ...), a STATUS word per machine (counts add up to n; cannot_assemble where the
+crank-slider cannot run), the modes among "ok" machines, and the circular loss and regain
+angles as the nominal machine's plus a deviation in (-180, 180] (docs/presser_foot.md).
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
 import pandas as pd
 
-from sewtol.law import InputLaw
-from sewtol.mechanisms import params as P
 from sewtol.mechanisms.presser_foot import model as PF
-from sewtol.studies.montecarlo import check_sampling
-from sewtol.tolerances import Tolerance, ToleranceSet
+from sewtol.studies import summaries as SU
+from sewtol.tolerances import ToleranceSet
 
 OUTPUTS = ("loss_deg", "regain_deg", "lost_deg", "separation_mm")
 ANGLE_OUTPUTS = ("loss_deg", "regain_deg")
-
-# Assumed tolerances (the source gives none): links as for the 208's links, the material level
-# as the scatter of the fabric's thickness, spring rate, mass and preload +/-10 %.
-PRESSER_SETS = {
-    "assumed": ToleranceSet("assumed", (
-        Tolerance("crank_mm", -0.02, 0.02), Tolerance("rod_mm", -0.05, 0.05),
-        Tolerance("offset_mm", -0.05, 0.05), Tolerance("material_mm", -0.1, 0.1),
-        Tolerance("stiffness_n_per_mm", -0.045, 0.045), Tolerance("mass_kg", -0.005, 0.005),
-        Tolerance("preload_n", -0.8, 0.8)),
-        "assumed: crank +/-0.02, rod and offset +/-0.05, material +/-0.1 mm; spring rate, "
-        "mass and preload +/-10 %"),
-    # the spring, mass and preload only: the family the table cannot tell apart
-    "spring": ToleranceSet("spring", (
-        Tolerance("stiffness_n_per_mm", -0.2233, 0.2233), Tolerance("mass_kg", -0.025, 0.025),
-        Tolerance("preload_n", -4.0, 4.0)),
-        "spring rate, mass and preload +/-50 %"),
-}
+MODES = ("contact_status", "impacts", "intervals", "lost_by_force")
+LEVELS = (0.00135, 0.5, 0.99865)  # p0.135 and p99.865: the +/-3 sigma equivalents
 
 
-def _unwrap(values: np.ndarray, about: float) -> np.ndarray:
-    """Angles as nominal + deviation in (-180, 180] (regain sits near 0/360)."""
-    return about + (np.asarray(values, float) - about + 180.0) % 360.0 - 180.0
+@cache
+def _file():
+    from sewtol.mechanism import load
+    from sewtol.mechanisms import mechanism_file
+
+    return load(mechanism_file("presser_foot"))
 
 
-def _frame(nominal: PF.PresserFoot, machines: PF.PresserFoot) -> pd.DataFrame:
-    nom = PF.evaluate(nominal).to_dataframe().iloc[0]
-    f = PF.evaluate(machines).to_dataframe()
+@cache
+def field_names() -> dict[str, str]:
+    """The file's parameter -> the model's field, as its presser_contact outputs map them."""
+    out = next(o for o in _file().outputs if o.kind == "presser_contact")
+    return {e.text: k for k, e in out.fields.items()
+            if getattr(e, "text", None) in _file().parameter_names}
+
+
+def as_mechanism(nominal: PF.PresserFoot):
+    """The folder's mechanism file with the machine's values as its nominals."""
+    return _file().override(**{p: float(getattr(nominal, f)) for p, f in field_names().items()})
+
+
+def tolerance_sets() -> dict[str, ToleranceSet]:
+    """The file's sets: assumed, and spring (the family the source's table cannot tell apart)."""
+    return dict(_file().tolerance_sets)
+
+
+def _read(f: pd.DataFrame, nominal: dict) -> pd.DataFrame:
+    """Machines in the model's words (see the module docstring)."""
+    f = f.rename(columns=field_names())
+    code = f.pop("contact_status").to_numpy(float)
+    words = np.asarray(PF.STATUS, object)[np.nan_to_num(code).astype(int)]
+    f["status"] = np.where((f["status"] == "ok") & np.isfinite(code), words,
+                           "cannot_assemble").astype(str)
+    f["lost_by_force"] = f["lost_by_force"].to_numpy(float) == 1.0
     for k in ANGLE_OUTPUTS:
-        if np.isfinite(nom[k]):
-            f[k] = _unwrap(f[k], float(nom[k]))
-    return f
+        if np.isfinite(nominal[k]):
+            f[k] = nominal[k] + (f[k].to_numpy(float) - nominal[k] + 180.0) % 360.0 - 180.0
+    return f.drop(columns="failed_group")
+
+
+def _nominal(mech) -> dict[str, float]:
+    ev = mech.evaluate(None, OUTPUTS)
+    return {k: float(ev.outputs[k][0]) for k in OUTPUTS}
 
 
 @dataclass(frozen=True)
@@ -61,35 +74,24 @@ class PresserMonteCarlo:
     tolerances: str
     n: int
     seed: int
-    machines: pd.DataFrame      # deviations, outputs and status per machine
+    machines: pd.DataFrame      # deviations, outputs, modes and status per machine
     nominal: dict
 
     def counts(self) -> dict[str, int]:
         """Per status (adding up to n), then the modes among "ok" machines."""
-        st = self.machines["status"].to_numpy()
-        out = {s: int(np.sum(st == s)) for s in PF.STATUS}
-        ok = st == "ok"
-        out["ok_lost_by_force"] = int(np.sum(ok & self.machines["lost_by_force"].to_numpy()))
-        out["ok_bounced"] = int(np.sum(ok & (self.machines["impacts"].to_numpy() > 0)))
-        out["ok_several_intervals"] = int(np.sum(ok & (self.machines["intervals"].to_numpy()
-                                                       > 1)))
-        return out
+        m, ok = self.machines, self.machines["status"].to_numpy() == "ok"
+        return {**{s: int(np.sum(m["status"].to_numpy() == s)) for s in PF.STATUS},
+                "ok_lost_by_force": int(np.sum(ok & m["lost_by_force"].to_numpy())),
+                "ok_bounced": int(np.sum(ok & (m["impacts"].to_numpy() > 0))),
+                "ok_several_intervals": int(np.sum(ok & (m["intervals"].to_numpy() > 1)))}
 
     def summary_frame(self) -> pd.DataFrame:
-        """Per output over the "ok" machines: nominal, mean, std, the 0.135 / 50 / 99.865 %
-        quantiles, min and max (angles in shaft degrees, unwrapped about the nominal)."""
-        ok = self.machines[self.machines["status"] == "ok"]
-        rows = []
-        for k in OUTPUTS:
-            v = ok[k].to_numpy(float)
-            q = np.quantile(v, [0.00135, 0.5, 0.99865]) if v.size else [math.nan] * 3
-            rows.append({"output": k, "nominal": self.nominal[k], "n_ok": int(v.size),
-                         "mean": float(v.mean()) if v.size else math.nan,
-                         "std": float(v.std(ddof=1)) if v.size > 1 else math.nan,
-                         "p0.135": q[0], "p50": q[1], "p99.865": q[2],
-                         "min": float(v.min()) if v.size else math.nan,
-                         "max": float(v.max()) if v.size else math.nan})
-        return pd.DataFrame(rows)
+        """Per output over the "ok" machines (summaries.output_summary): nominal, mean, std,
+        the 0.135 / 50 / 99.865 % quantiles, min and max (angles about the nominal)."""
+        f = SU.output_summary(self.machines, OUTPUTS, LEVELS, self.machines["status"] == "ok",
+                              self.nominal)
+        f.insert(2, "n_ok", f.pop("n") - f.pop("failed"))
+        return f
 
     def to_dataframe(self) -> pd.DataFrame:
         return self.machines.copy()
@@ -97,32 +99,26 @@ class PresserMonteCarlo:
 
 def montecarlo(nominal: PF.PresserFoot, tolerances: ToleranceSet, n: int,
                seed: int) -> PresserMonteCarlo:
-    """n machines drawn as every sewtol Monte-Carlo draws them (chunk i from child i of the
-    seed), each run through the contact cycle."""
-    check_sampling(nominal, tolerances, n, seed)
-    dev = InputLaw.of(tolerances).draw(int(n), int(seed))
-    machines = P.with_deviations(nominal, dev)
-    f = _frame(nominal, machines)
-    table = pd.DataFrame({k: v for k, v in dev.items()})
-    table = pd.concat([table, f], axis=1)
-    table.insert(0, "machine", np.arange(int(n)))
-    nom = PF.evaluate(nominal).to_dataframe().iloc[0]
-    return PresserMonteCarlo(tolerances.name, int(n), int(seed), table,
-                             {k: float(nom[k]) for k in OUTPUTS})
+    """n machines of the one sampler (sewtol.studies.montecarlo on the file)."""
+    from sewtol.studies.montecarlo import montecarlo as mc
+
+    mech = as_mechanism(nominal)
+    nom = _nominal(mech)
+    res = mc(mech, tolerances, n, seed, OUTPUTS + MODES)
+    return PresserMonteCarlo(tolerances.name, int(n), int(seed), _read(res.machines, nom), nom)
 
 
 def scan(nominal: PF.PresserFoot, tolerances: ToleranceSet) -> pd.DataFrame:
-    """Each tolerance alone at its upper and lower limit: the outputs, their change from
-    nominal (angles in shaft degrees) and the status."""
-    tolerances.check_against(nominal)
-    params, sides, deltas, dev = tolerances.limit_variants()
-    machines = P.with_deviations(nominal, dev)
-    f = _frame(nominal, machines)
-    nom = PF.evaluate(nominal).to_dataframe().iloc[0]
-    out = pd.DataFrame({"param": params, "side": sides, "deviation": deltas})
+    """Each tolerance alone at its limits (sewtol.studies.scan on the file): the outputs, their
+    change from nominal (d_OUTPUT), the status and whether the foot flew."""
+    from sewtol.studies.scan import scan as generic_scan
+
+    mech, names = as_mechanism(nominal), OUTPUTS + ("contact_status", "lost_by_force")
+    nom, r = _nominal(mech), generic_scan(mech, tolerances, names)
+    t = SU.scan_table(r, names).assign(status=r.rows["status"].to_numpy()[::len(names)],
+                                        failed_group="")
+    t = _read(t, nom).assign(param=lambda f: f["param"].map(field_names()))
     for k in OUTPUTS:
-        out[k] = f[k]
-        out[f"d_{k}"] = f[k] - float(nom[k])
-    out["status"] = f["status"]
-    out["lost_by_force"] = f["lost_by_force"]
-    return out
+        t[f"d_{k}"] = t[k] - nom[k]
+    return t[["param", "side", "deviation", *(c for k in OUTPUTS for c in (k, f"d_{k}")),
+              "status", "lost_by_force"]]

@@ -1,7 +1,9 @@
 """The 131-42+3 feed's own analysis of one machine: trajectories and velocities of the teeth,
 the working figures, the stitch regulator (sweep, the b for a step, the b range for a ratio band)
-and the source's read-offs with the explanations tested against them. Its tolerance studies run
-on the protocol (sewtol.studies through tables.feed_131)."""
+and the source's read-offs with the explanations tested against them. It stays in the folder:
+these are the model's own figures and the reconstruction of the source's data, not a tolerance
+study; the tolerance studies run on the protocol (sewtol.studies, the feed's columns in
+sewtol.tables.feed_131)."""
 
 from __future__ import annotations
 

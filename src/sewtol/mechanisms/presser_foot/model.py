@@ -30,6 +30,7 @@ separately identifiable (docs/presser_foot.md, "Identifiability").
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass
 
@@ -359,8 +360,10 @@ def holding_m_s2(params: PresserFoot):
 
 
 # --- the "presser_contact" output kind of mechanism files (type = "custom") -----------------
-# Each field names a parameter of the file (or is a number); measure picks the output.
-MEASURES = ("loss_deg", "regain_deg", "lost_deg", "separation_mm")
+# Each field names a parameter of the file (or is a number); measure picks the output: the
+# cycle's four figures, then its modes as numbers (contact_status: the index in STATUS)
+MEASURES = ("loss_deg", "regain_deg", "lost_deg", "separation_mm", "contact_status", "impacts",
+            "intervals", "lost_by_force")
 PRESSER_CONTACT_FIELDS = {
     # name: (kind, default, choices) in the registry's form (default None: required)
     "crank_mm": ("expr", None, None),
@@ -389,24 +392,21 @@ def presser_contact(values: dict[str, np.ndarray], **fields) -> dict[str, np.nda
     """Every contact output for the machines of `values` (parameter name -> array (m,)).
 
     fields: each name of PRESSER_CONTACT_FIELDS but `measure`, given as the name of a
-    parameter in `values` or a number (defaults as in the table). Returns loss_deg, regain_deg,
-    lost_deg, separation_mm (arrays (m,)) and status (strings). A machine that never loses
+    parameter in `values` or a number (defaults as in the table). Returns every measure of
+    MEASURES (arrays (m,), the modes as floats) and status (strings). A machine that never loses
     contact has lost_deg = separation_mm = 0 and NaN angles, and status "never_lost"."""
     resolved = {}
     for name, (_, default, _) in PRESSER_CONTACT_FIELDS.items():
+        spec = fields.get(name, default)
         if name == "measure":
             continue
-        spec = fields.get(name, default)
         if spec is None:
             raise ParameterError(name, "is a required field of output kind presser_contact",
                                  None)
-        if isinstance(spec, str):
-            if spec not in values:
-                raise ParameterError(name, "names no parameter; valid names are "
-                                     + ", ".join(values), spec)
-            resolved[name] = values[spec]
-        else:
-            resolved[name] = spec
+        if isinstance(spec, str) and spec not in values:
+            raise ParameterError(name, "names no parameter; valid names are "
+                                 + ", ".join(values), spec)
+        resolved[name] = values[spec] if isinstance(spec, str) else spec
     unknown = sorted(set(fields) - set(PRESSER_CONTACT_FIELDS))
     if unknown:
         raise ParameterError(unknown[0], "unknown field of output kind presser_contact; valid "
@@ -416,7 +416,11 @@ def presser_contact(values: dict[str, np.ndarray], **fields) -> dict[str, np.nda
     lost = np.where(never, 0.0, res.lost_deg)
     sep = np.where(never, 0.0, res.separation_mm)
     return {"loss_deg": res.loss_deg, "regain_deg": res.regain_deg, "lost_deg": lost,
-            "separation_mm": sep, "status": res.status}
+            "separation_mm": sep, "status": res.status,
+            "contact_status": np.select([res.status == s for s in STATUS],
+                                        np.arange(len(STATUS), dtype=float), np.nan),
+            "impacts": res.impacts.astype(float), "intervals": res.intervals.astype(float),
+            "lost_by_force": res.lost_by_force.astype(float)}
 
 
 def presser_contact_output(state, measure: str = "separation_mm", **fields) -> np.ndarray:
@@ -430,8 +434,19 @@ def presser_contact_output(state, measure: str = "separation_mm", **fields) -> n
         raise ParameterError(f"output presser_contact ({measure})", "is computed by the "
                              "presser's own kernel, which does not see joint clearances: study "
                              "an output of the file's points with journals off centre", measure)
-    values = {k: np.asarray(v, float).reshape(-1) for k, v in fields.items()}
-    return presser_contact(values, **{k: k for k in values})[measure]
+    key = tuple((k, np.ascontiguousarray(v, float).reshape(-1).tobytes())
+                for k, v in fields.items())
+    return _cycle(key)[measure]
+
+
+@functools.lru_cache(maxsize=2)
+def _cycle(key: tuple) -> dict[str, np.ndarray]:
+    """presser_contact of the machines in `key` (field -> float64 bytes), cached: the kernel
+    gives every measure at once, so a block's outputs share one run."""
+    out = presser_contact({k: np.frombuffer(b, float) for k, b in key}, **{k: k for k, _ in key})
+    for v in out.values():
+        v.setflags(write=False)  # shared by the block's outputs
+    return out
 
 
 def _register() -> None:
