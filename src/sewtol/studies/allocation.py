@@ -15,12 +15,28 @@ star-shaped the yield need not be monotone, and the bisection finds a crossing, 
 the largest one: `trials` lists every k tried. The bracket is found by doubling (or halving)
 from k = 1, or given (`bracket`, e.g. the needle's (0, max_mm) for a set of shapes); the
 bisection runs to a relative SCALE_RTOL, or a given number of `steps`.
+
+`allocate_by_cost(mech, reference, output, ...)`: the shape found first, then its scale. Cost is
+reciprocal, sum c_i / t_i; each tolerance's slope s_i is the output's largest change (fixed, or
+adjusted over the compensators) at its reference limits, each tolerance alone (the scan,
+`sewtol.studies.scan`), per unit of its width; the shape t_i ~ (c_i / s_i^2)^(1/3) is the
+root-sum-square optimum, and `allocate` finds its common scale. Two forms:
+- symmetric (the needle's source study): +/- t_i, slopes per the larger side of each reference
+  tolerance, the scale (the widest tolerance, largest shape 1) bisected in (0, cap);
+- otherwise each reference tolerance keeps its own (possibly asymmetric) shape, both limits
+  scaled by min(k a_i, cap) / h_i (h_i its half-width, slopes per h_i), k bisected
+  geometrically (it spans decades) up to where every tolerance reaches the cap. A tolerance
+  that moves the output by less than `hold_below` at its reference limits (one a compensator
+  cancels alone, e.g. the needle's guide bore under the guide shift; or one the output does not
+  see) has no slope to shape it: it is held at its reference limits (`held_at_reference`), not
+  scaled (scaled like the others it would take the cap at once and could use up the
+  compensators' range the others need).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pandas as pd
@@ -31,14 +47,22 @@ from sewtol.intervals import clopper_pearson
 from sewtol.law import InputLaw, draw_units, unit_streams
 from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
-from sewtol.studies.adjusting import failures_of
+from sewtol.studies.adjusting import evaluated, failures_of
 from sewtol.studies.rare_event import check_adjust, limits_of, output_of
-from sewtol.studies.scan import checked
+from sewtol.studies.scan import checked, scan
 from sewtol.tolerances import Tolerance, ToleranceSet
 
 # bisection on the scale stops when the bracket is this small relative to the scale
 SCALE_RTOL = 1e-4
 MAX_DOUBLINGS = 20
+MAX_BISECTIONS = 60  # a bracket (0, hi) whose yield never reaches the target ends here
+SET_METHOD = ("common scale k of the set (limits times k times each weight), bisection on the "
+              "Monte-Carlo yield with common random numbers (one matrix of uniforms for every "
+              "k): exact for the sample when the pass region is star-shaped about the nominal")
+COST_METHOD = ("reciprocal cost sum c_i / t_i; shape t_i ~ (c_i / s_i^2)^(1/3) (s_i the "
+               "output's largest change at the reference limits per unit width, from the "
+               "scan); common scale by bisection on the Monte-Carlo yield (common random "
+               "numbers)")
 
 
 @dataclass(frozen=True)
@@ -66,10 +90,7 @@ class Allocation:
     # a mechanism's names for to_dataframe(): table column -> its name (None: the table as is)
     columns: dict | None = None
     dependence: Dependence | None = None  # the set's copula, kept by the allocated set
-
-    method = ("common scale k of the set (limits times k times each weight), bisection on the "
-              "Monte-Carlo yield with common random numbers (one matrix of uniforms for every "
-              "k): exact for the sample when the pass region is star-shaped about the nominal")
+    method: str = SET_METHOD
 
     def to_dataframe(self) -> pd.DataFrame:
         if self.columns is None:
@@ -214,11 +235,10 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
         mid = np.sqrt(max(lo, hi * 1e-6) * hi) if geometric else 0.5 * (lo + hi)
         return (mid, hi) if yield_at(mid) >= target else (lo, mid)
 
-    if not capped and steps is not None:
-        for _ in range(int(steps)):
-            lo, hi = bisect(lo, hi)
-    elif not capped and lo > 0:
-        while hi - lo > SCALE_RTOL * lo:
+    if not capped and (steps is not None or lo > 0 or bracket is not None):
+        for _ in range(MAX_BISECTIONS if steps is None else int(steps)):
+            if steps is None and lo > 0 and hi - lo <= SCALE_RTOL * lo:
+                break
             lo, hi = bisect(lo, hi)
     done = {t["scale"]: t["yield"] for t in trials}
     y_lo = done.get(lo, float("nan"))  # nan: no scale down to 2**-20 reaches the target
@@ -234,3 +254,94 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
     return Allocation(mech.name, output, upper, lower, tolerances.name, float(target), int(n),
                       int(seed), float(lo), float(y_lo), capped, pd.DataFrame(rows), trials_frame,
                       adjust, dependence=tol.dependence)
+
+
+def allocate_by_cost(mech, reference: ToleranceSet, output: str, target: float = 0.9973,
+                     upper: float | None = None, lower: float | None = None, n: int = 2000,
+                     seed: int = 0, costs: dict[str, float] | None = None, adjust=None, *,
+                     symmetric: bool = False, cap: float = 1.0, steps: int | None = None,
+                     hold_below: float | None = None, figure: str | None = None,
+                     scan_options: dict | None = None, fast: bool = True,
+                     **options) -> Allocation:
+    """The widest tolerances of the cost shape that keep the yield at `target` (see the module
+    docstring: slopes from the scan at the reference limits, t_i ~ (c_i / s_i^2)^(1/3), then
+    `allocate`'s common scale on the same machines).
+
+    costs: c_i per parameter (> 0; default 1). adjust, options: the compensators and the
+    strategy adjuster's options, as `allocate` takes them; scan_options: the adjuster's
+    options for the slopes (default options); figure: the slopes read this extra figure of the
+    adjusted scan (a plug-in's, e.g. the needle's exact total_um) instead of its value.
+    symmetric: the source study's +/- t_i form; cap: the largest tolerance (half-width, the
+    parameter's unit); steps: bisection steps (None: to SCALE_RTOL); hold_below: the change of
+    the output at the reference limits below which a tolerance is held there (not symmetric;
+    None: 1e-6 of the largest change). The table adds per parameter `cost_weight`, `slope`
+    (output per parameter unit), the set's `reference_lower`/`reference_upper` and
+    `held_at_reference`."""
+    mech.output(output)
+    if not (isinstance(target, (int, float)) and 0 < target < 1):
+        raise ParameterError("target", "must be a yield strictly between 0 and 1", target)
+    ref = checked(mech, reference)
+    refuse_relations(ref)
+    costs = dict(costs or {})
+    unknown = sorted(set(costs) - set(ref.params))
+    if unknown:
+        raise ParameterError("costs", "must name toleranced parameters ("
+                             + ", ".join(ref.params) + ")", unknown)
+    c = np.array([float(costs.get(p, 1.0)) for p in ref.params])
+    if not np.all(np.isfinite(c) & (c > 0)):
+        raise ParameterError("costs", "must be positive weights", costs)
+    r = scan(mech, ref, (), adjust, output, fast=fast,
+             **(options if scan_options is None else scan_options))
+    if adjust is None:
+        y, y0 = evaluated(mech, r.values, output, fast=fast), \
+            evaluated(mech, None, output, fast=fast)[0]
+    else:
+        def pick(a):
+            return a.value if figure is None else a.extras[figure]
+        y, y0 = pick(r.adjusted), float(pick(r.adjusted_nominal)[0])
+    of = np.asarray(r.params)
+    if symmetric:
+        width = np.array([max(abs(t.upper), abs(t.lower)) for t in ref.items])
+    else:
+        width = np.array([0.5 * (t.upper - t.lower) for t in ref.items])
+    slope = []
+    for t, wi in zip(ref.items, width, strict=True):
+        worst = np.nanmax(np.abs(np.asarray(y, float)[of == t.param] - y0))
+        slope.append(float(worst) / wi if np.isfinite(worst) else np.inf)
+    s = np.clip(np.array(slope), 1e-9, 1e12)
+    free = (c / s**2) ** (1.0 / 3.0)
+    held = np.zeros(len(ref.items), bool)
+    if symmetric:
+        # the scale k is the widest tolerance, searched in (0, cap): none exceeds the cap; the
+        # copula ties ranks, whatever the widths: every trial keeps the set's dependence
+        shape = free / free.max()
+        a = allocate(mech, ToleranceSet(reference.name, tuple(
+            replace(t, lower=-ai, upper=ai, shift=t.shift * ai / wi)
+            for t, ai, wi in zip(ref.items, shape, width, strict=True)),
+            dependence=ref.dependence), output, target, upper, lower, n, seed, None, adjust,
+            bracket=(0.0, cap), steps=steps, fast=fast, **options)
+    else:
+        change = np.array(slope) * width
+        finite = change[np.isfinite(change)]
+        limit = hold_below if hold_below is not None else \
+            1e-6 * (finite.max() if finite.size else 0.0)
+        held = change < limit
+        if held.all():
+            held[:] = False
+        shape = np.where(held, np.nan, free)
+        shape = np.where(held, width, shape / np.nanmax(shape))
+
+        def limits(k):
+            f = np.where(held, width, np.minimum(k * shape, cap)) / width
+            return ToleranceSet("trial", tuple(
+                replace(t, lower=t.lower * fi, upper=t.upper * fi, shift=t.shift * fi)
+                for t, fi in zip(ref.items, f, strict=True)), dependence=ref.dependence)
+
+        # k up to where every tolerance reaches the cap, so the cap never ends the search early
+        a = allocate(mech, ref, output, target, upper, lower, n, seed, None, adjust,
+                     bracket=(0.0, float(cap / shape[~held].min())), steps=steps,
+                     geometric=True, limits=limits, fast=fast, **options)
+    table = a.table.drop(columns="weight").assign(
+        cost_weight=c, slope=s, reference_lower=[t.lower for t in ref.items],
+        reference_upper=[t.upper for t in ref.items], held_at_reference=held)
+    return replace(a, tolerances=reference.name, table=table, method=COST_METHOD)

@@ -40,7 +40,7 @@ from sewtol.studies.montecarlo import (
     draw_deviations,
 )
 from sewtol.studies.settings import Setting, compare
-from sewtol.tolerances import Tolerance, ToleranceSet, needle_set
+from sewtol.tolerances import ToleranceSet, needle_set
 
 if TYPE_CHECKING:
     from distributed import Client
@@ -735,7 +735,7 @@ def needle_limit_state(nominal: Needle208, tolerances: ToleranceSet | str, limit
 
 # the needle's names of the allocation's columns (studies.allocation.Allocation.to_dataframe)
 ALLOCATION_COLUMNS = {"param": "param", "cost_weight": "cost_weight",
-                      "slope_um_per_mm": "slope_um_per_mm", "lower": "lower_mm",
+                      "slope": "slope_um_per_mm", "lower": "lower_mm",
                       "upper": "upper_mm", "reference_lower": "reference_lower_mm",
                       "reference_upper": "reference_upper_mm"}
 
@@ -745,23 +745,16 @@ def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 
              max_mm: float = 1.0, range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
              steps: int | None = None, strategy: Strategy | None = None,
              limit_um: float = sb.DEFAULT_LIMIT_UM) -> Allocation:
-    """The widest tolerances that keep the yield after adjustment at a target.
+    """The widest tolerances that keep the yield after adjustment at a target:
+    sewtol.studies.allocation.allocate_by_cost on `as_mechanism(nominal)`, SumDelta within
+    limit_um, the slopes read from the exact SumDelta of the scan (um per mm).
 
-    Cost is reciprocal, sum c_i / t_i; the shape t_i ~ (c_i / s_i^2)^(1/3) (s_i the slope of
-    the adjusted SumDelta at the reference limits from the scan, um per mm, each tolerance
-    alone) is the root-sum-square optimum; the common scale of the shapes is
-    sewtol.studies.allocation.allocate's (bisection on the Monte-Carlo yield after adjustment
-    per machine, common random numbers: one uniform matrix for every trial scale).
-
-    strategy None (beta re-optimised in range_deg, the source study's allocation): symmetric
-    tolerances +/- t_i, slopes per the larger side of each reference tolerance, the scale (mm,
-    the widest tolerance) bisected in (0, max_mm). A strategy: its exact joint optimum; each
-    reference tolerance keeps its own (possibly asymmetric) shape, both limits scaled by
-    min(k a_i, max_mm) / h_i (h_i its half-width, slopes per h_i), k bisected geometrically
-    (it spans decades) up to where every tolerance reaches max_mm. A tolerance the strategy
-    cancels alone at its reference limits (SumDelta within 1e-3 um of the nominal's at both,
-    e.g. the guide bore's position under the guide shift) is held at its reference limits
-    (``held_at_reference``), not scaled.
+    strategy None (beta re-optimised in range_deg, the source study's allocation): the
+    symmetric form, +/- t_i, the scale (mm, the widest tolerance) bisected in (0, max_mm). A
+    strategy: its exact joint optimum; each reference tolerance keeps its own shape, k bisected
+    geometrically; a tolerance the strategy cancels alone at its reference limits (SumDelta
+    within 1e-3 um, the plateau tolerance, of the nominal's at both, e.g. the guide bore's
+    position under the guide shift) is held at its reference limits (``held_at_reference``).
 
     Parameters
     ----------
@@ -793,80 +786,29 @@ def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 
         limits (``tolerance_mm``, the +/- limit, for strategy None; ``lower_mm`` and
         ``upper_mm`` with a strategy) and the reference limits; ``yield_`` the yield after
         adjustment (1 when no scale above 0 keeps the target), ``scale``, ``target``, ``n``,
-        ``seed``; ``as_tolerance_set()`` the allocated limits (uniform) for further studies.
+        ``seed``; ``as_tolerance_set()`` the allocated limits for further studies.
 
     Raises
     ------
     ParameterError
         For a target outside (0, 1) or a non-positive cost weight.
     """
-    from sewtol.studies import allocation as A
+    from sewtol.studies.allocation import allocate_by_cost
 
-    reference = needle_set(reference)
-    if not (0 < target < 1):
-        raise ParameterError("target", "must be a yield strictly between 0 and 1", target)
-    ref = reference.active()
-    A.refuse_relations(ref)
-    names = ref.params
-    costs = costs or {}
-    c = np.array([float(costs.get(p, 1.0)) for p in names])
-    if np.any(c <= 0):
-        raise ParameterError("costs", "must be positive weights", costs)
-    sc = scan(nominal, ref, range_deg=range_deg, strategy=strategy, limit_um=limit_um)
-    slope = []
-    for t in ref.items:
-        width = max(abs(t.upper), abs(t.lower)) if strategy is None else 0.5 * (t.upper - t.lower)
-        r = sc.rows[sc.rows["param"] == t.param]["total_um"].to_numpy()
-        worst = np.nanmax(np.abs(r - sc.nominal_row["total_um"]))
-        slope.append(float(worst) / width if np.isfinite(worst) else np.inf)
-    s = np.clip(np.array(slope), 1e-9, 1e12)
-    shape = (c / s**2) ** (1.0 / 3.0)
-    shape = shape / shape.max()
-    mech = as_mechanism(nominal)
     if strategy is None:
-        # the scale k (mm) of the shapes (the largest 1), searched in (0, max_mm): no tolerance
-        # exceeds max_mm
-        # the copula ties ranks, whatever the widths: every trial keeps the set's dependence
-        shapes = ToleranceSet(reference.name, tuple(Tolerance(p, -a, a) for p, a in
-                                                    zip(names, shape, strict=True)),
-                              dependence=ref.dependence)
-        a = A.allocate(mech, shapes, OUTPUT, target, limit_um, None, n, seed,
-                       adjust=_beta_box(range_deg), bracket=(0.0, max_mm),
-                       steps=12 if steps is None else steps)
+        adjust, options, scan_options = _beta_box(range_deg, limit_um), {}, {}
         columns = {**ALLOCATION_COLUMNS, "upper": "tolerance_mm"}
         del columns["lower"]
-    else:
-        half = np.array([0.5 * (t.upper - t.lower) for t in ref.items])
-        # a tolerance the strategy cancels alone at its reference limits (within the plateau
-        # tolerance, e.g. the guide bore's position under the guide shift) has no slope to
-        # shape it: scaled like the others it would take the cap at once and use up the
-        # compensator's range the others need (the housing sets: every other tolerance fell to
-        # 1e-9 mm), so it is held at its reference limits and the rest are allocated
-        held = np.array(slope) * half < 1e-3
-        if held.all():
-            held[:] = False
-        free = (c / s**2) ** (1.0 / 3.0)
-        shape = np.where(held, np.nan, free)
-        shape = np.where(held, half, shape / np.nanmax(shape))
-
-        def limits(k):
-            f = np.where(held, half, np.minimum(k * shape, max_mm)) / half
-            return ToleranceSet("trial", tuple(Tolerance(t.param, t.lower * fi, t.upper * fi)
-                                               for t, fi in zip(ref.items, f, strict=True)),
-                                dependence=ref.dependence)
-
-        # k up to where every tolerance reaches the cap, so the cap never ends the search early
-        a = A.allocate(mech, ref, OUTPUT, target, limit_um, None, n, seed,
-                       adjust=strategy.compensators, bracket=(0.0, float(max_mm / shape[~held].min())),
-                       steps=10 if steps is None else steps, geometric=True, limits=limits,
-                       limit_um=limit_um, plateaus=False)
+    else:  # the slopes read the plateau's centre (the scan's), the yield only the value
+        adjust, scan_options = strategy.compensators, {"limit_um": limit_um}
+        options = {"limit_um": limit_um, "plateaus": False}
         columns = {**ALLOCATION_COLUMNS, "held_at_reference": "held_at_reference"}
-    table = a.table.assign(cost_weight=c, slope_um_per_mm=s,
-                           reference_lower=[t.lower for t in ref.items],
-                           reference_upper=[t.upper for t in ref.items])
-    if strategy is not None:
-        table = table.assign(held_at_reference=held)
-    return replace(a, table=table, columns=columns, yield_=a.yield_ if a.scale > 0 else 1.0,
+    a = allocate_by_cost(as_mechanism(nominal), needle_set(reference), OUTPUT, target,
+                         limit_um, None, n, seed, costs, adjust, symmetric=strategy is None,
+                         cap=max_mm, steps=(12 if strategy is None else 10) if steps is None
+                         else steps, hold_below=1e-3, figure="total_um",
+                         scan_options=scan_options, **options)
+    return replace(a, columns=columns, yield_=a.yield_ if a.scale > 0 else 1.0,
                    adjust="beta" if strategy is None else strategy.name)
 
 
