@@ -37,7 +37,6 @@ from sewtol.studies.montecarlo import (
     MonteCarloResult,
     check_sampling,
     contributors,
-    draw_deviations,
 )
 from sewtol.studies.settings import Setting, compare
 from sewtol.tolerances import ToleranceSet, needle_set
@@ -827,9 +826,11 @@ def compare_guides(nominal: Needle208, tolerances: ToleranceSet | str, n: int, s
                    variants: Sequence[tuple[str, float, float]] = DEFAULT_VARIANTS,
                    range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
                    n_jobs: int = 1, progress: bool | Callable[[int, int], None] = False,
-                   scheduler: str | Client | None = None, strategy: Strategy | None = None,
+                   strategy: Strategy | None = None,
                    limit_um: float = sb.DEFAULT_LIMIT_UM) -> pd.DataFrame:
-    """One row per guide setting (shift um along the guide normal, turn deg about its point).
+    """One row per guide setting (shift um along the guide normal, turn deg about its point):
+    sewtol.studies.settings.compare with its yield_figures (the strategies study of each
+    setting's machine, beta at the setting's beta*) beside the setting's nominal figures.
 
     Every setting sees the same machines (the ones `montecarlo` draws from the seed), so the
     rows differ by the guide alone.
@@ -853,8 +854,6 @@ def compare_guides(nominal: Needle208, tolerances: ToleranceSet | str, n: int, s
         Worker processes on this machine; the table does not depend on it.
     progress : bool or callable
         True: a bar on stderr; or ``progress(done, total)`` as chunks finish.
-    scheduler : str, distributed.Client or None
-        A Dask scheduler address or client.
     strategy : Strategy or None
         None: beta re-optimised per machine. A strategy: its joint optimum on top of each
         setting, with the counts after it.
@@ -869,57 +868,39 @@ def compare_guides(nominal: Needle208, tolerances: ToleranceSet | str, n: int, s
         beta fixed at the setting's beta* and adjusted (or after the strategy, with its counts:
         ok + out_of_spec + cannot_assemble + dead_point = n).
     """
+    from sewtol.mechanism.spec import Spec
+    from sewtol.studies.settings import yield_figures
+
     tolerances = needle_set(tolerances)
+    check_sampling(nominal, tolerances, n, seed)  # as montecarlo checks the same machines
     settings = [Setting(label, {"guide_shift_um": nominal.guide_shift_um + shift_um,
                                 "guide_angle": nominal.guide_angle + dangle},
                         {"shift_um": shift_um}) for label, shift_um, dangle in variants]
-    if strategy is not None:
-        return compare(nominal, settings, _adjusted_figures(nominal, tolerances, n, seed,
-                                                            range_deg, strategy, limit_um),
-                       "guide").to_dataframe()
+    adjusted = {"beta": tuple(map(float, range_deg))} if strategy is None else strategy
+
+    def columns(r):
+        fixed, adj = r.counts("fixed"), r.counts("adjusted")
+        if strategy is None:
+            return {"yield_fixed_beta": fixed["ok"] / r.n, "yield_adjusted_beta": adj["ok"] / r.n,
+                    "failed": fixed["failed"]}
+        total = r.get("adjusted").value
+        return {"yield_fixed_beta": fixed["ok"] / r.n, "strategy": strategy.name,
+                "yield_adjusted": adj["ok"] / r.n, "n": r.n, "ok": adj["ok"],
+                "out_of_spec": adj["out_of_spec"], "cannot_assemble": adj["cannot_close"],
+                "dead_point": adj["dead_point"], "p95_after_um": float(np.percentile(
+                    np.where(np.isfinite(total), total, np.inf), 95))}
+    yields = yield_figures(tolerances, n, seed, {"fixed": (), "adjusted": adjusted}, OUTPUT,
+                           Spec(OUTPUT, float(limit_um)), columns=columns, n_jobs=n_jobs,
+                           progress=progress, **({} if strategy is None else
+                                                 {"limit_um": limit_um, "plateaus": False}))
 
     def figures(p, setting):
-        fig, row = _guide_figures(p, range_deg, limit_um)
-        mc = montecarlo(p.override(beta=fig.beta_opt_deg), tolerances, n, seed,
-                        limit_um=limit_um, range_deg=range_deg, n_jobs=n_jobs,
-                        progress=progress, scheduler=scheduler)
-        return {**row, "yield_fixed_beta": mc.yield_of("fixed"),
-                "yield_adjusted_beta": mc.yield_of("adjusted"), "failed": mc.failed}
+        fig = nominal_figures(p, range_deg, limit_um)
+        return {"angle_from_vertical_deg": p.guide_angle,
+                "beta_opt_deg": fig.beta_opt_deg, "total_um": fig.total_um,
+                "window_low_deg": fig.window_deg[0], "window_high_deg": fig.window_deg[1],
+                "window_width_deg": fig.window_deg[1] - fig.window_deg[0]
+                if np.all(np.isfinite(fig.window_deg)) else np.nan,
+                "beta_at_bound": fig.beta_at_bound,
+                **yields(as_mechanism(p.override(beta=fig.beta_opt_deg)), setting)}
     return compare(nominal, settings, figures, "guide").to_dataframe()
-
-
-def _guide_figures(p, range_deg, limit_um=sb.DEFAULT_LIMIT_UM):
-    """The nominal figures of the machine with a guide setting, and the row's columns."""
-    fig = nominal_figures(p, range_deg, limit_um)
-    row = {"angle_from_vertical_deg": p.guide_angle,
-           "beta_opt_deg": fig.beta_opt_deg, "total_um": fig.total_um,
-           "window_low_deg": fig.window_deg[0], "window_high_deg": fig.window_deg[1],
-           "window_width_deg": fig.window_deg[1] - fig.window_deg[0]
-           if np.all(np.isfinite(fig.window_deg)) else np.nan,
-           "beta_at_bound": fig.beta_at_bound}
-    return fig, row
-
-
-def _adjusted_figures(nominal, tolerances, n, seed, range_deg, strategy, limit_um):
-    """Each setting's figures with the strategy's joint optimum on the same machines."""
-    from sewtol.mechanisms.needle_208.compensators import Strategy
-
-    check_sampling(nominal, tolerances, n, seed)  # as montecarlo checks the same machines
-    dev = draw_deviations(tolerances, n, seed)  # montecarlo's machines for this seed
-
-    def figures(p, setting):
-        fig, row = _guide_figures(p, range_deg, limit_um)
-        c = columns_of(p.override(beta=fig.beta_opt_deg), dev)
-        fixed = adjust(c, Strategy("none"), limit_um)
-        adj = adjust(c, strategy, limit_um, plateaus=False)
-        k = adj.counts()
-        return {
-            **row,
-            "yield_fixed_beta": float(np.mean(fixed.status == "ok")),
-            "strategy": strategy.name, "yield_adjusted": k["ok"] / adj.n,
-            "n": adj.n, "ok": k["ok"], "out_of_spec": k["out of spec"],
-            "cannot_assemble": k["cannot assemble"], "dead_point": k["dead point"],
-            "p95_after_um": float(np.percentile(np.where(np.isfinite(adj.total_um),
-                                                         adj.total_um, np.inf), 95)),
-        }
-    return figures
