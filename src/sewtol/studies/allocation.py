@@ -134,6 +134,19 @@ def refuse_relations(tolerances: ToleranceSet) -> None:
                              tolerances.selective.as_dict())
 
 
+def _per_parameter(weights: dict | None, params, field: str) -> np.ndarray:
+    """Positive weights by parameter name (default 1), in the order of params."""
+    weights = dict(weights or {})
+    unknown = sorted(set(weights) - set(params))
+    if unknown:
+        raise ParameterError(field, "must name toleranced parameters (" + ", ".join(params)
+                             + ")", unknown)
+    for k, w in weights.items():
+        if not (np.isfinite(w) and w > 0):
+            raise ParameterError(field, f"{k}'s weight must be a positive number", w)
+    return np.array([float(weights.get(p, 1.0)) for p in params])
+
+
 def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973,
              upper: float | None = None, lower: float | None = None, n: int = 2000,
              seed: int = 0, weights: dict[str, float] | None = None,
@@ -169,15 +182,7 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
         raise ParameterError("seed", "must be a whole number >= 0", seed)
     tol = checked(mech, tolerances)
     refuse_relations(tol)
-    weights = dict(weights or {})
-    unknown = sorted(set(weights) - set(tol.params))
-    if unknown:
-        raise ParameterError("weights", "must name toleranced parameters ("
-                             + ", ".join(tol.params) + ")", unknown)
-    for k, w in weights.items():
-        if not (np.isfinite(w) and w > 0):
-            raise ParameterError("weights", f"{k}'s weight must be a positive number", w)
-    w = np.array([float(weights.get(p, 1.0)) for p in tol.params])
+    w = _per_parameter(weights, tol.params, "weights")
     # common random numbers: montecarlo's uniforms for this seed, mapped through the scaled set
     # for every k, so each machine moves along its ray from nominal
     u = draw_units(unit_streams(seed, n), len(tol.items), 0, n)
@@ -282,14 +287,7 @@ def allocate_by_cost(mech, reference: ToleranceSet, output: str, target: float =
         raise ParameterError("target", "must be a yield strictly between 0 and 1", target)
     ref = checked(mech, reference)
     refuse_relations(ref)
-    costs = dict(costs or {})
-    unknown = sorted(set(costs) - set(ref.params))
-    if unknown:
-        raise ParameterError("costs", "must name toleranced parameters ("
-                             + ", ".join(ref.params) + ")", unknown)
-    c = np.array([float(costs.get(p, 1.0)) for p in ref.params])
-    if not np.all(np.isfinite(c) & (c > 0)):
-        raise ParameterError("costs", "must be positive weights", costs)
+    c = _per_parameter(costs, ref.params, "costs")
     r = scan(mech, ref, (), adjust, output, fast=fast,
              **(options if scan_options is None else scan_options))
     if adjust is None:

@@ -81,12 +81,17 @@ def yield_figures(tolerances, n: int, seed: int, cases: Mapping | None = None,
                   fast: bool = True, n_jobs: int = 1, progress=False, **options) -> Callable:
     """figures(machine, setting) for `compare`: the strategies study (sewtol.studies.strategies:
     the machines 0 .. n-1 of `seed`, cases name -> compensators, default {"fixed": ()}, output
-    and spec as it takes them, options to the mechanism's strategy adjuster) of the setting's
-    machine, as `columns(result)` (default `case_columns`). Every row draws the same
-    deviations: the rows differ by the setting alone."""
+    and spec as it takes them, options to the adjuster) of the setting's machine, as
+    `columns(result)` (default `case_columns`). Every row draws the same deviations: the rows
+    differ by the setting alone. With a two-sided spec the compensators centre the output in it
+    (sewtol.adjuster.Objective "centre"; minimising it would push it out below) unless options
+    give another objective."""
+    from sewtol.adjuster import Objective
     from sewtol.studies.strategies import strategies
 
     cases = {"fixed": ()} if cases is None else dict(cases)
+    if spec is not None and spec.lower is not None and spec.upper is not None:
+        options.setdefault("objective", Objective("centre", low=spec.lower, high=spec.upper))
 
     def figures(machine, setting):
         return columns(strategies(machine, tolerances, n, seed, cases, output, spec, fast=fast,
