@@ -55,7 +55,7 @@ from sewtol.tolerances import Tolerance, ToleranceSet
 # bisection on the scale stops when the bracket is this small relative to the scale
 SCALE_RTOL = 1e-4
 MAX_DOUBLINGS = 20
-MAX_BISECTIONS = 60  # a bracket (0, hi) whose yield never reaches the target ends here
+MAX_BISECTIONS = 60  # steps to SCALE_RTOL at most (about 14 decades of bracket)
 SET_METHOD = ("common scale k of the set (limits times k times each weight), bisection on the "
               "Monte-Carlo yield with common random numbers (one matrix of uniforms for every "
               "k): exact for the sample when the pass region is star-shaped about the nominal")
@@ -241,8 +241,9 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
         return (mid, hi) if yield_at(mid) >= target else (lo, mid)
 
     if not capped and (steps is not None or lo > 0 or bracket is not None):
+        floor = hi * 2.0**-MAX_DOUBLINGS  # (0, hi) failing down to here: no scale keeps it
         for _ in range(MAX_BISECTIONS if steps is None else int(steps)):
-            if steps is None and lo > 0 and hi - lo <= SCALE_RTOL * lo:
+            if steps is None and (hi - lo <= SCALE_RTOL * lo if lo > 0 else hi < floor):
                 break
             lo, hi = bisect(lo, hi)
     done = {t["scale"]: t["yield"] for t in trials}
