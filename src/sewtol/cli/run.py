@@ -227,9 +227,8 @@ def _check_flags(args) -> None:
             raise ParameterError("--" + key.replace("_", "-"), f"is not used by `run "
                                  f"{args.study}`", value)
     # `run settings` draws machines only when given one of its yield flags
-    draws = args.study != "settings" or any(getattr(args, k) is not None
-                                            for k in USES["settings"])
-    if args.n is None and args.study in DEFAULT_N and draws:
+    if args.n is None and args.study in DEFAULT_N and (args.study != "settings" or any(
+            getattr(args, k) is not None for k in USES["settings"])):
         args.n = DEFAULT_N[args.study]
     args.seed = 0 if args.seed is None else args.seed
     args.n_jobs = 1 if args.n_jobs is None else args.n_jobs
@@ -297,7 +296,7 @@ def cmd_run(args) -> None:
     if args.output is not None:
         mech.output(args.output)
     args.spec = args.spec_source = None
-    if args.study in SPEC_STUDIES and args.n is not None:  # the limits in force: the flags', else the file's
+    if args.study in SPEC_STUDIES and args.n is not None:  # the limits: the flags', else the file's
         args.spec_output, args.spec, args.spec_source = mech.resolve_spec(
             args.output, args.limit, args.lower_limit)
     args.path_reason = _fast_path_refusal(args, mech)  # None: the needle_208 fast path
@@ -309,21 +308,19 @@ def cmd_run(args) -> None:
                        res.to_dataframe())
     if args.study == "settings":
         from sewtol.studies import settings as SE
+        from sewtol.studies.strategies import parse_strategies
 
-        figures = None
+        figures = tolerances = None
         if args.n is not None:  # the same machines on every setting, per case
-            cases = {"fixed": ()} if args.adjust is None else \
-                {"fixed": (), "adjusted": tuple(args.adjust.split(","))}
-            if args.strategy is not None:
-                from sewtol.studies.strategies import parse_strategies
-
-                cases = parse_strategies(args.strategy, mech)
-            figures = SE.yield_figures(resolve_tolerances(mech, args.tolerances), args.n,
-                                       args.seed, cases, args.spec_output, args.spec,
-                                       fast=args.path != "generic", n_jobs=args.n_jobs)
+            cases = parse_strategies(args.strategy, mech) if args.strategy else {
+                "fixed": (), **({"adjusted": args.adjust.split(",")} if args.adjust else {})}
+            tolerances = resolve_tolerances(mech, args.tolerances)
+            figures = SE.yield_figures(tolerances, args.n, args.seed, cases, args.spec_output,
+                                       args.spec, fast=args.path != "generic", n_jobs=args.n_jobs)
         res = as_flags(SE.compare, mech, settings, figures, flags={
             **RUN_FLAGS, "strategy": "--adjust" if args.strategy is None else "--strategy"})
-        return _finish(args, fmt, mech, None, res.to_dict(), {"settings": res.rows}, res.rows)
+        return _finish(args, fmt, mech, tolerances, res.to_dict(), {"settings": res.rows},
+                       res.rows)
     if args.study == "refine":
         return _refine(args, fmt, mech)
     tolerances = resolve_tolerances(mech, args.tolerances)

@@ -16,21 +16,15 @@ the largest one: `trials` lists every k tried. The bracket is found by doubling 
 from k = 1, or given (`bracket`, e.g. the needle's (0, max_mm) for a set of shapes); the
 bisection runs to a relative SCALE_RTOL, or a given number of `steps`.
 
-`allocate_by_cost(mech, reference, output, ...)`: the shape found first, then its scale. Cost is
-reciprocal, sum c_i / t_i; each tolerance's slope s_i is the output's largest change (fixed, or
-adjusted over the compensators) at its reference limits, each tolerance alone (the scan,
-`sewtol.studies.scan`), per unit of its width; the shape t_i ~ (c_i / s_i^2)^(1/3) is the
-root-sum-square optimum, and `allocate` finds its common scale. Two forms:
-- symmetric (the needle's source study): +/- t_i, slopes per the larger side of each reference
-  tolerance, the scale (the widest tolerance, largest shape 1) bisected in (0, cap);
-- otherwise each reference tolerance keeps its own (possibly asymmetric) shape, both limits
-  scaled by min(k a_i, cap) / h_i (h_i its half-width, slopes per h_i), k bisected
-  geometrically (it spans decades) up to where every tolerance reaches the cap. A tolerance
-  that moves the output by less than `hold_below` at its reference limits (one a compensator
-  cancels alone, e.g. the needle's guide bore under the guide shift; or one the output does not
-  see) has no slope to shape it: it is held at its reference limits (`held_at_reference`), not
-  scaled (scaled like the others it would take the cap at once and could use up the
-  compensators' range the others need).
+`allocate_by_cost`: the shape first, then its scale. Cost is reciprocal, sum c_i / t_i; s_i is
+the output's largest change (fixed, or adjusted) at a tolerance's reference limits, that one
+alone (the scan), per unit of its width; t_i ~ (c_i / s_i^2)^(1/3) is the root-sum-square
+optimum. symmetric (the needle's source study): +/- t_i, widths the larger side, the scale (the
+widest tolerance) bisected in (0, cap). Otherwise each tolerance keeps its own limits, scaled to
+half-width min(k t_i, cap), k bisected geometrically (it spans decades); one that moves the
+output by less than `hold_below` at its reference limits (a compensator cancels it alone, or the
+output does not see it) has no slope to shape it and is held there (`held_at_reference`): scaled,
+it would take the cap at once and could use up the compensators' range the others need.
 """
 
 from __future__ import annotations
@@ -214,38 +208,22 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
                        "dead_point": int(np.sum(status == "dead_point")), "note": ""})
         return yk
 
-    lo, hi, capped = 0.0, 1.0, False
-    if bracket is not None:
-        lo, hi = map(float, bracket)
-        if yield_at(hi) >= target:
-            lo, capped = hi, True
-    elif yield_at(1.0) >= target:
-        lo = 1.0
+    # the bracket: given, or (1, 2^j) by doubling, or (0, 1), whose bisection halves from 1
+    lo, hi = (0.0, 1.0) if bracket is None else map(float, bracket)
+    capped = yield_at(hi) >= target
+    if capped and bracket is None:
         for _ in range(MAX_DOUBLINGS):
-            hi = 2.0 * lo
+            lo, hi = hi, 2.0 * hi
             if yield_at(hi) < target:
+                capped = False
                 break
-            lo = hi
-        else:
-            capped = True
-    else:
-        for _ in range(MAX_DOUBLINGS):
-            lo = 0.5 * hi
-            if yield_at(lo) >= target:
-                break
-            hi = lo
-        else:
-            lo = 0.0
-    def bisect(lo, hi):
+    lo = hi if capped else lo
+    floor = hi * 2.0**-MAX_DOUBLINGS  # (0, hi) failing down to here: no scale keeps it
+    for _ in range(0 if capped else MAX_BISECTIONS if steps is None else int(steps)):
+        if steps is None and (hi - lo <= SCALE_RTOL * lo if lo > 0 else hi <= floor):
+            break
         mid = np.sqrt(max(lo, hi * 1e-6) * hi) if geometric else 0.5 * (lo + hi)
-        return (mid, hi) if yield_at(mid) >= target else (lo, mid)
-
-    if not capped and (steps is not None or lo > 0 or bracket is not None):
-        floor = hi * 2.0**-MAX_DOUBLINGS  # (0, hi) failing down to here: no scale keeps it
-        for _ in range(MAX_BISECTIONS if steps is None else int(steps)):
-            if steps is None and (hi - lo <= SCALE_RTOL * lo if lo > 0 else hi < floor):
-                break
-            lo, hi = bisect(lo, hi)
+        lo, hi = (mid, hi) if yield_at(mid) >= target else (lo, mid)
     done = {t["scale"]: t["yield"] for t in trials}
     y_lo = done.get(lo, float("nan"))  # nan: no scale down to 2**-20 reaches the target
     final = limits(lo).items if limits is not None else None
@@ -269,78 +247,46 @@ def allocate_by_cost(mech, reference: ToleranceSet, output: str, target: float =
                      hold_below: float | None = None, figure: str | None = None,
                      scan_options: dict | None = None, fast: bool = True,
                      **options) -> Allocation:
-    """The widest tolerances of the cost shape that keep the yield at `target` (see the module
-    docstring: slopes from the scan at the reference limits, t_i ~ (c_i / s_i^2)^(1/3), then
-    `allocate`'s common scale on the same machines).
-
-    costs: c_i per parameter (> 0; default 1). adjust, options: the compensators and the
-    strategy adjuster's options, as `allocate` takes them; scan_options: the adjuster's
-    options for the slopes (default options); figure: the slopes read this extra figure of the
-    adjusted scan (a plug-in's, e.g. the needle's exact total_um) instead of its value.
-    symmetric: the source study's +/- t_i form; cap: the largest tolerance (half-width, the
-    parameter's unit); steps: bisection steps (None: to SCALE_RTOL); hold_below: the change of
-    the output at the reference limits below which a tolerance is held there (not symmetric;
-    None: 1e-6 of the largest change). The table adds per parameter `cost_weight`, `slope`
-    (output per parameter unit), the set's `reference_lower`/`reference_upper` and
-    `held_at_reference`."""
-    mech.output(output)
-    if not (isinstance(target, (int, float)) and 0 < target < 1):
-        raise ParameterError("target", "must be a yield strictly between 0 and 1", target)
+    """The widest tolerances of the cost shape that keep the yield at `target` (the module
+    docstring). costs: c_i per parameter (> 0, default 1); adjust, options: as `allocate`;
+    scan_options: the adjuster's options for the slopes (default options); figure: the slopes
+    read this extra figure of the adjusted scan (the needle's exact total_um) instead of its
+    value; cap: the largest half-width (the parameter's unit); steps: bisection steps (None: to
+    SCALE_RTOL); hold_below: see the module docstring (None: 1e-6 of the largest change). The
+    table adds `cost_weight`, `slope` (output per parameter unit) and `held_at_reference`."""
     ref = checked(mech, reference)
     refuse_relations(ref)
     c = _per_parameter(costs, ref.params, "costs")
     r = scan(mech, ref, (), adjust, output, fast=fast,
              **(options if scan_options is None else scan_options))
-    if adjust is None:
-        y, y0 = evaluated(mech, r.values, output, fast=fast), \
-            evaluated(mech, None, output, fast=fast)[0]
-    else:
-        def pick(a):
-            return a.value if figure is None else a.extras[figure]
-        y, y0 = pick(r.adjusted), float(pick(r.adjusted_nominal)[0])
-    of = np.asarray(r.params)
-    if symmetric:
-        width = np.array([max(abs(t.upper), abs(t.lower)) for t in ref.items])
-    else:
-        width = np.array([0.5 * (t.upper - t.lower) for t in ref.items])
-    slope = []
-    for t, wi in zip(ref.items, width, strict=True):
-        worst = np.nanmax(np.abs(np.asarray(y, float)[of == t.param] - y0))
-        slope.append(float(worst) / wi if np.isfinite(worst) else np.inf)
-    s = np.clip(np.array(slope), 1e-9, 1e12)
-    free = (c / s**2) ** (1.0 / 3.0)
-    held = np.zeros(len(ref.items), bool)
-    if symmetric:
-        # the scale k is the widest tolerance, searched in (0, cap): none exceeds the cap; the
-        # copula ties ranks, whatever the widths: every trial keeps the set's dependence
-        shape = free / free.max()
-        a = allocate(mech, ToleranceSet(reference.name, tuple(
-            replace(t, lower=-ai, upper=ai, shift=t.shift * ai / wi)
-            for t, ai, wi in zip(ref.items, shape, width, strict=True)),
-            dependence=ref.dependence), output, target, upper, lower, n, seed, None, adjust,
-            bracket=(0.0, cap), steps=steps, fast=fast, **options)
-    else:
-        change = np.array(slope) * width
-        finite = change[np.isfinite(change)]
-        limit = hold_below if hold_below is not None else \
-            1e-6 * (finite.max() if finite.size else 0.0)
-        held = change < limit
-        if held.all():
-            held[:] = False
-        shape = np.where(held, np.nan, free)
-        shape = np.where(held, width, shape / np.nanmax(shape))
+    y, y0 = ((evaluated(mech, v, output, fast=fast) for v in (r.values, None)) if adjust is None
+             else (a.value if figure is None else a.extras[figure]
+                   for a in (r.adjusted, r.adjusted_nominal)))
+    width = np.array([max(abs(t.upper), abs(t.lower)) if symmetric else 0.5 * (t.upper - t.lower)
+                      for t in ref.items])
+    change = np.array([np.nanmax(np.abs(np.asarray(y, float)[np.asarray(r.params) == t.param]
+                                        - float(np.ravel(y0)[0]))) for t in ref.items])
+    slope = np.where(np.isfinite(change), change / width, np.inf)
+    s = np.clip(slope, 1e-9, 1e12)
+    shape = (c / s**2) ** (1.0 / 3.0)
+    finite = change[np.isfinite(change)]
+    held = np.zeros(len(ref.items), bool) if symmetric else slope * width < (
+        1e-6 * (finite.max() if finite.size else 0.0) if hold_below is None else hold_below)
+    held[:] = held & ~held.all()
+    shape = np.where(held, width, shape / shape[~held].max())
 
-        def limits(k):
-            f = np.where(held, width, np.minimum(k * shape, cap)) / width
-            return ToleranceSet("trial", tuple(
-                replace(t, lower=t.lower * fi, upper=t.upper * fi, shift=t.shift * fi)
-                for t, fi in zip(ref.items, f, strict=True)), dependence=ref.dependence)
+    def limits(k):
+        f = np.where(held, width, np.minimum(k * shape, cap)) / width
+        return ToleranceSet(reference.name, tuple(
+            replace(t, lower=-k * a, upper=k * a, shift=t.shift * k * a / w) if symmetric else
+            replace(t, lower=t.lower * fi, upper=t.upper * fi, shift=t.shift * fi)
+            for t, a, w, fi in zip(ref.items, shape, width, f, strict=True)),
+            dependence=ref.dependence)
 
-        # k up to where every tolerance reaches the cap, so the cap never ends the search early
-        a = allocate(mech, ref, output, target, upper, lower, n, seed, None, adjust,
-                     bracket=(0.0, float(cap / shape[~held].min())), steps=steps,
-                     geometric=True, limits=limits, fast=fast, **options)
-    table = a.table.drop(columns="weight").assign(
-        cost_weight=c, slope=s, reference_lower=[t.lower for t in ref.items],
-        reference_upper=[t.upper for t in ref.items], held_at_reference=held)
-    return replace(a, tolerances=reference.name, table=table, method=COST_METHOD)
+    # symmetric: k is the widest tolerance, in (0, cap); else k up to where every tolerance
+    # reaches the cap, bisected geometrically (it spans decades)
+    a = allocate(mech, ref, output, target, upper, lower, n, seed, None, adjust,
+                 bracket=(0.0, cap if symmetric else float(cap / shape[~held].min())),
+                 steps=steps, geometric=not symmetric, limits=limits, fast=fast, **options)
+    table = a.table.drop(columns="weight").assign(cost_weight=c, slope=s, held_at_reference=held)
+    return replace(a, table=table, method=COST_METHOD)

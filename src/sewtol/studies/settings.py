@@ -9,14 +9,12 @@ machines draws the same ones from its seed on every row: common random numbers).
 
 `figures(machine, setting) -> dict` is the study of each row; the default is the nominal
 machine's status and every output (`sewtol run FILE settings --set NAME:PARAM=V,...`).
-`yield_figures(tolerances, n, seed, cases)` is the Monte-Carlo of each row: the machines
-0 .. n-1 of the seed (the one sampler, `law.draw`: the same deviations on every row, added to
-the row's nominals) under each case (a name and the compensators set per machine, none: as
-built), as `sewtol.studies.strategies` adjusts them, with per case the counts ok, out_of_spec,
-cannot_close and dead_point (adding up to n), the yield and p95 (`run FILE settings --n N
---adjust C`). A mechanism's own comparison (the needle's guide placements, tables/needle_208.py)
-is an instance: its settings are data, its figures add its nominal figures and name the cases'
-columns in its words.
+`yield_figures(tolerances, n, seed, cases)` is the Monte-Carlo of each row: the strategies study
+of the setting's machine (the seed's deviations added to its nominals: the same on every row)
+under each case (compensators set per machine; none: as built), with per case counts adding up
+to n, the yield and p95 (`run FILE settings --n N --adjust C`). A mechanism's own comparison
+(the needle's guide placements, tables/needle_208.py) is an instance: settings as data, its own
+nominal figures and the cases' columns in its words.
 """
 
 from __future__ import annotations
@@ -26,7 +24,10 @@ from dataclasses import dataclass, field
 
 import pandas as pd
 
+from sewtol.adjuster import Objective
 from sewtol.errors import ParameterError
+from sewtol.studies.montecarlo import quantiles
+from sewtol.studies.strategies import STATUSES, strategies
 
 
 @dataclass(frozen=True)
@@ -65,9 +66,6 @@ def case_columns(res) -> dict:
     per case NAME `yield_NAME`, `ok_NAME`, `out_of_spec_NAME`, `cannot_close_NAME`,
     `dead_point_NAME` (ok + out_of_spec + cannot_close + dead_point = n) and `p95_NAME` (of the
     case's output; a machine that cannot run ranks as infinitely bad)."""
-    from sewtol.studies.montecarlo import quantiles
-    from sewtol.studies.strategies import STATUSES
-
     row = {"n": res.n}
     for name in res.names:
         c = res.counts(name)
@@ -86,9 +84,6 @@ def yield_figures(tolerances, n: int, seed: int, cases: Mapping | None = None,
     differ by the setting alone. With a two-sided spec the compensators centre the output in it
     (sewtol.adjuster.Objective "centre"; minimising it would push it out below) unless options
     give another objective."""
-    from sewtol.adjuster import Objective
-    from sewtol.studies.strategies import strategies
-
     cases = {"fixed": ()} if cases is None else dict(cases)
     if spec is not None and spec.lower is not None and spec.upper is not None:
         options.setdefault("objective", Objective("centre", low=spec.lower, high=spec.upper))

@@ -745,52 +745,23 @@ def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 
              steps: int | None = None, strategy: Strategy | None = None,
              limit_um: float = sb.DEFAULT_LIMIT_UM) -> Allocation:
     """The widest tolerances that keep the yield after adjustment at a target:
-    sewtol.studies.allocation.allocate_by_cost on `as_mechanism(nominal)`, SumDelta within
-    limit_um, the slopes read from the exact SumDelta of the scan (um per mm).
+    sewtol.studies.allocation.allocate_by_cost on `as_mechanism(nominal)` (SumDelta within
+    limit_um; slopes from the scan's exact SumDelta, um per mm; cost weights `costs`, default 1;
+    n machines per trial scale from `seed`; every tolerance at most max_mm).
 
     strategy None (beta re-optimised in range_deg, the source study's allocation): the
-    symmetric form, +/- t_i, the scale (mm, the widest tolerance) bisected in (0, max_mm). A
-    strategy: its exact joint optimum; each reference tolerance keeps its own shape, k bisected
-    geometrically; a tolerance the strategy cancels alone at its reference limits (SumDelta
-    within 1e-3 um, the plateau tolerance, of the nominal's at both, e.g. the guide bore's
-    position under the guide shift) is held at its reference limits (``held_at_reference``).
+    symmetric form, +/- t_i, the scale (mm, the widest tolerance) bisected in (0, max_mm) in
+    `steps` (default 12). A strategy: its exact joint optimum; each reference tolerance keeps
+    its own shape, k bisected geometrically (default 10 steps); a tolerance the strategy cancels
+    alone at its reference limits (SumDelta within 1e-3 um, the plateau tolerance, of the
+    nominal's at both, e.g. the guide bore's position under the guide shift) is held there.
 
-    Parameters
-    ----------
-    nominal : Needle208
-        The nominal machine (scalar parameters).
-    reference : ToleranceSet or str
-        Which parameters to allocate, and the limits at which the slopes are taken.
-    target : float
-        The yield to keep, strictly between 0 and 1; default 0.9973 (+/-3 sigma).
-    n, seed : int
-        Monte-Carlo machines per trial scale and the seed of their common random numbers.
-    costs : dict or None
-        Cost weight c_i per parameter (> 0); a parameter not named weighs 1.
-    max_mm : float
-        The cap on any tolerance (mm); insensitive parameters end there.
-    range_deg : tuple of float
-        The regulating range for beta, (low, high) in deg (strategy None).
-    steps : int or None
-        Bisection steps on the scale; None: 12 (strategy None) or 10 (a strategy).
-    strategy : Strategy or None
-        The assembler's adjustment; None: beta alone in range_deg.
-    limit_um : float
-        The SumDelta limit (um) of the yield.
-
-    Returns
-    -------
-    sewtol.studies.allocation.Allocation
-        ``to_dataframe()`` per parameter ``cost_weight``, ``slope_um_per_mm``, the allocated
-        limits (``tolerance_mm``, the +/- limit, for strategy None; ``lower_mm`` and
-        ``upper_mm`` with a strategy) and the reference limits; ``yield_`` the yield after
-        adjustment (1 when no scale above 0 keeps the target), ``scale``, ``target``, ``n``,
-        ``seed``; ``as_tolerance_set()`` the allocated limits for further studies.
-
-    Raises
-    ------
-    ParameterError
-        For a target outside (0, 1) or a non-positive cost weight.
+    Returns the Allocation: ``to_dataframe()`` per parameter ``cost_weight``,
+    ``slope_um_per_mm``, the allocated limits (``tolerance_mm``, the +/- limit, for strategy
+    None; ``lower_mm``, ``upper_mm`` and ``held_at_reference`` with a strategy) and the
+    reference limits; ``yield_`` the yield after adjustment (1 when no scale above 0 keeps the
+    target), ``scale``; ``as_tolerance_set()`` the allocated limits. A target outside (0, 1) or
+    a non-positive cost weight raises ParameterError.
     """
     from sewtol.studies.allocation import allocate_by_cost
 
@@ -832,41 +803,18 @@ def compare_guides(nominal: Needle208, tolerances: ToleranceSet | str, n: int, s
     sewtol.studies.settings.compare with its yield_figures (the strategies study of each
     setting's machine, beta at the setting's beta*) beside the setting's nominal figures.
 
-    Every setting sees the same machines (the ones `montecarlo` draws from the seed), so the
-    rows differ by the guide alone.
+    Every setting sees the same n machines (the ones `montecarlo` draws from `seed`), so the
+    rows differ by the guide alone. variants: ``(label, shift_um, turn_deg)`` per setting
+    (default: nominal, +/-50 um, +/-0.02 deg); range_deg: beta's regulating range; strategy
+    None: beta re-optimised per machine, else the strategy's joint optimum on top of each
+    setting, with the counts after it; n_jobs, progress: the strategies study's (the table does
+    not depend on them); limit_um: the SumDelta limit.
 
-    Parameters
-    ----------
-    nominal : Needle208
-        The nominal machine (scalar parameters).
-    tolerances : ToleranceSet or str
-        What the machines draw from.
-    n : int
-        Monte-Carlo machines per setting.
-    seed : int
-        The seed (>= 0), as in `montecarlo`.
-    variants : sequence of (str, float, float)
-        ``(label, shift_um, turn_deg)`` per setting: a shift along the guide's normal (um) and
-        a turn about its point (deg). Default: nominal, +/-50 um, +/-0.02 deg.
-    range_deg : tuple of float
-        The regulating range for beta, (low, high) in deg.
-    n_jobs : int
-        Worker processes on this machine; the table does not depend on it.
-    progress : bool or callable
-        True: a bar on stderr; or ``progress(done, total)`` as chunks finish.
-    strategy : Strategy or None
-        None: beta re-optimised per machine. A strategy: its joint optimum on top of each
-        setting, with the counts after it.
-    limit_um : float
-        The SumDelta limit (um).
-
-    Returns
-    -------
-    pandas.DataFrame
-        Per setting: ``guide``, ``shift_um``, ``angle_from_vertical_deg``, ``beta_opt_deg``,
-        ``total_um`` (nominal SumDelta at beta*), the beta window (deg) and the yields with
-        beta fixed at the setting's beta* and adjusted (or after the strategy, with its counts:
-        ok + out_of_spec + cannot_assemble + dead_point = n).
+    Returns per setting ``guide``, ``shift_um``, ``angle_from_vertical_deg``, ``beta_opt_deg``,
+    ``total_um`` (nominal SumDelta at beta*), the beta window (deg) and the yields with beta
+    fixed at the setting's beta* and adjusted (``failed``: machines that cannot run, fixed), or
+    after the strategy with its counts (ok + out_of_spec + cannot_assemble + dead_point = n)
+    and ``p95_after_um``.
     """
     from sewtol.mechanism.spec import Spec
     from sewtol.studies.settings import yield_figures
