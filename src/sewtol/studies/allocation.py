@@ -42,6 +42,7 @@ from sewtol.law import InputLaw, draw_units, unit_streams
 from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
 from sewtol.studies.adjusting import evaluated, failures_of
+from sewtol.studies.montecarlo import check_seed
 from sewtol.studies.rare_event import check_adjust, limits_of, output_of
 from sewtol.studies.scan import checked, scan
 from sewtol.tolerances import Tolerance, ToleranceSet
@@ -172,8 +173,7 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
         raise ParameterError("target", "must be a yield strictly between 0 and 1", target)
     if int(n) != n or n < 10:
         raise ParameterError("n", "must be a whole number of machines >= 10", n)
-    if int(seed) != seed or seed < 0:
-        raise ParameterError("seed", "must be a whole number >= 0", seed)
+    seed = check_seed(seed)
     tol = checked(mech, tolerances)
     refuse_relations(tol)
     w = _per_parameter(weights, tol.params, "weights")

@@ -733,10 +733,9 @@ def needle_limit_state(nominal: Needle208, tolerances: ToleranceSet | str, limit
 
 
 # the needle's names of the allocation's columns (studies.allocation.Allocation.to_dataframe)
-ALLOCATION_COLUMNS = {"param": "param", "cost_weight": "cost_weight",
-                      "slope": "slope_um_per_mm", "lower": "lower_mm",
-                      "upper": "upper_mm", "reference_lower": "reference_lower_mm",
-                      "reference_upper": "reference_upper_mm"}
+ALLOCATION_COLUMNS = {"param": "param", "cost_weight": "cost_weight", "slope": "slope_um_per_mm",
+                      **{k: f"{k}_mm" for k in ("lower", "upper", "reference_lower",
+                                                 "reference_upper")}}
 
 
 def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 0.9973,
@@ -745,23 +744,38 @@ def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 
              steps: int | None = None, strategy: Strategy | None = None,
              limit_um: float = sb.DEFAULT_LIMIT_UM) -> Allocation:
     """The widest tolerances that keep the yield after adjustment at a target:
-    sewtol.studies.allocation.allocate_by_cost on `as_mechanism(nominal)` (SumDelta within
-    limit_um; slopes from the scan's exact SumDelta, um per mm; cost weights `costs`, default 1;
-    n machines per trial scale from `seed`; every tolerance at most max_mm).
+    sewtol.studies.allocation.allocate_by_cost on `as_mechanism(nominal)`, slopes from the
+    scan's exact SumDelta (um per mm).
 
     strategy None (beta re-optimised in range_deg, the source study's allocation): the
-    symmetric form, +/- t_i, the scale (mm, the widest tolerance) bisected in (0, max_mm) in
-    `steps` (default 12). A strategy: its exact joint optimum; each reference tolerance keeps
-    its own shape, k bisected geometrically (default 10 steps); a tolerance the strategy cancels
-    alone at its reference limits (SumDelta within 1e-3 um, the plateau tolerance, of the
-    nominal's at both, e.g. the guide bore's position under the guide shift) is held there.
+    symmetric form, +/- t_i, the scale (mm, the widest tolerance) bisected in (0, max_mm). A
+    strategy: its exact joint optimum; each reference tolerance keeps its own shape, k bisected
+    geometrically; a tolerance the strategy cancels alone at its reference limits (SumDelta
+    within 1e-3 um, the plateau tolerance, of the nominal's at both, e.g. the guide bore's
+    position under the guide shift) is held there (``held_at_reference``).
 
-    Returns the Allocation: ``to_dataframe()`` per parameter ``cost_weight``,
-    ``slope_um_per_mm``, the allocated limits (``tolerance_mm``, the +/- limit, for strategy
-    None; ``lower_mm``, ``upper_mm`` and ``held_at_reference`` with a strategy) and the
-    reference limits; ``yield_`` the yield after adjustment (1 when no scale above 0 keeps the
-    target), ``scale``; ``as_tolerance_set()`` the allocated limits. A target outside (0, 1) or
-    a non-positive cost weight raises ParameterError.
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters).
+    reference : ToleranceSet or str
+        The parameters to allocate and the limits at which the slopes are taken.
+    target, n, seed : float, int, int
+        The yield to keep (strictly between 0 and 1; 0.9973 is +/-3 sigma); the machines per
+        trial scale and the seed of their common random numbers.
+    costs, max_mm : dict or None, float
+        Cost weight c_i per parameter (> 0; default 1); the largest tolerance (mm).
+    range_deg, steps, strategy, limit_um : tuple, int or None, Strategy or None, float
+        beta's regulating range (deg); bisection steps (None: 12, or 10 with a strategy); the
+        assembler's adjustment (None: beta alone in range_deg); the SumDelta limit (um).
+
+    Returns
+    -------
+    sewtol.studies.allocation.Allocation
+        ``to_dataframe()`` per parameter ``cost_weight``, ``slope_um_per_mm``, the allocated
+        limits (``tolerance_mm``, the +/- limit, for strategy None; ``lower_mm`` and
+        ``upper_mm`` with a strategy) and the reference limits; ``yield_`` the yield after
+        adjustment (1 when no scale above 0 keeps the target); ``as_tolerance_set()``.
     """
     from sewtol.studies.allocation import allocate_by_cost
 
@@ -801,20 +815,32 @@ def compare_guides(nominal: Needle208, tolerances: ToleranceSet | str, n: int, s
                    limit_um: float = sb.DEFAULT_LIMIT_UM) -> pd.DataFrame:
     """One row per guide setting (shift um along the guide normal, turn deg about its point):
     sewtol.studies.settings.compare with its yield_figures (the strategies study of each
-    setting's machine, beta at the setting's beta*) beside the setting's nominal figures.
+    setting's machine, beta at the setting's beta*) beside the setting's nominal figures. Every
+    setting sees the same machines (`montecarlo`'s for the seed): the rows differ by the guide.
 
-    Every setting sees the same n machines (the ones `montecarlo` draws from `seed`), so the
-    rows differ by the guide alone. variants: ``(label, shift_um, turn_deg)`` per setting
-    (default: nominal, +/-50 um, +/-0.02 deg); range_deg: beta's regulating range; strategy
-    None: beta re-optimised per machine, else the strategy's joint optimum on top of each
-    setting, with the counts after it; n_jobs, progress: the strategies study's (the table does
-    not depend on them); limit_um: the SumDelta limit.
+    Parameters
+    ----------
+    nominal : Needle208
+        The nominal machine (scalar parameters).
+    tolerances, n, seed : ToleranceSet or str, int, int
+        What the machines draw from; machines per setting; the seed (>= 0).
+    variants : sequence of (str, float, float)
+        ``(label, shift_um, turn_deg)`` per setting; default nominal, +/-50 um, +/-0.02 deg.
+    range_deg, limit_um : tuple of float, float
+        beta's regulating range (deg); the SumDelta limit (um).
+    n_jobs, progress : int, bool or callable
+        The strategies study's workers and progress bar (the table does not depend on them).
+    strategy : Strategy or None
+        None: beta re-optimised per machine; a strategy: its joint optimum on each setting.
 
-    Returns per setting ``guide``, ``shift_um``, ``angle_from_vertical_deg``, ``beta_opt_deg``,
-    ``total_um`` (nominal SumDelta at beta*), the beta window (deg) and the yields with beta
-    fixed at the setting's beta* and adjusted (``failed``: machines that cannot run, fixed), or
-    after the strategy with its counts (ok + out_of_spec + cannot_assemble + dead_point = n)
-    and ``p95_after_um``.
+    Returns
+    -------
+    pandas.DataFrame
+        Per setting ``guide``, ``shift_um``, ``angle_from_vertical_deg``, ``beta_opt_deg``,
+        ``total_um`` (nominal SumDelta at beta*), the beta window (deg) and the yields with beta
+        fixed at the setting's beta* and adjusted (``failed``: cannot run, fixed), or after the
+        strategy with its counts (ok + out_of_spec + cannot_assemble + dead_point = n) and
+        ``p95_after_um``.
     """
     from sewtol.mechanism.spec import Spec
     from sewtol.studies.settings import yield_figures
