@@ -244,3 +244,13 @@ def test_the_monte_carlo_holds_a_compensator_at_the_nominal_machines_optimum(nee
     assert kept.held["beta"] == mech.nominal_values()["beta"]
     with pytest.raises(ParameterError, match="hold"):
         MC.montecarlo(mech, NEEDLE_208_SETS["recommended"], 2, 5, hold="best")
+
+
+def test_nothing_to_set_gives_the_machine_as_built_whatever_the_objective(needle):
+    """A settings case with no compensators under a two-sided spec (objective centre): the
+    plug-in's machine as built, as under the default objective."""
+    vals = _corners(needle)
+    built = adjusted(needle, vals, (), "SumDelta_um")
+    centred = adjusted(needle, vals, (), "SumDelta_um", objective="centre=1,10")
+    np.testing.assert_array_equal(centred.value, built.value)
+    assert list(centred.status) == list(built.status) and centred.path == built.path
