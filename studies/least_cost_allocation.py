@@ -17,9 +17,9 @@ same machines by its largest common scale.
 feed: the 131-42+3 feed's lower dog step, within +-0.01 mm of nominal, 90 % with 95 % confidence,
 the feed chain's links (examples/tolerances/feed_131_cost.toml: the file's illustrative +-0.02 mm
 set with the same assumed cost); today's generic allocation is the common scale of that set
-(`sewtol run feed_131 allocation`). The feed's model takes about 10 ms a machine (720 angles,
-both dogs), so its search runs on 60 machines with a small budget and no centre scan in the
-polish: the restarts say how far they agree.
+(`sewtol run feed_131 allocation --shape set`). The feed's model takes about 10 ms a machine
+(720 angles, both dogs), so its search runs on 60 machines with a small budget and no centre
+scan in the polish: the restarts say how far they agree.
 
 Writes DIR/allocation_cost.md/.csv (per strategy and parameter: today's limits and cost beside
 the least-cost ones, and what limits each side), DIR/allocation_cost_summary.md/.csv (totals,
@@ -171,8 +171,8 @@ def feed(args, out: Path) -> None:
                              f"Clopper-Pearson) on {args.n} machines, seed {args.seed}",
                 "fresh check": f"{args.check_n} machines, seed {args.seed + 1}, 95 % "
                                "Clopper-Pearson interval",
-                "today": f"the set's common scale (sewtol run feed_131 allocation: plain yield "
-                         f">= target on the same machines gives scale {today.scale:.4g}); here "
+                "today": f"the set's common scale (sewtol run feed_131 allocation --shape set: "
+                         f"plain yield >= target on the same machines gives scale {today.scale:.4g}); here "
                          "brought to the same criterion",
                 "held fixed": "nominal design, no adjustment, each zone holds the nominal, "
                               "half-width within [0.01, 4] x the reference's",

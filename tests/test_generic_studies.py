@@ -18,12 +18,14 @@ import pytest  # noqa: E402
 from scipy import stats  # noqa: E402
 
 from cli_helpers import run, strict_loads  # noqa: E402
+from sewtol.intervals import clopper_pearson  # noqa: E402
 from sewtol.mechanism import load  # noqa: E402
 from sewtol.reports import generic_report as GR  # noqa: E402
 from sewtol.studies import allocation as AL  # noqa: E402
 from sewtol.studies import rare_event as PPM  # noqa: E402
 from sewtol.studies import rare_event as R  # noqa: E402
 from sewtol.studies import sobol as SO  # noqa: E402
+from sewtol.studies.montecarlo import draw_deviations as draw_deviations_of  # noqa: E402
 from sewtol.studies.montecarlo import draw_units, unit_streams  # noqa: E402
 from sewtol.tolerances import Tolerance, ToleranceSet  # noqa: E402
 
@@ -184,6 +186,29 @@ def test_allocation_weight_halves_r_doubles_the_scale(mech):
     assert rb == pytest.approx(ra, rel=3 * AL.SCALE_RTOL)
 
 
+def test_cost_allocation_shapes_by_slope_holds_the_unseen_and_keeps_its_target(mech):
+    # stroke = 2 r: r's slope is 2 (0.06 over +/-0.03), L's 0 (held at its reference limits,
+    # not scaled); r alone is shaped (the largest shape, 1), so its half-width is the scale:
+    # the sample's crossing 0.01 / V_(m) of the same uniforms (r's column), to SCALE_RTOL
+    target, n = 0.9973, 2000
+    a = AL.allocate_by_cost(mech, mech.tolerance_sets["uniform"], "stroke_mm", target,
+                            upper=20.02, lower=19.98, n=n, seed=0)
+    tab = a.table.set_index("param")
+    assert tab.loc["r", "slope"] == pytest.approx(2.0, rel=1e-9)
+    assert bool(tab.loc["L", "held_at_reference"]) and not tab.loc["r", "held_at_reference"]
+    assert (tab.loc["L", "lower"], tab.loc["L", "upper"]) == (-0.1, 0.1)
+    k_sample = _order_statistic_scale(n, 0, target, 0.01, 1.0)
+    assert k_sample * (1 - 2 * AL.SCALE_RTOL) <= tab.loc["r", "upper"] <= k_sample * (1 + 1e-9)
+    assert tab.loc["r", "upper"] == -tab.loc["r", "lower"] == pytest.approx(a.scale, rel=1e-12)
+    # the yield it reports is that of its set on montecarlo's machines, and the target lies in
+    # its exact interval (the crossing of a step function of n machines)
+    dev = draw_deviations_of(a.as_tolerance_set(), n, 0)
+    ok = int(np.sum(np.abs(2 * dev["r"]) <= 0.02 + 1e-12))
+    assert ok / n == a.yield_ >= target
+    lo, hi = clopper_pearson(ok, n)
+    assert lo <= target <= hi
+
+
 def test_allocation_counts_machines_that_cannot_close_against_the_yield():
     # L = 10.5 + d, d uniform +/- 0.1 k: the rod cannot reach the guide at q = 90 deg when
     # L < r = 10, so yield = (0.1 k + 0.5) / (0.2 k) -> 0.1 k = 0.5 / (2 target - 1)
@@ -267,11 +292,20 @@ def test_cli_ppm_allocation_report(tmp_path):
     assert obj["pass_condition"] == "stroke_mm <= 20.07 mm" and obj["budget"] == 5000
     assert obj["method"] == "montecarlo" and obj["model_calls"] == 5000
     code, out, err = run("run", FILE, "allocation", "--tolerances", "uniform", "--limit",
-                         "20.02", "--lower-limit", "19.98", "--n", "2000", "--format", "json")
+                         "20.02", "--lower-limit", "19.98", "--n", "2000", "--shape", "set",
+                         "--format", "json")
     assert code == 0, err
     obj = strict_loads(out)
     k = _order_statistic_scale(2000, 0, 0.9973, 0.01, 0.03)
     assert k * (1 - 2 * AL.SCALE_RTOL) <= obj["scale"] <= k * (1 + 1e-9)
+    # the default shapes by cost: r's half-width is the crossing, L (unseen) keeps its limits
+    code, out, err = run("run", FILE, "allocation", "--tolerances", "uniform", "--limit",
+                         "20.02", "--lower-limit", "19.98", "--n", "2000", "--format", "json")
+    assert code == 0, err
+    rows = {r["param"]: r for r in strict_loads(out)["rows"]}
+    k = _order_statistic_scale(2000, 0, 0.9973, 0.01, 1.0)
+    assert k * (1 - 2 * AL.SCALE_RTOL) <= rows["r"]["upper"] <= k * (1 + 1e-9)
+    assert rows["L"]["held_at_reference"] and rows["L"]["upper"] == 0.1
     # a limit the nominal itself misses: no scale reaches the target, said as a null yield
     code, out, err = run("run", FILE, "allocation", "--tolerances", "uniform", "--limit",
                          "19.9", "--n", "50", "--format", "json")
@@ -296,6 +330,9 @@ def test_cli_ppm_allocation_report(tmp_path):
     (("ppm", "--limit", "nan"), "--limit"),
     (("allocation", "--limit", "20.1", "--weight", "Q=2"), "--weight"),
     (("allocation", "--limit", "20.1", "--weight", "r=-1"), "--weight: r's weight"),
+    (("allocation", "--limit", "20.1", "--shape", "set", "--weight", "r=-1"),
+     "--weight: r's weight"),
+    (("ppm", "--limit", "20.1", "--shape", "set"), "--shape"),
     (("ppm", "--limit", "20.1", "--adjust", "beta"), "--adjust"),
     (("ppm", "--limit", "20.1", "--n", "50"), "--n"),
 ])

@@ -3,6 +3,8 @@ scan, the worst case, the largest tolerances and the settings comparison of any 
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -159,9 +161,61 @@ def test_run_settings_prints_one_row_per_setting_and_refuses_bad_ones_in_one_lin
             assert rows[name][o] == float(ref.outputs[o][0])
     for args, msg in ((["--set", "AB=4"], "needs at least one SETTING:NAME=VALUE"),
                       (["--set", "a:AB=x"], "AB: must be a number"),
-                      (["--set", "a:AB=4", "--n", "5"], "--n: is not used by `run settings`")):
+                      (["--set", "a:AB=4", "--method", "mc"],
+                       "--method: is not used by `run settings`"),
+                      (["--set", "a:AB=4", "--n", "1"], "--n: must be >= 2"),
+                      (["--set", "a:AB=4", "--n", "5", "--adjust", "nope"],
+                       "--adjust: must name compensators")):
         code, out, err = run("run", "khujand_feed", "settings", *args)
         assert code == 2 and out == "" and msg in err and len(err.strip().splitlines()) == 1
+
+
+SLIDER = str(Path(__file__).parent / "data" / "crank_slider.toml")
+
+
+def test_settings_yields_are_a_monte_carlo_by_hand_on_the_same_machines():
+    """The crank-slider (J_x_max = L + r): per setting the same deviations added to its own
+    nominals, J_x_max <= 49.02 counted as built and with the rod L set per machine; the rod's
+    optimum by brute force over a dense grid of its box [39, 41] (the minimum 39 + r)."""
+    from sewtol.mechanism.spec import Spec
+    from sewtol.studies.montecarlo import draw_deviations
+
+    mech, n, seed, limit = load(SLIDER), 300, 5, 49.02
+    tol = mech.tolerance_sets["uniform"]
+    settings = [ST.Setting("as drawn"), ST.Setting("long rod", {"L": 40.05}),
+                ST.Setting("big crank", {"r": 10.012})]
+    rows = ST.compare(mech, settings, ST.yield_figures(
+        tol, n, seed, {"fixed": (), "adjusted": ("rod",)}, "J_x_max_mm",
+        Spec("J_x_max_mm", limit))).to_dataframe().set_index("setting")
+    dev = draw_deviations(tol, n, seed)  # montecarlo's machines for this seed
+    grid = np.linspace(39.0, 41.0, 401)
+    for s in settings:
+        m = mech.override(**s.values)
+        vals = {p: m.nominal_values()[p] + dev[p] for p in dev}
+        fixed = m.evaluate(vals, ["J_x_max_mm"]).outputs["J_x_max_mm"]
+        brute = np.min([m.evaluate({**vals, "L": np.full(n, x)}, ["J_x_max_mm"])
+                        .outputs["J_x_max_mm"] for x in grid], axis=0)
+        row = rows.loc[s.name]
+        for case, y in (("fixed", fixed), ("adjusted", brute)):
+            ok = int(np.sum(y <= limit))
+            assert row[f"ok_{case}"] == ok and row[f"yield_{case}"] == ok / n
+            assert row[f"ok_{case}"] + row[f"out_of_spec_{case}"] + row[f"cannot_close_{case}"] \
+                + row[f"dead_point_{case}"] == n
+            assert row[f"p95_{case}"] == pytest.approx(
+                np.quantile(y, 0.95, method="higher"), abs=1e-6)
+    # the settings move the counts (r's +12 um is 40 % of its tolerance), the machines do not
+    assert rows.loc["big crank", "ok_adjusted"] < rows.loc["as drawn", "ok_adjusted"] < n
+    assert rows.loc["long rod", "ok_adjusted"] == rows.loc["as drawn", "ok_adjusted"]
+    # the CLI prints the same rows
+    code, out, err = run("run", SLIDER, "settings", "--set", "as drawn:r=10",
+                         "--set", "big crank:r=10.012", "--tolerances", "uniform", "--n",
+                         str(n), "--seed", str(seed), "--output", "J_x_max_mm", "--limit",
+                         str(limit), "--adjust", "rod", "--format", "json")
+    assert code == 0, err
+    got = {r["setting"]: r for r in strict_loads(out)["rows"]}
+    for name in ("as drawn", "big crank"):
+        for k in ("ok_fixed", "ok_adjusted", "out_of_spec_adjusted", "n"):
+            assert got[name][k] == rows.loc[name, k]
 
 
 def test_the_monte_carlo_holds_a_compensator_at_the_nominal_machines_optimum(needle):
@@ -190,3 +244,13 @@ def test_the_monte_carlo_holds_a_compensator_at_the_nominal_machines_optimum(nee
     assert kept.held["beta"] == mech.nominal_values()["beta"]
     with pytest.raises(ParameterError, match="hold"):
         MC.montecarlo(mech, NEEDLE_208_SETS["recommended"], 2, 5, hold="best")
+
+
+def test_nothing_to_set_gives_the_machine_as_built_whatever_the_objective(needle):
+    """A settings case with no compensators under a two-sided spec (objective centre): the
+    plug-in's machine as built, as under the default objective."""
+    vals = _corners(needle)
+    built = adjusted(needle, vals, (), "SumDelta_um")
+    centred = adjusted(needle, vals, (), "SumDelta_um", objective="centre=1,10")
+    np.testing.assert_array_equal(centred.value, built.value)
+    assert list(centred.status) == list(built.status) and centred.path == built.path

@@ -33,11 +33,12 @@ STUDIES = ("nominal", "scan", "montecarlo", "sobol", "worst-case", "ppm", "alloc
 RUN_FORMATS = ("text", "table", "json", "csv")
 DEFAULT_N = {"montecarlo": 2000, "strategies": 2000, "sobol": 256, "ppm": 20000,
              "allocation": 2000, "report": 1000, "shapley": 200, "clearance": 400,
-             "least-cost": 2000}
+             "least-cost": 2000, "settings": 2000}
 # --target: the smallest probability ppm must resolve; the yield allocation must keep
 DEFAULT_TARGET = {"ppm": 1e-6, "allocation": 0.9973, "least-cost": 0.9973}
 # the studies whose limits default to the file's [[specs]] (--limit/--lower-limit override them)
-SPEC_STUDIES = ("montecarlo", "ppm", "allocation", "report", "strategies", "least-cost")
+SPEC_STUDIES = ("montecarlo", "ppm", "allocation", "report", "strategies", "least-cost",
+                "settings")
 # which flags each study reads; any other given flag is refused in one line
 USES = {"nominal": (), "scan": ("output", "tolerances", "adjust"),
         "worst-case": ("output", "tolerances", "adjust"),
@@ -48,8 +49,11 @@ USES = {"nominal": (), "scan": ("output", "tolerances", "adjust"),
         "ppm": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "method", "target",
                 "adjust", "n_jobs", "clearances"),
         "allocation": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "target",
-                       "weight", "adjust"),
-        "report": ("output", "tolerances", "n", "seed", "limit", "lower_limit"), "settings": (),
+                       "weight", "adjust", "shape"),
+        "report": ("output", "tolerances", "n", "seed", "limit", "lower_limit"),
+        # any of these turns on the settings' yields (sewtol.studies.settings.yield_figures)
+        "settings": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "adjust",
+                     "strategy", "n_jobs"),
         "strategies": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "n_jobs",
                        "strategy", "clearances"),
         "refine": ("output", "tolerances", "seed", "adjust", "vary", "keep", "require",
@@ -106,8 +110,13 @@ def add_run(sub) -> None:
                    help="ppm: the smallest probability to resolve (default 1e-6); allocation: "
                         "the yield to keep (default 0.9973)")
     p.add_argument("--weight", action="append", default=None, metavar="NAME=W",
-                   help="allocation: tolerance NAME scales as W times the common scale "
+                   help="allocation: --shape cost: tolerance NAME's cost weight (cost W / "
+                        "width); --shape set: NAME scales as W times the common scale "
                         "(repeatable; default 1)")
+    p.add_argument("--shape", choices=("cost", "set"), default=None,
+                   help="allocation: cost (default): each tolerance shaped by its cost and "
+                        "its slope at the set's limits, (W / slope^2)^(1/3); set: the set's "
+                        "own limits times one common scale")
     p.add_argument("--cost", action="append", default=None,
                    metavar="[NAME=]MODEL:a=A,b=B[,k=K|m=M]",
                    help="least-cost: the cost model of tolerance NAME (without NAME: of every "
@@ -122,8 +131,9 @@ def add_run(sub) -> None:
                    help="least-cost: fresh machines (seed --seed + 1) that re-estimate the "
                         "allocated yield (default 10 x --n; 0: no check)")
     p.add_argument("--strategy", action="append", default=None, metavar="NAME=C1,C2",
-                   help="strategies: a row NAME adjusting these [compensators.NAME] of the file "
-                        "together (repeatable; default none, each compensator alone and all)")
+                   help="strategies, settings: a row (settings: a case) NAME adjusting these "
+                        "[compensators.NAME] of the file together (repeatable; strategies' "
+                        "default none, each compensator alone and all)")
     p.add_argument("--vary", action="append", default=None, metavar="NAME[=LOW,HIGH]",
                    help="refine: a parameter refined, with its absolute bounds (default box: a "
                         "length +-10 %%, a frame coordinate +-2 mm, an angle +-0.5 deg); "
@@ -211,12 +221,14 @@ def _check_flags(args) -> None:
     for key in ("output", "tolerances", "n", "seed", "limit", "n_jobs", "adjust", "lower_limit",
                 "method", "target", "weight", "strategy", "vary", "keep", "require", "restarts",
                 "popsize", "maxiter", "plot", "guide_diameter", "play_limit", "guide_fit",
-                "cost", "confidence", "check_n", "clearances"):
+                "cost", "confidence", "check_n", "clearances", "shape"):
         value = getattr(args, key)
         if value is not None and key not in USES[args.study]:
             raise ParameterError("--" + key.replace("_", "-"), f"is not used by `run "
                                  f"{args.study}`", value)
-    if args.n is None and args.study in DEFAULT_N:
+    # `run settings` draws machines only when given one of its yield flags
+    if args.n is None and args.study in DEFAULT_N and (args.study != "settings" or any(
+            getattr(args, k) is not None for k in USES["settings"])):
         args.n = DEFAULT_N[args.study]
     args.seed = 0 if args.seed is None else args.seed
     args.n_jobs = 1 if args.n_jobs is None else args.n_jobs
@@ -227,7 +239,7 @@ def _check_yield_flags(args) -> None:
     """The flags of montecarlo, ppm, allocation and report, before anything runs."""
     import math
 
-    if args.study not in SPEC_STUDIES:
+    if args.study not in SPEC_STUDIES or args.n is None:
         return
     if args.study in DEFAULT_TARGET:
         if args.target is None:
@@ -244,7 +256,7 @@ def _check_yield_flags(args) -> None:
         raise ParameterError("--lower-limit", f"must be below --limit {args.limit:g}",
                              args.lower_limit)
     minimum = {"montecarlo": 2, "ppm": 100, "allocation": 10, "report": 2,
-               "strategies": 2, "least-cost": 10}[args.study]
+               "strategies": 2, "least-cost": 10, "settings": 2}[args.study]
     if args.n < minimum:
         raise ParameterError("--n", f"must be >= {minimum} for `run {args.study}`", args.n)
     if args.study == "ppm":
@@ -284,7 +296,7 @@ def cmd_run(args) -> None:
     if args.output is not None:
         mech.output(args.output)
     args.spec = args.spec_source = None
-    if args.study in SPEC_STUDIES:  # the limits in force: the flags', else the file's
+    if args.study in SPEC_STUDIES and args.n is not None:  # the limits: the flags', else the file's
         args.spec_output, args.spec, args.spec_source = mech.resolve_spec(
             args.output, args.limit, args.lower_limit)
     args.path_reason = _fast_path_refusal(args, mech)  # None: the needle_208 fast path
@@ -295,10 +307,20 @@ def cmd_run(args) -> None:
         return _finish(args, fmt, mech, None, res.to_dict(), {"nominal": res.to_dataframe()},
                        res.to_dataframe())
     if args.study == "settings":
-        from sewtol.studies.settings import compare
+        from sewtol.studies import settings as SE
+        from sewtol.studies.strategies import parse_strategies
 
-        res = compare(mech, settings)
-        return _finish(args, fmt, mech, None, res.to_dict(), {"settings": res.rows}, res.rows)
+        figures = tolerances = None
+        if args.n is not None:  # the same machines on every setting, per case
+            cases = parse_strategies(args.strategy, mech) if args.strategy else {
+                "fixed": (), **({"adjusted": args.adjust.split(",")} if args.adjust else {})}
+            tolerances = resolve_tolerances(mech, args.tolerances)
+            figures = SE.yield_figures(tolerances, args.n, args.seed, cases, args.spec_output,
+                                       args.spec, fast=args.path != "generic", n_jobs=args.n_jobs)
+        res = as_flags(SE.compare, mech, settings, figures, flags={
+            **RUN_FLAGS, "strategy": "--adjust" if args.strategy is None else "--strategy"})
+        return _finish(args, fmt, mech, tolerances, res.to_dict(), {"settings": res.rows},
+                       res.rows)
     if args.study == "refine":
         return _refine(args, fmt, mech)
     tolerances = resolve_tolerances(mech, args.tolerances)
@@ -488,7 +510,7 @@ def _as_flags(fn, *a):
 def _run_context(args, mech, tolerances) -> dict:
     """What decides a `run` study's numbers, carried by its JSON (its CSVs: run.json beside
     them); seed and n are null where the study draws nothing (nominal, scan, worst-case)."""
-    draws = args.study in DEFAULT_N
+    draws = args.study in DEFAULT_N and args.n is not None
     return {"mechanism": mech.name, "mechanism_file": str(args.file),
             "tolerances": None if tolerances is None else tolerances.name,
             "seed": args.seed if draws else None, "n": args.n if draws else None,
@@ -583,6 +605,8 @@ def _fast_path_refusal(args, mech) -> str | None:
         return "--strategy: `needle strategies` compares its own rows"
     if args.weight is not None:
         return "--weight: `needle allocation` weighs every tolerance alike"
+    if args.shape == "set":
+        return "--shape set: `needle allocation` shapes the tolerances by their slopes"
     if args.out and args.study in ("worst-case", "allocation"):
         return f"--out: `needle {args.study}` writes no study folder"
     return None
@@ -683,13 +707,20 @@ def _yield_study(args, fmt, mech, tolerances) -> None:
         return None
     if args.study == "allocation":
         weights = parse_sets(args.weight)
-        res = _as_flags(partial(AL.allocate, fast=False), mech, tolerances, output, args.target,
-                        upper, lower, args.n, args.seed, weights, args.adjust)
+        if args.shape == "set":
+            res = _as_flags(partial(AL.allocate, fast=False), mech, tolerances, output,
+                            args.target, upper, lower, args.n, args.seed, weights, args.adjust)
+        else:
+            res = as_flags(partial(AL.allocate_by_cost, fast=False), mech, tolerances, output,
+                           args.target, upper, lower, args.n, args.seed, weights, args.adjust,
+                           flags={**RUN_FLAGS, "costs": "--weight"})
         _finish(args, fmt, mech, tolerances, res.to_dict(),
                 {"allocation": res.table, "trials": res.trials}, res.table)
         if fmt == "table":
             cond = PPM.limits_text(output, upper, lower, mech.output(output).unit)
-            print(f"\nscale {res.scale:.6g} of set '{tolerances.name}': yield {res.yield_:.4f} "
+            what = "" if args.shape == "set" else " of the cost shape (half-widths k a_i, the " \
+                "largest a_i 1, each at most 1)"
+            print(f"\nscale {res.scale:.6g}{what} of set '{tolerances.name}': yield {res.yield_:.4f} "
                   f"(target {args.target:g}) of {res.n} machines passing {cond}"
                   + (" (capped: the yield stays above the target up to this scale)"
                      if res.capped else ""))

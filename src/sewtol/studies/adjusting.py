@@ -83,8 +83,10 @@ def adjusted(mech, values: dict | None, compensators, output: str, *, fast: bool
 
     mech.output(output)
     objective = Objective.parse(objective)
-    pl = plugins(mech) if fast and objective.kind == "minimise" else None
     compensators = getattr(compensators, "compensators", compensators)  # a strategy's
+    # with nothing to set the objective does not matter: the plug-in gives the machine as built
+    pl = plugins(mech) if fast and (objective.kind == "minimise" or not len(compensators)) \
+        else None
     objects = _objects(compensators)
     if objects:
         names = [c.name for c in compensators]

@@ -15,12 +15,22 @@ star-shaped the yield need not be monotone, and the bisection finds a crossing, 
 the largest one: `trials` lists every k tried. The bracket is found by doubling (or halving)
 from k = 1, or given (`bracket`, e.g. the needle's (0, max_mm) for a set of shapes); the
 bisection runs to a relative SCALE_RTOL, or a given number of `steps`.
+
+`allocate_by_cost`: the shape first, then its scale. Cost is reciprocal, sum c_i / t_i; s_i is
+the output's largest change (fixed, or adjusted) at a tolerance's reference limits, that one
+alone (the scan), per unit of its width; t_i ~ (c_i / s_i^2)^(1/3) is the root-sum-square
+optimum. symmetric (the needle's source study): +/- t_i, widths the larger side, the scale (the
+widest tolerance) bisected in (0, cap). Otherwise each tolerance keeps its own limits, scaled to
+half-width min(k t_i, cap), k bisected geometrically (it spans decades); one that moves the
+output by less than `hold_below` at its reference limits (a compensator cancels it alone, or the
+output does not see it) has no slope to shape it and is held there (`held_at_reference`): scaled,
+it would take the cap at once and could use up the compensators' range the others need.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pandas as pd
@@ -31,14 +41,23 @@ from sewtol.intervals import clopper_pearson
 from sewtol.law import InputLaw, draw_units, unit_streams
 from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
-from sewtol.studies.adjusting import failures_of
+from sewtol.studies.adjusting import evaluated, failures_of
+from sewtol.studies.montecarlo import check_seed
 from sewtol.studies.rare_event import check_adjust, limits_of, output_of
-from sewtol.studies.scan import checked
+from sewtol.studies.scan import checked, scan
 from sewtol.tolerances import Tolerance, ToleranceSet
 
 # bisection on the scale stops when the bracket is this small relative to the scale
 SCALE_RTOL = 1e-4
 MAX_DOUBLINGS = 20
+MAX_BISECTIONS = 60  # steps to SCALE_RTOL at most (about 14 decades of bracket)
+SET_METHOD = ("common scale k of the set (limits times k times each weight), bisection on the "
+              "Monte-Carlo yield with common random numbers (one matrix of uniforms for every "
+              "k): exact for the sample when the pass region is star-shaped about the nominal")
+COST_METHOD = ("reciprocal cost sum c_i / t_i; shape t_i ~ (c_i / s_i^2)^(1/3) (s_i the "
+               "output's largest change at the reference limits per unit width, from the "
+               "scan); common scale by bisection on the Monte-Carlo yield (common random "
+               "numbers)")
 
 
 @dataclass(frozen=True)
@@ -66,10 +85,7 @@ class Allocation:
     # a mechanism's names for to_dataframe(): table column -> its name (None: the table as is)
     columns: dict | None = None
     dependence: Dependence | None = None  # the set's copula, kept by the allocated set
-
-    method = ("common scale k of the set (limits times k times each weight), bisection on the "
-              "Monte-Carlo yield with common random numbers (one matrix of uniforms for every "
-              "k): exact for the sample when the pass region is star-shaped about the nominal")
+    method: str = SET_METHOD
 
     def to_dataframe(self) -> pd.DataFrame:
         if self.columns is None:
@@ -113,6 +129,19 @@ def refuse_relations(tolerances: ToleranceSet) -> None:
                              tolerances.selective.as_dict())
 
 
+def _per_parameter(weights: dict | None, params, field: str) -> np.ndarray:
+    """Positive weights by parameter name (default 1), in the order of params."""
+    weights = dict(weights or {})
+    unknown = sorted(set(weights) - set(params))
+    if unknown:
+        raise ParameterError(field, "must name toleranced parameters (" + ", ".join(params)
+                             + ")", unknown)
+    for k, w in weights.items():
+        if not (np.isfinite(w) and w > 0):
+            raise ParameterError(field, f"{k}'s weight must be a positive number", w)
+    return np.array([float(weights.get(p, 1.0)) for p in params])
+
+
 def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973,
              upper: float | None = None, lower: float | None = None, n: int = 2000,
              seed: int = 0, weights: dict[str, float] | None = None,
@@ -144,19 +173,10 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
         raise ParameterError("target", "must be a yield strictly between 0 and 1", target)
     if int(n) != n or n < 10:
         raise ParameterError("n", "must be a whole number of machines >= 10", n)
-    if int(seed) != seed or seed < 0:
-        raise ParameterError("seed", "must be a whole number >= 0", seed)
+    seed = check_seed(seed)
     tol = checked(mech, tolerances)
     refuse_relations(tol)
-    weights = dict(weights or {})
-    unknown = sorted(set(weights) - set(tol.params))
-    if unknown:
-        raise ParameterError("weights", "must name toleranced parameters ("
-                             + ", ".join(tol.params) + ")", unknown)
-    for k, w in weights.items():
-        if not (np.isfinite(w) and w > 0):
-            raise ParameterError("weights", f"{k}'s weight must be a positive number", w)
-    w = np.array([float(weights.get(p, 1.0)) for p in tol.params])
+    w = _per_parameter(weights, tol.params, "weights")
     # common random numbers: montecarlo's uniforms for this seed, mapped through the scaled set
     # for every k, so each machine moves along its ray from nominal
     u = draw_units(unit_streams(seed, n), len(tol.items), 0, n)
@@ -188,38 +208,22 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
                        "dead_point": int(np.sum(status == "dead_point")), "note": ""})
         return yk
 
-    lo, hi, capped = 0.0, 1.0, False
-    if bracket is not None:
-        lo, hi = map(float, bracket)
-        if yield_at(hi) >= target:
-            lo, capped = hi, True
-    elif yield_at(1.0) >= target:
-        lo = 1.0
+    # the bracket: given, or (1, 2^j) by doubling, or (0, 1), whose bisection halves from 1
+    lo, hi = (0.0, 1.0) if bracket is None else map(float, bracket)
+    capped = yield_at(hi) >= target
+    if capped and bracket is None:
         for _ in range(MAX_DOUBLINGS):
-            hi = 2.0 * lo
+            lo, hi = hi, 2.0 * hi
             if yield_at(hi) < target:
+                capped = False
                 break
-            lo = hi
-        else:
-            capped = True
-    else:
-        for _ in range(MAX_DOUBLINGS):
-            lo = 0.5 * hi
-            if yield_at(lo) >= target:
-                break
-            hi = lo
-        else:
-            lo = 0.0
-    def bisect(lo, hi):
+    lo = hi if capped else lo
+    floor = hi * 2.0**-MAX_DOUBLINGS  # (0, hi) failing down to here: no scale keeps it
+    for _ in range(0 if capped else MAX_BISECTIONS if steps is None else int(steps)):
+        if steps is None and (hi - lo <= SCALE_RTOL * lo if lo > 0 else hi <= floor):
+            break
         mid = np.sqrt(max(lo, hi * 1e-6) * hi) if geometric else 0.5 * (lo + hi)
-        return (mid, hi) if yield_at(mid) >= target else (lo, mid)
-
-    if not capped and steps is not None:
-        for _ in range(int(steps)):
-            lo, hi = bisect(lo, hi)
-    elif not capped and lo > 0:
-        while hi - lo > SCALE_RTOL * lo:
-            lo, hi = bisect(lo, hi)
+        lo, hi = (mid, hi) if yield_at(mid) >= target else (lo, mid)
     done = {t["scale"]: t["yield"] for t in trials}
     y_lo = done.get(lo, float("nan"))  # nan: no scale down to 2**-20 reaches the target
     final = limits(lo).items if limits is not None else None
@@ -234,3 +238,55 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
     return Allocation(mech.name, output, upper, lower, tolerances.name, float(target), int(n),
                       int(seed), float(lo), float(y_lo), capped, pd.DataFrame(rows), trials_frame,
                       adjust, dependence=tol.dependence)
+
+
+def allocate_by_cost(mech, reference: ToleranceSet, output: str, target: float = 0.9973,
+                     upper: float | None = None, lower: float | None = None, n: int = 2000,
+                     seed: int = 0, costs: dict[str, float] | None = None, adjust=None, *,
+                     symmetric: bool = False, cap: float = 1.0, steps: int | None = None,
+                     hold_below: float | None = None, figure: str | None = None,
+                     scan_options: dict | None = None, fast: bool = True,
+                     **options) -> Allocation:
+    """The widest tolerances of the cost shape that keep the yield at `target` (the module
+    docstring). costs: c_i per parameter (> 0, default 1); adjust, options: as `allocate`;
+    scan_options: the adjuster's options for the slopes (default options); figure: the slopes
+    read this extra figure of the adjusted scan (the needle's exact total_um) instead of its
+    value; cap: the largest half-width (the parameter's unit); steps: bisection steps (None: to
+    SCALE_RTOL); hold_below: see the module docstring (None: 1e-6 of the largest change). The
+    table adds `cost_weight`, `slope` (output per parameter unit) and `held_at_reference`."""
+    ref = checked(mech, reference)
+    refuse_relations(ref)
+    c = _per_parameter(costs, ref.params, "costs")
+    r = scan(mech, ref, (), adjust, output, fast=fast,
+             **(options if scan_options is None else scan_options))
+    y, y0 = ((evaluated(mech, v, output, fast=fast) for v in (r.values, None)) if adjust is None
+             else (a.value if figure is None else a.extras[figure]
+                   for a in (r.adjusted, r.adjusted_nominal)))
+    width = np.array([max(abs(t.upper), abs(t.lower)) if symmetric else 0.5 * (t.upper - t.lower)
+                      for t in ref.items])
+    change = np.array([np.nanmax(np.abs(np.asarray(y, float)[np.asarray(r.params) == t.param]
+                                        - float(np.ravel(y0)[0]))) for t in ref.items])
+    slope = np.where(np.isfinite(change), change / width, np.inf)
+    s = np.clip(slope, 1e-9, 1e12)
+    shape = (c / s**2) ** (1.0 / 3.0)
+    finite = change[np.isfinite(change)]
+    held = np.zeros(len(ref.items), bool) if symmetric else slope * width < (
+        1e-6 * (finite.max() if finite.size else 0.0) if hold_below is None else hold_below)
+    held[:] = held & ~held.all()
+    shape = np.where(held, width, shape / shape[~held].max())
+
+    def limits(k):
+        f = np.where(held, width, np.minimum(k * shape, cap)) / width
+        return ToleranceSet(reference.name, tuple(
+            replace(t, lower=-k * a, upper=k * a, shift=t.shift * k * a / w) if symmetric else
+            replace(t, lower=t.lower * fi, upper=t.upper * fi, shift=t.shift * fi)
+            for t, a, w, fi in zip(ref.items, shape, width, f, strict=True)),
+            dependence=ref.dependence)
+
+    # symmetric: k is the widest tolerance, in (0, cap); else k up to where every tolerance
+    # reaches the cap, bisected geometrically (it spans decades)
+    a = allocate(mech, ref, output, target, upper, lower, n, seed, None, adjust,
+                 bracket=(0.0, cap if symmetric else float(cap / shape[~held].min())),
+                 steps=steps, geometric=not symmetric, limits=limits, fast=fast, **options)
+    table = a.table.drop(columns="weight").assign(cost_weight=c, slope=s, held_at_reference=held)
+    return replace(a, table=table, method=COST_METHOD)

@@ -8,19 +8,26 @@ machines draws the same ones from its seed on every row: common random numbers).
     compare(mech, [Setting("long crank", {"LF": 7.0}), Setting("short crank", {"LF": 6.5})])
 
 `figures(machine, setting) -> dict` is the study of each row; the default is the nominal
-machine's status and every output (`sewtol run FILE settings --set NAME:PARAM=V,...`). A
-mechanism's own comparison (the needle's guide placements, tables/needle_208.py) is an instance
-with its own figures.
+machine's status and every output (`sewtol run FILE settings --set NAME:PARAM=V,...`).
+`yield_figures(tolerances, n, seed, cases)` is the Monte-Carlo of each row: the strategies study
+of the setting's machine (the seed's deviations added to its nominals: the same on every row)
+under each case (compensators set per machine; none: as built), with per case counts adding up
+to n, the yield and p95 (`run FILE settings --n N --adjust C`). A mechanism's own comparison
+(the needle's guide placements, tables/needle_208.py) is an instance: settings as data, its own
+nominal figures and the cases' columns in its words.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import pandas as pd
 
+from sewtol.adjuster import Objective
 from sewtol.errors import ParameterError
+from sewtol.studies.montecarlo import quantiles
+from sewtol.studies.strategies import STATUSES, strategies
 
 
 @dataclass(frozen=True)
@@ -52,6 +59,39 @@ def nominal_figures(machine, setting: Setting) -> dict:
     ev = machine.evaluate()
     return {"status": str(ev.status[0]), "failed_group": str(ev.failed_group[0]),
             **{k: float(v[0]) for k, v in ev.outputs.items()}}
+
+
+def case_columns(res) -> dict:
+    """A settings row's yield columns of a strategies result (sewtol.studies.strategies): n, and
+    per case NAME `yield_NAME`, `ok_NAME`, `out_of_spec_NAME`, `cannot_close_NAME`,
+    `dead_point_NAME` (ok + out_of_spec + cannot_close + dead_point = n) and `p95_NAME` (of the
+    case's output; a machine that cannot run ranks as infinitely bad)."""
+    row = {"n": res.n}
+    for name in res.names:
+        c = res.counts(name)
+        row.update({f"yield_{name}": c["ok"] / c["n"], **{f"{k}_{name}": c[k] for k in STATUSES},
+                    f"p95_{name}": quantiles(res.get(name).value)["p95"]})
+    return row
+
+
+def yield_figures(tolerances, n: int, seed: int, cases: Mapping | None = None,
+                  output: str | None = None, spec=None, *, columns: Callable = case_columns,
+                  fast: bool = True, n_jobs: int = 1, progress=False, **options) -> Callable:
+    """figures(machine, setting) for `compare`: the strategies study (sewtol.studies.strategies:
+    the machines 0 .. n-1 of `seed`, cases name -> compensators, default {"fixed": ()}, output
+    and spec as it takes them, options to the adjuster) of the setting's machine, as
+    `columns(result)` (default `case_columns`). Every row draws the same deviations: the rows
+    differ by the setting alone. With a two-sided spec the compensators centre the output in it
+    (sewtol.adjuster.Objective "centre"; minimising it would push it out below) unless options
+    give another objective."""
+    cases = {"fixed": ()} if cases is None else dict(cases)
+    if spec is not None and spec.lower is not None and spec.upper is not None:
+        options.setdefault("objective", Objective("centre", low=spec.lower, high=spec.upper))
+
+    def figures(machine, setting):
+        return columns(strategies(machine, tolerances, n, seed, cases, output, spec, fast=fast,
+                                  n_jobs=n_jobs, progress=progress, **options))
+    return figures
 
 
 def compare(base, settings: Sequence[Setting], figures: Callable | None = None,

@@ -36,10 +36,9 @@ from sewtol.studies.montecarlo import (
     CHUNK,
     MonteCarloResult,
     check_sampling,
-    draw_deviations,
 )
 from sewtol.studies.settings import Setting, compare
-from sewtol.tolerances import Tolerance, ToleranceSet, needle_set
+from sewtol.tolerances import ToleranceSet, needle_set
 
 if TYPE_CHECKING:
     from distributed import Client
@@ -640,10 +639,9 @@ def needle_limit_state(nominal: Needle208, tolerances: ToleranceSet | str, limit
 
 
 # the needle's names of the allocation's columns (studies.allocation.Allocation.to_dataframe)
-ALLOCATION_COLUMNS = {"param": "param", "cost_weight": "cost_weight",
-                      "slope_um_per_mm": "slope_um_per_mm", "lower": "lower_mm",
-                      "upper": "upper_mm", "reference_lower": "reference_lower_mm",
-                      "reference_upper": "reference_upper_mm"}
+ALLOCATION_COLUMNS = {"param": "param", "cost_weight": "cost_weight", "slope": "slope_um_per_mm",
+                      **{k: f"{k}_mm" for k in ("lower", "upper", "reference_lower",
+                                                 "reference_upper")}}
 
 
 def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 0.9973,
@@ -651,46 +649,31 @@ def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 
              max_mm: float = 1.0, range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
              steps: int | None = None, strategy: Strategy | None = None,
              limit_um: float = sb.DEFAULT_LIMIT_UM) -> Allocation:
-    """The widest tolerances that keep the yield after adjustment at a target.
+    """The widest tolerances that keep the yield after adjustment at a target:
+    sewtol.studies.allocation.allocate_by_cost on `as_mechanism(nominal)`, slopes from the
+    scan's exact SumDelta (um per mm).
 
-    Cost is reciprocal, sum c_i / t_i; the shape t_i ~ (c_i / s_i^2)^(1/3) (s_i the slope of
-    the adjusted SumDelta at the reference limits from the scan, um per mm, each tolerance
-    alone) is the root-sum-square optimum; the common scale of the shapes is
-    sewtol.studies.allocation.allocate's (bisection on the Monte-Carlo yield after adjustment
-    per machine, common random numbers: one uniform matrix for every trial scale).
-
-    strategy None (beta re-optimised in range_deg, the source study's allocation): symmetric
-    tolerances +/- t_i, slopes per the larger side of each reference tolerance, the scale (mm,
-    the widest tolerance) bisected in (0, max_mm). A strategy: its exact joint optimum; each
-    reference tolerance keeps its own (possibly asymmetric) shape, both limits scaled by
-    min(k a_i, max_mm) / h_i (h_i its half-width, slopes per h_i), k bisected geometrically
-    (it spans decades) up to where every tolerance reaches max_mm. A tolerance the strategy
-    cancels alone at its reference limits (SumDelta within 1e-3 um of the nominal's at both,
-    e.g. the guide bore's position under the guide shift) is held at its reference limits
-    (``held_at_reference``), not scaled.
+    strategy None (beta re-optimised in range_deg, the source study's allocation): the
+    symmetric form, +/- t_i, the scale (mm, the widest tolerance) bisected in (0, max_mm). A
+    strategy: its exact joint optimum; each reference tolerance keeps its own shape, k bisected
+    geometrically; a tolerance the strategy cancels alone at its reference limits (SumDelta
+    within 1e-3 um, the plateau tolerance, of the nominal's at both, e.g. the guide bore's
+    position under the guide shift) is held there (``held_at_reference``).
 
     Parameters
     ----------
     nominal : Needle208
         The nominal machine (scalar parameters).
     reference : ToleranceSet or str
-        Which parameters to allocate, and the limits at which the slopes are taken.
-    target : float
-        The yield to keep, strictly between 0 and 1; default 0.9973 (+/-3 sigma).
-    n, seed : int
-        Monte-Carlo machines per trial scale and the seed of their common random numbers.
-    costs : dict or None
-        Cost weight c_i per parameter (> 0); a parameter not named weighs 1.
-    max_mm : float
-        The cap on any tolerance (mm); insensitive parameters end there.
-    range_deg : tuple of float
-        The regulating range for beta, (low, high) in deg (strategy None).
-    steps : int or None
-        Bisection steps on the scale; None: 12 (strategy None) or 10 (a strategy).
-    strategy : Strategy or None
-        The assembler's adjustment; None: beta alone in range_deg.
-    limit_um : float
-        The SumDelta limit (um) of the yield.
+        The parameters to allocate and the limits at which the slopes are taken.
+    target, n, seed : float, int, int
+        The yield to keep (strictly between 0 and 1; 0.9973 is +/-3 sigma); the machines per
+        trial scale and the seed of their common random numbers.
+    costs, max_mm : dict or None, float
+        Cost weight c_i per parameter (> 0; default 1); the largest tolerance (mm).
+    range_deg, steps, strategy, limit_um : tuple, int or None, Strategy or None, float
+        beta's regulating range (deg); bisection steps (None: 12, or 10 with a strategy); the
+        assembler's adjustment (None: beta alone in range_deg); the SumDelta limit (um).
 
     Returns
     -------
@@ -698,81 +681,24 @@ def allocate(nominal: Needle208, reference: ToleranceSet | str, target: float = 
         ``to_dataframe()`` per parameter ``cost_weight``, ``slope_um_per_mm``, the allocated
         limits (``tolerance_mm``, the +/- limit, for strategy None; ``lower_mm`` and
         ``upper_mm`` with a strategy) and the reference limits; ``yield_`` the yield after
-        adjustment (1 when no scale above 0 keeps the target), ``scale``, ``target``, ``n``,
-        ``seed``; ``as_tolerance_set()`` the allocated limits (uniform) for further studies.
-
-    Raises
-    ------
-    ParameterError
-        For a target outside (0, 1) or a non-positive cost weight.
+        adjustment (1 when no scale above 0 keeps the target); ``as_tolerance_set()``.
     """
-    from sewtol.studies import allocation as A
+    from sewtol.studies.allocation import allocate_by_cost
 
-    reference = needle_set(reference)
-    if not (0 < target < 1):
-        raise ParameterError("target", "must be a yield strictly between 0 and 1", target)
-    ref = reference.active()
-    A.refuse_relations(ref)
-    names = ref.params
-    costs = costs or {}
-    c = np.array([float(costs.get(p, 1.0)) for p in names])
-    if np.any(c <= 0):
-        raise ParameterError("costs", "must be positive weights", costs)
-    sc = scan(nominal, ref, range_deg=range_deg, strategy=strategy, limit_um=limit_um)
-    slope = []
-    for t in ref.items:
-        width = max(abs(t.upper), abs(t.lower)) if strategy is None else 0.5 * (t.upper - t.lower)
-        r = sc.rows[sc.rows["param"] == t.param]["total_um"].to_numpy()
-        worst = np.nanmax(np.abs(r - sc.nominal_row["total_um"]))
-        slope.append(float(worst) / width if np.isfinite(worst) else np.inf)
-    s = np.clip(np.array(slope), 1e-9, 1e12)
-    shape = (c / s**2) ** (1.0 / 3.0)
-    shape = shape / shape.max()
-    mech = as_mechanism(nominal)
     if strategy is None:
-        # the scale k (mm) of the shapes (the largest 1), searched in (0, max_mm): no tolerance
-        # exceeds max_mm
-        # the copula ties ranks, whatever the widths: every trial keeps the set's dependence
-        shapes = ToleranceSet(reference.name, tuple(Tolerance(p, -a, a) for p, a in
-                                                    zip(names, shape, strict=True)),
-                              dependence=ref.dependence)
-        a = A.allocate(mech, shapes, OUTPUT, target, limit_um, None, n, seed,
-                       adjust=_beta_box(range_deg), bracket=(0.0, max_mm),
-                       steps=12 if steps is None else steps)
+        adjust, options, scan_options = _beta_box(range_deg, limit_um), {}, {}
         columns = {**ALLOCATION_COLUMNS, "upper": "tolerance_mm"}
         del columns["lower"]
-    else:
-        half = np.array([0.5 * (t.upper - t.lower) for t in ref.items])
-        # a tolerance the strategy cancels alone at its reference limits (within the plateau
-        # tolerance, e.g. the guide bore's position under the guide shift) has no slope to
-        # shape it: scaled like the others it would take the cap at once and use up the
-        # compensator's range the others need (the housing sets: every other tolerance fell to
-        # 1e-9 mm), so it is held at its reference limits and the rest are allocated
-        held = np.array(slope) * half < 1e-3
-        if held.all():
-            held[:] = False
-        free = (c / s**2) ** (1.0 / 3.0)
-        shape = np.where(held, np.nan, free)
-        shape = np.where(held, half, shape / np.nanmax(shape))
-
-        def limits(k):
-            f = np.where(held, half, np.minimum(k * shape, max_mm)) / half
-            return ToleranceSet("trial", tuple(Tolerance(t.param, t.lower * fi, t.upper * fi)
-                                               for t, fi in zip(ref.items, f, strict=True)),
-                                dependence=ref.dependence)
-
-        # k up to where every tolerance reaches the cap, so the cap never ends the search early
-        a = A.allocate(mech, ref, OUTPUT, target, limit_um, None, n, seed,
-                       adjust=strategy.compensators, bracket=(0.0, float(max_mm / shape[~held].min())),
-                       steps=10 if steps is None else steps, geometric=True, limits=limits,
-                       limit_um=limit_um, plateaus=False)
+    else:  # the slopes read the plateau's centre (the scan's), the yield only the value
+        adjust, scan_options = strategy.compensators, {"limit_um": limit_um}
+        options = {"limit_um": limit_um, "plateaus": False}
         columns = {**ALLOCATION_COLUMNS, "held_at_reference": "held_at_reference"}
-    table = a.table.assign(cost_weight=c, slope_um_per_mm=s,
-                           reference_lower=[t.lower for t in ref.items],
-                           reference_upper=[t.upper for t in ref.items])
-    if strategy is not None:
-        table = table.assign(held_at_reference=held)
-    return replace(a, table=table, columns=columns, yield_=a.yield_ if a.scale > 0 else 1.0,
+    a = allocate_by_cost(as_mechanism(nominal), needle_set(reference), OUTPUT, target,
+                         limit_um, None, n, seed, costs, adjust, symmetric=strategy is None,
+                         cap=max_mm, steps=(12 if strategy is None else 10) if steps is None
+                         else steps, hold_below=1e-3, figure="total_um",
+                         scan_options=scan_options, **options)
+    return replace(a, columns=columns, yield_=a.yield_ if a.scale > 0 else 1.0,
                    adjust="beta" if strategy is None else strategy.name)
 
 
@@ -791,99 +717,70 @@ def compare_guides(nominal: Needle208, tolerances: ToleranceSet | str, n: int, s
                    variants: Sequence[tuple[str, float, float]] = DEFAULT_VARIANTS,
                    range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
                    n_jobs: int = 1, progress: bool | Callable[[int, int], None] = False,
-                   scheduler: str | Client | None = None, strategy: Strategy | None = None,
+                   strategy: Strategy | None = None,
                    limit_um: float = sb.DEFAULT_LIMIT_UM) -> pd.DataFrame:
-    """One row per guide setting (shift um along the guide normal, turn deg about its point).
-
-    Every setting sees the same machines (the ones `montecarlo` draws from the seed), so the
-    rows differ by the guide alone.
+    """One row per guide setting (shift um along the guide normal, turn deg about its point):
+    sewtol.studies.settings.compare with its yield_figures (the strategies study of each
+    setting's machine, beta at the setting's beta*) beside the setting's nominal figures. Every
+    setting sees the same machines (`montecarlo`'s for the seed): the rows differ by the guide.
 
     Parameters
     ----------
     nominal : Needle208
         The nominal machine (scalar parameters).
-    tolerances : ToleranceSet or str
-        What the machines draw from.
-    n : int
-        Monte-Carlo machines per setting.
-    seed : int
-        The seed (>= 0), as in `montecarlo`.
+    tolerances, n, seed : ToleranceSet or str, int, int
+        What the machines draw from; machines per setting; the seed (>= 0).
     variants : sequence of (str, float, float)
-        ``(label, shift_um, turn_deg)`` per setting: a shift along the guide's normal (um) and
-        a turn about its point (deg). Default: nominal, +/-50 um, +/-0.02 deg.
-    range_deg : tuple of float
-        The regulating range for beta, (low, high) in deg.
-    n_jobs : int
-        Worker processes on this machine; the table does not depend on it.
-    progress : bool or callable
-        True: a bar on stderr; or ``progress(done, total)`` as chunks finish.
-    scheduler : str, distributed.Client or None
-        A Dask scheduler address or client.
+        ``(label, shift_um, turn_deg)`` per setting; default nominal, +/-50 um, +/-0.02 deg.
+    range_deg, limit_um : tuple of float, float
+        beta's regulating range (deg); the SumDelta limit (um).
+    n_jobs, progress : int, bool or callable
+        The strategies study's workers and progress bar (the table does not depend on them).
     strategy : Strategy or None
-        None: beta re-optimised per machine. A strategy: its joint optimum on top of each
-        setting, with the counts after it.
-    limit_um : float
-        The SumDelta limit (um).
+        None: beta re-optimised per machine; a strategy: its joint optimum on each setting.
 
     Returns
     -------
     pandas.DataFrame
-        Per setting: ``guide``, ``shift_um``, ``angle_from_vertical_deg``, ``beta_opt_deg``,
-        ``total_um`` (nominal SumDelta at beta*), the beta window (deg) and the yields with
-        beta fixed at the setting's beta* and adjusted (or after the strategy, with its counts:
-        ok + out_of_spec + cannot_assemble + dead_point = n).
+        Per setting ``guide``, ``shift_um``, ``angle_from_vertical_deg``, ``beta_opt_deg``,
+        ``total_um`` (nominal SumDelta at beta*), the beta window (deg) and the yields with beta
+        fixed at the setting's beta* and adjusted (``failed``: cannot run, fixed), or after the
+        strategy with its counts (ok + out_of_spec + cannot_assemble + dead_point = n) and
+        ``p95_after_um``.
     """
+    from sewtol.mechanism.spec import Spec
+    from sewtol.studies.settings import yield_figures
+
     tolerances = needle_set(tolerances)
+    check_sampling(nominal, tolerances, n, seed)  # as montecarlo checks the same machines
     settings = [Setting(label, {"guide_shift_um": nominal.guide_shift_um + shift_um,
                                 "guide_angle": nominal.guide_angle + dangle},
                         {"shift_um": shift_um}) for label, shift_um, dangle in variants]
-    if strategy is not None:
-        return compare(nominal, settings, _adjusted_figures(nominal, tolerances, n, seed,
-                                                            range_deg, strategy, limit_um),
-                       "guide").to_dataframe()
+    adjusted = {"beta": tuple(map(float, range_deg))} if strategy is None else strategy
+
+    def columns(r):
+        fixed, adj = r.counts("fixed"), r.counts("adjusted")
+        if strategy is None:
+            return {"yield_fixed_beta": fixed["ok"] / r.n, "yield_adjusted_beta": adj["ok"] / r.n,
+                    "failed": fixed["failed"]}
+        total = r.get("adjusted").value
+        return {"yield_fixed_beta": fixed["ok"] / r.n, "strategy": strategy.name,
+                "yield_adjusted": adj["ok"] / r.n, "n": r.n, "ok": adj["ok"],
+                "out_of_spec": adj["out_of_spec"], "cannot_assemble": adj["cannot_close"],
+                "dead_point": adj["dead_point"], "p95_after_um": float(np.percentile(
+                    np.where(np.isfinite(total), total, np.inf), 95))}
+    yields = yield_figures(tolerances, n, seed, {"fixed": (), "adjusted": adjusted}, OUTPUT,
+                           Spec(OUTPUT, float(limit_um)), columns=columns, n_jobs=n_jobs,
+                           progress=progress, **({} if strategy is None else
+                                                 {"limit_um": limit_um, "plateaus": False}))
 
     def figures(p, setting):
-        fig, row = _guide_figures(p, range_deg, limit_um)
-        mc = montecarlo(p.override(beta=fig.beta_opt_deg), tolerances, n, seed,
-                        limit_um=limit_um, range_deg=range_deg, n_jobs=n_jobs,
-                        progress=progress, scheduler=scheduler)
-        return {**row, "yield_fixed_beta": mc.yield_of("fixed"),
-                "yield_adjusted_beta": mc.yield_of("adjusted"), "failed": mc.failed}
+        fig = nominal_figures(p, range_deg, limit_um)
+        return {"angle_from_vertical_deg": p.guide_angle,
+                "beta_opt_deg": fig.beta_opt_deg, "total_um": fig.total_um,
+                "window_low_deg": fig.window_deg[0], "window_high_deg": fig.window_deg[1],
+                "window_width_deg": fig.window_deg[1] - fig.window_deg[0]
+                if np.all(np.isfinite(fig.window_deg)) else np.nan,
+                "beta_at_bound": fig.beta_at_bound,
+                **yields(as_mechanism(p.override(beta=fig.beta_opt_deg)), setting)}
     return compare(nominal, settings, figures, "guide").to_dataframe()
-
-
-def _guide_figures(p, range_deg, limit_um=sb.DEFAULT_LIMIT_UM):
-    """The nominal figures of the machine with a guide setting, and the row's columns."""
-    fig = nominal_figures(p, range_deg, limit_um)
-    row = {"angle_from_vertical_deg": p.guide_angle,
-           "beta_opt_deg": fig.beta_opt_deg, "total_um": fig.total_um,
-           "window_low_deg": fig.window_deg[0], "window_high_deg": fig.window_deg[1],
-           "window_width_deg": fig.window_deg[1] - fig.window_deg[0]
-           if np.all(np.isfinite(fig.window_deg)) else np.nan,
-           "beta_at_bound": fig.beta_at_bound}
-    return fig, row
-
-
-def _adjusted_figures(nominal, tolerances, n, seed, range_deg, strategy, limit_um):
-    """Each setting's figures with the strategy's joint optimum on the same machines."""
-    from sewtol.mechanisms.needle_208.compensators import Strategy
-
-    check_sampling(nominal, tolerances, n, seed)  # as montecarlo checks the same machines
-    dev = draw_deviations(tolerances, n, seed)  # montecarlo's machines for this seed
-
-    def figures(p, setting):
-        fig, row = _guide_figures(p, range_deg, limit_um)
-        c = columns_of(p.override(beta=fig.beta_opt_deg), dev)
-        fixed = adjust(c, Strategy("none"), limit_um)
-        adj = adjust(c, strategy, limit_um, plateaus=False)
-        k = adj.counts()
-        return {
-            **row,
-            "yield_fixed_beta": float(np.mean(fixed.status == "ok")),
-            "strategy": strategy.name, "yield_adjusted": k["ok"] / adj.n,
-            "n": adj.n, "ok": k["ok"], "out_of_spec": k["out of spec"],
-            "cannot_assemble": k["cannot assemble"], "dead_point": k["dead point"],
-            "p95_after_um": float(np.percentile(np.where(np.isfinite(adj.total_um),
-                                                         adj.total_um, np.inf), 95)),
-        }
-    return figures
