@@ -26,7 +26,6 @@ import pandas as pd
 
 from sewtol.adjuster import Objective
 from sewtol.errors import ParameterError
-from sewtol.studies.montecarlo import quantiles
 from sewtol.studies.strategies import STATUSES, strategies
 
 
@@ -67,10 +66,10 @@ def case_columns(res) -> dict:
     `dead_point_NAME` (ok + out_of_spec + cannot_close + dead_point = n) and `p95_NAME` (of the
     case's output; a machine that cannot run ranks as infinitely bad)."""
     row = {"n": res.n}
-    for name in res.names:
-        c = res.counts(name)
+    for i, name in enumerate(res.names):
+        c = res.row(i)  # the strategies row: its counts and quantiles, in the generic words
         row.update({f"yield_{name}": c["ok"] / c["n"], **{f"{k}_{name}": c[k] for k in STATUSES},
-                    f"p95_{name}": quantiles(res.get(name).value)["p95"]})
+                    f"p95_{name}": c["p95"]})
     return row
 
 

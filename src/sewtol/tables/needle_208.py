@@ -759,7 +759,7 @@ def compare_guides(nominal: Needle208, tolerances: ToleranceSet | str, n: int, s
     adjusted = {"beta": tuple(map(float, range_deg))} if strategy is None else strategy
 
     def columns(r):
-        fixed, adj = r.counts("fixed"), r.counts("adjusted")
+        fixed, adj = (r.row(r.names.index(k)) for k in ("fixed", "adjusted"))
         if strategy is None:
             return {"yield_fixed_beta": fixed["ok"] / r.n, "yield_adjusted_beta": adj["ok"] / r.n,
                     "failed": fixed["failed"]}
