@@ -40,7 +40,7 @@ import math
 import numba as nb
 import numpy as np
 
-from sewtol.mechanisms.needle_208.kernels.fused import guide_offset
+from sewtol.mechanisms.needle_208.kernels.fused import guide_normal, guide_offset, needle_point
 
 _INVPHI = (math.sqrt(5.0) - 1.0) / 2.0
 DEAD_POINT_DEG = 1.0  # mechanisms.needle_208.DEAD_POINT_DEG (kept equal by a test)
@@ -164,9 +164,8 @@ def _locate(u, ua, h, K, tlast):
 
 
 @nb.njit(cache=True)
-def _solve_interval(p, ua, ub, w, h_target, T0, T1, tol_mm, res):
-    """Minimise SumDelta over u in [ua, ub] (every window feasible). res receives
-    (S*, u_centre, F, G at the centre, range_lo, range_hi, S at the centre, err estimate)."""
+def _grid(ua, ub, w, h_target):
+    """The node grid of [ua, ub + w]: (m, h, K, tlast, nn); every window end on a node."""
     m = max(1, int(math.ceil(w / h_target - 1e-9)))
     h = w / m
     R = ub - ua
@@ -174,12 +173,25 @@ def _solve_interval(p, ua, ub, w, h_target, T0, T1, tol_mm, res):
     tlast = R - (K - 1) * h
     if tlast < 0.0:
         tlast = 0.0
-    nn = K + m + 1  # nodes
-    nc = nn - 1     # cells
+    return m, h, K, tlast, K + m + 1
+
+
+@nb.njit(cache=True)
+def _nodes(ua, ub, w, h, nn):
     x = np.empty(nn)
     for j in range(nn - 1):
         x[j] = ua + j * h
     x[nn - 1] = ub + w
+    return x
+
+
+@nb.njit(cache=True)
+def _solve_interval(p, ua, ub, w, h_target, T0, T1, tol_mm, res, plateau=True):
+    """Minimise SumDelta over u in [ua, ub] (every window feasible). res receives
+    (S*, u_centre, F, G at the centre, range_lo, range_hi, S at the centre, err estimate);
+    plateau=False: only S* and the error estimate (res[0], res[7])."""
+    m, h, K, tlast, nn = _grid(ua, ub, w, h_target)
+    x = _nodes(ua, ub, w, h, nn)
     f = np.empty(nn)
     f1 = np.empty(nn)
     f2 = np.empty(nn)
@@ -191,6 +203,14 @@ def _solve_interval(p, ua, ub, w, h_target, T0, T1, tol_mm, res):
         f2[j] = cc
         if math.isnan(a):
             return False
+    return _solve_nodes(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plateau)
+
+
+@nb.njit(cache=True)
+def _solve_nodes(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plateau):
+    """_solve_interval on given node values of d, d', d'' (the guide shift removed)."""
+    nn = x.size
+    nc = nn - 1
     c = np.zeros((nc, 4))
     crit = np.zeros((nc, 2, 2))
     ncrit = np.zeros(nc, np.int64)
@@ -302,6 +322,9 @@ def _solve_interval(p, ua, ub, w, h_target, T0, T1, tol_mm, res):
                 best, bk, bt = fc, k, cg
             if fd < best:
                 best, bk, bt = fd, k, dg
+    res[0] = best
+    if not plateau:
+        return True
     # the plateau: connected range around the optimum where SumDelta <= best + tol
     ustar = ua + bk * h + bt
     level = best + tol_mm
@@ -525,4 +548,233 @@ def fixed_batch(P, beta, lo, hi, h_deg=2.0):
             continue
         out[i, 0] = max(fmax, 0.0) * 1e3
         out[i, 1] = max(-fmin, 0.0) * 1e3
+    return out
+
+
+# --- the outer search over the guide angle or CD, fused: one call for every machine ----------
+#
+# needle_208.adjust's outer search (a grid over the compensator's box, then golden section
+# around each of the three best local minima of the grid, per machine) evaluated the exact inner
+# minimum through optimise_batch once per trial value, for every machine, from Python. Here each
+# machine runs its whole search in one thread, and a trial computes only the minimum (column
+# min_total_um of optimise_batch, bit for bit the same operations) without its plateau. For the
+# guide angle the needle point E and its derivatives at the nodes do not depend on the angle
+# (only the normal they are projected on does), so they are computed once per machine and every
+# trial angle projects them (needle_point/guide_normal: the same floating-point operations as
+# guide_offset, so the same d).
+
+
+@nb.njit(cache=True)
+def _segments(p, lo, hi, blo, bhi, geo):
+    """The ranges [ua, ub] of window starts inside the feasible arcs (rows of geo) as
+    _optimise_one takes them; returns (count, window width w)."""
+    s = p[10]
+    deg = math.pi / 180.0
+    u0 = lo + min(s * blo, s * bhi) * deg
+    u1 = lo + max(s * blo, s * bhi) * deg
+    w = hi - lo
+    seg = np.empty((12, 2))
+    n = feasible_segments(p, u0, u1 + w, DEAD_POINT_DEG, seg)
+    k = 0
+    for i in range(n):
+        if seg[i, 1] - seg[i, 0] < w:
+            continue
+        ua = max(seg[i, 0] + 1e-10, u0)
+        ub = min(seg[i, 1] - 1e-10 - w, u1)
+        if ub < ua:
+            continue
+        geo[k, 0] = ua
+        geo[k, 1] = ub
+        k += 1
+    return k, w
+
+
+@nb.njit(cache=True)
+def _halve(p, ua, ub, w, ht, T0, T1, tol_mm, res):
+    """The rest of _optimise_one's refinement loop after a first solve whose surrogate error
+    was too large: up to three more solves, each on nodes half as far apart."""
+    ok = True
+    for _ in range(3):
+        ht *= 0.5
+        ok = _solve_interval(p, ua, ub, w, ht, T0, T1, tol_mm, res, False)
+        if not ok or res[7] <= SURROGATE_TOL_MM:
+            break
+    return ok
+
+
+@nb.njit(cache=True)
+def _minimum(p, geo, k, w, h_deg, T0, T1, tol_mm, res):
+    """optimise_batch's min_total_um (um; NaN where no window runs) of machine p."""
+    best = np.inf
+    found = False
+    ht0 = h_deg * (math.pi / 180.0)
+    for i in range(k):
+        ok = _solve_interval(p, geo[i, 0], geo[i, 1], w, ht0, T0, T1, tol_mm, res, False)
+        if ok and res[7] > SURROGATE_TOL_MM:
+            ok = _halve(p, geo[i, 0], geo[i, 1], w, ht0, T0, T1, tol_mm, res)
+        if ok and res[0] < best:
+            best = res[0]
+            found = True
+    return best * 1e3 if found else np.nan
+
+
+@nb.njit(cache=True)
+def _points(p, geo, k, w, h_deg, EN, XN, ok):
+    """E, E', E'' at the first node grid of every segment (EN[i, j, :6]; XN[i, j] the node),
+    ok[i]: every node of segment i runs."""
+    ht0 = h_deg * (math.pi / 180.0)
+    for i in range(k):
+        m, h, K, tlast, nn = _grid(geo[i, 0], geo[i, 1], w, ht0)
+        x = _nodes(geo[i, 0], geo[i, 1], w, h, nn)
+        ok[i] = True
+        for j in range(nn):
+            XN[i, j] = x[j]
+            e = needle_point(p, 0.0, x[j])
+            for q in range(6):
+                EN[i, j, q] = e[q]
+            if math.isnan(e[0]):
+                ok[i] = False
+                break
+
+
+@nb.njit(cache=True)
+def _minimum_angle(p, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok):
+    """_minimum of machine p (its guide angle p[13] set) from the needle points of _points."""
+    best = np.inf
+    found = False
+    ht0 = h_deg * (math.pi / 180.0)
+    nx, ny, off = guide_normal(p)
+    shift = p[14] * 1e-3
+    for i in range(k):
+        if not ok[i]:
+            continue
+        ua, ub = geo[i, 0], geo[i, 1]
+        m, h, K, tlast, nn = _grid(ua, ub, w, ht0)
+        f = np.empty(nn)
+        f1 = np.empty(nn)
+        f2 = np.empty(nn)
+        for j in range(nn):
+            f[j] = nx * EN[i, j, 0] + ny * EN[i, j, 1] - off + shift
+            f1[j] = nx * EN[i, j, 2] + ny * EN[i, j, 3]
+            f2[j] = nx * EN[i, j, 4] + ny * EN[i, j, 5]
+        good = _solve_nodes(XN[i, :nn], f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm,
+                            res, False)
+        if good and res[7] > SURROGATE_TOL_MM:
+            good = _halve(p, ua, ub, w, ht0, T0, T1, tol_mm, res)
+        if good and res[0] < best:
+            best = res[0]
+            found = True
+    return best * 1e3 if found else np.nan
+
+
+@nb.njit(cache=True)
+def _trial_min(p, col, own, rel, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo, k, w,
+               EN, XN, ok):
+    q = p.copy()
+    q[col] = own + rel
+    if col == 13:
+        return _minimum_angle(q, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok)
+    k2, w2 = _segments(q, lo, hi, blo, bhi, geo)
+    return _minimum(q, geo, k2, w2, h_deg, T0, T1, tol_mm, res)
+
+
+@nb.njit(cache=True)
+def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_min):
+    G = grid.size
+    own = p[col]
+    res = np.empty(8)
+    geo = np.empty((12, 2))
+    k, w = 0, 0.0
+    EN = np.empty((1, 1, 6))
+    XN = np.empty((1, 1))
+    ok = np.zeros(12, np.bool_)
+    if col == 13 and not (math.isnan(lo) or math.isnan(hi)):
+        k, w = _segments(p, lo, hi, blo, bhi, geo)
+        nmax = 1
+        for i in range(k):
+            nmax = max(nmax, _grid(geo[i, 0], geo[i, 1], w, h_deg * (math.pi / 180.0))[4])
+        EN = np.empty((max(k, 1), nmax, 6))
+        XN = np.empty((max(k, 1), nmax))
+        _points(p, geo, k, w, h_deg, EN, XN, ok)
+    vals = np.empty(G)
+    for g in range(G):
+        v = np.nan
+        if not (math.isnan(lo) or math.isnan(hi)):
+            v = _trial_min(p, col, own, grid[g], lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res,
+                           geo, k, w, EN, XN, ok)
+        vals[g] = np.inf if math.isnan(v) else v
+    score = np.empty(G)
+    for g in range(G):
+        left = vals[g - 1] if g > 0 else np.inf
+        right = vals[g + 1] if g < G - 1 else np.inf
+        score[g] = vals[g] if (vals[g] <= left and vals[g] <= right) else np.inf
+    i0 = np.argmin(vals)
+    best_rel = grid[i0]
+    best_val = vals[i0]
+    for _ in range(rounds):
+        i = np.argmin(score)
+        if not score[i] < np.inf:
+            break
+        score[i] = np.inf
+        a = grid[max(i - 1, 0)]
+        b = grid[min(i + 1, G - 1)]
+        x1 = b - _INVPHI * (b - a)
+        x2 = a + _INVPHI * (b - a)
+        f1 = _trial_min(p, col, own, x1, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo,
+                        k, w, EN, XN, ok)
+        f2 = _trial_min(p, col, own, x2, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo,
+                        k, w, EN, XN, ok)
+        for it in range(40):
+            # as the batched search: until the bracket is below 1e-9, at least as many steps
+            # as a bracket of two grid cells takes (all machines stepped together before)
+            if b - a < 1e-9 and it >= n_min:
+                break
+            left = not (f1 >= f2)  # NaN counts as worse
+            if left:
+                b = x2
+                x2 = x1
+                f2 = f1
+                x1 = b - _INVPHI * (b - a)
+                f1 = _trial_min(p, col, own, x1, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res,
+                                geo, k, w, EN, XN, ok)
+            else:
+                a = x1
+                x1 = x2
+                f1 = f2
+                x2 = a + _INVPHI * (b - a)
+                f2 = _trial_min(p, col, own, x2, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res,
+                                geo, k, w, EN, XN, ok)
+        if f1 < best_val:
+            best_val = f1
+            best_rel = x1
+        if f2 < best_val:
+            best_val = f2
+            best_rel = x2
+    return best_rel
+
+
+@nb.njit(cache=True, parallel=True)
+def outer_batch(P, col, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active, grid,
+                h_deg=2.0, tol_um=1e-3, rounds=3):
+    """Per machine (rows of P with the compensator's own value in column col: 13 the guide
+    angle, deg; 3 CD, mm): the offset from its own value, one of `grid` or refined, where the
+    exact minimum of SumDelta over beta (and the guide shift) is least: a grid over `grid`,
+    then golden section around each of the `rounds` best local minima of the grid (to a
+    bracket below 1e-9). needle_208.adjust._with_outer's search (tests/test_adjust.py holds
+    the two to each other)."""
+    n = P.shape[0]
+    out = np.empty(n)
+    step = 2.0 * (grid[1] - grid[0])
+    n_min = 0
+    while step >= 1e-9 and n_min < 40:
+        step *= _INVPHI
+        n_min += 1
+    n_min = max(n_min - 1, 0)
+    for i in nb.prange(n):
+        if shift_active:
+            T0, T1 = shift_lo_um * 1e-3, shift_hi_um * 1e-3
+        else:
+            T0 = T1 = P[i, 14] * 1e-3
+        out[i] = _outer_one(P[i], col, lo[i], hi[i], blo, bhi, T0, T1, grid, h_deg,
+                            tol_um * 1e-3, rounds, n_min)
     return out
