@@ -196,14 +196,51 @@ def _solve_interval(p, ua, ub, w, h_target, T0, T1, tol_mm, res, plateau=True):
     f1 = np.empty(nn)
     f2 = np.empty(nn)
     shift = p[14] * 1e-3
+    nx, ny, off = guide_normal(p)  # guide_offset's, once for every node
     for j in range(nn):
-        a, b, cc = guide_offset(p, 0.0, x[j])
-        f[j] = a + shift  # d without the machine's own guide shift
-        f1[j] = b
-        f2[j] = cc
-        if math.isnan(a):
+        Ex, Ey, E1x, E1y, E2x, E2y = needle_point(p, 0.0, x[j])
+        if math.isnan(Ex):
             return False
+        f[j] = nx * Ex + ny * Ey - off + shift  # d without the machine's own guide shift
+        f1[j] = nx * E1x + ny * E1y
+        f2[j] = nx * E2x + ny * E2y
     return _solve_nodes(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plateau)
+
+
+@nb.njit(cache=True)
+def _inner_extremes(f, cmax, cmin, m, K, imax, imin):
+    """imax[k], imin[k]: the extremes of nodes k+1, k+m and cells k+1 .. k+m-1 (every window
+    starting in u-cell k covers them), for k < K: a sliding maximum over blocks of m-1 cells
+    (van Herk / Gil-Werman), O(K + m) instead of O(K m); max and min are exact, so the values
+    are those of the direct loop."""
+    L = m - 1
+    for k in range(K):
+        imax[k] = max(f[k + 1], f[k + m])
+        imin[k] = min(f[k + 1], f[k + m])
+    if L < 1:
+        return
+    N = K + L - 1  # cells 1 .. K + m - 2
+    pmax = np.empty(N)
+    pmin = np.empty(N)
+    smax = np.empty(N)
+    smin = np.empty(N)
+    for t in range(N):
+        if t % L == 0:
+            pmax[t] = cmax[t + 1]
+            pmin[t] = cmin[t + 1]
+        else:
+            pmax[t] = max(pmax[t - 1], cmax[t + 1])
+            pmin[t] = min(pmin[t - 1], cmin[t + 1])
+    for t in range(N - 1, -1, -1):
+        if t % L == L - 1 or t == N - 1:
+            smax[t] = cmax[t + 1]
+            smin[t] = cmin[t + 1]
+        else:
+            smax[t] = max(smax[t + 1], cmax[t + 1])
+            smin[t] = min(smin[t + 1], cmin[t + 1])
+    for k in range(K):
+        imax[k] = max(imax[k], max(smax[k], pmax[k + L - 1]))
+        imin[k] = min(imin[k], min(smin[k], pmin[k + L - 1]))
 
 
 @nb.njit(cache=True)
@@ -263,14 +300,7 @@ def _solve_nodes(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plat
     # cells and nodes inside every window of u-cell k: nodes k+1..k+m, cells k+1..k+m-1
     imax = np.empty(K)
     imin = np.empty(K)
-    for k in range(K):
-        hi_ = max(f[k + 1], f[k + m])
-        lo_ = min(f[k + 1], f[k + m])
-        for j in range(k + 1, k + m):
-            hi_ = max(hi_, cmax[j])
-            lo_ = min(lo_, cmin[j])
-        imax[k] = hi_
-        imin[k] = lo_
+    _inner_extremes(f, cmax, cmin, m, K, imax, imin)
     out3 = np.empty(3)
     best = np.inf
     bk = 0
