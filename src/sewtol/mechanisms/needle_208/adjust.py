@@ -36,7 +36,7 @@ DEFAULT_BOXES = {"beta": (10.0, 35.0), "guide_shift_um": (-100.0, 100.0),
 OUTER = ("guide_angle", "CD")
 OUTER_GRID = {"guide_angle": 21, "CD": 61}  # default grid points of the outer search
 STATUS = ("ok", "cannot assemble", "dead point")
-OUTER_SEARCHES = ("fused", "loop")
+OUTER_SEARCHES = ("fused", "golden", "loop")
 _KERNEL_COLUMN = {"guide_angle": 13, "CD": 3}  # kernels.fused.FIELDS
 PLATEAU_TOL_UM = 1e-3
 
@@ -143,10 +143,12 @@ def optimise(c: dict[str, np.ndarray], active: dict[str, tuple[float, float] | N
         ``needle_208.metrics.feasibility(c)`` if already known.
     outer_search : str
         How the guide angle's or CD's outer search runs with the numba engine: ``"fused"``
-        (every machine's whole search in one kernel call, window.outer_batch) or ``"loop"``
-        (the batched Python loop over trial values it was written as, kept as its reference;
-        the numpy engine always uses it). The same search: the settings agree to the golden
-        section's bracket (1e-9) and the minimum is never worse (tests/test_adjust.py).
+        (every machine's whole search in one kernel call, window.outer_batch, each local
+        minimum of the grid refined by a V-section: steps to where the straight sides of the V
+        meet, golden steps as a safeguard, the bracket closed to 1e-9 around the best point),
+        ``"golden"`` (the same call with the golden section of before) or ``"loop"`` (the
+        batched Python loop over trial values it was written as, kept as the reference; the
+        numpy engine always uses it). tests/test_adjust.py holds them to each other.
 
     Returns
     -------
@@ -172,9 +174,11 @@ def optimise(c: dict[str, np.ndarray], active: dict[str, tuple[float, float] | N
         raise ParameterError("compensators", "at most one of guide_angle, CD at a time",
                              sorted(boxes))
     if outer:
-        search = _with_outer_fused if engine == "numba" and outer_search == "fused" \
-            else _with_outer
-        return search(outer[0], c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um, angle_grid)
+        if engine == "numba" and outer_search != "loop":
+            return _with_outer_fused(outer[0], c, boxes, r_lo, r_hi, code, engine, h_deg,
+                                     tol_um, angle_grid, outer_search == "fused")
+        return _with_outer(outer[0], c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um,
+                           angle_grid)
     out = _inner(c, boxes, r_lo, r_hi, engine, h_deg, tol_um)
     return _result(out, boxes, code, tol_um)
 
@@ -222,9 +226,11 @@ def _result(out, boxes, code, tol_um, outer=None) -> AdjustResult:
 
 # --- the guide angle or CD: an outer search around the exact inner optimum ---------------------
 
-def _with_outer_fused(name, c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um, angle_grid):
-    """_with_outer's search with every machine's grid and golden sections in one numba call
-    (kernels.window.outer_batch), then the full inner optimum at the setting found."""
+def _with_outer_fused(name, c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um, angle_grid,
+                      vsection=True):
+    """_with_outer's search with every machine's grid and refinements in one numba call
+    (kernels.window.outer_batch: V-sections, or golden sections as _with_outer), then the
+    full inner optimum at the setting found."""
     from sewtol.mechanisms.needle_208.kernels import fused as KB
     from sewtol.mechanisms.needle_208.kernels import window as KW
 
@@ -243,7 +249,7 @@ def _with_outer_fused(name, c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um, a
     lo = np.ascontiguousarray(r_lo, float).reshape(-1)
     hi = np.ascontiguousarray(r_hi, float).reshape(-1)
     best_rel = KW.outer_batch(KB.pack(cc), _KERNEL_COLUMN[name], lo, hi, blo, bhi, slo, shi,
-                              shift, grid, h_deg, tol_um)
+                              shift, grid, h_deg, tol_um, 3, vsection)
     cc[name] = (own + best_rel).reshape(-1, 1)
     out = _inner(cc, inner_boxes, r_lo, r_hi, engine, h_deg, tol_um)
     return _result(out, boxes, code, tol_um, (name, (best_rel, best_rel, best_rel)))
