@@ -218,7 +218,7 @@ def _search(c: dict, outer: list[Compensator], plateaus: bool, leaf, held=()) ->
             cc = _apply(c, comp, y)
             for k in (*rest, *held):
                 cc = _apply(cc, k, inner_settings[k.name])
-            return nm.deviation_figures(cc).total_um
+            return nm.total_um_kernel(cc)  # deviation_figures' to 3e-11 um, 6x faster
 
         best = at(x)
         lo_p, hi_p = _plateau(at, x, best, comp)
