@@ -208,7 +208,7 @@ def _solve_interval(p, ua, ub, w, h_target, T0, T1, tol_mm, res, plateau=True):
 
 
 @nb.njit(cache=True)
-def _inner_extremes(f, cmax, cmin, m, K, imax, imin):
+def _inner_extremes(f, cmax, cmin, m, K, imax, imin, pmax, pmin, smax, smin):
     """imax[k], imin[k]: the extremes of nodes k+1, k+m and cells k+1 .. k+m-1 (every window
     starting in u-cell k covers them), for k < K: a sliding maximum over blocks of m-1 cells
     (van Herk / Gil-Werman), O(K + m) instead of O(K m); max and min are exact, so the values
@@ -219,11 +219,7 @@ def _inner_extremes(f, cmax, cmin, m, K, imax, imin):
         imin[k] = min(f[k + 1], f[k + m])
     if L < 1:
         return
-    N = K + L - 1  # cells 1 .. K + m - 2
-    pmax = np.empty(N)
-    pmin = np.empty(N)
-    smax = np.empty(N)
-    smin = np.empty(N)
+    N = K + L - 1  # cells 1 .. K + m - 2 (the buffers hold at least N)
     for t in range(N):
         if t % L == 0:
             pmax[t] = cmax[t + 1]
@@ -244,16 +240,32 @@ def _inner_extremes(f, cmax, cmin, m, K, imax, imin):
 
 
 @nb.njit(cache=True)
+def _work(cap):
+    """Scratch arrays of _solve_nodes for up to cap nodes, allocated once and reused by every
+    solve of a machine (the outer search makes ~60 per setting of CD)."""
+    return (np.empty((cap, 4)), np.empty((cap, 2, 2)), np.empty(cap, np.int64), np.empty(cap),
+            np.empty(cap), np.empty(cap), np.empty(cap), np.empty(cap), np.empty(cap),
+            np.empty(cap), np.empty(cap), np.empty(cap), np.empty(65), np.empty(3))
+
+
+@nb.njit(cache=True)
 def _solve_nodes(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plateau):
     """_solve_interval on given node values of d, d', d'' (the guide shift removed)."""
+    return _solve_nodes_ws(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plateau,
+                           _work(x.size))
+
+
+@nb.njit(cache=True)
+def _solve_nodes_ws(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plateau, ws):
+    """_solve_nodes with its scratch arrays given (_work(cap), cap >= the nodes)."""
     nn = x.size
     nc = nn - 1
-    c = np.zeros((nc, 4))
-    crit = np.zeros((nc, 2, 2))
-    ncrit = np.zeros(nc, np.int64)
-    cmax = np.empty(nc)
-    cmin = np.empty(nc)
-    ddmax = np.empty(nc)  # max |p''| on the cell
+    c = ws[0][:nc]
+    crit = ws[1][:nc]
+    ncrit = ws[2][:nc]
+    cmax = ws[3][:nc]
+    cmin = ws[4][:nc]
+    ddmax = ws[5][:nc]  # max |p''| on the cell
     err = 0.0
     for j in range(nc):
         L = x[j + 1] - x[j]
@@ -263,6 +275,9 @@ def _solve_nodes(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plat
             dl = (f[j + 1] - f[j]) / L
             c[j, 2] = (3.0 * dl - 2.0 * f1[j] - f1[j + 1]) / L
             c[j, 3] = (f1[j] + f1[j + 1] - 2.0 * dl) / (L * L)
+        else:
+            c[j, 2] = 0.0
+            c[j, 3] = 0.0
         pa = 2.0 * c[j, 2]
         pb = 2.0 * c[j, 2] + 6.0 * c[j, 3] * L
         ddmax[j] = max(abs(pa), abs(pb))
@@ -298,10 +313,10 @@ def _solve_nodes(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plat
         cmin[j] = lo_
     res[7] = err
     # cells and nodes inside every window of u-cell k: nodes k+1..k+m, cells k+1..k+m-1
-    imax = np.empty(K)
-    imin = np.empty(K)
-    _inner_extremes(f, cmax, cmin, m, K, imax, imin)
-    out3 = np.empty(3)
+    imax = ws[6][:K]
+    imin = ws[7][:K]
+    _inner_extremes(f, cmax, cmin, m, K, imax, imin, ws[8], ws[9], ws[10], ws[11])
+    out3 = ws[13]
     best = np.inf
     bk = 0
     bt = 0.0
@@ -312,7 +327,7 @@ def _solve_nodes(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plat
     s = _s_at(c, crit, ncrit, imax, imin, m, K - 1, tlast, T0, T1, out3)
     if s < best:
         best, bk, bt = s, K - 1, tlast
-    sv = np.empty(65)
+    sv = ws[12]
     for k in range(K):
         lb = max(imax[k] - imin[k], max(imax[k] - T1, T0 - imin[k]))
         if lb >= best:
@@ -668,8 +683,9 @@ def _points(p, geo, k, w, h_deg, EN, XN, ok):
 
 
 @nb.njit(cache=True)
-def _minimum_angle(p, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok):
-    """_minimum of machine p (its guide angle p[13] set) from the needle points of _points."""
+def _minimum_angle(p, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok, ws, fb):
+    """_minimum of machine p (its guide angle p[13] set) from the needle points of _points;
+    ws, fb: scratch arrays (_work(cap), (3, cap)) for up to cap nodes."""
     best = np.inf
     found = False
     ht0 = h_deg * (math.pi / 180.0)
@@ -680,15 +696,15 @@ def _minimum_angle(p, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok):
             continue
         ua, ub = geo[i, 0], geo[i, 1]
         m, h, K, tlast, nn = _grid(ua, ub, w, ht0)
-        f = np.empty(nn)
-        f1 = np.empty(nn)
-        f2 = np.empty(nn)
+        f = fb[0, :nn]
+        f1 = fb[1, :nn]
+        f2 = fb[2, :nn]
         for j in range(nn):
             f[j] = nx * EN[i, j, 0] + ny * EN[i, j, 1] - off + shift
             f1[j] = nx * EN[i, j, 2] + ny * EN[i, j, 3]
             f2[j] = nx * EN[i, j, 4] + ny * EN[i, j, 5]
-        good = _solve_nodes(XN[i, :nn], f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm,
-                            res, False)
+        good = _solve_nodes_ws(XN[i, :nn], f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm,
+                               res, False, ws)
         if good and res[7] > SURROGATE_TOL_MM:
             good = _halve(p, ua, ub, w, ht0, T0, T1, tol_mm, res)
         if good and res[0] < best:
@@ -699,11 +715,11 @@ def _minimum_angle(p, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok):
 
 @nb.njit(cache=True)
 def _trial_min(p, col, own, rel, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo, k, w,
-               EN, XN, ok):
+               EN, XN, ok, ws, fb):
     q = p.copy()
     q[col] = own + rel
     if col == 13:
-        return _minimum_angle(q, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok)
+        return _minimum_angle(q, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok, ws, fb)
     k2, w2 = _segments(q, lo, hi, blo, bhi, geo)
     return _minimum(q, geo, k2, w2, h_deg, T0, T1, tol_mm, res)
 
@@ -727,8 +743,8 @@ def _line_meet(x0, f0, x1, f1, x2, f2, x3, f3):
 
 
 @nb.njit(cache=True)
-def _vsection(a, b, fa, fb, p, col, own, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo, k,
-              w, EN, XN, ok):
+def _vsection(a, b, fa, fb_, p, col, own, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo, k,
+              w, EN, XN, ok, ws, fb):
     """The minimum of the trial minimum over [a, b] (fa, fb: its values at the ends, from the
     grid): golden section's first two points, then steps to where the straight sides of a V
     meet (the exact inner minimum is a V in the guide angle near its minimum, its sides straight
@@ -740,7 +756,7 @@ def _vsection(a, b, fa, fb, p, col, own, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm
     xs = np.empty(_VMAX)
     fs = np.empty(_VMAX)
     xs[0], fs[0] = a, (np.inf if math.isnan(fa) else fa)
-    xs[1], fs[1] = b, (np.inf if math.isnan(fb) else fb)
+    xs[1], fs[1] = b, (np.inf if math.isnan(fb_) else fb_)
     npts = 2
     x_new = b - _INVPHI * (b - a)
     hist = np.full(3, np.inf)  # the bracket's width after each of the last three steps
@@ -748,7 +764,7 @@ def _vsection(a, b, fa, fb, p, col, own, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm
     while True:
         # insert x_new
         f = _trial_min(p, col, own, x_new, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo, k,
-                       w, EN, XN, ok)
+                       w, EN, XN, ok, ws, fb)
         f = np.inf if math.isnan(f) else f
         q = npts
         while q > 0 and xs[q - 1] > x_new:
@@ -830,6 +846,7 @@ def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_
     EN = np.empty((1, 1, 6))
     XN = np.empty((1, 1))
     ok = np.zeros(12, np.bool_)
+    cap = 1
     if col == 13 and not (math.isnan(lo) or math.isnan(hi)):
         k, w = _segments(p, lo, hi, blo, bhi, geo)
         nmax = 1
@@ -838,12 +855,15 @@ def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_
         EN = np.empty((max(k, 1), nmax, 6))
         XN = np.empty((max(k, 1), nmax))
         _points(p, geo, k, w, h_deg, EN, XN, ok)
+        cap = nmax
+    ws = _work(cap)
+    fb = np.empty((3, cap))
     vals = np.empty(G)
     for g in range(G):
         v = np.nan
         if not (math.isnan(lo) or math.isnan(hi)):
             v = _trial_min(p, col, own, grid[g], lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res,
-                           geo, k, w, EN, XN, ok)
+                           geo, k, w, EN, XN, ok, ws, fb)
         vals[g] = np.inf if math.isnan(v) else v
     score = np.empty(G)
     for g in range(G):
@@ -863,7 +883,7 @@ def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_
         if vsection:
             x, fx = _vsection(a, b, vals[max(i - 1, 0)], vals[min(i + 1, G - 1)], p, col, own,
                               lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo, k, w, EN, XN,
-                              ok)
+                              ok, ws, fb)
             if fx < best_val:
                 best_val = fx
                 best_rel = x
@@ -871,9 +891,9 @@ def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_
         x1 = b - _INVPHI * (b - a)
         x2 = a + _INVPHI * (b - a)
         f1 = _trial_min(p, col, own, x1, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo,
-                        k, w, EN, XN, ok)
+                        k, w, EN, XN, ok, ws, fb)
         f2 = _trial_min(p, col, own, x2, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo,
-                        k, w, EN, XN, ok)
+                        k, w, EN, XN, ok, ws, fb)
         for it in range(40):
             # as the batched search: until the bracket is below 1e-9, at least as many steps
             # as a bracket of two grid cells takes (all machines stepped together before)
@@ -886,14 +906,14 @@ def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_
                 f2 = f1
                 x1 = b - _INVPHI * (b - a)
                 f1 = _trial_min(p, col, own, x1, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res,
-                                geo, k, w, EN, XN, ok)
+                                geo, k, w, EN, XN, ok, ws, fb)
             else:
                 a = x1
                 x1 = x2
                 f1 = f2
                 x2 = a + _INVPHI * (b - a)
                 f2 = _trial_min(p, col, own, x2, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res,
-                                geo, k, w, EN, XN, ok)
+                                geo, k, w, EN, XN, ok, ws, fb)
         if f1 < best_val:
             best_val = f1
             best_rel = x1
