@@ -925,7 +925,7 @@ def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_
 
 @nb.njit(cache=True, parallel=True)
 def outer_batch(P, col, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active, grid,
-                h_deg=2.0, tol_um=1e-3, rounds=3, vsection=True):
+                h_deg=2.0, tol_um=1e-3, rounds=3, vsection=False):
     """Per machine (rows of P with the compensator's own value in column col: 13 the guide
     angle, deg; 3 CD, mm): the offset from its own value, one of `grid` or refined, where the
     exact minimum of SumDelta over beta (and the guide shift) is least: a grid over `grid`,
