@@ -15,7 +15,10 @@ every 20 ms; /usr/bin/time's %M is the largest single process only) are measured
 (b) peak RSS against n: `needle montecarlo --n N --n-jobs 2` for N in --rss-n (target: flat,
     <= 500 MB at any n);
 (c) `needle montecarlo --n 1000000 --n-jobs 2` end to end (target <= 10 s wall idle, or <= 20
-    CPU-s with peak RSS <= 500 MB).
+    CPU-s with peak RSS <= 500 MB);
+(d) `needle strategies --n N --n-jobs 2` for N in --strategies-n (default 2000 and 10000; target
+    <= 30 s wall idle at 10000): every default row, the all row's nested CD / guide-angle search
+    the bulk of it. Warmed by one run at n 20; --strategies-repeats timed runs (default 1).
 With --reference-src every sewtol command runs again, interleaved run by run, with that
 checkout's sources first on PYTHONPATH, and the ratio this/reference is printed. The machine
 is shared: the load average at start and end is printed with the figures.
@@ -34,7 +37,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGETS = {"startup_n1000_wall_s": 1.0, "million_wall_s": 10.0, "million_cpu_s": 20.0,
-           "peak_rss_mb": 500.0}
+           "peak_rss_mb": 500.0, "strategies_n10000_wall_s": 30.0}
 
 
 def load() -> list[float]:
@@ -117,7 +120,12 @@ def main(argv=None) -> int:
                     help="n of the peak-RSS curve (default 1e4 1e5 1e6)")
     ap.add_argument("--n-million", type=int, default=1_000_000,
                     help="machines of the end-to-end run (default 10^6)")
-    ap.add_argument("--skip", nargs="*", default=[], choices=["startup", "rss", "million"])
+    ap.add_argument("--strategies-n", type=int, nargs="*", default=[2000, 10_000],
+                    help="n of the `needle strategies --n-jobs 2` runs (default 2000 10000)")
+    ap.add_argument("--strategies-repeats", type=int, default=1,
+                    help="timed runs of each strategies n (default 1: 10^4 takes a minute)")
+    ap.add_argument("--skip", nargs="*", default=[],
+                    choices=["startup", "rss", "million", "strategies"])
     args = ap.parse_args(argv)
     src = ROOT / "src"
     py = [sys.executable]
@@ -139,6 +147,14 @@ def main(argv=None) -> int:
         res["million"] = medians([*mc, "--n", str(args.n_million), "--n-jobs", "2"], src,
                                  args.reference_src, args.repeats)
         res["million"]["n"] = args.n_million
+    if "strategies" not in args.skip and args.strategies_n:
+        st = [*py, "-m", "sewtol", "needle", "strategies", "--n-jobs", "2", "--format", "csv"]
+        for s in (src, args.reference_src):
+            if s is not None:
+                run([*st, "--n", "20"], s)  # warm-up: numba's cache on disk
+        res["strategies"] = {str(n): medians([*st, "--n", str(n)], src, args.reference_src,
+                                             args.strategies_repeats, warm=False)
+                             for n in args.strategies_n}
     res["load_end"] = load()
     if args.json:
         print(json.dumps(res, indent=2))
@@ -149,6 +165,8 @@ def main(argv=None) -> int:
                 print(f"{key} {name}: {r}")
         if "million" in res:
             print(f"million: {res['million']}")
+        for n, r in res.get("strategies", {}).items():
+            print(f"strategies n={n}: {r}")
     return 0
 
 

@@ -88,3 +88,21 @@ def test_kernel_packs_fields_in_order(nominal):
     row = KB.pack(c)[0]
     assert [row[KB.FIELDS.index(f)] for f in ("AB", "CD", "guide_angle")] == \
         [nominal.AB, nominal.CD, nominal.guide_angle]
+
+
+def test_sumdelta_kernel_equals_deviation_figures(nominal):
+    """metrics.total_um_kernel (the outer searches' plateau measure) against the numpy
+    deviation_figures: both exact extremes (Newton on d' against interval_extremes), so equal to
+    far below the plateau tolerance of 1e-3 um, and NaN (cannot run) on the same machines,
+    with beta and CD spread over their boxes and machines that cannot assemble among them."""
+    dev = NEEDLE_208_SETS["base"].sample(np.random.default_rng(8), 400)
+    dev["CD"] = np.random.default_rng(9).uniform(-0.3, 0.3, 400)
+    dev["CD"][:5] = -20.0  # B-C-D cannot close
+    c, _ = nm.columns(P.with_deviations(nominal, dev))
+    c = {k: np.broadcast_to(v, (400, 1)).copy() for k, v in c.items()}
+    c["beta"] = np.random.default_rng(10).uniform(10.0, 35.0, (400, 1))
+    want = nm.deviation_figures(c).total_um
+    got = nm.total_um_kernel(c)
+    assert np.array_equal(np.isnan(got), np.isnan(want)) and np.isnan(got[:5]).all()
+    assert np.isfinite(got).sum() >= 390
+    assert np.nanmax(np.abs(got - want)) < 1e-9

@@ -10,10 +10,11 @@ import numpy as np
 _INVPHI = (np.sqrt(5.0) - 1.0) / 2.0
 
 
-def golden_min(fun, lo, hi, xtol: float = 1e-10, maxiter: int = 200):
+def golden_min(fun, lo, hi, xtol: float = 1e-10, maxiter: int = 200, value: bool = True):
     """Minimise a unimodal function on [lo, hi] per element by golden-section search.
 
-    Returns (x, f(x)). Stops when every bracket is narrower than xtol (same unit as x).
+    Returns (x, f(x)) (value=False: (x, None), one evaluation fewer). Stops when every
+    bracket is narrower than xtol (same unit as x).
     """
     a = np.array(lo, float, copy=True)
     b = np.array(hi, float, copy=True)
@@ -33,7 +34,7 @@ def golden_min(fun, lo, hi, xtol: float = 1e-10, maxiter: int = 200):
         fc, fd = np.where(left, f_new, fd), np.where(left, fc, f_new)
         c, d = c_new, d_new
     x = 0.5 * (a + b)
-    return x, fun(x)
+    return x, (fun(x) if value else None)
 
 
 def bisect_root(fun, lo, hi, xtol: float = 1e-10, maxiter: int = 200):

@@ -195,15 +195,21 @@ def _search(c: dict, outer: list[Compensator], plateaus: bool, leaf, held=()) ->
     else:
         vals = np.stack([score(np.full(n, g)) for g in grid], axis=1)
     i = np.argmin(vals, axis=1)
+    res = None
     if comp.discrete:
         x = grid[i]
     else:
         a, b = grid[np.maximum(i - 1, 0)], grid[np.minimum(i + 1, grid.size - 1)]
-        x, _ = golden_min(score, a, b, xtol=_xtol(comp))
-        # never worse than the grid (golden section can stall on an infinite bracket end)
-        better_grid = vals[np.arange(n), i] < score(x)
-        x = np.where(better_grid, grid[i], x)
-    res = sub(_apply(c, comp, x), plateaus)
+        x = golden_min(score, a, b, xtol=_xtol(comp), value=False)[0]
+        # never worse than the grid (golden section can stall on an infinite bracket end); the
+        # search at x is the one kept unless the grid wins somewhere
+        res = sub(_apply(c, comp, x), plateaus)
+        better_grid = vals[np.arange(n), i] < _finite(res.total)
+        if better_grid.any():
+            x = np.where(better_grid, grid[i], x)
+            res = None
+    if res is None:
+        res = sub(_apply(c, comp, x), plateaus)
     if plateaus and not comp.discrete:
         # the range of this setting (the inner ones held) within PLATEAU_TOL_UM of the optimum
         inner_settings = res.settings
@@ -212,7 +218,7 @@ def _search(c: dict, outer: list[Compensator], plateaus: bool, leaf, held=()) ->
             cc = _apply(c, comp, y)
             for k in (*rest, *held):
                 cc = _apply(cc, k, inner_settings[k.name])
-            return nm.deviation_figures(cc).total_um
+            return nm.total_um_kernel(cc)  # deviation_figures' to 3e-11 um, 6x faster
 
         best = at(x)
         lo_p, hi_p = _plateau(at, x, best, comp)

@@ -151,17 +151,8 @@ def fixed_sumdelta_um(c: dict[str, np.ndarray]) -> np.ndarray:
     extremes on the rocker interval by the fused kernel; NaN where a machine does not run (the
     numpy reference: needle_208.metrics.deviation_figures)."""
     from sewtol.mechanisms.needle_208 import metrics as nm
-    from sewtol.mechanisms.needle_208.kernels import fused as K
-    from sewtol.mechanisms.needle_208.kernels import window as KW
-    from sewtol.mechanisms.needle_208.model import DEAD_POINT_DEG
 
-    rocker = nm.feasibility(c)
-    # the rocker interval depends on the first four-bar only (not on beta)
-    first_ok = (rocker.miss_LMA_mm == 0) & (rocker.transmission_LMA_deg >= DEAD_POINT_DEG)
-    r_lo = np.where(first_ok & rocker.ok, rocker.lo, np.nan)
-    r_hi = np.where(np.isnan(r_lo), np.nan, rocker.hi)
-    dev = KW.fixed_batch(K.pack(c), c["beta"][:, 0].copy(), r_lo, r_hi)
-    return dev[:, 0] + dev[:, 1]
+    return nm.total_um_kernel(c)
 
 
 def needle_kernel(mech, values) -> dict[str, np.ndarray]:

@@ -105,6 +105,26 @@ def deviation_figures(c, feas: Feasibility | None = None) -> DeviationFigures:
     return DeviationFigures(plus, minus, plus + minus)
 
 
+def total_um_kernel(c, feas: Feasibility | None = None) -> np.ndarray:
+    """SumDelta (um) as deviation_figures gives it, by the fused kernel (kernels.window.
+    fixed_batch: the extremes on the rocker interval located on a Hermite surrogate and polished
+    by Newton on the exact d); NaN where a machine does not run. 6x faster than the numpy path
+    and within 3.2e-11 um of it on 4000 base-set machines with beta and CD spread over their
+    boxes (tests/test_kernels.py)."""
+    from sewtol.mechanisms.needle_208.kernels import fused as K
+    from sewtol.mechanisms.needle_208.kernels import window as KW
+
+    feas = feas or feasibility(c)
+    # the rocker interval depends on the first four-bar only (not on beta)
+    first_ok = (feas.miss_LMA_mm == 0) & (feas.transmission_LMA_deg >= nd.DEAD_POINT_DEG)
+    r_lo = np.where(first_ok & feas.ok, feas.lo, np.nan)
+    r_hi = np.where(np.isnan(r_lo), np.nan, feas.hi)
+    n = r_lo.size
+    beta = np.broadcast_to(np.asarray(c["beta"], float).reshape(-1, 1), (n, 1))[:, 0].copy()
+    dev = KW.fixed_batch(K.pack(c), beta, r_lo, r_hi)
+    return dev[:, 0] + dev[:, 1]
+
+
 def stroke_mm(c, feas: Feasibility | None = None) -> np.ndarray:
     """Needle-bar stroke: the extent of E along the guide direction over the cycle."""
     feas = feas or feasibility(c)

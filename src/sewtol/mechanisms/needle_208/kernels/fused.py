@@ -28,11 +28,13 @@ SIN_DEAD_POINT = math.sin(math.radians(1.0))
 
 
 @nb.njit(cache=True, fastmath=False)
-def guide_offset(p, beta_deg, th):
-    """d (mm, relative to the guide) and its first two derivatives w.r.t. the rocker angle."""
-    AB, BC, BE, CD, CBE, ax, ay, dx, dy, br, bs, gx, gy, ga, gs = (
-        p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7], p[8], p[9], p[10], p[11], p[12], p[13],
-        p[14])
+def needle_point(p, beta_deg, th):
+    """The needle point E (mm) and its first two derivatives w.r.t. the rocker angle:
+    (Ex, Ey, E'x, E'y, E''x, E''y), NaN where B-C-D does not close or is within 1 deg of a dead
+    point. Independent of the guide (its angle and shift): an outer search over the guide angle
+    projects the same points on each trial normal (window.outer_batch)."""
+    AB, BC, BE, CD, CBE, ax, ay, dx, dy, br, bs = (
+        p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7], p[8], p[9], p[10])
     a = th + bs * beta_deg * math.pi / 180.0
     ca, sa = math.cos(a), math.sin(a)
     bx, by = ax + AB * ca, ay + AB * sa
@@ -44,7 +46,7 @@ def guide_offset(p, beta_deg, th):
     aa = (BC * BC - CD * CD + L * L) / (2.0 * L)
     h2 = BC * BC - aa * aa
     if h2 < 0.0:
-        return np.nan, np.nan, np.nan
+        return np.nan, np.nan, np.nan, np.nan, np.nan, np.nan
     h = math.sqrt(h2)
     cx = bx + (aa * ddx - br * h * ddy) / L
     cy = by + (aa * ddy + br * h * ddx) / L
@@ -52,7 +54,7 @@ def guide_offset(p, beta_deg, th):
     u2x, u2y = cx - dx, cy - dy
     det = u1x * u2y - u1y * u2x
     if abs(det) < SIN_DEAD_POINT * BC * CD:  # dead point of B-C-D: counted as not running
-        return np.nan, np.nan, np.nan
+        return np.nan, np.nan, np.nan, np.nan, np.nan, np.nan
     r1 = u1x * b1x + u1y * b1y
     c1x = (r1 * u2y) / det
     c1y = (-r1 * u2x) / det
@@ -78,9 +80,24 @@ def guide_offset(p, beta_deg, th):
     E1y = b1y + om * ex
     E2x = b2x - al * ey - om * om * ex
     E2y = b2y + al * ex - om * om * ey
-    g = ga * math.pi / 180.0
+    return Ex, Ey, E1x, E1y, E2x, E2y
+
+
+@nb.njit(cache=True, fastmath=False)
+def guide_normal(p):
+    """The guide's normal (nx, ny) and offset (mm): d = nx Ex + ny Ey - offset."""
+    g = p[13] * math.pi / 180.0
     nx, ny = math.cos(g), -math.sin(g)
-    off = nx * gx + ny * gy + gs * 1e-3
+    return nx, ny, nx * p[11] + ny * p[12] + p[14] * 1e-3
+
+
+@nb.njit(cache=True, fastmath=False)
+def guide_offset(p, beta_deg, th):
+    """d (mm, relative to the guide) and its first two derivatives w.r.t. the rocker angle."""
+    Ex, Ey, E1x, E1y, E2x, E2y = needle_point(p, beta_deg, th)
+    if math.isnan(Ex):
+        return np.nan, np.nan, np.nan
+    nx, ny, off = guide_normal(p)
     return nx * Ex + ny * Ey - off, nx * E1x + ny * E1y, nx * E2x + ny * E2y
 
 

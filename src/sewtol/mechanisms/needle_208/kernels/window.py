@@ -40,7 +40,7 @@ import math
 import numba as nb
 import numpy as np
 
-from sewtol.mechanisms.needle_208.kernels.fused import guide_offset
+from sewtol.mechanisms.needle_208.kernels.fused import guide_normal, guide_offset, needle_point
 
 _INVPHI = (math.sqrt(5.0) - 1.0) / 2.0
 DEAD_POINT_DEG = 1.0  # mechanisms.needle_208.DEAD_POINT_DEG (kept equal by a test)
@@ -164,9 +164,8 @@ def _locate(u, ua, h, K, tlast):
 
 
 @nb.njit(cache=True)
-def _solve_interval(p, ua, ub, w, h_target, T0, T1, tol_mm, res):
-    """Minimise SumDelta over u in [ua, ub] (every window feasible). res receives
-    (S*, u_centre, F, G at the centre, range_lo, range_hi, S at the centre, err estimate)."""
+def _grid(ua, ub, w, h_target):
+    """The node grid of [ua, ub + w]: (m, h, K, tlast, nn); every window end on a node."""
     m = max(1, int(math.ceil(w / h_target - 1e-9)))
     h = w / m
     R = ub - ua
@@ -174,29 +173,99 @@ def _solve_interval(p, ua, ub, w, h_target, T0, T1, tol_mm, res):
     tlast = R - (K - 1) * h
     if tlast < 0.0:
         tlast = 0.0
-    nn = K + m + 1  # nodes
-    nc = nn - 1     # cells
+    return m, h, K, tlast, K + m + 1
+
+
+@nb.njit(cache=True)
+def _nodes(ua, ub, w, h, nn):
     x = np.empty(nn)
     for j in range(nn - 1):
         x[j] = ua + j * h
     x[nn - 1] = ub + w
+    return x
+
+
+@nb.njit(cache=True)
+def _solve_interval(p, ua, ub, w, h_target, T0, T1, tol_mm, res, plateau=True):
+    """Minimise SumDelta over u in [ua, ub] (every window feasible). res receives
+    (S*, u_centre, F, G at the centre, range_lo, range_hi, S at the centre, err estimate);
+    plateau=False: only S* and the error estimate (res[0], res[7])."""
+    m, h, K, tlast, nn = _grid(ua, ub, w, h_target)
+    x = _nodes(ua, ub, w, h, nn)
     f = np.empty(nn)
     f1 = np.empty(nn)
     f2 = np.empty(nn)
     shift = p[14] * 1e-3
+    nx, ny, off = guide_normal(p)  # guide_offset's, once for every node
     for j in range(nn):
-        a, b, cc = guide_offset(p, 0.0, x[j])
-        f[j] = a + shift  # d without the machine's own guide shift
-        f1[j] = b
-        f2[j] = cc
-        if math.isnan(a):
+        Ex, Ey, E1x, E1y, E2x, E2y = needle_point(p, 0.0, x[j])
+        if math.isnan(Ex):
             return False
-    c = np.zeros((nc, 4))
-    crit = np.zeros((nc, 2, 2))
-    ncrit = np.zeros(nc, np.int64)
-    cmax = np.empty(nc)
-    cmin = np.empty(nc)
-    ddmax = np.empty(nc)  # max |p''| on the cell
+        f[j] = nx * Ex + ny * Ey - off + shift  # d without the machine's own guide shift
+        f1[j] = nx * E1x + ny * E1y
+        f2[j] = nx * E2x + ny * E2y
+    return _solve_nodes(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plateau)
+
+
+@nb.njit(cache=True)
+def _inner_extremes(f, cmax, cmin, m, K, imax, imin, pmax, pmin, smax, smin):
+    """imax[k], imin[k]: the extremes of nodes k+1, k+m and cells k+1 .. k+m-1 (every window
+    starting in u-cell k covers them), for k < K: a sliding maximum over blocks of m-1 cells
+    (van Herk / Gil-Werman), O(K + m) instead of O(K m); max and min are exact, so the values
+    are those of the direct loop."""
+    L = m - 1
+    for k in range(K):
+        imax[k] = max(f[k + 1], f[k + m])
+        imin[k] = min(f[k + 1], f[k + m])
+    if L < 1:
+        return
+    N = K + L - 1  # cells 1 .. K + m - 2 (the buffers hold at least N)
+    for t in range(N):
+        if t % L == 0:
+            pmax[t] = cmax[t + 1]
+            pmin[t] = cmin[t + 1]
+        else:
+            pmax[t] = max(pmax[t - 1], cmax[t + 1])
+            pmin[t] = min(pmin[t - 1], cmin[t + 1])
+    for t in range(N - 1, -1, -1):
+        if t % L == L - 1 or t == N - 1:
+            smax[t] = cmax[t + 1]
+            smin[t] = cmin[t + 1]
+        else:
+            smax[t] = max(smax[t + 1], cmax[t + 1])
+            smin[t] = min(smin[t + 1], cmin[t + 1])
+    for k in range(K):
+        imax[k] = max(imax[k], max(smax[k], pmax[k + L - 1]))
+        imin[k] = min(imin[k], min(smin[k], pmin[k + L - 1]))
+
+
+@nb.njit(cache=True)
+def _work(cap):
+    """Scratch arrays of _solve_nodes for up to cap nodes, allocated once and reused by every
+    solve of a machine (the outer search makes ~60 per setting of CD)."""
+    return (np.empty((cap, 4)), np.empty((cap, 2, 2)), np.empty(cap, np.int64), np.empty(cap),
+            np.empty(cap), np.empty(cap), np.empty(cap), np.empty(cap), np.empty(cap),
+            np.empty(cap), np.empty(cap), np.empty(cap), np.empty(65), np.empty(3))
+
+
+@nb.njit(cache=True)
+def _solve_nodes(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plateau):
+    """_solve_interval on given node values of d, d', d'' (the guide shift removed)."""
+    return _solve_nodes_ws(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plateau,
+                           _work(x.size))
+
+
+@nb.njit(cache=True)
+def _solve_nodes_ws(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plateau, ws):
+    """_solve_nodes with its scratch arrays given (_work(cap), cap >= the nodes)."""
+    nn = x.size
+    nc = nn - 1
+    c = ws[0][:nc]
+    crit = ws[1][:nc]
+    ncrit = ws[2][:nc]
+    cmax = ws[3][:nc]
+    cmin = ws[4][:nc]
+    ddmax = ws[5][:nc]  # max |p''| on the cell
     err = 0.0
     for j in range(nc):
         L = x[j + 1] - x[j]
@@ -206,6 +275,9 @@ def _solve_interval(p, ua, ub, w, h_target, T0, T1, tol_mm, res):
             dl = (f[j + 1] - f[j]) / L
             c[j, 2] = (3.0 * dl - 2.0 * f1[j] - f1[j + 1]) / L
             c[j, 3] = (f1[j] + f1[j + 1] - 2.0 * dl) / (L * L)
+        else:
+            c[j, 2] = 0.0
+            c[j, 3] = 0.0
         pa = 2.0 * c[j, 2]
         pb = 2.0 * c[j, 2] + 6.0 * c[j, 3] * L
         ddmax[j] = max(abs(pa), abs(pb))
@@ -241,17 +313,10 @@ def _solve_interval(p, ua, ub, w, h_target, T0, T1, tol_mm, res):
         cmin[j] = lo_
     res[7] = err
     # cells and nodes inside every window of u-cell k: nodes k+1..k+m, cells k+1..k+m-1
-    imax = np.empty(K)
-    imin = np.empty(K)
-    for k in range(K):
-        hi_ = max(f[k + 1], f[k + m])
-        lo_ = min(f[k + 1], f[k + m])
-        for j in range(k + 1, k + m):
-            hi_ = max(hi_, cmax[j])
-            lo_ = min(lo_, cmin[j])
-        imax[k] = hi_
-        imin[k] = lo_
-    out3 = np.empty(3)
+    imax = ws[6][:K]
+    imin = ws[7][:K]
+    _inner_extremes(f, cmax, cmin, m, K, imax, imin, ws[8], ws[9], ws[10], ws[11])
+    out3 = ws[13]
     best = np.inf
     bk = 0
     bt = 0.0
@@ -262,7 +327,7 @@ def _solve_interval(p, ua, ub, w, h_target, T0, T1, tol_mm, res):
     s = _s_at(c, crit, ncrit, imax, imin, m, K - 1, tlast, T0, T1, out3)
     if s < best:
         best, bk, bt = s, K - 1, tlast
-    sv = np.empty(65)
+    sv = ws[12]
     for k in range(K):
         lb = max(imax[k] - imin[k], max(imax[k] - T1, T0 - imin[k]))
         if lb >= best:
@@ -302,6 +367,9 @@ def _solve_interval(p, ua, ub, w, h_target, T0, T1, tol_mm, res):
                 best, bk, bt = fc, k, cg
             if fd < best:
                 best, bk, bt = fd, k, dg
+    res[0] = best
+    if not plateau:
+        return True
     # the plateau: connected range around the optimum where SumDelta <= best + tol
     ustar = ua + bk * h + bt
     level = best + tol_mm
@@ -525,4 +593,358 @@ def fixed_batch(P, beta, lo, hi, h_deg=2.0):
             continue
         out[i, 0] = max(fmax, 0.0) * 1e3
         out[i, 1] = max(-fmin, 0.0) * 1e3
+    return out
+
+
+# --- the outer search over the guide angle or CD, fused: one call for every machine ----------
+#
+# needle_208.adjust's outer search (a grid over the compensator's box, then golden section
+# around each of the three best local minima of the grid, per machine) evaluated the exact inner
+# minimum through optimise_batch once per trial value, for every machine, from Python. Here each
+# machine runs its whole search in one thread, and a trial computes only the minimum (column
+# min_total_um of optimise_batch, bit for bit the same operations) without its plateau. For the
+# guide angle the needle point E and its derivatives at the nodes do not depend on the angle
+# (only the normal they are projected on does), so they are computed once per machine and every
+# trial angle projects them (needle_point/guide_normal: the same floating-point operations as
+# guide_offset, so the same d).
+
+
+@nb.njit(cache=True)
+def _segments(p, lo, hi, blo, bhi, geo):
+    """The ranges [ua, ub] of window starts inside the feasible arcs (rows of geo) as
+    _optimise_one takes them; returns (count, window width w)."""
+    s = p[10]
+    deg = math.pi / 180.0
+    u0 = lo + min(s * blo, s * bhi) * deg
+    u1 = lo + max(s * blo, s * bhi) * deg
+    w = hi - lo
+    seg = np.empty((12, 2))
+    n = feasible_segments(p, u0, u1 + w, DEAD_POINT_DEG, seg)
+    k = 0
+    for i in range(n):
+        if seg[i, 1] - seg[i, 0] < w:
+            continue
+        ua = max(seg[i, 0] + 1e-10, u0)
+        ub = min(seg[i, 1] - 1e-10 - w, u1)
+        if ub < ua:
+            continue
+        geo[k, 0] = ua
+        geo[k, 1] = ub
+        k += 1
+    return k, w
+
+
+@nb.njit(cache=True)
+def _halve(p, ua, ub, w, ht, T0, T1, tol_mm, res):
+    """The rest of _optimise_one's refinement loop after a first solve whose surrogate error
+    was too large: up to three more solves, each on nodes half as far apart."""
+    ok = True
+    for _ in range(3):
+        ht *= 0.5
+        ok = _solve_interval(p, ua, ub, w, ht, T0, T1, tol_mm, res, False)
+        if not ok or res[7] <= SURROGATE_TOL_MM:
+            break
+    return ok
+
+
+@nb.njit(cache=True)
+def _minimum(p, geo, k, w, h_deg, T0, T1, tol_mm, res):
+    """optimise_batch's min_total_um (um; NaN where no window runs) of machine p."""
+    best = np.inf
+    found = False
+    ht0 = h_deg * (math.pi / 180.0)
+    for i in range(k):
+        ok = _solve_interval(p, geo[i, 0], geo[i, 1], w, ht0, T0, T1, tol_mm, res, False)
+        if ok and res[7] > SURROGATE_TOL_MM:
+            ok = _halve(p, geo[i, 0], geo[i, 1], w, ht0, T0, T1, tol_mm, res)
+        if ok and res[0] < best:
+            best = res[0]
+            found = True
+    return best * 1e3 if found else np.nan
+
+
+@nb.njit(cache=True)
+def _points(p, geo, k, w, h_deg, EN, XN, ok):
+    """E, E', E'' at the first node grid of every segment (EN[i, j, :6]; XN[i, j] the node),
+    ok[i]: every node of segment i runs."""
+    ht0 = h_deg * (math.pi / 180.0)
+    for i in range(k):
+        m, h, K, tlast, nn = _grid(geo[i, 0], geo[i, 1], w, ht0)
+        x = _nodes(geo[i, 0], geo[i, 1], w, h, nn)
+        ok[i] = True
+        for j in range(nn):
+            XN[i, j] = x[j]
+            e = needle_point(p, 0.0, x[j])
+            for q in range(6):
+                EN[i, j, q] = e[q]
+            if math.isnan(e[0]):
+                ok[i] = False
+                break
+
+
+@nb.njit(cache=True)
+def _minimum_angle(p, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok, ws, fb):
+    """_minimum of machine p (its guide angle p[13] set) from the needle points of _points;
+    ws, fb: scratch arrays (_work(cap), (3, cap)) for up to cap nodes."""
+    best = np.inf
+    found = False
+    ht0 = h_deg * (math.pi / 180.0)
+    nx, ny, off = guide_normal(p)
+    shift = p[14] * 1e-3
+    for i in range(k):
+        if not ok[i]:
+            continue
+        ua, ub = geo[i, 0], geo[i, 1]
+        m, h, K, tlast, nn = _grid(ua, ub, w, ht0)
+        f = fb[0, :nn]
+        f1 = fb[1, :nn]
+        f2 = fb[2, :nn]
+        for j in range(nn):
+            f[j] = nx * EN[i, j, 0] + ny * EN[i, j, 1] - off + shift
+            f1[j] = nx * EN[i, j, 2] + ny * EN[i, j, 3]
+            f2[j] = nx * EN[i, j, 4] + ny * EN[i, j, 5]
+        good = _solve_nodes_ws(XN[i, :nn], f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm,
+                               res, False, ws)
+        if good and res[7] > SURROGATE_TOL_MM:
+            good = _halve(p, ua, ub, w, ht0, T0, T1, tol_mm, res)
+        if good and res[0] < best:
+            best = res[0]
+            found = True
+    return best * 1e3 if found else np.nan
+
+
+@nb.njit(cache=True)
+def _trial_min(p, col, own, rel, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo, k, w,
+               EN, XN, ok, ws, fb):
+    q = p.copy()
+    q[col] = own + rel
+    if col == 13:
+        return _minimum_angle(q, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok, ws, fb)
+    k2, w2 = _segments(q, lo, hi, blo, bhi, geo)
+    return _minimum(q, geo, k2, w2, h_deg, T0, T1, tol_mm, res)
+
+
+VSECTION_XTOL = 1e-9  # the bracket the V-section certifies (the golden section's, before)
+_VMAX = 80  # trial points per V-section at most (the golden section took up to 42)
+
+
+@nb.njit(cache=True)
+def _line_meet(x0, f0, x1, f1, x2, f2, x3, f3):
+    """Where the line through (x0, f0), (x1, f1) meets the one through (x2, f2), (x3, f3); NaN
+    unless the first falls and the second rises (a V)."""
+    if not (x1 > x0 and x3 > x2):
+        return np.nan
+    s1 = (f1 - f0) / (x1 - x0)
+    s2 = (f3 - f2) / (x3 - x2)
+    if not (s1 < 0.0 and s2 > 0.0 and np.isfinite(s1) and np.isfinite(s2)):
+        return np.nan
+    # f1 + s1 (x - x1) = f2 + s2 (x - x2)
+    return (f2 - f1 + s1 * x1 - s2 * x2) / (s1 - s2)
+
+
+@nb.njit(cache=True)
+def _vsection(a, b, fa, fb_, p, col, own, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo, k,
+              w, EN, XN, ok, ws, fb):
+    """The minimum of the trial minimum over [a, b] (fa, fb: its values at the ends, from the
+    grid): golden section's first two points, then steps to where the straight sides of a V
+    meet (the exact inner minimum is a V in the guide angle near its minimum, its sides straight
+    to ~1 % over 1e-3 deg: slopes of -400 .. +300 um/deg), a golden step whenever that gives
+    no point inside the bracket or the bracket shrank less than a golden step would, and
+    finally a point VSECTION_XTOL/2 to each side of the best, so the bracket around the best
+    point (its neighbours) ends below VSECTION_XTOL as the golden section's did. Returns (x,
+    value); values NaN (no window runs) count as infinite."""
+    xs = np.empty(_VMAX)
+    fs = np.empty(_VMAX)
+    xs[0], fs[0] = a, (np.inf if math.isnan(fa) else fa)
+    xs[1], fs[1] = b, (np.inf if math.isnan(fb_) else fb_)
+    npts = 2
+    x_new = b - _INVPHI * (b - a)
+    hist = np.full(3, np.inf)  # the bracket's width after each of the last three steps
+    golden_next = False
+    while True:
+        # insert x_new
+        f = _trial_min(p, col, own, x_new, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo, k,
+                       w, EN, XN, ok, ws, fb)
+        f = np.inf if math.isnan(f) else f
+        q = npts
+        while q > 0 and xs[q - 1] > x_new:
+            xs[q] = xs[q - 1]
+            fs[q] = fs[q - 1]
+            q -= 1
+        xs[q] = x_new
+        fs[q] = f
+        npts += 1
+        if npts == 3:  # the golden section's second point
+            x_new = a + _INVPHI * (b - a)
+            continue
+        if npts >= _VMAX:
+            break
+        j = 0
+        for r in range(1, npts):
+            if fs[r] < fs[j]:
+                j = r
+        lo_ = xs[max(j - 1, 0)]
+        hi_ = xs[min(j + 1, npts - 1)]
+        width = hi_ - lo_
+        if width < VSECTION_XTOL:
+            break
+        # three steps that together shrank the bracket less than one golden step would have:
+        # a golden step next
+        hist[npts % 3] = width
+        golden_next = npts >= 6 and width > _INVPHI * hist[(npts + 1) % 3] and not golden_next
+        if golden_next:
+            for r in range(3):
+                hist[r] = np.inf
+        xj = xs[j]
+        gl = xj - lo_  # gap to the left neighbour (0 at the left end)
+        gr = hi_ - xj
+        half = 0.5 * VSECTION_XTOL
+        x_new = np.nan
+        if not golden_next:
+            # the V: through the two points left of the kink and the two right of it; the
+            # kink lies between the best point and one of its neighbours
+            if 1 <= j and j + 2 <= npts - 1:
+                c = _line_meet(xs[j - 1], fs[j - 1], xj, fs[j], xs[j + 1], fs[j + 1],
+                               xs[j + 2], fs[j + 2])
+                if xj < c < xs[j + 1]:
+                    x_new = c
+            if math.isnan(x_new) and 2 <= j and j + 1 <= npts - 1:
+                c = _line_meet(xs[j - 2], fs[j - 2], xs[j - 1], fs[j - 1], xj, fs[j],
+                               xs[j + 1], fs[j + 1])
+                if xs[j - 1] < c < xj:
+                    x_new = c
+            if not math.isnan(x_new):
+                # on the best point already: close the bracket around it
+                if abs(x_new - xj) < half:
+                    x_new = np.nan
+                    if gl >= gr and gl > half:
+                        x_new = xj - 0.9 * half
+                    elif gr > half:
+                        x_new = xj + 0.9 * half
+                elif x_new - lo_ < half or hi_ - x_new < half:
+                    x_new = np.nan
+        if math.isnan(x_new):
+            # golden step into the larger gap (or the close probe once it is small)
+            if gl >= gr:
+                x_new = xj - (0.9 * half if gl < 4.0 * half else (1.0 - _INVPHI) * gl)
+            else:
+                x_new = xj + (0.9 * half if gr < 4.0 * half else (1.0 - _INVPHI) * gr)
+    j = 0
+    for r in range(1, npts):
+        if fs[r] < fs[j]:
+            j = r
+    return xs[j], fs[j]
+
+
+@nb.njit(cache=True)
+def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_min, vsection):
+    G = grid.size
+    own = p[col]
+    res = np.empty(8)
+    geo = np.empty((12, 2))
+    k, w = 0, 0.0
+    EN = np.empty((1, 1, 6))
+    XN = np.empty((1, 1))
+    ok = np.zeros(12, np.bool_)
+    cap = 1
+    if col == 13 and not (math.isnan(lo) or math.isnan(hi)):
+        k, w = _segments(p, lo, hi, blo, bhi, geo)
+        nmax = 1
+        for i in range(k):
+            nmax = max(nmax, _grid(geo[i, 0], geo[i, 1], w, h_deg * (math.pi / 180.0))[4])
+        EN = np.empty((max(k, 1), nmax, 6))
+        XN = np.empty((max(k, 1), nmax))
+        _points(p, geo, k, w, h_deg, EN, XN, ok)
+        cap = nmax
+    ws = _work(cap)
+    fb = np.empty((3, cap))
+    vals = np.empty(G)
+    for g in range(G):
+        v = np.nan
+        if not (math.isnan(lo) or math.isnan(hi)):
+            v = _trial_min(p, col, own, grid[g], lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res,
+                           geo, k, w, EN, XN, ok, ws, fb)
+        vals[g] = np.inf if math.isnan(v) else v
+    score = np.empty(G)
+    for g in range(G):
+        left = vals[g - 1] if g > 0 else np.inf
+        right = vals[g + 1] if g < G - 1 else np.inf
+        score[g] = vals[g] if (vals[g] <= left and vals[g] <= right) else np.inf
+    i0 = np.argmin(vals)
+    best_rel = grid[i0]
+    best_val = vals[i0]
+    for _ in range(rounds):
+        i = np.argmin(score)
+        if not score[i] < np.inf:
+            break
+        score[i] = np.inf
+        a = grid[max(i - 1, 0)]
+        b = grid[min(i + 1, G - 1)]
+        if vsection:
+            x, fx = _vsection(a, b, vals[max(i - 1, 0)], vals[min(i + 1, G - 1)], p, col, own,
+                              lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo, k, w, EN, XN,
+                              ok, ws, fb)
+            if fx < best_val:
+                best_val = fx
+                best_rel = x
+            continue
+        x1 = b - _INVPHI * (b - a)
+        x2 = a + _INVPHI * (b - a)
+        f1 = _trial_min(p, col, own, x1, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo,
+                        k, w, EN, XN, ok, ws, fb)
+        f2 = _trial_min(p, col, own, x2, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo,
+                        k, w, EN, XN, ok, ws, fb)
+        for it in range(40):
+            # as the batched search: until the bracket is below 1e-9, at least as many steps
+            # as a bracket of two grid cells takes (all machines stepped together before)
+            if b - a < 1e-9 and it >= n_min:
+                break
+            left = not (f1 >= f2)  # NaN counts as worse
+            if left:
+                b = x2
+                x2 = x1
+                f2 = f1
+                x1 = b - _INVPHI * (b - a)
+                f1 = _trial_min(p, col, own, x1, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res,
+                                geo, k, w, EN, XN, ok, ws, fb)
+            else:
+                a = x1
+                x1 = x2
+                f1 = f2
+                x2 = a + _INVPHI * (b - a)
+                f2 = _trial_min(p, col, own, x2, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res,
+                                geo, k, w, EN, XN, ok, ws, fb)
+        if f1 < best_val:
+            best_val = f1
+            best_rel = x1
+        if f2 < best_val:
+            best_val = f2
+            best_rel = x2
+    return best_rel
+
+
+@nb.njit(cache=True, parallel=True)
+def outer_batch(P, col, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active, grid,
+                h_deg=2.0, tol_um=1e-3, rounds=3, vsection=False):
+    """Per machine (rows of P with the compensator's own value in column col: 13 the guide
+    angle, deg; 3 CD, mm): the offset from its own value, one of `grid` or refined, where the
+    exact minimum of SumDelta over beta (and the guide shift) is least: a grid over `grid`,
+    then golden section around each of the `rounds` best local minima of the grid (to a
+    bracket below 1e-9). needle_208.adjust._with_outer's search (tests/test_adjust.py holds
+    the two to each other)."""
+    n = P.shape[0]
+    out = np.empty(n)
+    step = 2.0 * (grid[1] - grid[0])
+    n_min = 0
+    while step >= 1e-9 and n_min < 40:
+        step *= _INVPHI
+        n_min += 1
+    n_min = max(n_min - 1, 0)
+    for i in nb.prange(n):
+        if shift_active:
+            T0, T1 = shift_lo_um * 1e-3, shift_hi_um * 1e-3
+        else:
+            T0 = T1 = P[i, 14] * 1e-3
+        out[i] = _outer_one(P[i], col, lo[i], hi[i], blo, bhi, T0, T1, grid, h_deg,
+                            tol_um * 1e-3, rounds, n_min, vsection)
     return out
