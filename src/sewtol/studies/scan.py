@@ -21,7 +21,7 @@ import pandas as pd
 
 from sewtol.errors import ParameterError
 from sewtol.optimize import bisect_root
-from sewtol.protocol import machines
+from sewtol.protocol import NO_PLUGINS, machines, plugins
 from sewtol.studies.adjusting import Adjusted, adjusted, evaluated
 from sewtol.tolerances import ToleranceSet
 
@@ -81,8 +81,13 @@ def scan(mech, tolerances: ToleranceSet, outputs=None, adjust=None,
     if names:
         from sewtol.studies.generic import nominal
 
-        base = nominal(mech).rows.set_index("output")["value"]
+        base = dict(nominal(mech).rows.set_index("output")["value"])
         ev = mech.evaluate(values, names)
+        outs = dict(ev.outputs)
+        pl = plugins(mech) if fast else NO_PLUGINS
+        # the plug-in kernel's outputs (the mechanism's evaluation names the failures)
+        for k in [k for k in names if pl.kernel is not None and k in pl.kernel_outputs]:
+            outs[k], base[k] = pl.kernel(mech, values)[k], float(pl.kernel(mech, {})[k][0])
     adj = adj0 = None
     if adjust is not None:
         target = adjusted_output or names[0]
@@ -90,7 +95,7 @@ def scan(mech, tolerances: ToleranceSet, outputs=None, adjust=None,
         adj0 = adjusted(mech, None, adjust, target, fast=fast, **options)
     for i, (p, s, d) in enumerate(zip(params, sides, deltas, strict=True)):
         for name in names:
-            v = float(ev.outputs[name][i])
+            v = float(outs[name][i])
             rows.append({"param": p, "side": s, "deviation": d, "output": name,
                          "nominal": float(base[name]), "value": v,
                          "change": v - float(base[name]), "status": ev.status[i],
