@@ -204,7 +204,8 @@ def test_declarations_come_from_the_folders():
     assert M.declared("OUTPUT_KINDS") == {
         "feed_dogs": "sewtol.mechanisms.feed_131.metrics",
         "presser_contact": "sewtol.mechanisms.presser_foot.model"}
-    assert M.declared("FAST_PATHS") == {"needle_208": "sewtol.mechanisms.needle_208.fast_path"}
+    assert M.declared("FAST_PATHS") == {"m6_needle": "sewtol.mechanisms.m6_needle.fast_path",
+                                        "needle_208": "sewtol.mechanisms.needle_208.fast_path"}
 
 
 def test_a_name_runs_the_same_file_as_its_path():

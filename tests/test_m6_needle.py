@@ -421,3 +421,32 @@ def test_report_matches_the_committed_tables(tmp_path):
     assert res.loc["travel_mm", "model"] == pytest.approx(24.2, abs=1e-9)
     assert res.loc["speed_max_m_s", "residual"] == pytest.approx(2.0109, abs=2e-4)
     assert res.loc["R45_N", "residual"] == pytest.approx(-0.696, abs=1e-3)
+
+
+def test_run_scan_and_montecarlo_take_the_exact_travel(nominal):
+    from cli_helpers import run, strict_loads
+
+    code, out, err = run("run", "m6_needle", "scan", "--output", "travel_mm", "--format", "json")
+    fast = strict_loads(out)
+    assert code == 0 and fast["context"]["path"] == "m6_needle", err
+    assert fast["context"]["path_reason"] is None
+    code, out, _ = run("run", "m6_needle", "scan", "--output", "travel_mm", "--path", "generic",
+                       "--format", "json")
+    generic = strict_loads(out)
+    assert code == 0 and generic["context"]["path"] == "generic"
+    from sewtol.mechanism import load
+    from sewtol.mechanisms.m6_needle.fast_path import travel_kernel_bound
+
+    mech = load(TOML)
+    for a, b in zip(fast["rows"], generic["rows"], strict=True):
+        machine = {a["param"]: float(getattr(nominal, a["param"])) + a["deviation"]}
+        by_hand = float(m6.travel_mm(nominal.override(**machine)))
+        assert abs(a["value"] - by_hand) < 1e-12
+        # the sampled travel lies below, within the bound
+        bound = travel_kernel_bound(mech, {k: np.array([v]) for k, v in machine.items()})
+        assert 0 <= a["value"] - b["value"] <= bound["travel_mm"][0]
+    code, out, _ = run("run", "m6_needle", "montecarlo", "--output", "travel_mm", "--n", "50",
+                       "--seed", "3", "--format", "json")
+    mc = strict_loads(out)
+    assert code == 0 and mc["context"]["path"] == "m6_needle"
+    assert mc["counts"]["fixed"]["ok"] == 50
