@@ -69,7 +69,8 @@ def scan(mech, tolerances: ToleranceSet, outputs=None, adjust=None,
     outputs: the outputs evaluated (None: all; () none, only the adjusted case). adjust: the
     compensators (as `adjusting.adjusted` takes them), adjusted_output the output they minimise
     (default the first of `outputs`). zero_width: also scan tolerances of zero width. fast:
-    use the mechanism's plug-ins; options go to its strategy adjuster.
+    use the mechanism's plug-ins (its kernel for the outputs it gives, its adjusters); options
+    go to its strategy adjuster.
     """
     tol = checked(mech, tolerances)
     if zero_width:
@@ -85,9 +86,11 @@ def scan(mech, tolerances: ToleranceSet, outputs=None, adjust=None,
         ev = mech.evaluate(values, names)
         outs = dict(ev.outputs)
         pl = plugins(mech) if fast else NO_PLUGINS
-        # the plug-in kernel's outputs (the mechanism's evaluation names the failures)
-        for k in [k for k in names if pl.kernel is not None and k in pl.kernel_outputs]:
-            outs[k], base[k] = pl.kernel(mech, values)[k], float(pl.kernel(mech, {})[k][0])
+        own = [k for k in names if pl.kernel is not None and k in pl.kernel_outputs]
+        if own:  # the plug-in kernel's outputs (the mechanism's evaluation names the failures)
+            got, got0 = pl.kernel(mech, values), pl.kernel(mech, {})
+            outs.update({k: got[k] for k in own})
+            base.update({k: float(got0[k][0]) for k in own})
     adj = adj0 = None
     if adjust is not None:
         target = adjusted_output or names[0]
