@@ -450,3 +450,19 @@ def test_run_scan_and_montecarlo_take_the_exact_travel(nominal):
     mc = strict_loads(out)
     assert code == 0 and mc["context"]["path"] == "m6_needle"
     assert mc["counts"]["fixed"]["ok"] == 50
+
+
+@pytest.mark.parametrize("old, new, why", [
+    ('axis = "along"\nangle_deg = "guide_deg"', 'axis = "along"\nangle_deg = 90',
+     "output travel_mm is not along the guide"),
+    ('axis = "along"\nangle_deg = "guide_deg"', 'axis = "y"', "no travel output"),
+    ('radius = "crank_mm"', 'radius = "crank_mm * 1.001"', "A differs by"),
+])
+def test_the_fast_path_is_refused_to_a_file_that_is_not_the_model(old, new, why):
+    from sewtol.mechanism import loads
+
+    text = TOML.read_text()
+    assert old in text
+    with pytest.raises(ParameterError, match=why) as err:
+        loads(text.replace(old, new), "m6.toml")
+    assert err.value.field.endswith("[mechanism] fast_path")
