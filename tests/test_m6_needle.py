@@ -450,6 +450,10 @@ def test_run_scan_and_montecarlo_take_the_exact_travel(nominal):
     mc = strict_loads(out)
     assert code == 0 and mc["context"]["path"] == "m6_needle"
     assert mc["counts"]["fixed"]["ok"] == 50
+    # every output: the kernel gives one of them, so the Monte-Carlo stays generic and says so
+    code, out, _ = run("run", "m6_needle", "montecarlo", "--n", "50", "--format", "json")
+    ctx = strict_loads(out)["context"]
+    assert code == 0 and ctx["path"] == "generic" and "travel_mm alone" in ctx["path_reason"]
 
 
 @pytest.mark.parametrize("old, new, why", [

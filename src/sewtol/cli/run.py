@@ -543,8 +543,14 @@ KERNEL_STUDIES = ("scan", "montecarlo")
 def _kernel_path(args, mech) -> bool:
     """True when `run scan|montecarlo` takes the file's own fast path (its kernel plug-in) and
     says so in the context; needle_208's runs the needle command instead (or stays generic)."""
+    from sewtol.protocol import plugins
+
     name = mech.header.fast_path
     if args.path == "generic" or name in (None, "needle_208") or args.study not in KERNEL_STUDIES:
+        return False
+    own = plugins(mech).kernel_outputs
+    if args.study == "montecarlo" and args.output not in own:  # its kernel gives all or none
+        args.path_reason = f"the {name} kernel gives {', '.join(own)} alone (--output)"
         return False
     args.path_used, args.path_reason = name, None
     return True
