@@ -9,7 +9,6 @@ Writes reports/m6_needle/ (tables as CSV + Markdown, motion.png, index.md, run.j
 from __future__ import annotations
 
 import argparse
-import tomllib
 from pathlib import Path
 
 import matplotlib
@@ -20,11 +19,15 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from sewtol.io import to_json, write_text_atomic  # noqa: E402
+from sewtol.mechanism import load as load_mechanism  # noqa: E402
 from sewtol.mechanisms.m6_needle import model as m6  # noqa: E402
 from sewtol.mechanisms.params import as_dict  # noqa: E402
 from sewtol.provenance import now, run_record  # noqa: E402
 from sewtol.reports import plots  # noqa: E402
 from sewtol.reports.tables import write_table  # noqa: E402
+from sewtol.studies import montecarlo as MC  # noqa: E402
+from sewtol.studies import scan as S  # noqa: E402
+from sewtol.studies import summaries as SU  # noqa: E402
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "m6_needle.toml"
 
@@ -67,6 +70,35 @@ def figures_row(rec: m6.Reconstruction, samples: int) -> dict:
            "energy_check_below_1e-12": bool(np.max(np.abs(R.torque_Nm - R.energy_torque_Nm))
                                             / np.max(np.abs(R.torque_Nm)) < CHECK_BOUND)}
     return row
+
+
+def scan_travel(mech, ts) -> pd.DataFrame:
+    """Each parameter at +tol and -tol (sewtol.studies.scan): travel and its change (mm) and the
+    central difference over the limits, sorted by the larger |change|."""
+    res = S.scan(mech, ts, ["travel_mm"])
+    r, status = SU.scan_table(res, ["travel_mm"]), res.rows["status"].to_numpy()
+    up, lo = r[r["side"] == "upper"].reset_index(drop=True), r[r["side"] == "lower"].reset_index(
+        drop=True)
+    frame = pd.DataFrame({
+        "parameter": up["param"], "tolerance": up["deviation"],
+        "travel_upper_mm": up["travel_mm"], "travel_lower_mm": lo["travel_mm"],
+        "change_upper_mm": up["change_travel_mm"], "change_lower_mm": lo["change_travel_mm"],
+        "slope_per_unit": (up["travel_mm"] - lo["travel_mm"]) / (up["deviation"]
+                                                                 - lo["deviation"]),
+        "status_upper": status[0::2], "status_lower": status[1::2]})
+    order = np.argsort(-np.maximum(np.abs(frame["change_upper_mm"]),
+                                   np.abs(frame["change_lower_mm"])).to_numpy(), kind="stable")
+    return frame.iloc[order].reset_index(drop=True)
+
+
+def montecarlo_travel(mech, ts, n: int, seed: int) -> pd.DataFrame:
+    """n machines of the one sampler (sewtol.studies.montecarlo, the exact travel): the counts
+    by status and the travel's summary over the machines that run."""
+    m = MC.montecarlo(mech, ts, n, seed, ["travel_mm"], fast=True).machines
+    f = SU.output_summary(m, ["travel_mm"], (0.00135, 0.5, 0.99865), m["status"] == "ok")
+    counts = {s: int((m["status"] == s).sum()) for s in ("ok", "cannot_close", "dead_point")}
+    return pd.DataFrame([{"n": n, **counts, **{f"{k}_mm": f.iloc[0][k] for k in (
+        "mean", "std", "p0.135", "p50", "p99.865", "min", "max")}}])
 
 
 def main(argv=None) -> None:
@@ -185,26 +217,20 @@ def main(argv=None) -> None:
         ax.legend(fontsize=7, loc="lower right")
     plots.save(f, out / "motion.png")
 
-    # tolerances of the travel (illustrative set of the example file)
-    tol = tomllib.loads(EXAMPLE.read_text())["tolerances"]["illustrative"]
+    # tolerances of the travel: the file's illustrative set (+/- limits, uniform) through the
+    # generic scan and Monte-Carlo, the travel exact by the folder's kernel plug-in
+    mech = load_mechanism(EXAMPLE)
+    ts = mech.tolerance_sets["illustrative"]
+    tol = {t.param: t.upper for t in ts.items}
     tset = {**settings, "tolerance set": "illustrative (mechanisms/m6_needle/mechanism.toml; the source "
             "gives none): " + ", ".join(f"{k} +/-{v:g}" for k, v in tol.items())}
-    write_table(m6.scan_travel(p, tol), out, "scan_travel",
+    write_table(scan_travel(mech, ts), out, "scan_travel",
                 "Needle travel with each parameter at its limits (sorted by effect)", tset,
                 floatfmt=".6f")
-    mc = m6.montecarlo_travel(p, tol, args.n_mc, args.seed)
-    t = mc["travel_mm"].to_numpy()
-    ok = mc["status"] == "ok"
-    q = np.quantile(t[ok], [0.00135, 0.5, 0.99865]) if ok.any() else [np.nan] * 3
-    summary = pd.DataFrame([{"n": args.n_mc, "ok": int(ok.sum()),
-                             "cannot_close": int((mc["status"] == "cannot_close").sum()),
-                             "dead_point": int((mc["status"] == "dead_point").sum()),
-                             "mean_mm": float(np.mean(t[ok])), "std_mm": float(np.std(t[ok])),
-                             "p0.135_mm": q[0], "p50_mm": q[1], "p99.865_mm": q[2],
-                             "min_mm": float(np.min(t[ok])), "max_mm": float(np.max(t[ok]))}])
-    write_table(summary, out, "montecarlo_travel",
+    write_table(montecarlo_travel(mech, ts, args.n_mc, args.seed), out, "montecarlo_travel",
                 f"Needle travel over {args.n_mc} machines (uniform within the limits)",
-                {**tset, "seed": args.seed}, floatfmt=".5f")
+                {**tset, "seed": args.seed, "machines": "the one sampler (sewtol.law.InputLaw)",
+                 "std_mm": "ddof 1"}, floatfmt=".5f")
 
     rn = rows.iloc[0]
     index = [

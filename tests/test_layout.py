@@ -204,7 +204,8 @@ def test_declarations_come_from_the_folders():
     assert M.declared("OUTPUT_KINDS") == {
         "feed_dogs": "sewtol.mechanisms.feed_131.metrics",
         "presser_contact": "sewtol.mechanisms.presser_foot.model"}
-    assert M.declared("FAST_PATHS") == {"needle_208": "sewtol.mechanisms.needle_208.fast_path"}
+    assert M.declared("FAST_PATHS") == {"m6_needle": "sewtol.mechanisms.m6_needle.fast_path",
+                                        "needle_208": "sewtol.mechanisms.needle_208.fast_path"}
 
 
 def test_a_name_runs_the_same_file_as_its_path():
@@ -229,6 +230,7 @@ def test_mechanisms_lists_every_folder():
     rows = {r["name"]: r for r in json.loads(out)["mechanisms"]}
     assert code == 0 and tuple(rows) == BUILT_IN
     assert rows["needle_208"]["fast_path"] == "needle_208"
+    assert rows["m6_needle"]["fast_path"] == "m6_needle"
     assert rows["presser_foot"]["output_kinds"] == "presser_contact"
     assert rows["m6_needle"]["file"] == "sewtol/mechanisms/m6_needle/mechanism.toml"
 
@@ -265,4 +267,10 @@ def test_folder_holds_no_module_named_after_a_study(name):
     adjusters, and the tables in the source's columns live in sewtol.tables."""
     studies = {"scan.py", "montecarlo.py", "sobol.py", "ppm.py", "allocation.py", "strategies.py",
                "guides.py", "studies.py", "tables.py", "worst_case.py", "rare_event.py"}
-    assert not studies & {p.name for p in (SRC / "mechanisms" / name).rglob("*.py")}
+    files = list((SRC / "mechanisms" / name).rglob("*.py"))
+    assert not studies & {p.name for p in files}
+    # nor a function: scan_travel, montecarlo_travel, ... (a study's verb first)
+    verbs = tuple(s.removesuffix(".py") for s in studies)
+    named = [f"{p.name}:{n.name}" for p in files for n in ast.parse(p.read_text()).body
+             if isinstance(n, ast.FunctionDef) and n.name.startswith(verbs)]
+    assert named == []

@@ -14,6 +14,7 @@ from sewtol.errors import ParameterError
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.m6_needle import model as m6
 from sewtol.mechanisms.m6_needle.model import M6Needle
+from sewtol.protocol import input_law
 
 TOML = Path(__file__).resolve().parents[1] / "examples" / "m6_needle.toml"
 
@@ -55,6 +56,17 @@ def test_travel_closed_form_and_against_a_dense_turn(nominal):
         qa = np.linspace(0, 2 * np.pi, 200_001)
         ya = m6.chain(P.column(alt.params, None), qa)["J"].p.imag
         assert 0 <= float(m6.travel_mm(alt.params)) - np.ptp(ya) < 1e-7, alt.name
+    # a short rod on a tilted arm: J stands still inside the swing (the rod along the arm) and
+    # turns back there, beyond its position at the lever's extremes by 5 um
+    odd = M6Needle(crank_mm=8.58, pivot_mm=51.98, pivot_deg=120.06, slot_offset_mm=1.0,
+                   arm_deg=55.59, arm_mm=73.24, rod_mm=6.25, guide_x_mm=51.72, guide_y_mm=12.41,
+                   guide_deg=94.31)
+    c = P.column(odd, None)
+    s = (m6.chain(c, q)["J"].p * np.exp(-1j * np.radians(odd.guide_deg))).real
+    lo, hi = m6.lever_extremes(c)
+    at_ends = abs(m6.needle_at_lever(c, hi) - m6.needle_at_lever(c, lo))
+    assert np.ptp(s) - at_ends > 4e-3
+    assert 0 <= float(m6.travel_mm(odd)) - np.ptp(s) < 1e-8
 
 
 def test_alternatives_fit_equally_well():
@@ -180,28 +192,102 @@ def test_static_case_against_hand_calculation():
     assert abs(R.S[k] - p.bar_kg * m6.G_M_S2) < 1e-3 * p.bar_kg * m6.G_M_S2
 
 
-def test_scan_slopes_are_the_closed_form(nominal):
-    tol = tomllib.loads(TOML.read_text())["tolerances"]["illustrative"]
-    sc = m6.scan_travel(nominal, tol).set_index("parameter")
+@pytest.fixture(scope="module")
+def mech():
+    from sewtol.mechanism import load
+
+    return load(TOML)
+
+
+def test_scan_is_the_exact_travel_by_hand(nominal, mech):
+    from sewtol.studies.scan import scan
+
+    ts = mech.tolerance_sets["illustrative"]
+    res = scan(mech, ts, ["travel_mm"])
+    rows = res.rows
+    assert len(rows) == 2 * len(ts.items) and (rows["status"] == "ok").all()
+    for _, r in rows.iterrows():
+        by_hand = float(m6.travel_mm(nominal.override(**{
+            r["param"]: float(getattr(nominal, r["param"])) + r["deviation"]})))
+        assert abs(r["value"] - by_hand) < 1e-12, (r["param"], r["side"])
+        assert abs(r["change"] - (by_hand - 24.2)) < 1e-12
+    sc = {(r["param"], r["side"]): r["value"] for _, r in rows.iterrows()}
+    tol = {t.param: t.upper for t in ts.items}
+
+    def slope(k):
+        return (sc[k, "upper"] - sc[k, "lower"]) / (2 * tol[k])
+
     r, d, arm = nominal.crank_mm, nominal.pivot_mm, nominal.arm_mm
-    assert sc.loc["crank_mm", "slope_per_unit"] == pytest.approx(2 * arm / d, rel=1e-9)
-    assert sc.loc["arm_mm", "slope_per_unit"] == pytest.approx(2 * r / d, rel=1e-9)
-    assert sc.loc["pivot_mm", "slope_per_unit"] == pytest.approx(-2 * arm * r / d**2, rel=1e-6)
+    assert slope("crank_mm") == pytest.approx(2 * arm / d, rel=1e-9)
+    assert slope("arm_mm") == pytest.approx(2 * r / d, rel=1e-9)
+    assert slope("pivot_mm") == pytest.approx(-2 * arm * r / d**2, rel=1e-6)
     # the rod and the needle bar's x do not change the travel (equal foreshortening at both ends)
-    assert abs(sc.loc["rod_mm", "change_upper_mm"]) < 1e-12
-    assert abs(sc.loc["guide_x_mm", "change_lower_mm"]) < 1e-12
-    assert (sc["status_upper"] == "ok").all() and (sc["status_lower"] == "ok").all()
+    assert abs(sc["rod_mm", "upper"] - 24.2) < 1e-12
+    assert abs(sc["guide_x_mm", "lower"] - 24.2) < 1e-12
+    # the generic (sampled) scan lies below, within the kernel's bound
+    from sewtol.mechanisms.m6_needle.fast_path import travel_kernel_bound
+
+    generic = scan(mech, ts, ["travel_mm"], fast=False).rows["value"].to_numpy()
+    gap = rows["value"].to_numpy() - generic
+    assert np.all(gap >= 0) and np.all(gap <= travel_kernel_bound(mech, res.values)["travel_mm"])
 
 
-def test_montecarlo_same_seed_same_table(nominal):
-    tol = {"crank_mm": 0.02, "pivot_mm": 0.03, "arm_mm": 0.05}
-    a = m6.montecarlo_travel(nominal, tol, 500, 7)
-    b = m6.montecarlo_travel(nominal, tol, 500, 7)
+def test_montecarlo_draws_the_shared_sampler_and_repeats(nominal, mech):
+    from sewtol.studies.montecarlo import montecarlo
+    from sewtol.tolerances import Tolerance, ToleranceSet
+
+    ts = ToleranceSet("t", tuple(Tolerance(k, -t, t) for k, t in
+                                 {"crank_mm": 0.02, "pivot_mm": 0.03, "arm_mm": 0.05}.items()))
+    a = montecarlo(mech, ts, 500, 7, ["travel_mm"], fast=True).machines
+    b = montecarlo(mech, ts, 500, 7, ["travel_mm"], fast=True).machines
     assert a.equals(b)
-    assert not a.equals(m6.montecarlo_travel(nominal, tol, 500, 8))
-    r, d, arm = (nominal.crank_mm + a["crank_mm_dev"], nominal.pivot_mm + a["pivot_mm_dev"],
-                 nominal.arm_mm + a["arm_mm_dev"])
-    assert np.max(np.abs(a["travel_mm"] - 2 * arm * r / d)) < 1e-12
+    assert not a.equals(montecarlo(mech, ts, 500, 8, ["travel_mm"], fast=True).machines)
+    # the machines are the one sampler's for the seed (every study draws these)
+    dev = input_law(mech, ts).draw(500, 7)
+    r, d, arm = (nominal.crank_mm + dev["crank_mm"], nominal.pivot_mm + dev["pivot_mm"],
+                 nominal.arm_mm + dev["arm_mm"])
+    assert np.max(np.abs(a["travel_mm"].to_numpy() - 2 * arm * r / d)) < 1e-12
+    assert (a["status"] == "ok").all()
+
+
+def test_kernel_is_the_exact_travel_on_random_machines(mech):
+    from sewtol.mechanisms.m6_needle.fast_path import travel_kernel, travel_kernel_bound
+
+    rng = np.random.default_rng(21)
+    n = 300
+    spread = {"crank_mm": 1.0, "pivot_mm": 2.0, "pivot_deg": 5.0, "slot_offset_mm": 2.0,
+              "arm_deg": 20.0, "arm_mm": 5.0, "rod_mm": 30.0, "guide_x_mm": 2.0,
+              "guide_y_mm": 2.0, "guide_deg": 10.0}
+    nominal = mech.nominal_values()
+    values = {k: nominal[k] + rng.uniform(-w, w, n) for k, w in spread.items()}
+    got = travel_kernel(mech, values)["travel_mm"]
+    ev = mech.evaluate(values, ["travel_mm"])
+    runs = ev.status == "ok"
+    # short rods that miss the guide somewhere in the swing: NaN exactly where the file fails
+    assert 10 < np.sum(~runs) < n - 100
+    assert np.array_equal(np.isnan(got), ~runs)
+    with np.errstate(invalid="ignore"):
+        exact = m6.travel_mm(M6Needle(**values))
+    assert np.max(np.abs(got - exact)[runs]) < 1e-12
+    # within the bound above the file's sampled travel
+    gap = (got - ev.outputs["travel_mm"])[runs]
+    bound = travel_kernel_bound(mech, values)["travel_mm"][runs]
+    assert np.all(gap >= 0) and np.all(gap <= bound)
+
+
+def test_kernel_keeps_the_file_where_the_closed_form_does_not_hold(mech):
+    from sewtol.mechanisms.m6_needle.fast_path import travel_kernel
+
+    # a rod too short to reach the guide (cannot close), a lever that turns round (crank
+    # beyond pivot_mm + |slot_offset_mm|) with a rod that reaches the guide all round (runs:
+    # the file's sampled travel), the nominal
+    values = {"rod_mm": np.array([0.46, 200.0, 31.461184236855885]),
+              "crank_mm": np.array([8.2, 60.0, 8.2])}
+    ev = mech.evaluate(values, ["travel_mm"])
+    got = travel_kernel(mech, values)["travel_mm"]
+    assert list(ev.status) == ["cannot_close", "ok", "ok"]
+    assert np.isnan(got[0]) and got[1] == ev.outputs["travel_mm"][1]
+    assert got[2] == pytest.approx(24.2, abs=1e-12)
 
 
 def test_failures_are_counted_and_named(nominal):
@@ -335,3 +421,52 @@ def test_report_matches_the_committed_tables(tmp_path):
     assert res.loc["travel_mm", "model"] == pytest.approx(24.2, abs=1e-9)
     assert res.loc["speed_max_m_s", "residual"] == pytest.approx(2.0109, abs=2e-4)
     assert res.loc["R45_N", "residual"] == pytest.approx(-0.696, abs=1e-3)
+
+
+def test_run_scan_and_montecarlo_take_the_exact_travel(nominal):
+    from cli_helpers import run, strict_loads
+
+    code, out, err = run("run", "m6_needle", "scan", "--output", "travel_mm", "--format", "json")
+    fast = strict_loads(out)
+    assert code == 0 and fast["context"]["path"] == "m6_needle", err
+    assert fast["context"]["path_reason"] is None
+    code, out, _ = run("run", "m6_needle", "scan", "--output", "travel_mm", "--path", "generic",
+                       "--format", "json")
+    generic = strict_loads(out)
+    assert code == 0 and generic["context"]["path"] == "generic"
+    from sewtol.mechanism import load
+    from sewtol.mechanisms.m6_needle.fast_path import travel_kernel_bound
+
+    mech = load(TOML)
+    for a, b in zip(fast["rows"], generic["rows"], strict=True):
+        machine = {a["param"]: float(getattr(nominal, a["param"])) + a["deviation"]}
+        by_hand = float(m6.travel_mm(nominal.override(**machine)))
+        assert abs(a["value"] - by_hand) < 1e-12
+        # the sampled travel lies below, within the bound
+        bound = travel_kernel_bound(mech, {k: np.array([v]) for k, v in machine.items()})
+        assert 0 <= a["value"] - b["value"] <= bound["travel_mm"][0]
+    code, out, _ = run("run", "m6_needle", "montecarlo", "--output", "travel_mm", "--n", "50",
+                       "--seed", "3", "--format", "json")
+    mc = strict_loads(out)
+    assert code == 0 and mc["context"]["path"] == "m6_needle"
+    assert mc["counts"]["fixed"]["ok"] == 50
+    # every output: the kernel gives one of them, so the Monte-Carlo stays generic and says so
+    code, out, _ = run("run", "m6_needle", "montecarlo", "--n", "50", "--format", "json")
+    ctx = strict_loads(out)["context"]
+    assert code == 0 and ctx["path"] == "generic" and "travel_mm alone" in ctx["path_reason"]
+
+
+@pytest.mark.parametrize("old, new, why", [
+    ('axis = "along"\nangle_deg = "guide_deg"', 'axis = "along"\nangle_deg = 90',
+     "output travel_mm is not along the guide"),
+    ('axis = "along"\nangle_deg = "guide_deg"', 'axis = "y"', "no travel output"),
+    ('radius = "crank_mm"', 'radius = "crank_mm * 1.001"', "A differs by"),
+])
+def test_the_fast_path_is_refused_to_a_file_that_is_not_the_model(old, new, why):
+    from sewtol.mechanism import loads
+
+    text = TOML.read_text()
+    assert old in text
+    with pytest.raises(ParameterError, match=why) as err:
+        loads(text.replace(old, new), "m6.toml")
+    assert err.value.field.endswith("[mechanism] fast_path")

@@ -340,8 +340,9 @@ def cmd_run(args) -> None:
         print(f"sewtol: note: `run {args.study}` takes the generic sampled path, not the "
               f"needle_208 fast path: {args.path_reason}", file=sys.stderr)
     outputs = None if args.output is None else [args.output]
+    fast = _kernel_path(args, mech)
     if args.study == "scan":
-        res = _as_flags(partial(S.scan, fast=False), mech, tolerances, outputs, args.adjust)
+        res = _as_flags(partial(S.scan, fast=fast), mech, tolerances, outputs, args.adjust)
         return _finish(args, fmt, mech, tolerances, res.to_dict(), {"scan": res.rows}, res.rows)
     if args.study == "worst-case":
         res = _as_flags(partial(W.worst_case, fast=False), mech, tolerances,
@@ -376,8 +377,9 @@ def cmd_run(args) -> None:
         return _least_cost(args, fmt, mech, tolerances)
     from sewtol.studies import montecarlo as MC
 
-    res = _as_flags(MC.montecarlo, mech, tolerances, args.n, args.seed, outputs, args.limit,
-                    args.output, args.n_jobs, False, MC.CHUNK, args.adjust, args.lower_limit)
+    res = _as_flags(partial(MC.montecarlo, fast=fast), mech, tolerances, args.n, args.seed,
+                    outputs, args.limit, args.output, args.n_jobs, False, MC.CHUNK, args.adjust,
+                    args.lower_limit)
     return _finish(args, fmt, mech, tolerances, res.to_dict(),
                    {"machines": res.machines, "summary": res.summary_frame()},
                    res.summary_frame())
@@ -555,6 +557,27 @@ FAST_PATH_STUDIES = ("scan", "worst-case", "montecarlo", "sobol", "ppm", "alloca
 BOTH_CASES = ("worst-case", "montecarlo", "sobol")
 
 
+# the studies a fast path other than needle_208's serves through its plug-ins (the m6 needle's
+# exact travel), unless --path generic
+KERNEL_STUDIES = ("scan", "montecarlo")
+
+
+def _kernel_path(args, mech) -> bool:
+    """True when `run scan|montecarlo` takes the file's own fast path (its kernel plug-in) and
+    says so in the context; needle_208's runs the needle command instead (or stays generic)."""
+    from sewtol.protocol import plugins
+
+    name = mech.header.fast_path
+    if args.path == "generic" or name in (None, "needle_208") or args.study not in KERNEL_STUDIES:
+        return False
+    own = plugins(mech).kernel_outputs
+    if args.study == "montecarlo" and args.output not in own:  # its kernel gives all or none
+        args.path_reason = f"the {name} kernel gives {', '.join(own)} alone (--output)"
+        return False
+    args.path_used, args.path_reason = name, None
+    return True
+
+
 def _fast_path_refusal(args, mech) -> str | None:
     """None when `run FILE STUDY` runs on the needle_208 fast path, else why it does not."""
     from sewtol.mechanisms.needle_208 import beta as sb
@@ -563,7 +586,8 @@ def _fast_path_refusal(args, mech) -> str | None:
     if args.path == "generic":
         return "--path generic"
     if mech.header.fast_path != "needle_208":
-        return "the file declares no fast path"
+        return ("the file declares no fast path" if mech.header.fast_path is None else
+                f"the {mech.header.fast_path} fast path serves {' and '.join(KERNEL_STUDIES)}")
     if args.study not in FAST_PATH_STUDIES:
         return f"`run {args.study}` has no fast path"
     if args.output is not None and args.output not in sumdelta_outputs(mech):

@@ -408,7 +408,13 @@ def _output(s: _Source, k: int, o, pts, angs):
         s.angle.append(f"W[{w}, j] = 1e3 * ({v}cn * ({px} - {v}gx) - {v}sn * ({py} - {v}gy))")
     elif o.type == "coordinate":
         px, py = pts[f["point"]]
-        s.angle.append(f"W[{w}, j] = {px if f['axis'] == 'x' else py}")
+        if f["axis"] == "along":  # x cos a + y sin a, a = angle_deg
+            ca = s.expr(f.get("angle_deg", 0.0), lambda a: np.cos(a * DEG))
+            sa = s.expr(f.get("angle_deg", 0.0), lambda a: np.sin(a * DEG))
+            s.machine += [f"{v}ca = {ca}", f"{v}sa = {sa}"]
+            s.angle.append(f"W[{w}, j] = {v}ca * {px} + {v}sa * {py}")
+        else:
+            s.angle.append(f"W[{w}, j] = {px if f['axis'] == 'x' else py}")
     elif o.type == "angle":
         if f.get("angle") is not None:
             s.angle.append(f"W[{w}, j] = {angs[f['angle']]}")

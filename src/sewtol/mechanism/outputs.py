@@ -67,7 +67,12 @@ def line_deviation(state, point, x, y, angle_deg, shift_um, measure):
     return np.max(d, axis=-1) - np.min(d, axis=-1)
 
 
-def coordinate(state, point, axis, measure):
+def coordinate(state, point, axis, measure, angle_deg=0.0):
+    """x, y, or (axis "along") the coordinate along the direction angle_deg from +x (a slider's
+    position along its guide), reduced over the cycle."""
+    if axis == "along":
+        a = angle_deg * DEG
+        return _reduce(point.x * np.cos(a) + point.y * np.sin(a), state.q_rad, measure)
     return _reduce(point.x if axis == "x" else point.y, state.q_rad, measure)
 
 
@@ -103,8 +108,9 @@ OUTPUT_TYPES: dict[str, OutputType] = {
         "angle_deg": ("expr", None, None), "shift_um": ("expr", 0.0, None),
         "measure": ("choice", "sum_extremes", LINE_MEASURES)}, line_deviation),
     "coordinate": OutputType("coordinate", {
-        "point": ("point", None, None), "axis": ("choice", None, ("x", "y")),
-        "measure": ("choice", None, COORD_MEASURES)}, coordinate),
+        "point": ("point", None, None), "axis": ("choice", None, ("x", "y", "along")),
+        "angle_deg": ("expr", 0.0, None), "measure": ("choice", None, COORD_MEASURES)},
+        coordinate),
     "angle": OutputType("angle", {
         "angle": ("angle", None, None), "direction": ("direction", None, None),
         "measure": ("choice", None, COORD_MEASURES)}, angle_output,

@@ -21,7 +21,7 @@ import pandas as pd
 
 from sewtol.errors import ParameterError
 from sewtol.optimize import bisect_root
-from sewtol.protocol import machines
+from sewtol.protocol import NO_PLUGINS, machines, plugins
 from sewtol.studies.adjusting import Adjusted, adjusted, evaluated
 from sewtol.tolerances import ToleranceSet
 
@@ -69,7 +69,8 @@ def scan(mech, tolerances: ToleranceSet, outputs=None, adjust=None,
     outputs: the outputs evaluated (None: all; () none, only the adjusted case). adjust: the
     compensators (as `adjusting.adjusted` takes them), adjusted_output the output they minimise
     (default the first of `outputs`). zero_width: also scan tolerances of zero width. fast:
-    use the mechanism's plug-ins; options go to its strategy adjuster.
+    use the mechanism's plug-ins (its kernel for the outputs it gives, its adjusters); options
+    go to its strategy adjuster.
     """
     tol = checked(mech, tolerances)
     if zero_width:
@@ -81,8 +82,15 @@ def scan(mech, tolerances: ToleranceSet, outputs=None, adjust=None,
     if names:
         from sewtol.studies.generic import nominal
 
-        base = nominal(mech).rows.set_index("output")["value"]
+        base = dict(nominal(mech).rows.set_index("output")["value"])
         ev = mech.evaluate(values, names)
+        outs = dict(ev.outputs)
+        pl = plugins(mech) if fast else NO_PLUGINS
+        own = [k for k in names if pl.kernel is not None and k in pl.kernel_outputs]
+        if own:  # the plug-in kernel's outputs (the mechanism's evaluation names the failures)
+            got, got0 = pl.kernel(mech, values), pl.kernel(mech, {})
+            outs.update({k: got[k] for k in own})
+            base.update({k: float(got0[k][0]) for k in own})
     adj = adj0 = None
     if adjust is not None:
         target = adjusted_output or names[0]
@@ -90,7 +98,7 @@ def scan(mech, tolerances: ToleranceSet, outputs=None, adjust=None,
         adj0 = adjusted(mech, None, adjust, target, fast=fast, **options)
     for i, (p, s, d) in enumerate(zip(params, sides, deltas, strict=True)):
         for name in names:
-            v = float(ev.outputs[name][i])
+            v = float(outs[name][i])
             rows.append({"param": p, "side": s, "deviation": d, "output": name,
                          "nominal": float(base[name]), "value": v,
                          "change": v - float(base[name]), "status": ev.status[i],

@@ -29,7 +29,6 @@ from sewtol import engine
 from sewtol.errors import ParameterError
 from sewtol.mechanism.model import statuses
 from sewtol.mechanisms import params as P
-from sewtol.tolerances import Tolerance, ToleranceSet
 
 DEG = np.pi / 180.0
 G_M_S2 = 9.81
@@ -151,7 +150,8 @@ def lever_extremes(c: dict):
     return np.minimum(f1, f2), np.maximum(f1, f2)
 
 
-def _needle_at_lever(c: dict, f):
+def needle_at_lever(c: dict, f):
+    """Needle-bar pin J (complex mm) with the slot at angle f (rad): the lever at rest there."""
     arm = engine.Angle(np.asarray(f) + c["arm_deg"] * DEG, 0.0, 0.0)
     B = engine.on_body(engine.fixed(c["pivot_mm"] * np.cos(c["pivot_deg"] * DEG),
                                     c["pivot_mm"] * np.sin(c["pivot_deg"] * DEG)), arm, c["arm_mm"])
@@ -161,14 +161,49 @@ def _needle_at_lever(c: dict, f):
     return J.p
 
 
-def needle_extremes(params: M6Needle):
-    """Needle-bar pin J at the lever's two extremes (complex mm). These are J's extremes as long
-    as J moves monotonically with the lever angle over the swing, i.e. the pin B never moves
-    perpendicular to the rod inside it: true for every layout here (the tests hold the travel
-    to a dense turn for each)."""
-    c = P.column(params, None)
+def stand_still_angles(c: dict):
+    """Slot angles f (rad) at which J may stand still inside the swing, shape (..., 8): J stops
+    where the pin B moves perpendicular to the rod, i.e. the rod lies along the arm's line O2-B,
+    so J sits on the guide at |O2 J| = arm + rod or |arm - rod| (two points each) and the arm
+    points at J or away from it. NaN where the guide does not reach those circles."""
+    u = np.exp(1j * c["guide_deg"] * DEG)
+    o2 = c["pivot_mm"] * np.exp(1j * c["pivot_deg"] * DEG)
+    g = c["guide_x_mm"] + 1j * c["guide_y_mm"] - o2        # the guide's point from O2
+    b = (np.conjugate(u) * g).real
+    out = []
+    with np.errstate(invalid="ignore"):
+        for radius in (c["arm_mm"] + c["rod_mm"], np.abs(c["arm_mm"] - c["rod_mm"])):
+            root = np.sqrt(b * b - np.abs(g) ** 2 + radius * radius)
+            for t in (-b - root, -b + root):
+                for turn in (0.0, np.pi):
+                    out.append(np.angle(g + t * u) + turn - c["arm_deg"] * DEG)
+    return np.stack(np.broadcast_arrays(*out), axis=-1)
+
+
+def extremes(c: dict):
+    """J (complex mm) at its lowest and highest position along the guide over the turn, in
+    closed form: among J at the lever's two extremes and at the stand-still angles inside the
+    swing (J moves monotonically with the lever between them)."""
     lo, hi = lever_extremes(c)
-    return _needle_at_lever(c, lo), _needle_at_lever(c, hi)
+    lo, hi = np.asarray(lo)[..., None], np.asarray(hi)[..., None]
+    f = lo + np.mod(stand_still_angles(c) - lo, 2 * np.pi)
+    lo, hi = (np.broadcast_to(a, f.shape[:-1] + (1,)) for a in (lo, hi))
+    f = np.concatenate([lo, hi, np.where(f <= hi, f, np.nan)], axis=-1)
+    col = {k: np.asarray(v)[..., None] for k, v in c.items()}
+    with np.errstate(invalid="ignore"):
+        j = needle_at_lever(col, f)
+    s = (j * np.exp(-1j * col["guide_deg"] * DEG)).real
+    k_lo = np.argmin(np.where(np.isnan(s), np.inf, s), axis=-1)[..., None]
+    k_hi = np.argmax(np.where(np.isnan(s), -np.inf, s), axis=-1)[..., None]
+    # a machine whose J misses the guide at a lever extreme has none
+    dead = np.isnan(j[..., :2]).any(axis=-1)
+    pick = [np.where(dead, np.nan, np.take_along_axis(j, k, axis=-1)[..., 0]) for k in (k_lo, k_hi)]
+    return pick[0], pick[1]
+
+
+def needle_extremes(params: M6Needle):
+    """Needle-bar pin J at its two extreme positions along the guide (complex mm; `extremes`)."""
+    return extremes(P.column(params, None))
 
 
 def travel_mm(params: M6Needle):
@@ -500,52 +535,3 @@ def alternatives() -> list[Reconstruction]:
     out.append(fit_tilt_to_guide_reaction())
     out.append(published_point_from_pivot())
     return out
-
-
-# ---------------------------------------------------------------------------------------------
-# tolerance studies of the travel (symmetric +/- limits in each parameter's unit)
-
-
-def _check_tolerances(params: M6Needle, tolerances: dict) -> None:
-    P.check_names(tolerances, P.field_names(type(params)))
-    for name, t in tolerances.items():
-        if not np.isfinite(t) or t <= 0:
-            raise ParameterError(name, "a tolerance must be a positive number (+/- limit)", t)
-
-
-def scan_travel(params: M6Needle, tolerances: dict) -> pd.DataFrame:
-    """Each parameter at +tol and -tol (others nominal): travel and its change (mm), one batch.
-
-    Sorted by the larger |change|; `slope_per_unit` is the central difference over the limits.
-    """
-    _check_tolerances(params, tolerances)
-    names = list(tolerances)
-    # machine 2i at +tol of parameter i, 2i + 1 at -tol, the others nominal
-    dev = ToleranceSet("scan", tuple(Tolerance(k, -t, t) for k, t in tolerances.items()))
-    fig = evaluate(P.with_deviations(params, dev.limit_variants()[3]), samples=72)
-    nominal = float(travel_mm(params))
-    up, lo = fig.travel_mm[0::2], fig.travel_mm[1::2]
-    frame = pd.DataFrame({
-        "parameter": names, "tolerance": [tolerances[n] for n in names],
-        "travel_upper_mm": up, "travel_lower_mm": lo,
-        "change_upper_mm": up - nominal, "change_lower_mm": lo - nominal,
-        "slope_per_unit": (up - lo) / (2 * np.array([tolerances[n] for n in names])),
-        "status_upper": fig.status[0::2], "status_lower": fig.status[1::2]})
-    order = np.argsort(-np.maximum(np.abs(frame["change_upper_mm"]),
-                                   np.abs(frame["change_lower_mm"])).to_numpy(), kind="stable")
-    return frame.iloc[order].reset_index(drop=True)
-
-
-def montecarlo_travel(params: M6Needle, tolerances: dict, n: int, seed: int) -> pd.DataFrame:
-    """n machines, every toleranced parameter uniform within its limits (one Generator from
-    `seed`, parameters drawn in the order given): travel per machine and its status."""
-    _check_tolerances(params, tolerances)
-    if int(n) != n or n < 1:
-        raise ParameterError("n", "must be a positive integer", n)
-    rng = np.random.default_rng(seed)
-    dev = {name: rng.uniform(-t, t, int(n)) for name, t in tolerances.items()}
-    batch = P.with_deviations(params, dev)
-    fig = evaluate(batch, samples=72)
-    return pd.DataFrame({**{f"{k}_dev": v for k, v in dev.items()},
-                         "travel_mm": fig.travel_mm, "status": fig.status,
-                         "failed_group": fig.failed_group})
