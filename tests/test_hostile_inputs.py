@@ -131,8 +131,9 @@ def test_a_folder_of_another_study_is_refused_and_kept(tmp_path):
     before = {p.name: p.read_bytes() for p in (tmp_path / "D").iterdir()}
     assert sewtol(*base, "montecarlo", "--n", "20", *flags, cwd=tmp_path)[0] == 0  # same study
     err = refused(*base, "sobol", "--n", "16", *flags, cwd=tmp_path)
+    # montecarlo adjusts beta (the file's [defaults] adjust), sobol nothing
     assert err == ("sewtol: error: --out: holds the results of a different study (differs in "
-                   "n, study); choose an empty folder (got 'D')\n")
+                   "adjust, n, study); choose an empty folder (got 'D')\n")
     assert refused(*base, "montecarlo", "--n", "20", "--seed", "1", *flags,
                    cwd=tmp_path).startswith("sewtol: error: --out: holds the results of a "
                                             "different study (differs in seed)")

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cli_helpers import run
+from cli_helpers import run, strict_loads
 from sewtol.adjuster import adjust
 from sewtol.errors import ParameterError
 from sewtol.mechanism import ExpressionError, load, loads, parse_expression
@@ -428,6 +428,63 @@ def test_run_flags_tolerance_files_and_out(tmp_path):
     assert len(lines) == 3 and lines[1].startswith("AB,upper,0.1,E_x_range_mm,")
     assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["run.json", "scan.csv",
                                                                  "scan.json"]
+
+
+# --- [defaults] adjust: the compensators `run` adjusts when --adjust is not given ------------------
+
+def test_defaults_adjust_is_checked_at_load():
+    base = FOUR_BAR + '\n[compensators.k]\nparameter = "c"\nlow = 25\nhigh = 35\n'
+    assert loads(base, "m.toml").default_adjust == ()
+    assert loads(base + '\n[defaults]\nadjust = ["k"]\n', "m.toml").default_adjust == ("k",)
+    cases = [
+        ('adjust = ["q"]', "[defaults] adjust: must name compensators of the file (k) (got 'q')"),
+        ('adjust = "k"', "[defaults] adjust: must be a list of one or more [compensators.NAME] "
+                         "names (got 'k')"),
+        ("adjust = []", "[defaults] adjust: must be a list of one or more"),
+        ('adjust = ["k", "k"]', "[defaults] adjust: names a compensator twice"),
+        ('output = "x"', "[defaults] output: unknown key; allowed: adjust"),
+    ]
+    for body, expected in cases:
+        text = base + "\n[defaults]\n" + body + "\n"
+        msg = refusal(text)
+        assert msg.startswith(f"m.toml:{line_of(text, body, '[defaults]')}: {expected}"), msg
+
+
+def test_only_the_needle_declares_a_default_adjustment():
+    from sewtol.mechanisms import mechanism_file, names
+
+    assert {n: load(mechanism_file(n)).default_adjust for n in names()
+            if load(mechanism_file(n)).default_adjust} == {"needle_208": ("beta",)}
+
+
+def test_run_takes_the_default_adjustment_unless_told_none(tmp_path):
+    """A file's [defaults] adjust is --adjust when none is given; --adjust none is the file
+    without it (the same bytes, on a file mechanism's generic path)."""
+    base = FOUR_BAR + '\n[compensators.k]\nparameter = "c"\nlow = 25\nhigh = 35\n'
+    plain, dflt = tmp_path / "plain.toml", tmp_path / "dflt.toml"
+    plain.write_text(base)
+    dflt.write_text(base + '\n[defaults]\nadjust = ["k"]\n')
+    for study, argv in (("scan", ()), ("montecarlo", ("--n", "20", "--seed", "1"))):
+        argv = (*argv, "--output", "transmission_deg", "--format", "json")
+
+        def ctx_free(out):  # the file's name is in the context; nothing else may differ
+            obj = strict_loads(out)
+            obj["context"].pop("mechanism_file")
+            return obj
+
+        told = run("run", str(plain), study, *argv, "--adjust", "k")
+        given = run("run", str(dflt), study, *argv)
+        assert told[0] == given[0] == 0, told[2] + given[2]
+        assert ctx_free(told[1]) == ctx_free(given[1])
+        assert ctx_free(given[1])["context"]["strategy"] == "k"
+        off = run("run", str(dflt), study, *argv, "--adjust", "none")
+        bare = run("run", str(plain), study, *argv)
+        assert ctx_free(off[1]) == ctx_free(bare[1])
+        assert ctx_free(off[1])["context"]["strategy"] == "none"
+    # studies outside scan, worst-case, montecarlo, ppm and allocation keep their own default
+    code, out, err = run("run", str(dflt), "sobol", "--n", "16", "--output", "transmission_deg",
+                         "--format", "json")
+    assert code == 0 and strict_loads(out)["context"]["strategy"] == "none", err
 
 
 # --- adjustment over a compensator ---------------------------------------------------------------

@@ -23,20 +23,23 @@ SMALL = "[sets.small]\nLF = 0.05\nAB = 0.05\nBE = 0.05\n"
 
 # (run FILE ...) against the needle command it must equal byte for byte
 PAIRS = [
-    (("scan",), ("scan", "--adjust", "none")),
+    (("scan",), ("scan",)),  # the file's [defaults] adjust = ["beta"]: the needle's default
+    (("scan", "--adjust", "none"), ("scan", "--adjust", "none")),
     (("scan", "--adjust", "beta"), ("scan", "--beta-range", "10", "35")),
     (("worst-case", "--tolerances", "{small}"), ("worst-case", "--tolerances", "{small}")),
     (("worst-case", "--adjust", "beta", "--tolerances", "{small}"),
      ("worst-case", "--beta-range", "10", "35", "--tolerances", "{small}")),
     (("sobol", "--n", "16", "--seed", "3", "--tolerances", "{small}"),
      ("sobol", "--n", "16", "--seed", "3", "--tolerances", "{small}")),
-    (("ppm", "--limit", "10", "--n", "200", "--target", "0.01", "--seed", "2"),
+    (("ppm", "--adjust", "none", "--limit", "10", "--n", "200", "--target", "0.01", "--seed",
+      "2"),
      ("ppm", "--adjust", "none", "--limit-um", "10", "--budget", "200", "--target", "0.01",
       "--seed", "2")),
     (("ppm", "--adjust", "beta", "--limit", "8", "--n", "200", "--target", "0.01"),
      ("ppm", "--adjust", "beta", "--beta-range", "10", "35", "--limit-um", "8", "--budget",
       "200", "--target", "0.01")),
-    (("allocation", "--limit", "10", "--n", "40", "--tolerances", "{small}"),
+    (("allocation", "--adjust", "none", "--limit", "10", "--n", "40", "--tolerances",
+      "{small}"),
      ("allocation", "--adjust", "none", "--n", "40", "--tolerances", "{small}")),
     (("allocation", "--adjust", "beta", "--limit", "10", "--n", "40", "--tolerances", "{small}"),
      ("allocation", "--n", "40", "--tolerances", "{small}")),
@@ -164,7 +167,8 @@ def test_generic_worst_case_agrees_with_the_exact_worst_case(small):
     beta0 = exact["fixed_beta_deg"]  # the needle's fixed case: beta at the nominal's beta*
     fixed_row, adjusted_row = exact["rows"]
     g = strict_loads(run("run", NEEDLE, "worst-case", "--path", "generic", "--tolerances", small,
-                         "--set", f"beta={beta0!r}", "--format", "json")[1])["rows"][0]
+                         "--set", f"beta={beta0!r}", "--adjust", "none",
+                         "--format", "json")[1])["rows"][0]
     ga = strict_loads(run("run", NEEDLE, "worst-case", "--path", "generic", "--adjust", "beta",
                           "--tolerances", small, "--format", "json")[1])["rows"][0]
     nominal = Needle208.nominal()
@@ -194,7 +198,7 @@ def test_generic_worst_case_agrees_with_the_exact_worst_case(small):
 def test_the_fast_path_writes_the_needle_study_folder_naming_the_file(tmp_path):
     a, b = tmp_path / "run", tmp_path / "needle"
     assert run("run", NEEDLE, "scan", "--out", str(a), "--format", "csv")[0] == 0
-    assert run("needle", "scan", "--adjust", "none", "--out", str(b), "--format", "csv")[0] == 0
+    assert run("needle", "scan", "--out", str(b), "--format", "csv")[0] == 0
     for name in ("scan.json", "scan.csv"):
         assert (a / name).read_bytes() == (b / name).read_bytes()
     inputs = strict_loads((a / "run.json").read_text())["inputs"]

@@ -75,8 +75,9 @@ def _beta_options(p, what="searched for beta* (deg)"):
     """--beta-range LOW HIGH and --limit-um (defaults 10 35 and 10, resolved when checked)."""
     p.add_argument("--beta-range", nargs=2, type=float, default=None, metavar=("LOW", "HIGH"),
                    help=f"regulating range {what}; default 10 35")
-    p.add_argument("--limit-um", type=float, default=None,
-                   help="SumDelta limit (um) of the yield and the window; default 10")
+    p.add_argument("--limit-um", "--limit", type=float, default=None,
+                   help="SumDelta limit (um) of the yield and the window; default 10 (--limit "
+                        "as `sewtol run FILE STUDY` names it)")
 
 
 def _beta_search_range(args, strategy=None) -> tuple:
@@ -707,6 +708,7 @@ def cmd_needle_ppm(args):
 
     check_study(args)
     _check_beta_range(args)
+    args.method = {"mc": "montecarlo"}.get(args.method, args.method)  # `run ppm`'s spelling
     not_offered(args, "needle ppm", resume="it keeps no checkpoints; rerun with the same seed",
                  scheduler="its levels run on this machine; use --n-jobs")
     as_flags(R.choose_method, args.target, args.budget,
@@ -854,11 +856,14 @@ def add_needle(sub) -> None:
     p.add_argument("--adjust", choices=("none", "beta"), default="beta",
                    help="assembly adjustment: none (beta fixed at nominal beta*) or beta")
     _beta_options(p)
-    p.add_argument("--method", choices=("auto", "montecarlo", "subset", "nais"), default="auto",
-                   help="auto: Monte-Carlo if budget * target >= 10, else subset simulation")
+    p.add_argument("--method", choices=("auto", "montecarlo", "mc", "subset", "nais"),
+                   default="auto",
+                   help="auto: Monte-Carlo if budget * target >= 10, else subset simulation; "
+                        "montecarlo (or mc), subset or nais")
     p.add_argument("--target", type=float, default=1e-6,
                    help="smallest probability to resolve (default 1e-6)")
-    p.add_argument("--budget", type=int, default=20000, help="model calls (default 20000)")
+    p.add_argument("--budget", "--n", type=int, default=20000,
+                   help="model calls (default 20000); --n as `sewtol run FILE ppm` names it")
     p.set_defaults(func=cmd_needle_ppm)
 
     p = nsub.add_parser("worst-case", help="worst SumDelta over the tolerance box, fixed and "

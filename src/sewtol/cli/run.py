@@ -63,6 +63,10 @@ USES = {"nominal": (), "scan": ("output", "tolerances", "adjust"),
         "least-cost": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "target",
                        "adjust", "cost", "confidence", "check_n", "restarts", "popsize",
                        "maxiter")}
+# the studies that adjust the file's [defaults] adjust when --adjust is not given (the ones
+# with a `sewtol needle` form; refine adjusts every compensator by default, shapley, clearance
+# and least-cost none); `--adjust none` adjusts nothing
+DEFAULT_ADJUST_STUDIES = ("scan", "worst-case", "montecarlo", "ppm", "allocation")
 # the columns a table prints without --wide (JSON and CSV keep every column); `failed` sums
 # the failure counts where the table has no such column, so ok + out_of_spec + failed = n
 COMPACT = {"montecarlo": ("output", "case", "n", "ok", "out_of_spec", "failed", "mean", "std",
@@ -96,9 +100,11 @@ def add_run(sub) -> None:
                    help="upper limit of --output (default the first output) for the yield; "
                         "replaces the file's [[specs]] entry of that output")
     p.add_argument("--n-jobs", type=int, default=None, help="parallel workers (montecarlo)")
-    p.add_argument("--adjust", default=None, metavar="COMPENSATOR[,COMPENSATOR...]",
+    p.add_argument("--adjust", default=None, metavar="COMPENSATOR[,COMPENSATOR...]|none",
                    help="add the adjusted case: --output (default the first) minimised over "
-                        "this [compensators.NAME] of the file on each machine")
+                        "this [compensators.NAME] of the file on each machine (default: the "
+                        "file's [defaults] adjust for scan, worst-case, montecarlo, ppm and "
+                        "allocation; none: no adjustment)")
     p.add_argument("--lower-limit", type=float, default=None,
                    help="lower limit of --output (montecarlo, ppm, allocation, report; with or "
                         "without --limit)")
@@ -295,6 +301,7 @@ def cmd_run(args) -> None:
     fmt = "table" if args.format == "text" else args.format
     if args.output is not None:
         mech.output(args.output)
+    _default_adjust(args, mech)
     args.spec = args.spec_source = None
     if args.study in SPEC_STUDIES and args.n is not None:  # the limits: the flags', else the file's
         args.spec_output, args.spec, args.spec_source = mech.resolve_spec(
@@ -383,6 +390,17 @@ def cmd_run(args) -> None:
     return _finish(args, fmt, mech, tolerances, res.to_dict(),
                    {"machines": res.machines, "summary": res.summary_frame()},
                    res.summary_frame())
+
+
+def _default_adjust(args, mech) -> None:
+    """--adjust as the studies take it: not given, the file's [defaults] adjust (for the
+    DEFAULT_ADJUST_STUDIES); `none`, no adjustment (None; refine keeps "none": it adjusts every
+    compensator when given nothing)."""
+    given = args.adjust
+    if given is not None and given.strip() == "none" and args.study != "refine":
+        args.adjust = None
+    elif given is None and args.study in DEFAULT_ADJUST_STUDIES and mech.default_adjust:
+        args.adjust = ",".join(mech.default_adjust)
 
 
 def _least_cost(args, fmt, mech, tolerances) -> None:

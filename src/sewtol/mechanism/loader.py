@@ -44,7 +44,8 @@ MECH_NAME = re.compile(r"^[a-z0-9_]+$")
 # groups whose Closure carries a transmission angle (a transmission output may name them)
 TRANSMISSION_GROUPS = ("rrr", "spatial_rocker", "spatial_slider")
 TOP_KEYS = ("format", "mechanism", "parameters", "groups", "outputs", "specs", "compensators",
-            "tolerances", "clearances")
+            "tolerances", "clearances", "defaults")
+DEFAULTS_KEYS = ("adjust",)
 SPEC_KEYS = ("output", "upper", "lower", "doc")
 MECH_KEYS = ("name", "title", "source", "assumptions", "samples", "rpm", "driver", "fast_path")
 PARAM_KEYS = ("nominal", "unit", "rule", "doc")
@@ -106,6 +107,7 @@ def loads(text: str, path: str = "<text>", overrides: dict | None = None):
     outputs = _outputs(ctx, data.get("outputs"), pnames, groups, header)
     specs = _specs(ctx, data.get("specs", []), outputs)
     comps = _compensators(ctx, data.get("compensators", {}), pnames)
+    default_adjust = _defaults(ctx, data.get("defaults", {}), comps)
     sets = _tolerance_sets(ctx, data.get("tolerances", {}), pnames)
     clearances = parse_clearances(data.get("clearances"), groups,
                                   lambda p: (f"{path}:{ctx.loc.line(*p)}: ", ctx.loc.line(*p)))
@@ -116,7 +118,8 @@ def loads(text: str, path: str = "<text>", overrides: dict | None = None):
                      f"its offset parameter {taken[0]} is a name of [parameters] already", c.joint)
     mech = FileMechanism(path=path, header=header, parameters=tuple(params),
                          groups=tuple(groups), outputs=tuple(outputs), compensators=comps,
-                         tolerance_sets=sets, specs=specs, clearances=clearances)
+                         tolerance_sets=sets, specs=specs, clearances=clearances,
+                         default_adjust=default_adjust)
     if header.fast_path is not None:
         from sewtol.mechanism.fast_paths import fast_paths
 
@@ -478,6 +481,27 @@ def _compensators(ctx, table, pnames) -> dict[str, Compensator]:
         out[name] = Compensator(name, p, low, high, ctx.loc.line(*path), step, mode=mode,
                                 **extra)
     return out
+
+
+def _defaults(ctx, table, comps) -> tuple[str, ...]:
+    """[defaults] adjust = ["NAME", ...]: the compensators `sewtol run` adjusts on each machine
+    when --adjust is not given (`--adjust none`: none); distinct names of [compensators.NAME]."""
+    if not isinstance(table, dict):
+        ctx.fail(("defaults",), "[defaults]", "must be a table", table)
+    _known(ctx, table, ("defaults",), "[defaults] ", DEFAULTS_KEYS)
+    if "adjust" not in table:
+        return ()
+    names = table["adjust"]
+    where, path = "[defaults] adjust", ("defaults", "adjust")
+    if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
+        ctx.fail(path, where, "must be a list of one or more [compensators.NAME] names", names)
+    for n in names:
+        if n not in comps:
+            ctx.fail(path, where, "must name compensators of the file ("
+                     + (", ".join(comps) or "it has none") + ")", n)
+    if len(set(names)) != len(names):
+        ctx.fail(path, where, "names a compensator twice", names)
+    return tuple(names)
 
 
 def _tolerance_sets(ctx, table, pnames) -> dict[str, ToleranceSet]:

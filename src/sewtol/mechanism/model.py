@@ -78,6 +78,8 @@ class FileMechanism:
     tolerance_sets: dict[str, ToleranceSet] = field(default_factory=dict)
     specs: tuple[Spec, ...] = ()
     clearances: tuple[Clearance, ...] = ()  # [[clearances]]: their offsets are pair parameters
+    # [defaults] adjust: the compensators `sewtol run` adjusts when --adjust is not given
+    default_adjust: tuple[str, ...] = ()
 
     @property
     def pair_parameters(self) -> tuple[Parameter, ...]:
