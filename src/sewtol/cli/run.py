@@ -29,7 +29,8 @@ from sewtol.cli.common import (
 from sewtol.errors import ParameterError
 
 STUDIES = ("nominal", "scan", "montecarlo", "sobol", "worst-case", "ppm", "allocation", "report",
-           "settings", "strategies", "shapley", "refine", "clearance", "least-cost")
+           "settings", "strategies", "shapley", "refine", "clearance", "least-cost",
+           "largest-tolerances")
 RUN_FORMATS = ("text", "table", "json", "csv")
 DEFAULT_N = {"montecarlo": 2000, "strategies": 2000, "sobol": 256, "ppm": 20000,
              "allocation": 2000, "report": 1000, "shapley": 200, "clearance": 400,
@@ -41,6 +42,7 @@ SPEC_STUDIES = ("montecarlo", "ppm", "allocation", "report", "strategies", "leas
 # which flags each study reads; any other given flag is refused in one line
 USES = {"nominal": (), "scan": ("output", "tolerances", "adjust"),
         "worst-case": ("output", "tolerances", "adjust"),
+        "largest-tolerances": ("output", "tolerances", "limit", "adjust"),
         "montecarlo": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "n_jobs",
                        "adjust", "clearances"),
         "sobol": ("output", "tolerances", "n", "seed", "clearances"),
@@ -352,6 +354,8 @@ def cmd_run(args) -> None:
         return _clearance(args, fmt, mech, tolerances)
     if args.study == "least-cost":
         return _least_cost(args, fmt, mech, tolerances)
+    if args.study == "largest-tolerances":
+        return _largest_tolerances(args, fmt, mech, tolerances)
     from sewtol.studies import montecarlo as MC
 
     res = _as_flags(MC.montecarlo, mech, tolerances, args.n, args.seed, outputs, args.limit,
@@ -408,6 +412,74 @@ def _least_cost(args, fmt, mech, tolerances) -> None:
                  f"; fresh machines: {check.yield_:.4f} [{check.ci_low:.4f}, "
                  f"{check.ci_high:.4f}] of {check.n} (seed {check.seed}), "
                  + ("meets the target" if check.meets else "BELOW the target")))
+
+
+# the largest deviation `run largest-tolerances` tries, in each parameter's own unit
+LARGEST_MAX_DEVIATION = 1.0
+
+
+def _largest_tolerances(args, fmt, mech, tolerances) -> None:
+    """`run FILE largest-tolerances` (sewtol.studies.scan.largest_tolerances): per toleranced
+    parameter and side, alone (the others nominal), the largest deviation that keeps --output
+    (default the first output with a spec) at or below its upper limit, after --adjust; the
+    tolerance set's own limit on that side beside it."""
+    import math
+
+    import pandas as pd
+
+    from sewtol.protocol import plugins
+    from sewtol.studies import scan as S
+    from sewtol.studies.adjusting import adjusted, evaluated
+
+    if args.limit is not None and not math.isfinite(args.limit):
+        raise ParameterError("--limit", "must be a finite number", args.limit)
+    output, spec, args.spec_source = mech.resolve_spec(args.output, args.limit, None)
+    if spec is None or spec.upper is None:
+        raise ParameterError("--limit", f"must be given: `run largest-tolerances` keeps {output} "
+                             "at or below an upper limit and the file's [[specs]] gives it none",
+                             None)
+    if spec.lower is not None:
+        raise ParameterError(f"[[specs]] {output}", "must have no lower limit for `run "
+                             "largest-tolerances`, which searches an upper limit (--limit "
+                             "replaces the spec)", spec.lower)
+    fast = args.path != "generic"
+    args.path_used = (plugins(mech).name or "generic") if fast else "generic"
+    adjust = args.adjust
+    set_by = set() if adjust is None else {mech.compensators[c].parameter for c in
+                                           adjust.split(",") if c in mech.compensators}
+    params = [p for p in tolerances.active().params if p not in set_by]
+    if not params:
+        raise ParameterError("--tolerances", "must tolerance a parameter that --adjust does not "
+                             "set", tolerances.name)
+    nominal = float((evaluated(mech, None, output, fast=fast) if adjust is None else
+                     _as_flags(partial(adjusted, fast=fast), mech, None, adjust, output).value)[0])
+    if not nominal <= spec.upper:
+        raise ParameterError("--limit", f"must be at or above the nominal machine's {output} "
+                             f"({nominal:.6g}{' adjusted' if adjust else ''})", spec.upper)
+    # a positive parameter (a length, a mass) is searched down to half its nominal value at most
+    rule = {q.name: q for q in mech.parameters}
+    reach = {p: min(LARGEST_MAX_DEVIATION, 0.5 * rule[p].nominal)
+             if rule[p].rule == "positive" else LARGEST_MAX_DEVIATION for p in params}
+    frame = pd.concat([_as_flags(partial(S.largest_tolerances, fast=fast), mech, [p], output,
+                                 spec.upper, adjust, reach[p]) for p in params],
+                      ignore_index=True)
+    frame.insert(4, "max_deviation", [reach[p] for p in frame["param"]])
+    own = dict(zip(zip(*tolerances.limit_variants()[:2], strict=True),
+                   tolerances.limit_variants()[2], strict=True))
+    frame.insert(3, "set_deviation", [own[(p, s)] for p, s in zip(frame["param"], frame["side"],
+                                                                 strict=True)])
+    unit = mech.output(output).unit
+    obj = {"mechanism": mech.name, "tolerances": tolerances.name, "output": output,
+           "unit": unit, "limit": spec.upper, "nominal": nominal,
+           "method": "each toleranced parameter alone, the others nominal"
+                     + ("" if adjust is None else f", {output} after --adjust {adjust}")
+                     + ": a geometric grid of deviations from 1e-3 to max_deviation (1 in the "
+                     "parameter's unit, at most half the nominal value of a positive one), "
+                     "then bisection to 1e-5; reaches_max marks sides where even max_deviation "
+                     "keeps the limit; set_deviation is the tolerance set's own limit on that "
+                     "side",
+           "rows": frame.to_dict("records")}
+    return _finish(args, fmt, mech, tolerances, obj, {"largest_tolerances": frame}, frame)
 
 
 def _strategies(args, fmt, mech, tolerances) -> None:
