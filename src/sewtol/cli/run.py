@@ -40,8 +40,8 @@ DEFAULT_TARGET = {"ppm": 1e-6, "allocation": 0.9973, "least-cost": 0.9973}
 # the studies whose limits default to the file's [[specs]] (--limit/--lower-limit override them)
 SPEC_STUDIES = ("montecarlo", "ppm", "allocation", "report", "strategies", "least-cost")
 # which flags each study reads; any other given flag is refused in one line
-USES = {"nominal": (), "scan": ("output", "tolerances", "adjust"),
-        "worst-case": ("output", "tolerances", "adjust"),
+USES = {"nominal": (), "scan": ("output", "tolerances", "adjust", "objective"),
+        "worst-case": ("output", "tolerances", "adjust", "objective"),
         "largest-tolerances": ("output", "tolerances", "limit", "adjust"),
         "montecarlo": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "n_jobs",
                        "adjust", "clearances"),
@@ -71,7 +71,7 @@ COMPACT = {"montecarlo": ("output", "case", "n", "ok", "out_of_spec", "failed", 
 # the library's keyword arguments named as `run`'s flags in its errors
 RUN_FLAGS = {**FLAGS, "adjust": "--adjust", "limit": "--limit", "lower_limit": "--lower-limit",
              "target": "--target", "weights": "--weight", "costs": "--cost",
-             "confidence": "--confidence", "check_n": "--check-n"}
+             "confidence": "--confidence", "check_n": "--check-n", "objective": "--objective"}
 
 
 def add_run(sub) -> None:
@@ -97,6 +97,10 @@ def add_run(sub) -> None:
     p.add_argument("--adjust", default=None, metavar="COMPENSATOR[,COMPENSATOR...]",
                    help="add the adjusted case: --output (default the first) minimised over "
                         "this [compensators.NAME] of the file on each machine")
+    p.add_argument("--objective", default=None, metavar="minimise|target=T|centre=L,U",
+                   help="scan, worst-case: what --adjust does with --output on each machine: "
+                        "minimise it (default), bring it to T (an eccentric pivot setting a "
+                        "swing back to 60 deg: target=60) or centre it in [L, U]")
     p.add_argument("--lower-limit", type=float, default=None,
                    help="lower limit of --output (montecarlo, ppm, allocation, report; with or "
                         "without --limit)")
@@ -213,11 +217,18 @@ def _check_flags(args) -> None:
     for key in ("output", "tolerances", "n", "seed", "limit", "n_jobs", "adjust", "lower_limit",
                 "method", "target", "weight", "strategy", "vary", "keep", "require", "restarts",
                 "popsize", "maxiter", "plot", "guide_diameter", "play_limit", "guide_fit",
-                "cost", "confidence", "check_n", "clearances"):
+                "cost", "confidence", "check_n", "clearances", "objective"):
         value = getattr(args, key)
         if value is not None and key not in USES[args.study]:
             raise ParameterError("--" + key.replace("_", "-"), f"is not used by `run "
                                  f"{args.study}`", value)
+    if args.objective is not None:
+        from sewtol.adjuster import Objective
+
+        if args.adjust is None:
+            raise ParameterError("--objective", "needs --adjust, the compensators that reach it",
+                                 args.objective)
+        _as_flags(Objective.parse, args.objective)
     if args.n is None and args.study in DEFAULT_N:
         args.n = DEFAULT_N[args.study]
     args.seed = 0 if args.seed is None else args.seed
@@ -320,11 +331,13 @@ def cmd_run(args) -> None:
         print(f"sewtol: note: `run {args.study}` takes the generic sampled path, not the "
               f"needle_208 fast path: {args.path_reason}", file=sys.stderr)
     outputs = None if args.output is None else [args.output]
+    goal = {} if args.objective is None else {"objective": args.objective}
     if args.study == "scan":
-        res = _as_flags(partial(S.scan, fast=False), mech, tolerances, outputs, args.adjust)
+        res = _as_flags(partial(S.scan, fast=False, **goal), mech, tolerances, outputs,
+                        args.adjust)
         return _finish(args, fmt, mech, tolerances, res.to_dict(), {"scan": res.rows}, res.rows)
     if args.study == "worst-case":
-        res = _as_flags(partial(W.worst_case, fast=False), mech, tolerances,
+        res = _as_flags(partial(W.worst_case, fast=False, **goal), mech, tolerances,
                         args.output or mech.output_names[0], 100, args.adjust)
         return _finish(args, fmt, mech, tolerances, res.to_dict(), {"worst_case": res.rows},
                        res.rows)
@@ -568,7 +581,8 @@ def _run_context(args, mech, tolerances) -> dict:
             "limit": args.limit, "lower_limit": args.lower_limit,
             "spec_source": getattr(args, "spec_source", None),
             "path": getattr(args, "path_used", "generic"),
-            "path_reason": getattr(args, "path_reason", None)}
+            "path_reason": getattr(args, "path_reason", None),
+            **({} if args.objective is None else {"objective": args.objective})}
 
 
 def _inputs(args, mech, tolerances) -> dict:
@@ -619,6 +633,8 @@ def _fast_path_refusal(args, mech) -> str | None:
                 f"({', '.join(sumdelta_outputs(mech))}) the needle commands compute")
     if args.adjust is not None and "," in args.adjust:
         return f"--adjust {args.adjust}: the needle commands adjust beta alone"
+    if args.objective not in (None, "minimise"):
+        return f"--objective {args.objective}: the needle commands minimise SumDelta"
     if args.adjust is not None:
         if args.adjust not in mech.compensators:  # refused as the generic studies refuse it
             raise ParameterError("--adjust", "must name a compensator of the file ("
