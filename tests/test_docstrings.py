@@ -133,6 +133,24 @@ def test_mkdocs_nav_pages_exist():
         assert page in pages, f"{page} missing from the nav"
 
 
+
+def test_the_api_reference_opens_with_the_protocol_and_the_generic_studies():
+    """The API pages in the nav: the overview, then the protocol page (protocol, the suite,
+    loading a file, the generic studies, its worked example), then everything else; the
+    protocol page documents those modules before anything of one mechanism."""
+    text = (ROOT / "mkdocs.yml").read_text()
+    nav = text[text.index("\nnav:"):]
+    api = [p for p in re.findall(r":\s*(\S+\.md)\s*$", nav, re.M) if p.startswith("api/")]
+    assert api[:2] == ["api/index.md", "api/protocol.md"]
+    page = (ROOT / "docs" / "api" / "protocol.md").read_text()
+    blocks = re.findall(r"^::: (\S+)", page, re.M)
+    firsts = [next(i for i, b in enumerate(blocks) if b.startswith(m)) for m in
+              ("sewtol.protocol.", "sewtol.checks.", "sewtol.mechanism.loader.load",
+               "sewtol.studies.")]
+    assert firsts == sorted(firsts) and not [b for b in blocks if ".mechanisms." in b
+                                             or ".tables." in b]
+    assert page.index("## A worked example") < page.index("::: ")
+
 # a pointer a reader outside the project cannot follow: the design notes beside the repository,
 # or the project's issue tracker
 OUTSIDE = re.compile(r"\.\./shared|shared/design|\bissues?\s*#?\s*\d|\bissues show\b|/issues\b",

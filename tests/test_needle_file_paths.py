@@ -43,6 +43,7 @@ PAIRS = [
      ("allocation", "--adjust", "none", "--n", "40", "--tolerances", "{small}")),
     (("allocation", "--adjust", "beta", "--limit", "10", "--n", "40", "--tolerances", "{small}"),
      ("allocation", "--n", "40", "--tolerances", "{small}")),
+    (("montecarlo", "--n", "60", "--seed", "2"), ("montecarlo", "--n", "60", "--seed", "2")),
 ]
 
 

@@ -16,8 +16,8 @@ ARGS = {"nominal": [], "scan": [], "worst-case": [],
         "montecarlo": ["--n", "40", "--seed", "1"], "sobol": ["--n", "16", "--seed", "1"],
         "ppm": ["--n", "400", "--method", "mc", "--seed", "1"],
         "allocation": ["--n", "40", "--seed", "1"], "strategies": ["--n", "20", "--seed", "1"],
-        "shapley": ["--n", "4", "--seed", "1"]}
-NEEDS_LIMIT = ("ppm", "allocation")
+        "shapley": ["--n", "4", "--seed", "1"], "largest-tolerances": []}
+NEEDS_LIMIT = ("ppm", "allocation", "largest-tolerances")
 
 
 def _limit(name: str) -> list[str]:
@@ -48,6 +48,9 @@ def test_every_study_runs_on_every_built_in(name, study):
     if study == "shapley":
         assert [r["param"] for r in obj["rows"]] == list(load(mechanism_file(name)).tolerance_sets
                                                          [obj["tolerances"]].active().params)
+    if study == "largest-tolerances":
+        assert len(obj["rows"]) == 2 * len(load(mechanism_file(name)).tolerance_sets
+                                           [obj["tolerances"]].active().params)
     if study == "strategies":  # the counts in the mechanism's words (the needle's: its own)
         words = plugins(load(mechanism_file(name))).columns.get("strategies", {})
         for row in obj["rows"]:

@@ -29,7 +29,8 @@ from sewtol.cli.common import (
 from sewtol.errors import ParameterError
 
 STUDIES = ("nominal", "scan", "montecarlo", "sobol", "worst-case", "ppm", "allocation", "report",
-           "settings", "strategies", "shapley", "refine", "clearance", "least-cost")
+           "settings", "strategies", "shapley", "refine", "clearance", "least-cost",
+           "largest-tolerances")
 RUN_FORMATS = ("text", "table", "json", "csv")
 DEFAULT_N = {"montecarlo": 2000, "strategies": 2000, "sobol": 256, "ppm": 20000,
              "allocation": 2000, "report": 1000, "shapley": 200, "clearance": 400,
@@ -40,8 +41,9 @@ DEFAULT_TARGET = {"ppm": 1e-6, "allocation": 0.9973, "least-cost": 0.9973}
 SPEC_STUDIES = ("montecarlo", "ppm", "allocation", "report", "strategies", "least-cost",
                 "settings")
 # which flags each study reads; any other given flag is refused in one line
-USES = {"nominal": (), "scan": ("output", "tolerances", "adjust"),
-        "worst-case": ("output", "tolerances", "adjust"),
+USES = {"nominal": (), "scan": ("output", "tolerances", "adjust", "objective"),
+        "worst-case": ("output", "tolerances", "adjust", "objective"),
+        "largest-tolerances": ("output", "tolerances", "limit", "adjust"),
         "montecarlo": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "n_jobs",
                        "adjust", "clearances"),
         "sobol": ("output", "tolerances", "n", "seed", "clearances"),
@@ -77,7 +79,7 @@ COMPACT = {"montecarlo": ("output", "case", "n", "ok", "out_of_spec", "failed", 
 # the library's keyword arguments named as `run`'s flags in its errors
 RUN_FLAGS = {**FLAGS, "adjust": "--adjust", "limit": "--limit", "lower_limit": "--lower-limit",
              "target": "--target", "weights": "--weight", "costs": "--cost",
-             "confidence": "--confidence", "check_n": "--check-n"}
+             "confidence": "--confidence", "check_n": "--check-n", "objective": "--objective"}
 
 
 def add_run(sub) -> None:
@@ -105,6 +107,10 @@ def add_run(sub) -> None:
                         "this [compensators.NAME] of the file on each machine (default: the "
                         "file's [defaults] adjust for scan, worst-case, montecarlo, ppm and "
                         "allocation; none: no adjustment)")
+    p.add_argument("--objective", default=None, metavar="minimise|target=T|centre=L,U",
+                   help="scan, worst-case: what --adjust does with --output on each machine: "
+                        "minimise it (default), bring it to T (an eccentric pivot setting a "
+                        "swing back to 60 deg: target=60) or centre it in [L, U]")
     p.add_argument("--lower-limit", type=float, default=None,
                    help="lower limit of --output (montecarlo, ppm, allocation, report; with or "
                         "without --limit)")
@@ -227,11 +233,18 @@ def _check_flags(args) -> None:
     for key in ("output", "tolerances", "n", "seed", "limit", "n_jobs", "adjust", "lower_limit",
                 "method", "target", "weight", "strategy", "vary", "keep", "require", "restarts",
                 "popsize", "maxiter", "plot", "guide_diameter", "play_limit", "guide_fit",
-                "cost", "confidence", "check_n", "clearances", "shape"):
+                "cost", "confidence", "check_n", "clearances", "shape", "objective"):
         value = getattr(args, key)
         if value is not None and key not in USES[args.study]:
             raise ParameterError("--" + key.replace("_", "-"), f"is not used by `run "
                                  f"{args.study}`", value)
+    if args.objective is not None:
+        from sewtol.adjuster import Objective
+
+        if args.adjust is None:
+            raise ParameterError("--objective", "needs --adjust, the compensators that reach it",
+                                 args.objective)
+        _as_flags(Objective.parse, args.objective)
     # `run settings` draws machines only when given one of its yield flags
     if args.n is None and args.study in DEFAULT_N and (args.study != "settings" or any(
             getattr(args, k) is not None for k in USES["settings"])):
@@ -348,11 +361,13 @@ def cmd_run(args) -> None:
               f"needle_208 fast path: {args.path_reason}", file=sys.stderr)
     outputs = None if args.output is None else [args.output]
     fast = _kernel_path(args, mech)
+    goal = {} if args.objective is None else {"objective": args.objective}
     if args.study == "scan":
-        res = _as_flags(partial(S.scan, fast=fast), mech, tolerances, outputs, args.adjust)
+        res = _as_flags(partial(S.scan, fast=fast, **goal), mech, tolerances, outputs,
+                        args.adjust)
         return _finish(args, fmt, mech, tolerances, res.to_dict(), {"scan": res.rows}, res.rows)
     if args.study == "worst-case":
-        res = _as_flags(partial(W.worst_case, fast=False), mech, tolerances,
+        res = _as_flags(partial(W.worst_case, fast=False, **goal), mech, tolerances,
                         args.output or mech.output_names[0], 100, args.adjust)
         return _finish(args, fmt, mech, tolerances, res.to_dict(), {"worst_case": res.rows},
                        res.rows)
@@ -382,6 +397,8 @@ def cmd_run(args) -> None:
         return _clearance(args, fmt, mech, tolerances)
     if args.study == "least-cost":
         return _least_cost(args, fmt, mech, tolerances)
+    if args.study == "largest-tolerances":
+        return _largest_tolerances(args, fmt, mech, tolerances)
     from sewtol.studies import montecarlo as MC
 
     res = _as_flags(partial(MC.montecarlo, fast=fast), mech, tolerances, args.n, args.seed,
@@ -450,6 +467,74 @@ def _least_cost(args, fmt, mech, tolerances) -> None:
                  f"; fresh machines: {check.yield_:.4f} [{check.ci_low:.4f}, "
                  f"{check.ci_high:.4f}] of {check.n} (seed {check.seed}), "
                  + ("meets the target" if check.meets else "BELOW the target")))
+
+
+# the largest deviation `run largest-tolerances` tries, in each parameter's own unit
+LARGEST_MAX_DEVIATION = 1.0
+
+
+def _largest_tolerances(args, fmt, mech, tolerances) -> None:
+    """`run FILE largest-tolerances` (sewtol.studies.scan.largest_tolerances): per toleranced
+    parameter and side, alone (the others nominal), the largest deviation that keeps --output
+    (default the first output with a spec) at or below its upper limit, after --adjust; the
+    tolerance set's own limit on that side beside it."""
+    import math
+
+    import pandas as pd
+
+    from sewtol.protocol import plugins
+    from sewtol.studies import scan as S
+    from sewtol.studies.adjusting import adjusted, evaluated
+
+    if args.limit is not None and not math.isfinite(args.limit):
+        raise ParameterError("--limit", "must be a finite number", args.limit)
+    output, spec, args.spec_source = mech.resolve_spec(args.output, args.limit, None)
+    if spec is None or spec.upper is None:
+        raise ParameterError("--limit", f"must be given: `run largest-tolerances` keeps {output} "
+                             "at or below an upper limit and the file's [[specs]] gives it none",
+                             None)
+    if spec.lower is not None:
+        raise ParameterError(f"[[specs]] {output}", "must have no lower limit for `run "
+                             "largest-tolerances`, which searches an upper limit (--limit "
+                             "replaces the spec)", spec.lower)
+    fast = args.path != "generic"
+    args.path_used = (plugins(mech).name or "generic") if fast else "generic"
+    adjust = args.adjust
+    set_by = set() if adjust is None else {mech.compensators[c].parameter for c in
+                                           adjust.split(",") if c in mech.compensators}
+    params = [p for p in tolerances.active().params if p not in set_by]
+    if not params:
+        raise ParameterError("--tolerances", "must tolerance a parameter that --adjust does not "
+                             "set", tolerances.name)
+    nominal = float((evaluated(mech, None, output, fast=fast) if adjust is None else
+                     _as_flags(partial(adjusted, fast=fast), mech, None, adjust, output).value)[0])
+    if not nominal <= spec.upper:
+        raise ParameterError("--limit", f"must be at or above the nominal machine's {output} "
+                             f"({nominal:.6g}{' adjusted' if adjust else ''})", spec.upper)
+    # a positive parameter (a length, a mass) is searched down to half its nominal value at most
+    rule = {q.name: q for q in mech.parameters}
+    reach = {p: min(LARGEST_MAX_DEVIATION, 0.5 * rule[p].nominal)
+             if rule[p].rule == "positive" else LARGEST_MAX_DEVIATION for p in params}
+    frame = pd.concat([_as_flags(partial(S.largest_tolerances, fast=fast), mech, [p], output,
+                                 spec.upper, adjust, reach[p]) for p in params],
+                      ignore_index=True)
+    frame.insert(4, "max_deviation", [reach[p] for p in frame["param"]])
+    own = dict(zip(zip(*tolerances.limit_variants()[:2], strict=True),
+                   tolerances.limit_variants()[2], strict=True))
+    frame.insert(3, "set_deviation", [own[(p, s)] for p, s in zip(frame["param"], frame["side"],
+                                                                 strict=True)])
+    unit = mech.output(output).unit
+    obj = {"mechanism": mech.name, "tolerances": tolerances.name, "output": output,
+           "unit": unit, "limit": spec.upper, "nominal": nominal,
+           "method": "each toleranced parameter alone, the others nominal"
+                     + ("" if adjust is None else f", {output} after --adjust {adjust}")
+                     + ": a geometric grid of deviations from 1e-3 to max_deviation (1 in the "
+                     "parameter's unit, at most half the nominal value of a positive one), "
+                     "then bisection to 1e-5; reaches_max marks sides where even max_deviation "
+                     "keeps the limit; set_deviation is the tolerance set's own limit on that "
+                     "side",
+           "rows": frame.to_dict("records")}
+    return _finish(args, fmt, mech, tolerances, obj, {"largest_tolerances": frame}, frame)
 
 
 def _strategies(args, fmt, mech, tolerances) -> None:
@@ -538,7 +623,8 @@ def _run_context(args, mech, tolerances) -> dict:
             "limit": args.limit, "lower_limit": args.lower_limit,
             "spec_source": getattr(args, "spec_source", None),
             "path": getattr(args, "path_used", "generic"),
-            "path_reason": getattr(args, "path_reason", None)}
+            "path_reason": getattr(args, "path_reason", None),
+            **({} if args.objective is None else {"objective": args.objective})}
 
 
 def _inputs(args, mech, tolerances) -> dict:
@@ -613,6 +699,8 @@ def _fast_path_refusal(args, mech) -> str | None:
                 f"({', '.join(sumdelta_outputs(mech))}) the needle commands compute")
     if args.adjust is not None and "," in args.adjust:
         return f"--adjust {args.adjust}: the needle commands adjust beta alone"
+    if args.objective not in (None, "minimise"):
+        return f"--objective {args.objective}: the needle commands minimise SumDelta"
     if args.adjust is not None:
         if args.adjust not in mech.compensators:  # refused as the generic studies refuse it
             raise ParameterError("--adjust", "must name a compensator of the file ("
