@@ -319,15 +319,16 @@ def cmd_needle_montecarlo(args):
         record = res.to_dict()
         record["extra"]["fixed_beta_at_bound"] = _beta_star_figures(args, params).beta_at_bound
         record["context"] = _context(args, params, tolerances, None)
+        # the per-machine table only for --out (the summary and the JSON never need it)
         return res, record, {"machines": deviation_columns(res.machines, res.params),
-                             "summary": res.summary_frame()}
+                             "summary": res.summary_frame()} if args.out else {}
 
     res, record = _in_study_folder(args, inputs, study)
     emit(args.format, obj=record, frame=res.summary_frame(), compact=COMPACT["montecarlo"],
          wide=args.wide)
     print_notes(args, _montecarlo_notes(record))
     save_plot(args, lambda ax: plots().montecarlo_histograms(
-        res.machines["total_fixed_um"], res.machines["total_adjusted_um"], limit,
+        res.values("SumDelta_um"), res.values("SumDelta_um_adjusted"), limit,
         (res.yield_of("fixed"), res.yield_of("adjusted")), ax=ax))
 
 
