@@ -148,30 +148,36 @@ def available_memory_bytes() -> int | None:
 
 
 def largest_that_fits(have_bytes: int, columns: int, rows_per_unit: int = 1,
-                      power_of_two: bool = False) -> int:
-    """The largest n whose n * rows_per_unit rows of `columns` columns fit in have_bytes (the
-    estimate of `check_memory`); the largest power of two with power_of_two (Sobol)."""
-    n = int(have_bytes) // (int(columns) * BYTES_PER_CELL * max(1, int(rows_per_unit)))
+                      power_of_two: bool = False, bytes_per_row: int | None = None) -> int:
+    """The largest n whose n * rows_per_unit rows of `columns` columns (or of bytes_per_row
+    bytes each) fit in have_bytes (the estimate of `check_memory`); the largest power of two
+    with power_of_two (Sobol)."""
+    row = int(columns) * BYTES_PER_CELL if bytes_per_row is None else int(bytes_per_row)
+    n = int(have_bytes) // (row * max(1, int(rows_per_unit)))
     if power_of_two and n >= 1:
         n = 1 << (n.bit_length() - 1)
     return n
 
 
 def check_memory(n: int, columns: int, what: str = "n", value=None, rows_per_unit: int = 1,
-                 power_of_two: bool = False) -> None:
+                 power_of_two: bool = False, bytes_per_row: int | None = None) -> None:
     """Refuse a study whose result table cannot fit in the memory available now, before it
     starts, naming the largest `what` that fits (`value` rows per unit of it: n rows are
-    value * rows_per_unit)."""
-    need = int(n) * int(columns) * BYTES_PER_CELL
+    value * rows_per_unit). A study that holds its machines compactly gives their bytes each
+    (bytes_per_row, e.g. `montecarlo_bytes`) instead of a table's columns."""
+    row = int(columns) * BYTES_PER_CELL if bytes_per_row is None else int(bytes_per_row)
+    need = int(n) * row
     limits = memory_limits_bytes()
     if not limits:
         return
     source = min(limits, key=limits.get)
     have = limits[source]
     if need > have:
-        fits = largest_that_fits(have, columns, rows_per_unit, power_of_two)
-        raise ParameterError(what, f"needs about {need / 2**30:.3g} GiB for {columns} columns of "
-                             f"{int(n)} rows, more than the memory this process may still use "
+        fits = largest_that_fits(have, columns, rows_per_unit, power_of_two, bytes_per_row)
+        held = (f"{columns} columns of {int(n)} rows" if bytes_per_row is None else
+                f"{int(n)} machines of {int(bytes_per_row)} bytes each")
+        raise ParameterError(what, f"needs about {need / 2**30:.3g} GiB for {held}, "
+                             "more than the memory this process may still use "
                              f"({have / 2**30:.3g} GiB, {source}): at most {what} = {fits} "
                              "fits", n if value is None else value)
 
@@ -215,10 +221,11 @@ class Draw:
 
 
 def _sampled(model, nominal, tolerances, n, seed, n_jobs, progress, backend, chunk_size, desc,
-             store, scheduler, keep, kwargs) -> tuple[list, Draw]:
+             store, scheduler, keep, kwargs, bytes_per_row=None) -> tuple[list, Draw]:
     """The chunks of `sample_machines` (each reduced by keep(i, (deviations, outputs)) as it
-    arrives) and the draw they came from."""
-    check_sampling(nominal, tolerances, n, seed, chunk_size)
+    arrives) and the draw they came from; bytes_per_row: what the study holds per machine
+    (default: `sample_machines`' table)."""
+    check_sampling(nominal, tolerances, n, seed, chunk_size, bytes_per_row=bytes_per_row)
     law = InputLaw.of(tolerances)
     bounds = chunk_bounds(int(n), chunk_size)
     streams = unit_streams(seed, n)
@@ -366,6 +373,21 @@ class MachineColumns:
         return pd.DataFrame({c: dev[c] if c in dev else self.column(c) for c in columns},
                             copy=False)
 
+    def frames(self):
+        """The table chunk by chunk (the rows of each chunk of the draw, every column): what a
+        writer streams without holding the whole table (`frame` joined)."""
+        for a, b in self.draw.bounds:
+            dev = self.draw.law.window(list(self.draw.streams), a, b)
+            yield pd.DataFrame({c: dev[c] if c in dev else self.rows(c, a, b)
+                                for c in self.names}, copy=False)
+
+    def rows(self, name: str, a: int, b: int) -> np.ndarray:
+        """Machines a .. b-1 of a column other than a deviation (`column`)."""
+        if name in self.words:
+            codes, vocab = self.words[name]
+            return np.asarray(vocab, object)[codes[a:b]]
+        return np.arange(a, b) if name == "machine" else self.arrays[name][a:b]
+
 
 def draw_deviations(tolerances: ToleranceSet, n: int, seed: int) -> dict[str, np.ndarray]:
     """The deviations of machines 0 .. n-1 of the tolerances that scatter: the one draw of
@@ -374,7 +396,7 @@ def draw_deviations(tolerances: ToleranceSet, n: int, seed: int) -> dict[str, np
 
 
 def check_sampling(nominal, tolerances: ToleranceSet, n, seed, chunk_size: int = CHUNK,
-                   columns: int | None = None) -> None:
+                   columns: int | None = None, bytes_per_row: int | None = None) -> None:
     """Every input of a Monte-Carlo that can be checked before it runs (nothing is written)."""
     if isinstance(n, bool) or not isinstance(n, (int, np.integer, float)) or int(n) != n or n < 2:
         raise ParameterError("n", "must be a whole number >= 2", n)
@@ -386,7 +408,26 @@ def check_sampling(nominal, tolerances: ToleranceSet, n, seed, chunk_size: int =
         raise ParameterError("tolerances", "has no tolerance with a non-zero width",
                              tolerances.name)
     tolerances.check_against(nominal)
-    check_memory(n, columns if columns is not None else 2 * len(tol.items) + 16)
+    check_memory(n, columns if columns is not None else 2 * len(tol.items) + 16,
+                 bytes_per_row=bytes_per_row)
+
+
+# what `montecarlo` holds per machine (its _Collector): 8 bytes per number (each output, the
+# adjusted output, a compensator's setting, plateau ends and at-bound flag, a plug-in's failure
+# figures, FAILURE_FIGURES at most per case: the needle's angle, gap, transmission angle), 1
+# per column of words (status, failed group per case), and the summary's working copies of
+# one output (failures ranked as +inf, the quantiles' partition, the spec's test)
+FAILURE_FIGURES = 3
+SUMMARY_WORKING_BYTES = 3 * 8
+
+
+def montecarlo_bytes(outputs: int, compensators: int = 0) -> int:
+    """Bytes `montecarlo` holds per machine of `outputs` outputs and, with compensators, the
+    adjusted case (measured: 113 bytes a machine beyond the start-up at 10^6 needle machines,
+    against 124 estimated)."""
+    cases = 2 if compensators else 1
+    numbers = outputs + (1 if compensators else 0) + 4 * compensators + FAILURE_FIGURES * cases
+    return 8 * numbers + 2 * cases + SUMMARY_WORKING_BYTES
 
 
 def correlation_ratio(bin_of: np.ndarray, y: np.ndarray, bins: int,
@@ -846,8 +887,10 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
         mech = at_optimum(mech, adjust, limit_output, fast)
     nominal = mech.parameter_record()
     check_seed(seed)
-    check_sampling(nominal, tolerances, n, seed, chunk_size,
-                   columns=len(tolerances.items) + len(names) + 3)
+    ncomp = 0 if adjust is None else len(adjust.split(",") if isinstance(adjust, str)
+                                         else adjust)
+    footprint = montecarlo_bytes(len(names), ncomp)
+    check_sampling(nominal, tolerances, n, seed, chunk_size, bytes_per_row=footprint)
     pl = plugins(mech) if fast else NO_PLUGINS
     if backend is None and scheduler is None and n_jobs != 1 and gil_free(pl, names, adjust):
         backend = "threading"
@@ -855,7 +898,7 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
     _, draw = _sampled(_montecarlo_chunk, nominal, tolerances, n, seed, n_jobs, progress,
                        backend, chunk_size, f"Monte-Carlo {mech.name}", store, scheduler,
                        collect, dict(mech=mech, outputs=list(names), compensator=adjust,
-                                     target=limit_output, fast=fast, spec=spec))
+                                     target=limit_output, fast=fast, spec=spec), footprint)
     params = tuple(tolerances.active().params)
     dev_names = tuple(draw.law.params)
     # the table's order: machine, deviations, outputs as the chunks give them; a mechanism's
@@ -883,7 +926,7 @@ def gil_free(pl, outputs, adjust) -> bool:
     """True when a Monte-Carlo chunk runs on the plug-ins alone (the kernel gives every output,
     the exact adjuster sets the compensator): numba kernels and whole-array numpy that release
     the GIL, so the local workers of `montecarlo` are threads of this process (no worker
-    start-up, no chunk pickled back, one process's memory; measured in docs/performance.md).
+    start-up, no chunk pickled back, one process's memory; benchmarks/cli.py measures it).
     The generic path's Python loops hold the GIL: it keeps joblib's worker processes."""
     return (pl.kernel is not None and set(outputs) <= set(pl.kernel_outputs)
             and (adjust is None or pl.adjuster is not None))

@@ -597,7 +597,7 @@ def montecarlo(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed:
         raise ParameterError("limit_um", "must be a positive number of um", limit_um)
     sb.check_range(range_deg, limit_um)
     check_sampling(nominal, tolerances, n, seed, chunk_size,
-                   columns=len(tolerances.active().params) + 14)
+                   bytes_per_row=MC.montecarlo_bytes(1, 1))
     if fixed_beta not in FIXED_BETA:
         raise ParameterError("fixed_beta", f"must be one of {', '.join(FIXED_BETA)}", fixed_beta)
     r = MC.montecarlo(as_mechanism(nominal), tolerances, n, seed, [OUTPUT], limit_um,
