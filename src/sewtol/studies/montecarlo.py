@@ -884,7 +884,10 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
     (`Plugins.columns["montecarlo"]`). hold (with a compensator): the fixed case keeps it at
     its "nominal" value or at the nominal machine's "optimum" (`at_optimum`: the setting an
     assembler finds for the nominal; the result's `held` has the values). backend, store,
-    scheduler: as `sample_machines` (joblib backend, study folder, Dask cluster)."""
+    scheduler: as `sample_machines` (joblib backend, study folder, Dask cluster); on the
+    plug-ins alone (`gil_free`) n_jobs > 1 runs threads of this process unless a backend is
+    given. The machines are kept compactly as they arrive (`MachineColumns`: no deviations, words
+    as codes); `MonteCarloResult.machines` builds their table when asked."""
     names = tuple(mech.output_names if outputs is None else outputs)
     for name in names:
         mech.output(name)

@@ -551,12 +551,13 @@ def montecarlo(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed:
     range_deg : tuple of float
         The regulating range for beta, (low, high) in deg; default (10, 35).
     n_jobs : int
-        Worker processes on this machine (joblib); the tables do not depend on it.
+        Workers on this machine (threads of this process: the needle's kernels release the
+        GIL, `studies.montecarlo.gil_free`); the tables do not depend on it.
     progress : bool or callable
         True: a bar on stderr; a callable ``progress(done, total)`` is called as chunks finish.
     backend : str or None
-        A joblib backend (e.g. ``"dask"`` inside a ``distributed.Client()``); None: joblib's
-        default.
+        A joblib backend (e.g. ``"dask"`` inside a ``distributed.Client()``); None: threads
+        with n_jobs > 1.
     chunk_size : int
         Machines per chunk; part of the study's identity (another chunk size draws other
         machines).
