@@ -564,15 +564,23 @@ def _file_model(record, dev, mech, outputs, compensator=None, target=None, fast=
     return out
 
 
+def failure_blank(mech, failure_table, deviations) -> dict:
+    """The failure table's columns and their types, as the plug-in gives them for the first of
+    these machines (what `named_failures` takes from machine 0 when none fails)."""
+    one = {k: np.asarray(v, float)[:1] for k, v in deviations.items()}
+    return {k: np.asarray(v).dtype for k, v in failure_table(mech, machines(mech, one)).items()}
+
+
 def _montecarlo_chunk(record, dev, mech, outputs, compensator=None, target=None, fast=False,
-                      spec=None):
+                      spec=None, blank=None):
     """One chunk of `montecarlo`: `_file_model`, and on the fast path each failure named by the
-    plug-in (`failure_columns`), chunk by chunk (the study never holds all n machines' values)."""
+    plug-in (`failure_columns`), chunk by chunk (the study never holds all n machines' values);
+    blank: `failure_blank` of the run's first machine."""
     out = _file_model(record, dev, mech, outputs, compensator, target, fast)
     pl = plugins(mech) if fast else NO_PLUGINS
     if pl.failure_table is not None:
         out.update(failure_columns(mech, pl.failure_table, dev, {**dev, **out}, target, spec,
-                                   compensator))
+                                   compensator, blank))
     return out
 
 
@@ -917,10 +925,13 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
     if backend is None and scheduler is None and n_jobs != 1 and gil_free(pl, names, adjust):
         backend = "threading"
     collect = _Collector(chunk_bounds(int(n), chunk_size))
+    blank = None if pl.failure_table is None else failure_blank(
+        mech, pl.failure_table, InputLaw.of(tolerances).window(unit_streams(seed, 1), 0, 1))
     _, draw = _sampled(_montecarlo_chunk, nominal, tolerances, n, seed, n_jobs, progress,
                        backend, chunk_size, f"Monte-Carlo {mech.name}", store, scheduler,
                        collect, dict(mech=mech, outputs=list(names), compensator=adjust,
-                                     target=limit_output, fast=fast, spec=spec), footprint)
+                                     target=limit_output, fast=fast, spec=spec, blank=blank),
+                       footprint)
     params = tuple(tolerances.active().params)
     dev_names = tuple(draw.law.params)
     # the table's order: machine, deviations, outputs as the chunks give them; a mechanism's
@@ -986,9 +997,11 @@ def named_failures(mech, failure_table, frame: pd.DataFrame, params, output: str
 
 
 def failure_columns(mech, failure_table, deviations, columns, output: str, spec,
-                    adjust) -> dict:
+                    adjust, blank: Mapping | None = None) -> dict:
     """The columns `named_failures` sets (status, failed_group, fail_NAME per case, in that
-    order) of machines `deviations` whose outputs and settings are `columns`."""
+    order) of machines `deviations` whose outputs and settings are `columns`. blank: the
+    failure table's columns and types (`failure_blank`), so machines that all run ask the
+    plug-in nothing (a Monte-Carlo's chunks, most of which have no failure)."""
     values = machines(mech, deviations)
     cases = {"": values}
     if adjust is not None:
@@ -1006,7 +1019,8 @@ def failure_columns(mech, failure_table, deviations, columns, output: str, spec,
         # failing, machine 0 gives the columns' names and types, its values unused
         rows = failed if failed.any() else np.arange(n) == 0
         why = dict(failure_table(mech, {k: (v[rows] if np.shape(v)[:1] == (n,) else v)
-                                        for k, v in vals.items()}))
+                                        for k, v in vals.items()})) \
+            if failed.any() or blank is None else {k: np.empty(0, t) for k, t in blank.items()}
         passes = np.broadcast_to(np.where(spec is None or spec.passes(value), "ok",
                                           "out_of_spec").astype(object), (n,)).copy()
         named[f"status{suffix}"] = _scatter(passes, failed, why.pop("status"), object)
