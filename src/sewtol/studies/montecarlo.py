@@ -299,7 +299,14 @@ def _coded(words: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]]:
 
 
 def _is_text(a: np.ndarray) -> bool:
-    return a.dtype.kind == "U" or (a.dtype == object and all(isinstance(x, str) for x in a.flat))
+    """A column of words: text, or objects that are all str (checked on the distinct values:
+    a chunk's statuses are a handful of words)."""
+    if a.dtype.kind == "U":
+        return True
+    try:
+        return a.dtype == object and all(isinstance(x, str) for x in set(a.ravel().tolist()))
+    except TypeError:  # objects that cannot be hashed are no words
+        return False
 
 
 class _Collector:
@@ -559,7 +566,9 @@ def _file_model(record, dev, mech, outputs, compensator=None, target=None, fast=
                 out[f"{param}_low"] = a.extras["low"][param]
                 out[f"{param}_high"] = a.extras["high"][param]
                 out[f"{param}_at_bound"] = np.asarray(a.at_bound[param], float)
-        out["status_adjusted"] = np.array([WORDS.get(w, w) for w in a.status], object)
+        words, which = np.unique(np.asarray(a.status, str), return_inverse=True)
+        out["status_adjusted"] = np.array([WORDS.get(w, w) for w in words.tolist()] or [""],
+                                          object)[which.reshape(-1)]
         out["failed_group_adjusted"] = a.extras.get("failed_group", np.full(len(a.value), ""))
     return out
 
