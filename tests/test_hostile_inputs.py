@@ -343,25 +343,35 @@ def test_the_stated_scheduler_timeout_is_the_real_one(kind):
 # --- memory limits ----------------------------------------------------------------------------
 
 def test_the_memory_estimate_honours_the_address_space_limit(tmp_path):
-    """Under `ulimit -v` 1.5 GB the 2e6-machine study (1.67 GiB of results) is refused up front
-    in one line, instead of computed and then lost to a MemoryError traceback."""
+    """Under `ulimit -v` 1.5 GB the 2e7-machine study (2.3 GiB of machines held compactly; its
+    table --out writes in chunks) is refused up front in one line, instead of computed and then
+    lost to a MemoryError traceback."""
     import resource
+
+    from sewtol.studies.montecarlo import montecarlo_bytes
+
+    # each machine's SumDelta fixed and adjusted, beta*, its plateau and bound flag, the
+    # failure figures of both cases (8 bytes each), its statuses (1 byte each), the summary's
+    # working copies
+    per = montecarlo_bytes(1, 1)
+    assert per == 8 * (2 + 4 + 2 * 3) + 4 + 24
 
     limit = 1_500_000_000
     env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
-    p = subprocess.run([sys.executable, "-m", "sewtol", "needle", "montecarlo", "--n", "2000000",
+    p = subprocess.run([sys.executable, "-m", "sewtol", "needle", "montecarlo", "--n", "20000000",
                         "--out", "D"], capture_output=True, text=True, env=env, cwd=tmp_path,
                        timeout=SCHEDULER_TIMEOUT_S,
                        preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_AS, (limit, limit)))
     assert p.returncode == 2 and p.stdout == "" and p.stderr.count("\n") == 1, p.stderr[-2000:]
-    assert p.stderr.startswith("sewtol: error: --n: needs about 1.67 GiB for 28 columns of "
-                               "2000000 rows, more than the memory this process may still use (")
-    # the n that fits: the largest whose estimate (28 columns of 32 bytes) is within what is left
+    assert p.stderr.startswith(f"sewtol: error: --n: needs about {2e7 * per / 2**30:.3g} GiB "
+                               f"for 20000000 machines of {per} bytes each, more than the memory "
+                               "this process may still use (")
+    # the n that fits: the largest whose estimate (per bytes a machine) is within what is left
     left = float(p.stderr.split("may still use (")[1].split(" GiB")[0]) * 2**30
     fits = int(p.stderr.split("at most n = ")[1].split(" fits")[0])
-    assert 0 < fits < 2_000_000 and abs(fits * 28 * 32 - left) <= 0.005 * left + 28 * 32
+    assert 0 < fits < 20_000_000 and abs(fits * per - left) <= 0.005 * left + per
     assert p.stderr.endswith(f" GiB, address-space limit (ulimit -v)): at most n = {fits} fits "
-                             "(got 2000000)\n")
+                             "(got 20000000)\n")
     assert not (tmp_path / "D").exists()
 
 

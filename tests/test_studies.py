@@ -4,6 +4,7 @@ calls, determinism across workers, worst case against sampling."""
 import numpy as np
 import pytest
 
+from cli_helpers import stretched_CD
 from sewtol.errors import ParameterError
 from sewtol.mechanisms.needle_208 import beta as sb
 from sewtol.optimize import bisect_root
@@ -167,3 +168,68 @@ def test_named_failures_leaves_the_callers_table_as_it_was(nominal):
     assert set(named["status"][failed]) <= {"cannot_close", "dead_point", "unexplained"}
     assert named["failed_group"][failed].str.len().gt(0).all()
     assert (named["failed_group"][~failed] == "").all()
+
+
+@pytest.mark.parametrize("n_jobs", [1, 2])
+def test_streamed_summary_equals_the_table_based_one(nominal, n_jobs):
+    """The Monte-Carlo keeps its chunks compact (outputs as arrays, words as codes, deviations
+    drawn again): its table equals the one joined from whole chunks and named afterwards, and
+    every count, group, quantile and capability equals the same figure taken from that table,
+    on a set where machines cannot close, hit a dead point and fall out of spec in both cases."""
+    from sewtol.protocol import plugins
+    from sewtol.studies import montecarlo as MC
+    from sewtol.tables.needle_208 import as_mechanism
+
+    # 0.3 mm from B-C-D's stretched position (test_contracts): it cannot close or passes a dead
+    # point at the nominal beta, but closes at its adjusted beta
+    wild = ToleranceSet("near", (Tolerance("CD", -0.35, 0.05), Tolerance("AB", -0.01, 0.01)))
+    mech = as_mechanism(nominal.override(CD=stretched_CD(nominal) + 0.3))
+    box = {"beta": (10.0, 35.0)}
+    res = MC.montecarlo(mech, wild, 1300, 7, ["SumDelta_um"], 10.0, adjust=box, fast=True,
+                        n_jobs=n_jobs, chunk_size=500)
+    # the table-based reference: whole chunks joined, then named, ordered and renamed
+    frame = MC.sample_machines(MC._file_model, mech.parameter_record(), wild, 1300, 7,
+                               chunk_size=500, mech=mech, outputs=["SumDelta_um"],
+                               compensator=box, target="SumDelta_um", fast=True)
+    pl = plugins(mech)
+    spec = res.spec()
+    frame = MC.named_failures(mech, pl.failure_table, frame, ("CD", "AB"), "SumDelta_um", spec,
+                              box)
+    columns = pl.columns["montecarlo"]
+    first = ["machine", "CD", "AB", *(k for k in columns if k in frame)]
+    frame = frame[first + [k for k in frame if k not in first]].rename(columns=columns)
+    assert res.machines.equals(frame) and list(res.machines) == list(frame)
+    assert res.machines.dtypes.equals(frame.dtypes)
+    words = ("ok", "out_of_spec", "cannot_close", "dead_point", "unexplained")
+    seen = set()
+    for case, out, status, group in (("fixed", "total_fixed_um", "status_fixed",
+                                      "fail_dyad_fixed"),
+                                     ("adjusted", "total_adjusted_um", "status_adjusted",
+                                      "fail_dyad_adjusted")):
+        v = frame[out].to_numpy(float)
+        s = frame[status].to_numpy(object).copy()
+        s[(s == "ok") & ~spec.passes(v)] = "out_of_spec"
+        want = {k: int(np.sum(s == k)) for k in words}
+        got = res.counts(case)
+        assert {k: got[k] for k in words} == want and got["n"] == 1300
+        assert got["ok"] + got["out_of_spec"] + got["failed"] == 1300
+        seen |= {k for k in words if want[k]}
+        assert list(res.status(case)) == list(s)
+        x = np.where(np.isnan(v), np.inf, v)
+        assert res.quantiles(case) == {f"p{q}": float(np.quantile(x, q / 100, method="higher"))
+                                       for q in (50, 95, 99)}
+        x = v[~np.isnan(v)]
+        p50, p99865 = np.quantile(x, [0.5, 0.99865])
+        assert res.capability(case) == {
+            "Cpu": (10.0 - x.mean()) / (3 * x.std(ddof=1)),
+            "Cpu_percentile": float((10.0 - p50) / (p99865 - p50))}
+        g = frame[group]
+        assert res.failed_groups(case == "adjusted") == {
+            str(k): int(c) for k, c in g[g != ""].value_counts().sort_index().items()}
+    assert {"out_of_spec", "cannot_close", "dead_point"} <= seen
+    beta = frame["beta_opt_deg"].dropna()
+    assert res.setting_range("beta") == (float(beta.min()), float(beta.max()))
+    at = frame["beta_at_bound"].to_numpy(float) == 1.0
+    assert res.at_bound("beta") == int(at.sum())
+    assert res.at_bound("beta", pinned=True) == int(np.sum(
+        at & ((frame["beta_high_deg"] - frame["beta_low_deg"]).to_numpy() < MC.PINNED_PLATEAU)))

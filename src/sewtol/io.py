@@ -71,7 +71,13 @@ def write_text_atomic(path: Path, text: str) -> None:
     write_bytes_atomic(path, text.encode("utf-8"))
 
 
-def write_bytes_atomic(path: Path, data: bytes) -> None:
+def write_pieces_atomic(path: Path, pieces) -> None:
+    """UTF-8 text written piece by piece (an iterable of str) into `path` through a temporary
+    file beside it, as `write_bytes_atomic`: a long table is never one string in memory."""
+    write_bytes_atomic(path, (p.encode("utf-8") for p in pieces))
+
+
+def write_bytes_atomic(path: Path, data) -> None:
     """`data` into `path` through a temporary file beside it; an OSError names `path` (its
     filename), never the temporary file, which is removed."""
     path = Path(path)
@@ -80,7 +86,8 @@ def write_bytes_atomic(path: Path, data: bytes) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
         with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
+            for piece in (data,) if isinstance(data, (bytes, bytearray)) else data:
+                fh.write(piece)
             os.fchmod(fh.fileno(), 0o666 & ~umask())
         os.replace(tmp, path)
     except BaseException as exc:

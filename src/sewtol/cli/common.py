@@ -401,15 +401,18 @@ def write_outputs(args, kind, inputs, started, result_obj, frames, runs):
     means the folder is complete)."""
     if not args.out:
         return
-    from sewtol.io import write_text_atomic
+    from sewtol.io import write_pieces_atomic, write_text_atomic
     from sewtol.provenance import run_record
-    from sewtol.reports.tables import to_csv
+    from sewtol.reports.tables import csv_pieces, to_csv
 
     out = Path(args.out)
 
-    def put(path: Path, text: str) -> None:  # a failure names the file, never its temp file
+    def put(path: Path, text) -> None:  # a failure names the file, never its temp file
         try:
-            write_text_atomic(path, text)
+            if isinstance(text, str):
+                write_text_atomic(path, text)
+            else:  # a table's CSV piece by piece (`csv_pieces`)
+                write_pieces_atomic(path, text)
         except OSError as exc:
             fix = "free the space" if exc.errno in (errno.ENOSPC, errno.EDQUOT) else "fix it"
             kept = ("; the finished chunks are kept: " + fix + " and rerun with --resume"
@@ -417,8 +420,9 @@ def write_outputs(args, kind, inputs, started, result_obj, frames, runs):
             raise ParameterError("--out", f"cannot be written ({exc.strerror}){kept}",
                                  str(path)) from None
 
-    for name, frame in frames.items():
-        put(out / f"{name}.csv", to_csv(frame))
+    for name, frame in frames.items():  # a table, or its chunks (an iterable of tables)
+        put(out / f"{name}.csv", to_csv(frame) if hasattr(frame, "to_csv")
+            else csv_pieces(frame))
     put(out / f"{kind}.json", to_json(result_obj))
     where = scheduler_address(args)
     record = run_record(started, {**inputs, "n_jobs": args.n_jobs,

@@ -293,7 +293,7 @@ def cmd_needle_montecarlo(args):
     per-machine table of one strategy, each with its study folder and cluster. `run FILE
     montecarlo` on the needle fast path runs this command itself (args.file_inputs names the
     file in run.json), so both print the same bytes."""
-    from sewtol.studies.montecarlo import CHUNK, check_sampling
+    from sewtol.studies.montecarlo import CHUNK, check_sampling, montecarlo_bytes
     from sewtol.tables.needle_208 import montecarlo
 
     check_n(args.n)
@@ -302,7 +302,11 @@ def cmd_needle_montecarlo(args):
     _check_beta_range(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
     limit, rng = args.limit_um, tuple(args.beta_range)
-    as_flags(check_sampling, params, tolerances, args.n, args.seed, CHUNK)
+    if strategy is None:  # the machines held compactly; --out writes their table in chunks
+        as_flags(check_sampling, params, tolerances, args.n, args.seed, CHUNK, None,
+                 montecarlo_bytes(1, 1))
+    else:
+        as_flags(check_sampling, params, tolerances, args.n, args.seed, CHUNK)
     if strategy is not None:
         if args.plot is not None:
             raise ParameterError("--plot", "is not offered with --adjust (the histograms show "
@@ -320,15 +324,18 @@ def cmd_needle_montecarlo(args):
         record = res.to_dict()
         record["extra"]["fixed_beta_at_bound"] = _beta_star_figures(args, params).beta_at_bound
         record["context"] = _context(args, params, tolerances, None)
-        return res, record, {"machines": deviation_columns(res.machines, res.params),
-                             "summary": res.summary_frame()}
+        # the per-machine table only for --out (the summary and the JSON never need it)
+        # written chunk by chunk: the whole table is never held
+        return res, record, {"machines": (deviation_columns(f, res.params)
+                                          for f in res.table.frames()),
+                             "summary": res.summary_frame()} if args.out else {}
 
     res, record = _in_study_folder(args, inputs, study)
     emit(args.format, obj=record, frame=res.summary_frame(), compact=COMPACT["montecarlo"],
          wide=args.wide)
     print_notes(args, _montecarlo_notes(record))
     save_plot(args, lambda ax: plots().montecarlo_histograms(
-        res.machines["total_fixed_um"], res.machines["total_adjusted_um"], limit,
+        res.values("SumDelta_um"), res.values("SumDelta_um_adjusted"), limit,
         (res.yield_of("fixed"), res.yield_of("adjusted")), ax=ax))
 
 

@@ -59,6 +59,14 @@ def to_csv(frame: pd.DataFrame, settings: dict | None = None) -> str:
                                            lineterminator="\n")
 
 
+def csv_pieces(frames):
+    """`to_csv` of the frames (the chunks of one table, same columns) joined, piece by piece:
+    the header with the first, every value formatted as to_csv formats the whole."""
+    for i, frame in enumerate(frames):
+        yield _printable(frame).to_csv(index=False, float_format="%.9g", lineterminator="\n",
+                                       header=i == 0)
+
+
 def write_table(frame: pd.DataFrame, folder: Path, name: str, title: str,
                 settings: dict | None = None, floatfmt: str = ".4f") -> list[Path]:
     """Write folder/name.csv and folder/name.md atomically; returns the paths."""

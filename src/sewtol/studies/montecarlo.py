@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 import pandas as pd
@@ -146,31 +147,56 @@ def available_memory_bytes() -> int | None:
     return min(limits.values()) if limits else None
 
 
+# what a Monte-Carlo's machinery reaches whatever n, beyond its machines (measured: needle
+# montecarlo --n 10000, numba and the kernels loaded, the worker threads' stacks and malloc
+# arenas): peak address space (VmPeak 777 MB with --n-jobs 1, 1074 MB with 2) and peak resident
+# size (245 MB); the part not yet reached when a study is checked is kept free for it
+RUN_ADDRESS_SPACE = 1100 * 2**20
+RUN_RESIDENT = 250 * 2**20
+
+
+def run_reserve_bytes(source: str) -> int:
+    """What the machinery of a run still adds to a memory source (`memory_limits_bytes`' name)
+    after this point: RUN_ADDRESS_SPACE less the address space in use, or RUN_RESIDENT less the
+    resident size now."""
+    if source.startswith("address-space"):
+        return max(0, RUN_ADDRESS_SPACE - (_status_bytes("VmSize") or 0))
+    return max(0, RUN_RESIDENT - (_status_bytes("VmRSS") or 0))
+
+
 def largest_that_fits(have_bytes: int, columns: int, rows_per_unit: int = 1,
-                      power_of_two: bool = False) -> int:
-    """The largest n whose n * rows_per_unit rows of `columns` columns fit in have_bytes (the
-    estimate of `check_memory`); the largest power of two with power_of_two (Sobol)."""
-    n = int(have_bytes) // (int(columns) * BYTES_PER_CELL * max(1, int(rows_per_unit)))
+                      power_of_two: bool = False, bytes_per_row: int | None = None) -> int:
+    """The largest n whose n * rows_per_unit rows of `columns` columns (or of bytes_per_row
+    bytes each) fit in have_bytes (the estimate of `check_memory`); the largest power of two
+    with power_of_two (Sobol)."""
+    row = int(columns) * BYTES_PER_CELL if bytes_per_row is None else int(bytes_per_row)
+    n = int(have_bytes) // (row * max(1, int(rows_per_unit)))
     if power_of_two and n >= 1:
         n = 1 << (n.bit_length() - 1)
     return n
 
 
 def check_memory(n: int, columns: int, what: str = "n", value=None, rows_per_unit: int = 1,
-                 power_of_two: bool = False) -> None:
+                 power_of_two: bool = False, bytes_per_row: int | None = None) -> None:
     """Refuse a study whose result table cannot fit in the memory available now, before it
     starts, naming the largest `what` that fits (`value` rows per unit of it: n rows are
-    value * rows_per_unit)."""
-    need = int(n) * int(columns) * BYTES_PER_CELL
+    value * rows_per_unit). A study that holds its machines compactly gives their bytes each
+    (bytes_per_row, e.g. `montecarlo_bytes`) instead of a table's columns."""
+    row = int(columns) * BYTES_PER_CELL if bytes_per_row is None else int(bytes_per_row)
+    need = int(n) * row
     limits = memory_limits_bytes()
     if not limits:
         return
+    if bytes_per_row is not None:  # a compact study: its machinery counts beside the machines
+        limits = {k: max(0, v - run_reserve_bytes(k)) for k, v in limits.items()}
     source = min(limits, key=limits.get)
     have = limits[source]
     if need > have:
-        fits = largest_that_fits(have, columns, rows_per_unit, power_of_two)
-        raise ParameterError(what, f"needs about {need / 2**30:.3g} GiB for {columns} columns of "
-                             f"{int(n)} rows, more than the memory this process may still use "
+        fits = largest_that_fits(have, columns, rows_per_unit, power_of_two, bytes_per_row)
+        held = (f"{columns} columns of {int(n)} rows" if bytes_per_row is None else
+                f"{int(n)} machines of {int(bytes_per_row)} bytes each")
+        raise ParameterError(what, f"needs about {need / 2**30:.3g} GiB for {held}, "
+                             "more than the memory this process may still use "
                              f"({have / 2**30:.3g} GiB, {source}): at most {what} = {fits} "
                              "fits", n if value is None else value)
 
@@ -193,7 +219,32 @@ def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
     progress(done, total) in chunks; scheduler: a Dask scheduler address or
     distributed.Client to run the chunks on (parallel.run_chunks).
     """
-    check_sampling(nominal, tolerances, n, seed, chunk_size)
+    parts, _ = _sampled(model, nominal, tolerances, n, seed, n_jobs, progress, backend,
+                        chunk_size, desc, store, scheduler, None, kwargs)
+    return _joined(parts)
+
+
+@dataclass(frozen=True)
+class Draw:
+    """The machines of one seed and tolerance set, chunk by chunk (the deviations are drawn
+    again from these whenever a table asks for them, never held by a study)."""
+
+    law: InputLaw
+    streams: tuple
+    bounds: tuple[tuple[int, int], ...]
+
+    def deviations(self) -> dict[str, np.ndarray]:
+        """Every machine's deviations, each chunk drawn as its chunk drew it."""
+        parts = [self.law.window(list(self.streams), a, b) for a, b in self.bounds]
+        return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+
+def _sampled(model, nominal, tolerances, n, seed, n_jobs, progress, backend, chunk_size, desc,
+             store, scheduler, keep, kwargs, bytes_per_row=None) -> tuple[list, Draw]:
+    """The chunks of `sample_machines` (each reduced by keep(i, (deviations, outputs)) as it
+    arrives) and the draw they came from; bytes_per_row: what the study holds per machine
+    (default: `sample_machines`' table)."""
+    check_sampling(nominal, tolerances, n, seed, chunk_size, bytes_per_row=bytes_per_row)
     law = InputLaw.of(tolerances)
     bounds = chunk_bounds(int(n), chunk_size)
     streams = unit_streams(seed, n)
@@ -219,8 +270,8 @@ def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
     parts = run_chunks(_chunk, [(model, nominal, law, stream_window(streams, a, b), kwargs)
                                 for a, b in bounds],
                        n_jobs=n_jobs, progress=progress, desc=desc, backend=backend, store=store,
-                       validate=validate, scheduler=scheduler)
-    return _joined(parts)
+                       validate=validate, scheduler=scheduler, keep=keep)
+    return parts, Draw(law, tuple(streams), tuple(bounds))
 
 
 def _joined(parts: list) -> pd.DataFrame:
@@ -240,6 +291,130 @@ def _joined(parts: list) -> pd.DataFrame:
     return pd.DataFrame(cols, copy=False)
 
 
+def _coded(words: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]]:
+    """A column of words as (codes, vocabulary): one byte a machine, not a pointer and an
+    object (a machine's status, the group that failed)."""
+    vocab, codes = np.unique(np.asarray(words).astype(str), return_inverse=True)
+    return codes.astype(np.uint8 if vocab.size <= 256 else np.int32), tuple(map(str, vocab))
+
+
+def _is_text(a: np.ndarray) -> bool:
+    """A column of words: text, or objects that are all str (checked on the distinct values:
+    a chunk's statuses are a handful of words)."""
+    if a.dtype.kind == "U":
+        return True
+    try:
+        return a.dtype == object and all(isinstance(x, str) for x in set(a.ravel().tolist()))
+    except TypeError:  # objects that cannot be hashed are no words
+        return False
+
+
+class _Collector:
+    """What `montecarlo` keeps of each chunk as it arrives (run_chunks' keep): its outputs
+    written into columns of all n machines, allocated once, words as codes (`_coded`); the
+    deviations are dropped (`Draw` draws them again for a table that shows them). So the study
+    holds one compact copy of the machines' figures, never the chunks and the table at once."""
+
+    def __init__(self, bounds):
+        self.bounds, self.n = bounds, bounds[-1][1]
+        self.order: list[str] | None = None
+        self.arrays: dict[str, np.ndarray] = {}
+        self.words: dict[str, tuple[np.ndarray, list[str], dict[str, int]]] = {}
+
+    def __call__(self, i: int, part) -> None:
+        dev, out = part
+        a, b = self.bounds[i]
+        if self.order is None:
+            self.order = [k for k in out if k not in dev]
+        for k in self.order:
+            v = np.asarray(out[k])
+            if _is_text(v):
+                codes, vocab = _coded(v)
+                into, words, index = self.words.setdefault(
+                    k, (np.zeros(self.n, np.uint8), [], {}))
+                for w in vocab:
+                    if w not in index:
+                        index[w] = len(words)
+                        words.append(w)
+                if len(words) > 256 and into.dtype == np.uint8:
+                    into = into.astype(np.int32)
+                    self.words[k] = (into, words, index)
+                into[a:b] = np.asarray([index[w] for w in vocab], into.dtype)[codes]
+            else:
+                into = self.arrays.get(k)
+                if into is None or np.result_type(into, v) != into.dtype:
+                    into = self.arrays[k] = (np.empty(self.n, v.dtype) if into is None
+                                             else into.astype(np.result_type(into, v)))
+                into[a:b] = v
+        return None
+
+    def table(self, order, renamed: Mapping[str, str], draw: Draw, params) -> MachineColumns:
+        """The columns in `order` (chunk names, with machine and the deviations), renamed."""
+        return MachineColumns(
+            self.n, tuple(renamed.get(k, k) for k in order),
+            {renamed.get(k, k): v for k, v in self.arrays.items()},
+            {renamed.get(k, k): (codes, tuple(words)) for k, (codes, words, _) in
+             self.words.items()}, draw, tuple(params))
+
+
+@dataclass(frozen=True)
+class MachineColumns:
+    """Every machine's figures of a Monte-Carlo, compact: the outputs as arrays, each column of
+    words as one-byte codes into its vocabulary, the deviations drawn again from the seed only
+    when a table shows them (`frame`). `names` is the table's column order (machine, the
+    deviations, then the outputs, in the mechanism's names); `renamed` maps a column's name
+    in the chunks to it."""
+
+    n: int
+    names: tuple[str, ...]
+    arrays: Mapping[str, np.ndarray]  # numeric columns (table names)
+    words: Mapping[str, tuple[np.ndarray, tuple[str, ...]]]  # text columns: (codes, vocabulary)
+    draw: Draw | None = None
+    params: tuple[str, ...] = ()  # the deviation columns (drawn again by `draw`)
+
+    def __contains__(self, name) -> bool:
+        return name in self.arrays or name in self.words or name in self.names
+
+    def codes(self, name: str) -> tuple[np.ndarray, tuple[str, ...]]:
+        """A text column as (codes, vocabulary)."""
+        return self.words[name]
+
+    def column(self, name: str) -> np.ndarray:
+        """One column, a text column as an array of its words (objects)."""
+        if name in self.words:
+            codes, vocab = self.words[name]
+            return np.asarray(vocab, object)[codes]
+        if name in self.arrays:
+            return self.arrays[name]
+        if name == "machine":
+            return np.arange(self.n)
+        if name in self.params:
+            return self.draw.deviations()[name]
+        raise KeyError(name)
+
+    def frame(self, columns=None) -> pd.DataFrame:
+        """The table (one row per machine) of these columns (default: all, in order)."""
+        columns = list(self.names if columns is None else columns)
+        dev = self.draw.deviations() if any(c in self.params for c in columns) else {}
+        return pd.DataFrame({c: dev[c] if c in dev else self.column(c) for c in columns},
+                            copy=False)
+
+    def frames(self):
+        """The table chunk by chunk (the rows of each chunk of the draw, every column): what a
+        writer streams without holding the whole table (`frame` joined)."""
+        for a, b in self.draw.bounds:
+            dev = self.draw.law.window(list(self.draw.streams), a, b)
+            yield pd.DataFrame({c: dev[c] if c in dev else self.rows(c, a, b)
+                                for c in self.names}, copy=False)
+
+    def rows(self, name: str, a: int, b: int) -> np.ndarray:
+        """Machines a .. b-1 of a column other than a deviation (`column`)."""
+        if name in self.words:
+            codes, vocab = self.words[name]
+            return np.asarray(vocab, object)[codes[a:b]]
+        return np.arange(a, b) if name == "machine" else self.arrays[name][a:b]
+
+
 def draw_deviations(tolerances: ToleranceSet, n: int, seed: int) -> dict[str, np.ndarray]:
     """The deviations of machines 0 .. n-1 of the tolerances that scatter: the one draw of
     every study (`sample_machines`, strategies, ppm by plain Monte-Carlo, allocation)."""
@@ -247,7 +422,7 @@ def draw_deviations(tolerances: ToleranceSet, n: int, seed: int) -> dict[str, np
 
 
 def check_sampling(nominal, tolerances: ToleranceSet, n, seed, chunk_size: int = CHUNK,
-                   columns: int | None = None) -> None:
+                   columns: int | None = None, bytes_per_row: int | None = None) -> None:
     """Every input of a Monte-Carlo that can be checked before it runs (nothing is written)."""
     if isinstance(n, bool) or not isinstance(n, (int, np.integer, float)) or int(n) != n or n < 2:
         raise ParameterError("n", "must be a whole number >= 2", n)
@@ -259,7 +434,26 @@ def check_sampling(nominal, tolerances: ToleranceSet, n, seed, chunk_size: int =
         raise ParameterError("tolerances", "has no tolerance with a non-zero width",
                              tolerances.name)
     tolerances.check_against(nominal)
-    check_memory(n, columns if columns is not None else 2 * len(tol.items) + 16)
+    check_memory(n, columns if columns is not None else 2 * len(tol.items) + 16,
+                 bytes_per_row=bytes_per_row)
+
+
+# what `montecarlo` holds per machine (its _Collector): 8 bytes per number (each output, the
+# adjusted output, a compensator's setting, plateau ends and at-bound flag, a plug-in's failure
+# figures, FAILURE_FIGURES at most per case: the needle's angle, gap, transmission angle), 1
+# per column of words (status, failed group per case), and the summary's working copies of
+# one output (failures ranked as +inf, the quantiles' partition, the spec's test)
+FAILURE_FIGURES = 3
+SUMMARY_WORKING_BYTES = 3 * 8
+
+
+def montecarlo_bytes(outputs: int, compensators: int = 0) -> int:
+    """Bytes `montecarlo` holds per machine of `outputs` outputs and, with compensators, the
+    adjusted case (measured: 113 bytes a machine beyond the start-up at 10^6 needle machines,
+    against 124 estimated)."""
+    cases = 2 if compensators else 1
+    numbers = outputs + (1 if compensators else 0) + 4 * compensators + FAILURE_FIGURES * cases
+    return 8 * numbers + 2 * cases + SUMMARY_WORKING_BYTES
 
 
 def correlation_ratio(bin_of: np.ndarray, y: np.ndarray, bins: int,
@@ -372,8 +566,30 @@ def _file_model(record, dev, mech, outputs, compensator=None, target=None, fast=
                 out[f"{param}_low"] = a.extras["low"][param]
                 out[f"{param}_high"] = a.extras["high"][param]
                 out[f"{param}_at_bound"] = np.asarray(a.at_bound[param], float)
-        out["status_adjusted"] = np.array([WORDS.get(w, w) for w in a.status], object)
+        words, which = np.unique(np.asarray(a.status, str), return_inverse=True)
+        out["status_adjusted"] = np.array([WORDS.get(w, w) for w in words.tolist()] or [""],
+                                          object)[which.reshape(-1)]
         out["failed_group_adjusted"] = a.extras.get("failed_group", np.full(len(a.value), ""))
+    return out
+
+
+def failure_blank(mech, failure_table, deviations) -> dict:
+    """The failure table's columns and their types, as the plug-in gives them for the first of
+    these machines (what `named_failures` takes from machine 0 when none fails)."""
+    one = {k: np.asarray(v, float)[:1] for k, v in deviations.items()}
+    return {k: np.asarray(v).dtype for k, v in failure_table(mech, machines(mech, one)).items()}
+
+
+def _montecarlo_chunk(record, dev, mech, outputs, compensator=None, target=None, fast=False,
+                      spec=None, blank=None):
+    """One chunk of `montecarlo`: `_file_model`, and on the fast path each failure named by the
+    plug-in (`failure_columns`), chunk by chunk (the study never holds all n machines' values);
+    blank: `failure_blank` of the run's first machine."""
+    out = _file_model(record, dev, mech, outputs, compensator, target, fast)
+    pl = plugins(mech) if fast else NO_PLUGINS
+    if pl.failure_table is not None:
+        out.update(failure_columns(mech, pl.failure_table, dev, {**dev, **out}, target, spec,
+                                   compensator, blank))
     return out
 
 
@@ -395,7 +611,7 @@ class MonteCarloResult:
     """
 
     mechanism: str
-    machines: pd.DataFrame  # machine, deviations, outputs, status, failed_group
+    table: MachineColumns  # machine, deviations, outputs, status, failed_group (compact)
     outputs: tuple[str, ...]
     tolerances: str
     seed: int
@@ -416,7 +632,13 @@ class MonteCarloResult:
     @property
     def n(self) -> int:
         """The number of machines drawn."""
-        return len(self.machines)
+        return self.table.n
+
+    @cached_property
+    def machines(self) -> pd.DataFrame:
+        """One row per machine: its deviations, outputs, status and the group that failed
+        (built from `table` when first asked for; the summaries never need it)."""
+        return self.table.frame()
 
     def inspection(self) -> dict | None:
         """With relations: candidates drawn, machines built (n) and rejected, and the
@@ -439,8 +661,9 @@ class MonteCarloResult:
         """The machines' column (or JSON key) of a generic name, by the mechanism's `columns`."""
         return self.columns.get(name, name)
 
-    def values(self, name: str) -> pd.Series:
-        return self.machines[self.column(name)]
+    def values(self, name: str) -> np.ndarray:
+        """The machines' column of a generic name (`column`), text as an array of words."""
+        return self.table.column(self.column(name))
 
     def spec(self, output: str | None = None) -> Spec | None:
         """The limits in force for an output (its adjusted case keeps the output's limits)."""
@@ -474,22 +697,33 @@ class MonteCarloResult:
         """Per machine: ok, out_of_spec (outside the output's spec; no value fails a spec),
         cannot_close, dead_point (the adjusted case: at the machine's chosen setting), or
         unexplained (a mechanism's status that finds no reason)."""
+        codes, words = self._status_codes(output)
+        return np.asarray(words, object)[codes]
+
+    def _status_codes(self, output: str | None) -> tuple[np.ndarray, tuple[str, ...]]:
+        """`status` as codes into its words (one byte a machine)."""
         output = self.output_of(output)
         adjusted = output is not None and output == self.adjusted_output
-        s = self.values("status_adjusted" if adjusted else "status").to_numpy(object).copy()
+        codes, words = self.table.codes(self.column("status_adjusted" if adjusted
+                                                    else "status"))
         spec = self.spec(output) if output is not None else None
-        if spec is not None:
-            s[(s == "ok") & ~spec.passes(self.values(output).to_numpy(float))] = "out_of_spec"
-        return s
+        if spec is not None and "ok" in words:
+            if "out_of_spec" not in words:
+                words = (*words, "out_of_spec")
+            fails = (codes == words.index("ok")) & ~spec.passes(
+                np.asarray(self.values(output), float))
+            codes = np.where(fails, np.asarray(words.index("out_of_spec"), codes.dtype), codes)
+        return codes, words
 
     def counts(self, output: str | None = None) -> dict[str, int]:
         """ok + out_of_spec + failed = n, failed = cannot_close + dead_point + unexplained, of
         an output or a case."""
-        s = self.status(output)
-        c = {k: int(np.sum(s == k)) for k in ("ok", "out_of_spec", "cannot_close", "dead_point",
-                                              "unexplained")}
+        codes, words = self._status_codes(output)
+        count = dict(zip(words, np.bincount(codes, minlength=len(words)).tolist(), strict=True))
+        c = {k: int(count.get(k, 0)) for k in ("ok", "out_of_spec", "cannot_close",
+                                                "dead_point", "unexplained")}
         c["failed"] = c["cannot_close"] + c["dead_point"] + c["unexplained"]
-        c["n"] = int(s.size)
+        c["n"] = int(codes.size)
         return c
 
     def yield_of(self, case: str) -> float:
@@ -509,7 +743,8 @@ class MonteCarloResult:
         """Cpu = (USL - mean) / 3 sigma, and the percentile form (USL - p50) / (p99.865 - p50),
         of the spec's upper limit (USL) over the machines that run."""
         output = self.output_of(case)
-        x = self.values(output).dropna().to_numpy()
+        x = np.asarray(self.values(output), float)
+        x = x[~np.isnan(x)]
         if x.size < 2:  # (almost) every machine failed: no scatter to speak of
             return {"Cpu": float("nan"), "Cpu_percentile": float("nan")}
         limit = self.spec(output).upper
@@ -522,15 +757,17 @@ class MonteCarloResult:
     def pareto(self, case: str = "adjusted", bins: int = 20) -> pd.DataFrame:
         """Contributors to a case's scatter (`contributors`), with the explained sum and the
         interaction remainder as the last two rows (`with_remainder`)."""
-        return with_remainder(contributors(self.machines, self.params,
-                                           self.column(self.output_of(case)), bins))
+        column = self.column(self.output_of(case))
+        return with_remainder(contributors(self.table.frame([*self.params, column]),
+                                           self.params, column, bins))
 
     def compensators(self) -> list[str]:
         return [] if self.adjust is None else [c.strip() for c in self.adjust.split(",")]
 
     def setting_range(self, param: str) -> tuple[float, float]:
         """The smallest and largest per-machine setting of a compensator among machines that run."""
-        b = self.values(f"{param}_setting").dropna()
+        b = np.asarray(self.values(f"{param}_setting"), float)
+        b = b[~np.isnan(b)]
         return (float(b.min()), float(b.max())) if len(b) else (float("nan"), float("nan"))
 
     def at_bound(self, param: str, pinned: bool = False) -> int:
@@ -539,17 +776,19 @@ class MonteCarloResult:
         plateau is narrower than PINNED_PLATEAU, where the output still falls at the bound and
         the optimum likely lies outside the range (a wide plateau is flat: the setting hardly
         matters there). 0 without the plug-in's plateau columns."""
-        if self.column(f"{param}_at_bound") not in self.machines:
+        if self.column(f"{param}_at_bound") not in self.table:
             return 0
-        at = self.values(f"{param}_at_bound").to_numpy(float) == 1.0
+        at = np.asarray(self.values(f"{param}_at_bound"), float) == 1.0
         if pinned:
-            at &= (self.values(f"{param}_high") - self.values(f"{param}_low")).to_numpy() \
-                < PINNED_PLATEAU
+            at &= (self.values(f"{param}_high") - self.values(f"{param}_low")) < PINNED_PLATEAU
         return int(at.sum())
 
     def failed_groups(self, adjusted: bool = False) -> dict[str, int]:
-        g = self.values("failed_group_adjusted" if adjusted else "failed_group")
-        return {str(k): int(v) for k, v in g[g != ""].value_counts().sort_index().items()}
+        codes, words = self.table.codes(self.column("failed_group_adjusted" if adjusted
+                                                    else "failed_group"))
+        count = np.bincount(codes, minlength=len(words))
+        return {w: int(count[j]) for j, w in sorted(enumerate(words), key=lambda x: x[1])
+                if w != "" and count[j] > 0}
 
     def to_dataframe(self) -> pd.DataFrame:
         """One row per machine: deviations, outputs, status and the group that failed."""
@@ -561,7 +800,7 @@ class MonteCarloResult:
             return self.case_frame()
         rows = []
         for name in self.outputs:
-            v = self.machines[name].to_numpy(float)
+            v = np.asarray(self.table.column(name), float)
             ok = v[~np.isnan(v)]
             c = self.counts(name)
             row = {"output": name, **{k: c[k] for k in ("n", "ok", "out_of_spec",
@@ -662,7 +901,10 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
     (`Plugins.columns["montecarlo"]`). hold (with a compensator): the fixed case keeps it at
     its "nominal" value or at the nominal machine's "optimum" (`at_optimum`: the setting an
     assembler finds for the nominal; the result's `held` has the values). backend, store,
-    scheduler: as `sample_machines` (joblib backend, study folder, Dask cluster)."""
+    scheduler: as `sample_machines` (joblib backend, study folder, Dask cluster); on the
+    plug-ins alone (`gil_free`) n_jobs > 1 runs threads of this process unless a backend is
+    given. The machines are kept compactly as they arrive (`MachineColumns`: no deviations, words
+    as codes); `MonteCarloResult.machines` builds their table when asked."""
     names = tuple(mech.output_names if outputs is None else outputs)
     for name in names:
         mech.output(name)
@@ -684,33 +926,52 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
         mech = at_optimum(mech, adjust, limit_output, fast)
     nominal = mech.parameter_record()
     check_seed(seed)
-    check_sampling(nominal, tolerances, n, seed, chunk_size,
-                   columns=len(tolerances.items) + len(names) + 3)
-    machines = sample_machines(_file_model, nominal, tolerances, n, seed, n_jobs, progress,
-                               backend, chunk_size, desc=f"Monte-Carlo {mech.name}",
-                               store=store, scheduler=scheduler, mech=mech, outputs=list(names),
-                               compensator=adjust, target=limit_output, fast=fast)
-    params = tuple(tolerances.active().params)
+    ncomp = 0 if adjust is None else len(adjust.split(",") if isinstance(adjust, str)
+                                         else adjust)
+    footprint = montecarlo_bytes(len(names), ncomp)
+    check_sampling(nominal, tolerances, n, seed, chunk_size, bytes_per_row=footprint)
     pl = plugins(mech) if fast else NO_PLUGINS
-    if pl.failure_table is not None:
-        machines = named_failures(mech, pl.failure_table, machines, params, limit_output,
-                                  spec, adjust)
+    if backend is None and scheduler is None and n_jobs != 1 and gil_free(pl, names, adjust):
+        backend = "threading"
+    collect = _Collector(chunk_bounds(int(n), chunk_size))
+    blank = None if pl.failure_table is None else failure_blank(
+        mech, pl.failure_table, InputLaw.of(tolerances).window(unit_streams(seed, 1), 0, 1))
+    _, draw = _sampled(_montecarlo_chunk, nominal, tolerances, n, seed, n_jobs, progress,
+                       backend, chunk_size, f"Monte-Carlo {mech.name}", store, scheduler,
+                       collect, dict(mech=mech, outputs=list(names), compensator=adjust,
+                                     target=limit_output, fast=fast, spec=spec, blank=blank),
+                       footprint)
+    params = tuple(tolerances.active().params)
+    dev_names = tuple(draw.law.params)
+    # the table's order: machine, deviations, outputs as the chunks give them; a mechanism's
+    # names in its order after the deviations
+    order = ["machine", *dev_names, *collect.order]
     columns = dict(pl.columns.get("montecarlo", {}))
-    if columns:  # the mechanism's names, in its order, after the machine and its deviations
-        first = ["machine", *params, *(k for k in columns if k in machines)]
-        machines = machines[first + [k for k in machines if k not in first]].rename(
-            columns=columns)
+    if columns:
+        first = ["machine", *params, *(k for k in columns if k in order)]
+        order = first + [k for k in order if k not in first]
+    table = collect.table(order, columns, draw, dev_names)
     if adjust is not None:
         names = (*names, f"{limit_output}_adjusted")
         adjust = adjust if isinstance(adjust, str) else ",".join(adjust)
     law = InputLaw.of(tolerances)
-    return MonteCarloResult(mech.name, machines, names, tolerances.name, int(seed), limit_output,
+    return MonteCarloResult(mech.name, table, names, tolerances.name, int(seed), limit_output,
                             specs, source, adjust, mech.output(limit_output).unit, params,
                             columns=columns, held=mech.nominal_values(),
                             candidates=law.acceptance(n, seed)[1] if law.relations else None)
 
 
 HOLDS = ("nominal", "optimum")
+
+
+def gil_free(pl, outputs, adjust) -> bool:
+    """True when a Monte-Carlo chunk runs on the plug-ins alone (the kernel gives every output,
+    the exact adjuster sets the compensator): numba kernels and whole-array numpy that release
+    the GIL, so the local workers of `montecarlo` are threads of this process (no worker
+    start-up, no chunk pickled back, one process's memory; benchmarks/cli.py measures it).
+    The generic path's Python loops hold the GIL: it keeps joblib's worker processes."""
+    return (pl.kernel is not None and set(outputs) <= set(pl.kernel_outputs)
+            and (adjust is None or pl.adjuster is not None))
 
 
 def at_optimum(mech, compensators, output: str, fast: bool = True):
@@ -734,36 +995,51 @@ def named_failures(mech, failure_table, frame: pd.DataFrame, params, output: str
     why it does not run (`Plugins.failure_table` of its values: in the adjusted case at its
     setting, or at the nominal where it has none), the group in failed_group and the plug-in's
     further figures in fail_NAME ("" and NaN where it runs)."""
-    values = machines(mech, {p: frame[p].to_numpy(float) for p in params})
+    # a shallow copy: the columns set below replace the caller's (pandas >= 2 never writes a
+    # whole-column assignment into the array it replaces), no deep copy of the table
+    frame = frame.copy(deep=False)
+    named = failure_columns(mech, failure_table, {p: frame[p].to_numpy(float) for p in params},
+                            {k: frame[k] for k in frame}, output, spec, adjust)
+    for k, v in named.items():
+        frame[k] = v
+    return frame
+
+
+def failure_columns(mech, failure_table, deviations, columns, output: str, spec,
+                    adjust, blank: Mapping | None = None) -> dict:
+    """The columns `named_failures` sets (status, failed_group, fail_NAME per case, in that
+    order) of machines `deviations` whose outputs and settings are `columns`. blank: the
+    failure table's columns and types (`failure_blank`), so machines that all run ask the
+    plug-in nothing (a Monte-Carlo's chunks, most of which have no failure)."""
+    values = machines(mech, deviations)
     cases = {"": values}
     if adjust is not None:
         nominal = mech.nominal_values()
         cases["_adjusted"] = {**values, **{
             k.removesuffix("_setting"): np.where(np.isfinite(v), v, nominal[k.removesuffix(
-                "_setting")]) for k, v in frame.items() if k.endswith("_setting")}}
-    # a shallow copy: the columns set below replace the caller's (pandas >= 2 never writes a
-    # whole-column assignment into the array it replaces), no deep copy of the table
-    frame = frame.copy(deep=False)
-    n = len(frame)
+                "_setting")]) for k, v in columns.items() if k.endswith("_setting")}}
+    n = len(next(iter(values.values())))
+    named = {}
     for suffix, vals in cases.items():
-        value = frame[f"{output}{suffix}"].to_numpy(float)
+        value = np.asarray(columns[f"{output}{suffix}"], float)
         failed = np.isnan(value)
         # the reasons of the machines that fail only (each machine's reason is its own): the
         # table of all n machines held every parameter column n long, twice over; with none
         # failing, machine 0 gives the columns' names and types, its values unused
         rows = failed if failed.any() else np.arange(n) == 0
         why = dict(failure_table(mech, {k: (v[rows] if np.shape(v)[:1] == (n,) else v)
-                                        for k, v in vals.items()}))
+                                        for k, v in vals.items()})) \
+            if failed.any() or blank is None else {k: np.empty(0, t) for k, t in blank.items()}
         passes = np.broadcast_to(np.where(spec is None or spec.passes(value), "ok",
                                           "out_of_spec").astype(object), (n,)).copy()
-        frame[f"status{suffix}"] = _scatter(passes, failed, why.pop("status"), object)
-        frame[f"failed_group{suffix}"] = _scatter(np.full(n, "", object), failed,
+        named[f"status{suffix}"] = _scatter(passes, failed, why.pop("status"), object)
+        named[f"failed_group{suffix}"] = _scatter(np.full(n, "", object), failed,
                                                   why.pop("group"), object)
         for k, v in why.items():
             v = np.asarray(v)
-            frame[f"fail_{k}{suffix}"] = _scatter(np.full(n, np.nan, np.result_type(v, float)),
+            named[f"fail_{k}{suffix}"] = _scatter(np.full(n, np.nan, np.result_type(v, float)),
                                                   failed, v)
-    return frame
+    return named
 
 
 def _scatter(out: np.ndarray, rows: np.ndarray, values, dtype=None) -> np.ndarray:

@@ -208,7 +208,8 @@ def _watch_parent(pid: int, every_s: float = 0.25) -> None:
 
 
 def numba_threads_local(n_jobs: int) -> int:
-    """In one of n_jobs local worker processes: NUMBA_NUM_THREADS // n_jobs numba threads (at
+    """In one of n_jobs local workers (processes, or threads of this process: numba's count
+    is per thread): NUMBA_NUM_THREADS // n_jobs numba threads (at
     least 1), so the workers together run no more threads than the cores numba sees (the
     strategies study already did this in its chunks). The kernels' loops are over independent
     machines: no number depends on it."""
@@ -226,8 +227,8 @@ def _indexed(fn: Callable, i: int, args: Sequence, parent_pid: int | None, on_cl
     cluster's workers outlive it by design."""
     if parent_pid is not None:
         _watch_parent(parent_pid)
-        if n_jobs > 1:
-            numba_threads_local(n_jobs)
+    if n_jobs > 1:  # numba's thread count is per thread: a worker thread takes its share too
+        numba_threads_local(n_jobs)
     if on_cluster:
         numba_threads_on_worker()
     return i, fn(*args)
@@ -235,7 +236,8 @@ def _indexed(fn: Callable, i: int, args: Sequence, parent_pid: int | None, on_cl
 
 def run_chunks(fn: Callable, args: Sequence, n_jobs: int = 1, progress=False,
                desc: str = "", backend: str | None = None, store=None,
-               validate: Callable | None = None, scheduler=None) -> list:
+               validate: Callable | None = None, scheduler=None,
+               keep: Callable | None = None) -> list:
     """[fn(*a) for a in args] in order, in parallel when n_jobs != 1 or on a Dask cluster.
 
     progress: True for a tqdm bar on stderr, or a callable progress(done, total) called once
@@ -248,6 +250,8 @@ def run_chunks(fn: Callable, args: Sequence, n_jobs: int = 1, progress=False,
     only if the store accepts it (study hash, index, checksum) and `validate(i, result)` (the
     study's own check of its rows) returns None; any other chunk is recomputed and stderr says
     which one and why. Local workers exit when the main process is gone (see `_watch_parent`).
+    keep: what is kept of chunk i, keep(i, result), applied as each chunk arrives (after it is
+    saved or loaded and validated): a study that reduces its chunks never holds them whole.
     """
     if n_jobs == 0 or n_jobs < -1:
         raise ParameterError("n_jobs", "must be a positive number of workers or -1 (all cores)",
@@ -268,7 +272,7 @@ def run_chunks(fn: Callable, args: Sequence, n_jobs: int = 1, progress=False,
             if why is None and validate is not None:
                 why = validate(i, result)
             if why is None:
-                out[i] = result
+                out[i] = result if keep is None else keep(i, result)
             else:
                 store.warn(i, why)
         others = store.others()
@@ -295,18 +299,21 @@ def run_chunks(fn: Callable, args: Sequence, n_jobs: int = 1, progress=False,
                 n_jobs, batch = -1, 1  # one chunk per task: progress and resume per chunk
             elif backend:
                 stack.enter_context(joblib.parallel_config(backend=backend))
-            # local worker processes watch this one; a cluster's workers outlive it by design
+            # local worker processes watch this one; a cluster's workers outlive it by design;
+            # local workers (processes, or threads of this one) share numba's threads
             local = not on_cluster and backend in (None, "loky", "multiprocessing")
             parent = os.getpid() if local else None
+            share = local or backend == "threading"
             results = joblib.Parallel(n_jobs=n_jobs, return_as="generator_unordered",
                                       batch_size=batch)(
                 joblib.delayed(_indexed)(fn, i, args[i], parent, on_cluster,
-                                         joblib.effective_n_jobs(n_jobs) if local else 1)
+                                         joblib.effective_n_jobs(n_jobs) if share else 1)
                 for i in todo)
         for i, r in results:
-            out[i] = r
             if store is not None:
                 store.save(i, r)
+            out[i] = r if keep is None else keep(i, r)
+            del r
             done += 1
             bar.update()
             if report is not None:

@@ -456,12 +456,13 @@ def montecarlo(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed:
     range_deg : tuple of float
         The regulating range for beta, (low, high) in deg; default (10, 35).
     n_jobs : int
-        Worker processes on this machine (joblib); the tables do not depend on it.
+        Workers on this machine (threads of this process: the needle's kernels release the
+        GIL, `studies.montecarlo.gil_free`); the tables do not depend on it.
     progress : bool or callable
         True: a bar on stderr; a callable ``progress(done, total)`` is called as chunks finish.
     backend : str or None
-        A joblib backend (e.g. ``"dask"`` inside a ``distributed.Client()``); None: joblib's
-        default.
+        A joblib backend (e.g. ``"dask"`` inside a ``distributed.Client()``); None: threads
+        with n_jobs > 1.
     chunk_size : int
         Machines per chunk; part of the study's identity (another chunk size draws other
         machines).
@@ -502,7 +503,7 @@ def montecarlo(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed:
         raise ParameterError("limit_um", "must be a positive number of um", limit_um)
     sb.check_range(range_deg, limit_um)
     check_sampling(nominal, tolerances, n, seed, chunk_size,
-                   columns=len(tolerances.active().params) + 14)
+                   bytes_per_row=MC.montecarlo_bytes(1, 1))
     if fixed_beta not in FIXED_BETA:
         raise ParameterError("fixed_beta", f"must be one of {', '.join(FIXED_BETA)}", fixed_beta)
     r = MC.montecarlo(as_mechanism(nominal), tolerances, n, seed, [OUTPUT], limit_um,
