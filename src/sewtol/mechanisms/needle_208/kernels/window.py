@@ -420,23 +420,14 @@ def _optimise_one(p, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, out):
         return
     s = p[10]
     deg = math.pi / 180.0
-    u0 = lo + min(s * blo, s * bhi) * deg
-    u1 = lo + max(s * blo, s * bhi) * deg
-    w = hi - lo
-    seg = np.empty((12, 2))
-    n = feasible_segments(p, u0, u1 + w, DEAD_POINT_DEG, seg)
+    geo = np.empty((12, 2))
+    n, w = _segments(p, lo, hi, blo, bhi, geo)
     res = np.empty(8)
     best = np.empty(8)
     best[0] = np.inf
     found = False
     for i in range(n):
-        if seg[i, 1] - seg[i, 0] < w:
-            continue
-        # a hair inside the arcs, so no node sits exactly on the 1-deg limit
-        ua = max(seg[i, 0] + 1e-10, u0)
-        ub = min(seg[i, 1] - 1e-10 - w, u1)
-        if ub < ua:
-            continue
+        ua, ub = geo[i, 0], geo[i, 1]
         ht = h_deg * deg
         ok = False
         for _ in range(4):
@@ -451,6 +442,8 @@ def _optimise_one(p, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, out):
         # no feasible window: does B-C-D fail to close everywhere, or only pass a dead point?
         closes = False
         seg2 = np.empty((12, 2))
+        u0 = lo + min(s * blo, s * bhi) * deg
+        u1 = lo + max(s * blo, s * bhi) * deg
         n_closed = feasible_segments(p, u0, u1 + w, 0.0, seg2)
         for i in range(n_closed):
             if seg2[i, 1] - seg2[i, 0] >= w:
@@ -611,8 +604,9 @@ def fixed_batch(P, beta, lo, hi, h_deg=2.0):
 
 @nb.njit(cache=True)
 def _segments(p, lo, hi, blo, bhi, geo):
-    """The ranges [ua, ub] of window starts inside the feasible arcs (rows of geo) as
-    _optimise_one takes them; returns (count, window width w)."""
+    """The ranges [ua, ub] of window starts inside the feasible arcs (rows of geo), a hair
+    inside the arcs so no node sits exactly on the 1-deg limit; returns (count, window width
+    w). _optimise_one and the outer searches solve on them."""
     s = p[10]
     deg = math.pi / 180.0
     u0 = lo + min(s * blo, s * bhi) * deg
