@@ -543,8 +543,14 @@ def _file_model(record, dev, mech, outputs, compensator=None, target=None, fast=
 
     values = machines(mech, dev)
     pl = plugins(mech) if fast else NO_PLUGINS
+    a = None
+    if compensator is not None:
+        comps = [compensator] if isinstance(compensator, str) else compensator
+        a = adjusted(mech, values, comps, target, fast=fast, figures=False)
     if pl.kernel is not None and set(outputs) <= set(pl.kernel_outputs):
-        got = pl.kernel(mech, values)
+        # the adjuster's as_built: the kernel's outputs from the work they share
+        got = a.extras["as_built"] if a is not None and "as_built" in a.extras and \
+            set(outputs) <= set(a.extras["as_built"]) else pl.kernel(mech, values)
         out = {o: got[o] for o in outputs}
         m = len(got[outputs[0]])
         status, group = np.full(m, "ok", object), np.full(m, "", object)
@@ -556,9 +562,7 @@ def _file_model(record, dev, mech, outputs, compensator=None, target=None, fast=
     else:
         ev = mech.evaluate(values, outputs)
         out = {**ev.outputs, "status": ev.status, "failed_group": ev.failed_group}
-    if compensator is not None:
-        comps = [compensator] if isinstance(compensator, str) else compensator
-        a = adjusted(mech, values, comps, target, fast=fast, figures=False)
+    if a is not None:
         out[f"{target}_adjusted"] = a.value
         for param, setting in a.settings.items():
             out[f"{param}_setting"] = setting
