@@ -103,5 +103,7 @@ def guide_offset_on(p, beta_deg, th, nx, ny, off):
 def pack(c: dict) -> np.ndarray:
     """Parameter columns (n, 1) to the kernel's (n, len(FIELDS)) matrix."""
     n = next(iter(c.values())).shape[0]
-    return np.ascontiguousarray(np.column_stack(
-        [np.broadcast_to(np.asarray(c[f], float).reshape(-1, 1), (n, 1))[:, 0] for f in FIELDS]))
+    out = np.empty((n, len(FIELDS)))
+    for j, f in enumerate(FIELDS):
+        out[:, j] = np.asarray(c[f], float).reshape(-1)  # a column, or one value for all
+    return out
