@@ -292,10 +292,14 @@ def _joined(parts: list) -> pd.DataFrame:
 
 
 def _coded(words: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]]:
-    """A column of words as (codes, vocabulary): one byte a machine, not a pointer and an
-    object (a machine's status, the group that failed)."""
-    vocab, codes = np.unique(np.asarray(words).astype(str), return_inverse=True)
-    return codes.astype(np.uint8 if vocab.size <= 256 else np.int32), tuple(map(str, vocab))
+    """A column of words (str, `_is_text`) as (codes, vocabulary, sorted as np.unique sorts
+    them): one byte a machine, not a pointer and an object (a machine's status, the group
+    that failed). A dict of the few distinct words: a third of np.unique's time on strings."""
+    listed = np.asarray(words).tolist()
+    vocab = sorted(set(listed))
+    index = {w: i for i, w in enumerate(vocab)}
+    codes = np.fromiter(map(index.__getitem__, listed), np.int64, len(listed))
+    return codes.astype(np.uint8 if len(vocab) <= 256 else np.int32), tuple(vocab)
 
 
 def _is_text(a: np.ndarray) -> bool:
