@@ -9,14 +9,13 @@
     over --repeats runs after one warm-up (compilation is cached, not timed).
 
 Issue 11 targets (exact per-machine optimum, mechanisms/needle_208/adjust.py), each printed with its figure
-and the ratio to the old path measured in this same process:
+and the ratio to the numpy reference measured in this same process:
 (d) 10^6 machines, beta exact per machine, evaluate() end to end in chunks of 100,000 (<= 10 s);
 (e) the same with beta + guide shift (<= 20 s); peak RSS right after (d) and (e) (< 2 GB);
 (f) Sobol with per-sample beta at N = 2^14 over the 7 tolerances (<= 10 s).
-The old path is the grid + warm-started golden kernel (kernels/needle_numba.optimise_beta_batch)
-timed on 50,000 machines and scaled to 10^6 (it is linear in machines); the numpy reference
-(mechanisms/needle_208/adjust.py, engine="numpy") on 1,000 machines, scaled the same way. The machine is
-shared: the load average at start and end is printed with the figures.
+The numpy reference (mechanisms/needle_208/adjust.py, engine="numpy") is timed on 1,000
+machines and scaled to 10^6 (it is linear in machines). The machine is shared: the load
+average at start and end is printed with the figures.
 """
 
 from __future__ import annotations
@@ -35,7 +34,6 @@ from sewtol.mechanisms import params as P
 from sewtol.mechanisms.needle_208 import adjust as ad
 from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208.fast_path import fixed_sumdelta_um
-from sewtol.mechanisms.needle_208.kernels import fused as KB
 from sewtol.mechanisms.needle_208.kernels import positions as K
 from sewtol.mechanisms.needle_208.model import Needle208
 from sewtol.studies.sobol import problem_of, sample
@@ -96,16 +94,10 @@ def million_adjusted(p, ts, n, compensators, chunk=100_000):
     return worst
 
 
-def old_kernel_s_per_machine(p, ts, m=20_000):
-    """The old path (coarse grid + warm-started golden search): CPU seconds per machine."""
+def sample_columns(p, ts, m=20_000):
+    """m machines of the set as parameter columns (n, 1)."""
     c, _ = nm.columns(P.with_deviations(p, ts.sample(np.random.default_rng(12), m)))
-    c = {k: np.broadcast_to(v, (m, 1)).copy() for k, v in c.items()}
-    r_lo, r_hi, _ = ad._rocker(c)
-    packed = KB.pack(c)
-    KB.optimise_beta_batch(packed[:10], r_lo[:10], r_hi[:10], 10.0, 35.0, 26, 1e-7, 48, True)
-    t0 = time.process_time()
-    KB.optimise_beta_batch(packed, r_lo, r_hi, 10.0, 35.0, 26, 1e-7, 48, True)
-    return (time.process_time() - t0) / m, c
+    return {k: np.broadcast_to(v, (m, 1)).copy() for k, v in c.items()}
 
 
 def new_kernel_s_per_machine(c, active, engine="numba"):
@@ -121,7 +113,7 @@ def issue11(p, ts, n_million, repeats):
     ts = ts.active()
     cores = os.cpu_count() or 1
     out = {"load_average_start": os.getloadavg()[0], "cores": cores}
-    old_pm, c = old_kernel_s_per_machine(p, ts)
+    c = sample_columns(p, ts)
     new_pm = new_kernel_s_per_machine(c, {"beta": (10.0, 35.0)})
     new_shift_pm = new_kernel_s_per_machine(c, {"beta": (10.0, 35.0),
                                                 "guide_shift_um": (-100.0, 100.0)})
@@ -133,21 +125,14 @@ def issue11(p, ts, n_million, repeats):
     t_bs, cpu_bs, _ = timed_cpu(lambda: million_adjusted(p, ts, n_million, {
         "beta": (10.0, 35.0), "guide_shift_um": (-100.0, 100.0)}), repeats)
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    # Sobol at N = 2^14: the whole study, and the model part alone (for the old path's estimate)
+    # Sobol at N = 2^14
     n_sob = 2 ** 14
     t_sob, cpu_sob, _ = timed_cpu(lambda: needle_sobol(p, ts, n_sob, seed=1), 1)
-    problem = problem_of(ts)
-    X = sample(problem, n_sob, 1)
-    runs = len(X)
-    _, cpu_model, _ = timed_cpu(lambda: [evaluate(p, {k: X[a:a + 1000, i] for i, k in
-                                                      enumerate(problem["names"])})
-                                         for a in range(0, runs, 1000)], 1)
-    old_sobol_cpu = cpu_sob - cpu_model + old_pm * runs
+    runs = len(sample(problem_of(ts), n_sob, 1))
     scale = n_million / 1e6
     out.update({
         "million_beta_s": cpu_b / scale / cores,
         "million_beta_wall_s (shared machine)": t_b / scale,
-        "million_beta_old_kernel_s": old_pm * 1e6 / cores,
         "million_beta_numpy_reference_s": numpy_pm * 1e6 / cores,
         "optimiser_alone_million_beta_s": new_pm * 1e6 / cores,
         "optimiser_alone_million_beta_shift_s": new_shift_pm * 1e6 / cores,
@@ -157,16 +142,13 @@ def issue11(p, ts, n_million, repeats):
         "sobol_2e14_s": cpu_sob / cores,
         "sobol_2e14_wall_s (shared machine)": t_sob,
         "sobol_2e14_model_runs": runs,
-        "sobol_2e14_old_path_s (estimated)": old_sobol_cpu / cores,
         "machines_timed": n_million,
         "seconds": "CPU seconds of the process / cores (the wall time of a quiet machine); "
-                   "old and numpy paths timed on 20,000 and 1,000 machines, scaled to 10^6",
+                   "the numpy path timed on 1,000 machines, scaled to 10^6",
         "load_average_end": os.getloadavg()[0],
     })
     out["ratios"] = {
-        "old kernel / exact, 10^6 beta": old_pm * 1e6 / (cpu_b / scale),
         "numpy reference / exact, 10^6 beta": numpy_pm * 1e6 / (cpu_b / scale),
-        "old path / exact, Sobol 2^14": old_sobol_cpu / cpu_sob,
     }
     out["targets"] = {k: {"target": v, "measured": out[k],
                           "met": bool(out[k] <= v)} for k, v in TARGETS.items()}

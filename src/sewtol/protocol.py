@@ -90,7 +90,8 @@ class Plugins:
         ``figures=False`` the caller reads only ``value``, ``settings``, ``status``,
         ``at_bound``, ``low`` and ``high``, and the adjuster may leave out its further figures
         (the Monte-Carlo's chunks: the needle's exact figures at the settings cost more than
-        the optimum).
+        the optimum); it may add ``as_built``, the kernel's outputs of the machines as given
+        (what `kernel` gives), from the work the optimum shares with it.
     adjuster_sets : tuple of frozenset
         The sets of compensator parameters the adjuster solves exactly.
     adjusted_output : str or None

@@ -42,11 +42,12 @@ def _solve2(u1, u2, b1, b2):
 
 
 @np.errstate(invalid="ignore", divide="ignore", over="ignore")
-def rrr(p1: Motion, r1, p2: Motion, r2, branch) -> tuple[Motion, Closure]:
-    """Joint J of the dyad P1-J-P2. Where it cannot close J is NaN and Closure says by how much."""
+def joint(p1, r1, p2, r2, branch):
+    """The joint J (complex) of the dyad on the points p1, p2 (complex) and the miss (mm):
+    rrr's position without its transfer functions (NaN where it cannot close)."""
     r1 = np.asarray(r1, float)
     r2 = np.asarray(r2, float)
-    d = p2.p - p1.p
+    d = p2 - p1
     dist = np.abs(d)
     miss = np.maximum(np.maximum(dist - (r1 + r2), np.abs(r1 - r2) - dist), 0.0)
     # coincident centres (closer than 1e-12 mm): no joint is defined (none, or a circle of them)
@@ -58,7 +59,15 @@ def rrr(p1: Motion, r1, p2: Motion, r2, branch) -> tuple[Motion, Closure]:
     # rounding can leave h2 a hair below zero at an exact dead point; that point still closes
     h = np.sqrt(np.where(miss > 0.0, np.nan, np.maximum(h2, 0.0)))
     unit = d / dist
-    j = p1.p + unit * (a + 1j * np.asarray(branch, float) * h)
+    return p1 + unit * (a + 1j * np.asarray(branch, float) * h), miss
+
+
+@np.errstate(invalid="ignore", divide="ignore", over="ignore")
+def rrr(p1: Motion, r1, p2: Motion, r2, branch) -> tuple[Motion, Closure]:
+    """Joint J of the dyad P1-J-P2. Where it cannot close J is NaN and Closure says by how much."""
+    j, miss = joint(p1.p, r1, p2.p, r2, branch)
+    r1 = np.asarray(r1, float)
+    r2 = np.asarray(r2, float)
     u1 = j - p1.p
     u2 = j - p2.p
     dj = _solve2(u1, u2, (u1.conjugate() * p1.dp).real, (u2.conjugate() * p2.dp).real)

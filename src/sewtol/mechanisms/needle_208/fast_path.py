@@ -127,16 +127,18 @@ POSITIONS_UM = 1e-6
 
 
 def _batch(mech, values):
+    """The machines `values` (the rest nominal) as parameter columns (n, 1), validated as a
+    Needle208 batch (lengths > 0, finite, branch signs). Each column is a contiguous copy, as
+    the kernels and numpy's SIMD loops (whose last bits may differ on strided input) take it."""
     from sewtol.mechanisms import params as P
-    from sewtol.mechanisms.needle_208 import metrics as nm
     from sewtol.mechanisms.needle_208.model import Needle208
 
     full = {**mech.nominal_values(), **{k: np.asarray(v, float) for k, v in values.items()}}
     n = max([np.size(v) for v in full.values()] + [1])
-    batch = Needle208(**{k: np.broadcast_to(np.asarray(full[k], float), (n,))
-                         for k in P.field_names(Needle208)})
-    c, _ = nm.columns(batch)
-    return {k: np.broadcast_to(v, (n, 1)).copy() for k, v in c.items()}, n
+    c = {k: np.broadcast_to(np.asarray(full[k], float).reshape(-1, 1), (n, 1)).copy()
+         for k in P.field_names(Needle208)}
+    Needle208(**{k: v[:, 0] for k, v in c.items()})
+    return c, n
 
 
 def sumdelta_outputs(mech) -> list[str]:
@@ -146,13 +148,14 @@ def sumdelta_outputs(mech) -> list[str]:
             and o.fields.get("point") == "E" and o.fields.get("measure") == "sum_extremes"]
 
 
-def fixed_sumdelta_um(c: dict[str, np.ndarray]) -> np.ndarray:
+def fixed_sumdelta_um(c: dict[str, np.ndarray], feas=None) -> np.ndarray:
     """SumDelta (um) of machines given as parameter columns (n, 1), beta as it is: the exact
     extremes on the rocker interval by the fused kernel; NaN where a machine does not run (the
-    numpy reference: needle_208.metrics.deviation_figures)."""
+    numpy reference: needle_208.metrics.deviation_figures). feas: metrics.feasibility(c) if
+    known."""
     from sewtol.mechanisms.needle_208 import metrics as nm
 
-    return nm.total_um_kernel(c)
+    return nm.total_um_kernel(c, feas)
 
 
 def needle_kernel(mech, values) -> dict[str, np.ndarray]:
@@ -186,20 +189,24 @@ def needle_adjuster(mech, values, boxes: dict, figures: bool = True) -> dict:
     """The exact joint optimum of beta (and the guide shift) per machine: the sliding-window
     solution of mechanisms/needle_208/adjust.py. boxes: parameter -> (low, high), absolute.
     `value` is the kernel's SumDelta at the settings (within PLATEAU_TOL_UM of the minimum);
-    `total_um`, `plus_um`, `minus_um` the exact figures there (needle_208.metrics), left out
-    with figures=False (the numpy reference costs twice the optimum: the Monte-Carlo reads
-    only the value and the settings)."""
+    `total_um`, `plus_um`, `minus_um` the exact figures there (needle_208.metrics). With
+    figures=False (a Monte-Carlo's chunk: it reads the value and the settings) those figures
+    are left out (the numpy reference costs twice the optimum) and `as_built` holds the
+    kernel's SumDelta of the machines as given (`needle_kernel`), from the same columns and
+    rocker intervals: the chunk's fixed case."""
     from sewtol.mechanisms.needle_208 import adjust as ad
     from sewtol.mechanisms.needle_208 import metrics as nm
 
     c, _ = _batch(mech, values)
+    feas = nm.feasibility(c)  # the rocker interval does not depend on beta or the guide
     boxes = {k: tuple(map(float, v)) for k, v in boxes.items()}
-    r = ad.optimise(c, boxes)
+    r = ad.optimise(c, boxes, feas=feas)
     out = {"value": r.total_um, "minimum": r.min_total_um, "settings": dict(r.settings),
            "low": dict(r.low), "high": dict(r.high), "status": r.status,
            "at_bound": dict(r.at_bound)}
     if not figures:
-        return out
+        total = fixed_sumdelta_um(c, feas)
+        return {**out, "as_built": {name: total for name in sumdelta_outputs(mech)}}
     dead = ~np.isfinite(r.settings["beta"])
     # the figures at the settings; a machine no setting runs is figured at the box centres
     figs = nm.deviation_figures(nm.with_values(c, **{

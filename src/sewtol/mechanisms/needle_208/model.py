@@ -25,6 +25,7 @@ from importlib import resources
 import numpy as np
 
 from sewtol import engine
+from sewtol.engine.dyad import joint
 from sewtol.errors import AssemblyError
 from sewtol.mechanisms import params as P
 
@@ -180,12 +181,12 @@ def rocker_interval(c):
     for reach, sense in ((c["LM"] + c["LF"], 1.0), (c["LM"] - c["LF"], -1.0)):
         best = None
         for side in (1.0, -1.0):
-            M, _ = engine.rrr(F, reach, A, c["AM"], side)
-            unit = (M.p - F.p) / np.abs(M.p - F.p)
+            M, _ = joint(F.p, reach, A.p, c["AM"], side)  # no transfer functions needed
+            unit = (M - F.p) / np.abs(M - F.p)
             L = F.p + sense * c["LF"] * unit
-            cross = ((A.p - L).conjugate() * (M.p - L)).imag
+            cross = ((A.p - L).conjugate() * (M - L)).imag
             match = np.sign(cross) == c["branch_M"]
-            th = np.angle(M.p - A.p)
+            th = np.angle(M - A.p)
             best = th if best is None else np.where(match, th, best)
         thetas.append(best)
     t1, t2 = thetas

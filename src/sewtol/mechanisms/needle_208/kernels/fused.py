@@ -1,14 +1,8 @@
-"""Fused numba kernel for the needle drive's beta optimisation, one machine per thread.
-
-Same mathematics as the numpy path (engine groups + metrics.extremes + needle_208.beta), written as
-scalar code so nothing is allocated in the inner loops:
-- the second four-bar from the rocker angle in closed form, with analytic d/dtheta, d2/dtheta2;
-- extremes of d over the rocker interval: a grid, then safeguarded Newton on the best local
-  maxima and minima (as metrics.extremes);
-- beta*: a coarse grid over the regulating range (full extremes, as the numpy path), then
-  golden-section search in which each trial beta re-polishes the extremes found at the previous
-  trial (warm start) plus the interval ends, so a trial costs ~30 point evaluations, not ~100.
-tests/test_kernels.py holds it to the numpy reference.
+"""The needle point and the guide's deviation d as scalar numba functions, with analytic
+d/dtheta and d2/dtheta2 (the second four-bar from the rocker angle in closed form): the same
+mathematics as the engine's groups, nothing allocated. The exact optimiser and the fixed-beta
+figures (kernels/window.py) evaluate d through them; `pack` lays the machines out as they take
+them. tests/test_kernels.py holds them to the numpy path.
 """
 
 from __future__ import annotations
@@ -21,8 +15,6 @@ import numpy as np
 # parameter columns passed to the kernel, in this order
 FIELDS = ("AB", "BC", "BE", "CD", "CBE", "Ax", "Ay", "Dx", "Dy", "branch_C", "beta_sense",
           "guide_x", "guide_y", "guide_angle", "guide_shift_um")
-_INVPHI = (math.sqrt(5.0) - 1.0) / 2.0
-N_CAND = 3
 # needle_208.DEAD_POINT_DEG as the sine the kernel compares with (kept equal by a test)
 SIN_DEAD_POINT = math.sin(math.radians(1.0))
 
@@ -94,189 +86,24 @@ def guide_normal(p):
 @nb.njit(cache=True, fastmath=False)
 def guide_offset(p, beta_deg, th):
     """d (mm, relative to the guide) and its first two derivatives w.r.t. the rocker angle."""
+    nx, ny, off = guide_normal(p)
+    return guide_offset_on(p, beta_deg, th, nx, ny, off)
+
+
+@nb.njit(cache=True, fastmath=False)
+def guide_offset_on(p, beta_deg, th, nx, ny, off):
+    """guide_offset with the guide's normal and offset given (guide_normal(p), taken once per
+    machine: two of the nine sines and cosines of a call; the same d bit for bit)."""
     Ex, Ey, E1x, E1y, E2x, E2y = needle_point(p, beta_deg, th)
     if math.isnan(Ex):
         return np.nan, np.nan, np.nan
-    nx, ny, off = guide_normal(p)
     return nx * Ex + ny * Ey - off, nx * E1x + ny * E1y, nx * E2x + ny * E2y
-
-
-@nb.njit(cache=True)
-def _polish(p, beta, t, lo, hi, h, sgn, iters):
-    """Safeguarded Newton towards a max (sgn=1) or min (sgn=-1) within [t-h, t+h] and [lo, hi]."""
-    tl = max(t - h, lo)
-    th_ = min(t + h, hi)
-    for _ in range(iters):
-        f, f1, f2 = guide_offset(p, beta, t)
-        f1 *= sgn
-        f2 *= sgn
-        if f2 < 0.0:
-            step = -f1 / f2
-        else:
-            step = h / 4.0 if f1 > 0 else -h / 4.0
-        t = min(max(t + step, tl), th_)
-    f, _, _ = guide_offset(p, beta, t)
-    return t, f
-
-
-@nb.njit(cache=True)
-def _extremes_full(p, beta, lo, hi, n_grid, n_newton, cand):
-    """Max and min of d by grid + Newton; cand receives the polished locations (2*N_CAND)."""
-    h = (hi - lo) / (n_grid - 1)
-    fs = np.empty(n_grid)
-    for k in range(n_grid):
-        f, _, _ = guide_offset(p, beta, lo + h * k)
-        if math.isnan(f):
-            return np.nan, np.nan
-        fs[k] = f
-    fmax = -np.inf
-    fmin = np.inf
-    for sgn_i in range(2):
-        sgn = 1.0 if sgn_i == 0 else -1.0
-        score = np.empty(n_grid)
-        for k in range(n_grid):
-            v = sgn * fs[k]
-            left = sgn * fs[k - 1] if k > 0 else -np.inf
-            right = sgn * fs[k + 1] if k < n_grid - 1 else -np.inf
-            score[k] = v if (v >= left and v >= right) else -np.inf
-        order = np.argsort(score)
-        for j in range(N_CAND):
-            k = order[n_grid - 1 - j]
-            t0 = lo + h * k
-            if score[k] == -np.inf:
-                cand[sgn_i * N_CAND + j] = t0
-                continue
-            t, f = _polish(p, beta, t0, lo, hi, h, sgn, n_newton)
-            cand[sgn_i * N_CAND + j] = t
-            if sgn > 0:
-                fmax = max(fmax, f)
-            else:
-                fmin = min(fmin, f)
-        for k in range(n_grid):
-            if sgn > 0:
-                fmax = max(fmax, fs[k])
-            else:
-                fmin = min(fmin, fs[k])
-    return fmax, fmin
-
-
-@nb.njit(cache=True)
-def _extremes_warm(p, beta, lo, hi, h, cand):
-    """Re-polish the previous extremes at a nearby beta, and take the interval ends too."""
-    fmax = -np.inf
-    fmin = np.inf
-    for sgn_i in range(2):
-        sgn = 1.0 if sgn_i == 0 else -1.0
-        for j in range(N_CAND):
-            t, f = _polish(p, beta, cand[sgn_i * N_CAND + j], lo, hi, h, sgn, 4)
-            if math.isnan(f):
-                return np.nan, np.nan
-            cand[sgn_i * N_CAND + j] = t
-            if sgn > 0:
-                fmax = max(fmax, f)
-            else:
-                fmin = min(fmin, f)
-    for t in (lo, hi):
-        f, _, _ = guide_offset(p, beta, t)
-        fmax = max(fmax, f)
-        fmin = min(fmin, f)
-    return fmax, fmin
-
-
-@nb.njit(cache=True)
-def _trial(p, beta, lo, hi, h, cand, n_grid, warm):
-    if warm:
-        return _extremes_warm(p, beta, lo, hi, h, cand)
-    return _extremes_full(p, beta, lo, hi, n_grid, 8, cand)
-
-
-@nb.njit(cache=True)
-def _total(fmax, fmin):
-    return (max(fmax, 0.0) + max(-fmin, 0.0)) * 1e3
-
-
-@nb.njit(cache=True)
-def _optimise_one(p, lo, hi, blo, bhi, n_beta, xtol, n_grid, warm):
-    cand = np.empty(2 * N_CAND)
-    best = np.inf
-    ib = -1
-    step = (bhi - blo) / (n_beta - 1)
-    for k in range(n_beta):
-        fmax, fmin = _extremes_full(p, blo + step * k, lo, hi, n_grid, 8, cand)
-        if not math.isnan(fmax):
-            tot = _total(fmax, fmin)
-            if tot < best:
-                best = tot
-                ib = k
-    if ib < 0:
-        return np.nan, np.nan, np.nan
-    a = blo + step * max(ib - 1, 0)
-    b = blo + step * min(ib + 1, n_beta - 1)
-    h = (hi - lo) / (n_grid - 1)
-    c = b - _INVPHI * (b - a)
-    d = a + _INVPHI * (b - a)
-    fmax, fmin = _extremes_full(p, c, lo, hi, n_grid, 8, cand)
-    fc = _total(fmax, fmin)
-    fmax, fmin = _trial(p, d, lo, hi, h, cand, n_grid, warm)
-    fd = _total(fmax, fmin)
-    while abs(b - a) >= xtol:
-        if fc < fd:
-            b = d
-            d = c
-            fd = fc
-            c = b - _INVPHI * (b - a)
-            fmax, fmin = _trial(p, c, lo, hi, h, cand, n_grid, warm)
-            fc = _total(fmax, fmin)
-        else:
-            a = c
-            c = d
-            fc = fd
-            d = a + _INVPHI * (b - a)
-            fmax, fmin = _trial(p, d, lo, hi, h, cand, n_grid, warm)
-            fd = _total(fmax, fmin)
-    x = 0.5 * (a + b)
-    # the reported figures come from a full (cold) evaluation at beta*
-    fmax, fmin = _extremes_full(p, x, lo, hi, n_grid, 8, cand)
-    return x, max(fmax, 0.0) * 1e3, max(-fmin, 0.0) * 1e3
-
-
-@nb.njit(cache=True, parallel=True)
-def optimise_beta_batch(P, lo, hi, blo, bhi, n_beta, xtol, n_grid, warm=True):
-    """beta*, Delta+, Delta- (um) per machine; rows of P follow FIELDS.
-
-    warm=False repeats the numpy reference's search step for step (same numbers); warm=True
-    re-polishes the previous extremes at each golden trial (about 2x faster; on machines whose
-    SumDelta(beta) has several nearly equal minima it may settle in another basin)."""
-    n = P.shape[0]
-    out = np.empty((n, 3))
-    for i in nb.prange(n):
-        if math.isnan(lo[i]) or math.isnan(hi[i]):
-            out[i, 0] = out[i, 1] = out[i, 2] = np.nan
-            continue
-        b, pl, mi = _optimise_one(P[i], lo[i], hi[i], blo, bhi, n_beta, xtol, n_grid, warm)
-        out[i, 0] = b
-        out[i, 1] = pl
-        out[i, 2] = mi
-    return out
-
-
-@nb.njit(cache=True, parallel=True)
-def deviation_batch(P, beta, lo, hi, n_grid):
-    """Delta+, Delta- (um) per machine at its beta."""
-    n = P.shape[0]
-    out = np.empty((n, 2))
-    for i in nb.prange(n):
-        cand = np.empty(2 * N_CAND)
-        fmax, fmin = _extremes_full(P[i], beta[i], lo[i], hi[i], n_grid, 8, cand)
-        out[i, 0] = max(fmax, 0.0) * 1e3
-        out[i, 1] = max(-fmin, 0.0) * 1e3
-        if math.isnan(fmax):
-            out[i, 0] = out[i, 1] = np.nan
-    return out
 
 
 def pack(c: dict) -> np.ndarray:
     """Parameter columns (n, 1) to the kernel's (n, len(FIELDS)) matrix."""
     n = next(iter(c.values())).shape[0]
-    return np.ascontiguousarray(np.column_stack(
-        [np.broadcast_to(np.asarray(c[f], float).reshape(-1, 1), (n, 1))[:, 0] for f in FIELDS]))
+    out = np.empty((n, len(FIELDS)))
+    for j, f in enumerate(FIELDS):
+        out[:, j] = np.asarray(c[f], float).reshape(-1)  # a column, or one value for all
+    return out

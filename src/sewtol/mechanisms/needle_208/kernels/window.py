@@ -40,7 +40,7 @@ import math
 import numba as nb
 import numpy as np
 
-from sewtol.mechanisms.needle_208.kernels.fused import guide_normal, guide_offset, needle_point
+from sewtol.mechanisms.needle_208.kernels.fused import guide_normal, guide_offset_on, needle_point
 
 _INVPHI = (math.sqrt(5.0) - 1.0) / 2.0
 DEAD_POINT_DEG = 1.0  # mechanisms.needle_208.DEAD_POINT_DEG (kept equal by a test)
@@ -496,6 +496,7 @@ def _fixed_one(p, beta, lo, hi, h_target):
     <= h_target apart locates every extremum, and each candidate whose surrogate value is within
     1e-5 mm of the best (10x the surrogate's error bound) is polished by Newton on the exact d
     inside its cell, so the figures are exact, not the surrogate's."""
+    nx, ny, off = guide_normal(p)
     u = lo + p[10] * beta * math.pi / 180.0
     w = hi - lo
     m = max(2, int(math.ceil(w / h_target - 1e-9)))
@@ -503,7 +504,7 @@ def _fixed_one(p, beta, lo, hi, h_target):
     f = np.empty(m + 1)
     f1 = np.empty(m + 1)
     for j in range(m + 1):
-        a, b, _ = guide_offset(p, 0.0, u + j * h)
+        a, b, _ = guide_offset_on(p, 0.0, u + j * h, nx, ny, off)
         if math.isnan(a):
             return np.nan, np.nan
         f[j] = a
@@ -554,7 +555,7 @@ def _fixed_one(p, beta, lo, hi, h_target):
         b0 = a0 + h
         t = u + cj[k] * h + cx[k]
         for _ in range(6):
-            _, d1, d2 = guide_offset(p, 0.0, t)
+            _, d1, d2 = guide_offset_on(p, 0.0, t, nx, ny, off)
             if d2 == 0.0 or math.isnan(d2):
                 break
             tn = t - d1 / d2
@@ -563,7 +564,7 @@ def _fixed_one(p, beta, lo, hi, h_target):
                 t = tn
                 break
             t = tn
-        v, _, _ = guide_offset(p, 0.0, t)
+        v, _, _ = guide_offset_on(p, 0.0, t, nx, ny, off)
         if near_max:
             fmax = max(fmax, v)
         if near_min:
