@@ -156,6 +156,40 @@ def test_the_installed_command_prints_its_help():
         assert group in done.stdout
 
 
+def test_start_up_imports_only_what_the_command_uses():
+    """In a fresh process: building and running the parser imports no study's libraries, and
+    a Monte-Carlo of the needle (built-in command, and the file on its fast path) never imports
+    scipy.stats, scipy.optimize, joblib or the plotting and cluster libraries (each costs a
+    part of the start-up the command has no use for)."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [str(root / "src"), *filter(None, [os.environ.get("PYTHONPATH")])])}
+    probe = ("import contextlib, io, json, sys\n"
+             "from sewtol.cli import build_parser, main\n"
+             "build_parser().parse_args(sys.argv[1:])\n"
+             "parsed = sorted(sys.modules)\n"
+             "with contextlib.redirect_stdout(io.StringIO()):\n"
+             "    code = main(sys.argv[1:])\n"
+             "print(json.dumps([code, parsed, sorted(sys.modules)]))\n")
+    never = {"scipy.stats", "scipy.optimize", "joblib", "matplotlib", "SALib", "dask",
+             "distributed", "tqdm"}
+    for command in (["needle", "montecarlo", "--n", "50", "--format", "json"],
+                    ["run", "needle_208", "montecarlo", "--n", "50", "--format", "json"]):
+        done = subprocess.run([sys.executable, "-c", probe, *command], capture_output=True,
+                              text=True, env=env, timeout=300)
+        assert done.returncode == 0, done.stderr
+        code, parsed, ran = json.loads(done.stdout)
+        assert code == 0
+        assert not {m for m in parsed if m.split(".")[0] in never | {"scipy", "pandas", "numba"}}
+        assert not {m for m in ran if m in never or m.split(".")[0] in never}
+
+
 def test_the_readme_flag_table_matches_the_parser():
     """Every flag the README's flag table offers a command is one that command's parser has:
     rows name commands in backticks (`needle nominal`, `scan`: a bare name keeps the group
