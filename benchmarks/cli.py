@@ -10,8 +10,11 @@ CPU time (user + sys of the process and its workers, from wait4) and the peak re
 of the whole process tree (psutil: the sum over the process and all its descendants, sampled
 every 20 ms; /usr/bin/time's %M is the largest single process only) are measured per run.
 
-(a) start-up: `needle montecarlo --n 1000` (target <= 1 s wall warm), against `python -c pass`
-    and `python -c "import numpy, pandas, numba"` (what no sewtol can undercut);
+(a) start-up: `needle montecarlo --n 1000` (target <= 1 s wall warm), medians of
+    --startup-repeats (default 7) with the load average before and after, against `python -c
+    pass`, `python -c "import numpy, pandas, numba"` (what no sewtol can undercut) and building
+    the parser (`from sewtol.cli import build_parser`); on a loaded machine the CPU-s (user +
+    sys) of the run is the projection of its wall time on an idle one;
 (b) peak RSS against n: `needle montecarlo --n N --n-jobs 2` for N in --rss-n (target: flat,
     <= 500 MB at any n);
 (c) `needle montecarlo --n 1000000 --n-jobs 2` end to end (target <= 10 s wall idle, or <= 20
@@ -22,6 +25,10 @@ every 20 ms; /usr/bin/time's %M is the largest single process only) are measured
 With --reference-src every sewtol command runs again, interleaved run by run, with that
 checkout's sources first on PYTHONPATH, and the ratio this/reference is printed. The machine
 is shared: the load average at start and end is printed with the figures.
+
+Warm means Python's bytecode cache too: when the environment sets PYTHONDONTWRITEBYTECODE (every
+run would compile sewtol's sources again), the runs write their bytecode under a temporary
+PYTHONPYCACHEPREFIX instead, so neither checkout is written and both start warm.
 """
 
 from __future__ import annotations
@@ -32,10 +39,13 @@ import os
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+# where the runs keep their bytecode when the environment forbids writing it beside the sources
+PYCACHE = str(Path(tempfile.gettempdir()) / "sewtol-bench-pycache")
 TARGETS = {"startup_n1000_wall_s": 1.0, "million_wall_s": 10.0, "million_cpu_s": 20.0,
            "peak_rss_mb": 500.0, "strategies_n10000_wall_s": 30.0}
 
@@ -69,6 +79,8 @@ def run(cmd: list[str], src: Path | None) -> dict:
     if src is not None:
         env["PYTHONPATH"] = str(src)
     env.pop("SEWTOL_SCHEDULER", None)
+    if env.pop("PYTHONDONTWRITEBYTECODE", None):
+        env.setdefault("PYTHONPYCACHEPREFIX", PYCACHE)
     t0 = time.perf_counter()
     p = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     ps = psutil.Process(p.pid)
@@ -114,6 +126,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--startup-repeats", type=int, default=7,
+                    help="timed runs of each start-up command (default 7; medians)")
     ap.add_argument("--reference-src", type=Path, default=None,
                     help="another checkout's src/ to run beside this one (ratios this/ref)")
     ap.add_argument("--rss-n", type=int, nargs="+", default=[10_000, 100_000, 1_000_000],
@@ -133,12 +147,17 @@ def main(argv=None) -> int:
     res: dict = {"load_start": load(), "targets": TARGETS, "python": sys.executable,
                  "reference_src": None if args.reference_src is None else str(args.reference_src)}
     if "startup" not in args.skip:
+        k = args.startup_repeats
         res["startup"] = {
-            "python_pass": medians([*py, "-c", "pass"], None, None, args.repeats),
+            "load_before": load(),
+            "python_pass": medians([*py, "-c", "pass"], None, None, k),
             "import_numpy_pandas_numba": medians(
-                [*py, "-c", "import numpy, pandas, numba"], None, None, args.repeats),
-            "needle_montecarlo_n1000": medians([*mc, "--n", "1000"], src, args.reference_src,
-                                               args.repeats)}
+                [*py, "-c", "import numpy, pandas, numba"], None, None, k),
+            "build_parser": medians(
+                [*py, "-c", "from sewtol.cli import build_parser; build_parser()"], src,
+                args.reference_src, k),
+            "needle_montecarlo_n1000": medians([*mc, "--n", "1000"], src, args.reference_src, k),
+            "load_after": load()}
     if "rss" not in args.skip:
         res["peak_rss_vs_n"] = {str(n): medians([*mc, "--n", str(n), "--n-jobs", "2"], src,
                                                 args.reference_src, 1, warm=False)
@@ -163,6 +182,17 @@ def main(argv=None) -> int:
         for key in ("startup", "peak_rss_vs_n"):
             for name, r in res.get(key, {}).items():
                 print(f"{key} {name}: {r}")
+        if "startup" in res:
+            st = res["startup"]
+            r = st["needle_montecarlo_n1000"]
+            line = (f"needle montecarlo --n 1000, medians of {args.startup_repeats}, load "
+                    f"{st['load_before'][0]:.2f} -> {st['load_after'][0]:.2f}: "
+                    f"{r['this']['wall_s']:.2f} s wall, {r['this']['cpu_s']:.2f} CPU-s")
+            if "ratio" in r:
+                line += (f"; reference {r['reference']['wall_s']:.2f} s wall, "
+                         f"{r['reference']['cpu_s']:.2f} CPU-s; ratio {r['ratio']['wall_s']:.2f} "
+                         f"wall, {r['ratio']['cpu_s']:.2f} CPU")
+            print(line + f" (target <= {TARGETS['startup_n1000_wall_s']:g} s wall warm, idle)")
         if "million" in res:
             print(f"million: {res['million']}")
         for n, r in res.get("strategies", {}).items():

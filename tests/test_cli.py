@@ -1,6 +1,7 @@
 """The CLI contract of issue 2: keys, columns, one-line errors with non-zero exit."""
 
 import io
+import json
 
 import numpy as np
 import pandas as pd
@@ -154,6 +155,73 @@ def test_the_installed_command_prints_its_help():
     assert done.stdout.startswith("usage: sewtol")
     for group in ("needle", "feed", "run", "mechanisms"):
         assert group in done.stdout
+
+
+def test_start_up_imports_only_what_the_command_uses():
+    """In a fresh process: building and running the parser imports no study's libraries, and
+    a Monte-Carlo of the needle (built-in command, and the file on its fast path) never imports
+    scipy.stats, scipy.optimize, joblib or the plotting and cluster libraries (each costs a
+    part of the start-up the command has no use for)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [str(root / "src"), *filter(None, [os.environ.get("PYTHONPATH")])])}
+    probe = ("import contextlib, io, json, sys\n"
+             "from sewtol.cli import build_parser, main\n"
+             "build_parser().parse_args(sys.argv[1:])\n"
+             "parsed = sorted(sys.modules)\n"
+             "with contextlib.redirect_stdout(io.StringIO()):\n"
+             "    code = main(sys.argv[1:])\n"
+             "print(json.dumps([code, parsed, sorted(sys.modules)]))\n")
+    never = {"scipy.stats", "scipy.optimize", "joblib", "matplotlib", "SALib", "dask",
+             "distributed", "tqdm"}
+    for command in (["needle", "montecarlo", "--n", "50", "--format", "json"],
+                    ["run", "needle_208", "montecarlo", "--n", "50", "--format", "json"]):
+        done = subprocess.run([sys.executable, "-c", probe, *command], capture_output=True,
+                              text=True, env=env, timeout=300)
+        assert done.returncode == 0, done.stderr
+        code, parsed, ran = json.loads(done.stdout)
+        assert code == 0
+        assert not {m for m in parsed if m.split(".")[0] in never | {"scipy", "pandas", "numba"}}
+        assert not {m for m in ran if m in never or m.split(".")[0] in never}
+
+
+def test_kernels_are_cached_on_disk_and_compile_nothing_at_import():
+    """Every numba kernel of sewtol is declared with cache=True and none has a compiled
+    signature after its module is imported (a fresh process): a warm start loads kernels from
+    the cache when they are first called and compiles nothing."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [str(root / "src"), *filter(None, [os.environ.get("PYTHONPATH")])])}
+    probe = ("import gc, importlib, json\n"
+             "from numba.core.caching import NullCache\n"
+             "from numba.core.registry import CPUDispatcher\n"
+             "for m in ('sewtol.mechanisms.needle_208.kernels.fused',\n"
+             "          'sewtol.mechanisms.needle_208.kernels.window',\n"
+             "          'sewtol.mechanisms.needle_208.kernels.positions',\n"
+             "          'sewtol.mechanisms.presser_foot.kernel', 'sewtol.mechanism.compiled'):\n"
+             "    importlib.import_module(m)\n"
+             "ds = [d for d in gc.get_objects() if isinstance(d, CPUDispatcher)\n"
+             "      and d.py_func.__module__.startswith('sewtol')]\n"
+             "print(json.dumps([[d.py_func.__module__ + '.' + d.__name__,\n"
+             "                   not isinstance(d._cache, NullCache), len(d.signatures)]\n"
+             "                  for d in ds]))\n")
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, env=env,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr
+    kernels = json.loads(done.stdout)
+    assert len(kernels) >= 40
+    assert [k for k, cached, _ in kernels if not cached] == []
+    assert [k for k, _, compiled in kernels if compiled] == []
 
 
 def test_the_readme_flag_table_matches_the_parser():

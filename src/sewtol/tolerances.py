@@ -28,7 +28,6 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-from scipy import stats
 
 from sewtol import costs, dependence, relations, selective
 from sewtol.costs import CostModel
@@ -145,6 +144,8 @@ class Tolerance:
             return np.full_like(u, self.lower, dtype=float)
         if self.dist == "uniform":
             return self.lower + (self.upper - self.lower) * u
+        from scipy import stats  # here: a second of start-up that uniform sets never need
+
         if self.dist == "normal":
             return self.mean + self.sigma * stats.norm.ppf(u)
         cut = (-3.0, 3.0) if not self.shift else \

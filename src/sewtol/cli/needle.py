@@ -90,11 +90,13 @@ def _beta_search_range(args, strategy=None) -> tuple:
 
 
 def _beta_star_figures(args, params, strategy=None):
-    """The nominal figures at beta* in the searched range (`_beta_search_range`), at --limit-um."""
+    """The nominal figures at beta* in the searched range (`_beta_search_range`), at --limit-um,
+    without the window (what `needle nominal` prints; the studies hold beta* and ask whether
+    it lies on a bound)."""
     from sewtol.mechanisms.needle_208.single import nominal_figures
 
     return nominal_figures(params, _beta_search_range(args, strategy),
-                           getattr(args, "limit_um", None) or 10.0)
+                           getattr(args, "limit_um", None) or 10.0, window=False)
 
 
 def _at_beta_star(args, params, strategy=None):

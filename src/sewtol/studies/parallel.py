@@ -18,9 +18,6 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 
-import joblib
-from tqdm.auto import tqdm
-
 from sewtol.errors import ParameterError
 
 # how long to wait for a scheduler to answer (s); a wrong address fails after this
@@ -281,14 +278,21 @@ def run_chunks(fn: Callable, args: Sequence, n_jobs: int = 1, progress=False,
                   f"this format (never opened): {', '.join(others[:5])}", file=sys.stderr)
         todo = [i for i in todo if out[i] is None]
     done = len(args) - len(todo)
-    bar = tqdm(total=len(args), initial=done, desc=desc,
-               disable=report is not None or not progress, file=sys.stderr, leave=False)
-    with bar, contextlib.ExitStack() as stack:
+    bar = None
+    if report is None and progress:
+        from tqdm.auto import tqdm  # here: it imports asyncio, a tenth of a second of start-up
+
+        bar = tqdm(total=len(args), initial=done, desc=desc, file=sys.stderr, leave=False)
+    with contextlib.ExitStack() as stack:
+        if bar is not None:
+            stack.enter_context(bar)
         if report is not None:
             report(done, len(args))
         if scheduler is None and n_jobs == 1 and backend is None:
             results = (_indexed(fn, i, args[i], None, False) for i in todo)
         else:
+            import joblib  # here: a serial run never needs it (a tenth of a second to import)
+
             batch = "auto"
             on_cluster = scheduler is not None
             if on_cluster:
@@ -315,7 +319,8 @@ def run_chunks(fn: Callable, args: Sequence, n_jobs: int = 1, progress=False,
             out[i] = r if keep is None else keep(i, r)
             del r
             done += 1
-            bar.update()
+            if bar is not None:
+                bar.update()
             if report is not None:
                 report(done, len(args))
     return out

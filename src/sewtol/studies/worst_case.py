@@ -26,7 +26,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from scipy.optimize import minimize
 
 from sewtol.errors import ParameterError
 from sewtol.protocol import machines
@@ -102,6 +101,8 @@ def worst_case(mech, tolerances: ToleranceSet, output: str, maxiter: int = 100, 
     `adjust` (compensators as `adjusting.adjusted` takes them) of the output adjusted on each
     trial machine. `search` defaults to Search(maxiter=maxiter); axes: check monotonicity
     along the axes; fast: use the mechanism's plug-ins; options go to its strategy adjuster."""
+    from scipy.optimize import minimize  # here: `sewtol run` imports this module for every study
+
     mech.output(output)
     if isinstance(adjust, str) and adjust not in mech.compensators:
         raise ParameterError("adjust", "must name a compensator of the file ("
@@ -228,6 +229,8 @@ def _inside(x, cut, rtol: float = 1e-9) -> bool:
 def _polish_in_polytope(f, score, z0, lo, width, cut, sign, search):
     """SLSQP from z0 inside the box scaled to [0, 1], the relations as linear constraints
     lower <= a (lo + z width) <= upper."""
+    from scipy.optimize import minimize
+
     a, lower, upper = cut
     az = a * width[None, :]
     base = a @ lo

@@ -16,10 +16,12 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from importlib import resources
-
-import pandas as pd
+from typing import TYPE_CHECKING
 
 from sewtol.errors import ParameterError
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 # the frame Needle208.nominal() and every needle command use unless told otherwise
 # (docs/needle_208.md, "Which frame is the default")
@@ -169,4 +171,6 @@ def list_frames() -> list[Frame]:
 
 
 def frames_table() -> pd.DataFrame:
+    import pandas as pd  # here: the command line's parser reads DEFAULT_FRAME from this module
+
     return pd.DataFrame([f.summary_row() for f in list_frames()])

@@ -85,7 +85,7 @@ class NominalFigures:
 
 
 def nominal_figures(params: Needle208, range_deg: tuple[float, float] = sb.DEFAULT_RANGE_DEG,
-                    limit_um: float = sb.DEFAULT_LIMIT_UM) -> NominalFigures:
+                    limit_um: float = sb.DEFAULT_LIMIT_UM, window: bool = True) -> NominalFigures:
     """Optimise beta with the guide fixed and collect the figures a designer reads.
 
     What ``sewtol needle nominal`` prints.
@@ -98,6 +98,8 @@ def nominal_figures(params: Needle208, range_deg: tuple[float, float] = sb.DEFAU
         The regulating range searched for beta*, (low, high) in deg; default (10, 35).
     limit_um : float
         The SumDelta limit (um) that defines the beta window; default 10.
+    window : bool
+        False: the window is left NaN (its edges are most of the work; beta* is the same).
 
     Returns
     -------
@@ -113,7 +115,7 @@ def nominal_figures(params: Needle208, range_deg: tuple[float, float] = sb.DEFAU
     """
     check_assembly(params)
     c, _ = nm.columns(params)
-    opt = sb.optimise_beta_columns(c, range_deg, limit_um)
+    opt = sb.optimise_beta_columns(c, range_deg, limit_um, window=window)
     if not np.isfinite(opt.beta_deg[0]):
         raise AssemblyError("B-C-D", float("nan"), float("inf"), {},
                             f"no beta in {range_deg} deg assembles")
