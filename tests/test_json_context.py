@@ -29,11 +29,12 @@ NEEDLE = [
     (("worst-case",), ("base", None, None, "beta")),
     (("ppm", "--budget", "200", "--target", "0.1", "--seed", "8"), ("base", 8, None, "beta")),
 ]
-# `feed STUDY` is `run feed_131 STUDY`: run's context, on the file's default set (assumed)
+# `feed STUDY` is `run feed_131 STUDY`: run's context, on the file's first set (links)
 FEED = [
-    (("scan",), ("assumed", None, None, "none")),
-    (("montecarlo", "--n", "40", "--seed", "3"), ("assumed", 3, 40, "none")),
-    (("sobol", "--n", "16", "--seed", "4", "--tolerances", "links"), ("links", 4, 16, "none")),
+    (("scan",), ("links", None, None, "none")),
+    (("montecarlo", "--n", "40", "--seed", "3", "--tolerances", "assumed"),
+     ("assumed", 3, 40, "none")),
+    (("sobol", "--n", "16", "--seed", "4"), ("links", 4, 16, "none")),
 ]
 RUN = [
     ((SLIDER, "nominal"), (None, None, None, "none")),

@@ -442,36 +442,12 @@ def test_defaults_adjust_is_checked_at_load():
                          "names (got 'k')"),
         ("adjust = []", "[defaults] adjust: must be a list of one or more"),
         ('adjust = ["k", "k"]', "[defaults] adjust: names a compensator twice"),
-        ('output = "x"', "[defaults] output: unknown key; allowed: adjust, tolerances"),
-        ('tolerances = "q"', "[defaults] tolerances: must name a tolerance set of the file (a, "
-                             "b) (got 'q')"),
-        ('tolerances = ["a"]', "[defaults] tolerances: must name a tolerance set of the file"),
+        ('output = "x"', "[defaults] output: unknown key; allowed: adjust"),
     ]
-    sets = "\n[tolerances.a]\nc = 0.1\n\n[tolerances.b]\nd = 0.1\n"
     for body, expected in cases:
-        text = base + sets + "\n[defaults]\n" + body + "\n"
+        text = base + "\n[defaults]\n" + body + "\n"
         msg = refusal(text)
         assert msg.startswith(f"m.toml:{line_of(text, body, '[defaults]')}: {expected}"), msg
-
-
-def test_defaults_tolerances_is_the_set_run_takes_without_the_flag(tmp_path):
-    """Without [defaults] tolerances `run` takes the file's first set; with it, that set (the
-    same rows as --tolerances naming it)."""
-    base = FOUR_BAR + "\n[tolerances.a]\nc = 0.1\n\n[tolerances.b]\nd = 0.1\n"
-    first, named = tmp_path / "first.toml", tmp_path / "named.toml"
-    first.write_text(base)
-    named.write_text(base + '\n[defaults]\ntolerances = "b"\n')
-    assert loads(base, "m.toml").default_tolerances is None
-    assert load(named).default_tolerances == "b"
-
-    def rows(path, *flags):
-        code, out, err = run("run", str(path), "scan", *flags, "--format", "json")
-        assert code == 0, err
-        obj = strict_loads(out)
-        return obj["tolerances"], obj["rows"]
-
-    assert rows(first)[0] == "a" and {r["param"] for r in rows(first)[1]} == {"c"}
-    assert rows(named) == rows(first, "--tolerances", "b") and rows(named)[0] == "b"
 
 
 def test_only_the_needle_declares_a_default_adjustment():

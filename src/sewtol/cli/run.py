@@ -97,8 +97,7 @@ def study_options(p) -> None:
                    help="the output studied (default: all for nominal/scan/montecarlo, the "
                         "first for worst-case/sobol)")
     p.add_argument("--tolerances", default=None, metavar="SET|FILE.toml[:SET]",
-                   help="a [tolerances.SET] of the file (default: its [defaults] tolerances, "
-                        "else its first) or a tolerance file")
+                   help="a [tolerances.SET] of the file (default: its first) or a tolerance file")
     p.add_argument("--n", type=int, default=None,
                    help="machines (montecarlo 2000, allocation 2000 per trial scale, report "
                         "1000), base samples (sobol, 256), model calls (ppm, 20000) or "
@@ -220,8 +219,7 @@ def _settings(args) -> list:
 
 
 def resolve_tolerances(mech, spec):
-    """A set of the file by name (default its [defaults] tolerances, else its first), or
-    FILE.toml / FILE.toml:SET."""
+    """A set of the file by name (default its first), or FILE.toml / FILE.toml:SET."""
     from sewtol.tolerances import resolve
 
     sets = mech.tolerance_sets
@@ -229,7 +227,7 @@ def resolve_tolerances(mech, spec):
         if not sets:
             raise ParameterError("--tolerances", "the file has no [tolerances.NAME] set; give a "
                                  "tolerance file FILE.toml", None)
-        return sets[mech.default_tolerances or next(iter(sets))]
+        return next(iter(sets.values()))
     if spec in sets:
         return sets[spec]
     if ".toml" in spec:

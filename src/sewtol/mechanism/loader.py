@@ -45,7 +45,7 @@ MECH_NAME = re.compile(r"^[a-z0-9_]+$")
 TRANSMISSION_GROUPS = ("rrr", "spatial_rocker", "spatial_slider")
 TOP_KEYS = ("format", "mechanism", "parameters", "groups", "outputs", "specs", "compensators",
             "tolerances", "clearances", "defaults")
-DEFAULTS_KEYS = ("adjust", "tolerances")
+DEFAULTS_KEYS = ("adjust",)
 SPEC_KEYS = ("output", "upper", "lower", "doc")
 MECH_KEYS = ("name", "title", "source", "assumptions", "samples", "rpm", "driver", "fast_path")
 PARAM_KEYS = ("nominal", "unit", "rule", "doc")
@@ -107,8 +107,8 @@ def loads(text: str, path: str = "<text>", overrides: dict | None = None):
     outputs = _outputs(ctx, data.get("outputs"), pnames, groups, header)
     specs = _specs(ctx, data.get("specs", []), outputs)
     comps = _compensators(ctx, data.get("compensators", {}), pnames)
+    default_adjust = _defaults(ctx, data.get("defaults", {}), comps)
     sets = _tolerance_sets(ctx, data.get("tolerances", {}), pnames)
-    default_adjust, default_set = _defaults(ctx, data.get("defaults", {}), comps, sets)
     clearances = parse_clearances(data.get("clearances"), groups,
                                   lambda p: (f"{path}:{ctx.loc.line(*p)}: ", ctx.loc.line(*p)))
     for i, c in enumerate(clearances):
@@ -119,7 +119,7 @@ def loads(text: str, path: str = "<text>", overrides: dict | None = None):
     mech = FileMechanism(path=path, header=header, parameters=tuple(params),
                          groups=tuple(groups), outputs=tuple(outputs), compensators=comps,
                          tolerance_sets=sets, specs=specs, clearances=clearances,
-                         default_adjust=default_adjust, default_tolerances=default_set)
+                         default_adjust=default_adjust)
     if header.fast_path is not None:
         from sewtol.mechanism.fast_paths import fast_paths
 
@@ -483,20 +483,14 @@ def _compensators(ctx, table, pnames) -> dict[str, Compensator]:
     return out
 
 
-def _defaults(ctx, table, comps, sets) -> tuple[tuple[str, ...], str | None]:
+def _defaults(ctx, table, comps) -> tuple[str, ...]:
     """[defaults] adjust = ["NAME", ...]: the compensators `sewtol run` adjusts on each machine
-    when --adjust is not given (`--adjust none`: none); distinct names of [compensators.NAME].
-    [defaults] tolerances = "SET": the [tolerances.SET] taken when --tolerances is not given
-    (else the first set)."""
+    when --adjust is not given (`--adjust none`: none); distinct names of [compensators.NAME]."""
     if not isinstance(table, dict):
         ctx.fail(("defaults",), "[defaults]", "must be a table", table)
     _known(ctx, table, ("defaults",), "[defaults] ", DEFAULTS_KEYS)
-    default_set = table.get("tolerances")
-    if default_set is not None and (not isinstance(default_set, str) or default_set not in sets):
-        ctx.fail(("defaults", "tolerances"), "[defaults] tolerances", "must name a tolerance "
-                 "set of the file (" + (", ".join(sets) or "it has none") + ")", default_set)
     if "adjust" not in table:
-        return (), default_set
+        return ()
     names = table["adjust"]
     where, path = "[defaults] adjust", ("defaults", "adjust")
     if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
@@ -507,7 +501,7 @@ def _defaults(ctx, table, comps, sets) -> tuple[tuple[str, ...], str | None]:
                      + (", ".join(comps) or "it has none") + ")", n)
     if len(set(names)) != len(names):
         ctx.fail(path, where, "names a compensator twice", names)
-    return tuple(names), default_set
+    return tuple(names)
 
 
 def _tolerance_sets(ctx, table, pnames) -> dict[str, ToleranceSet]:

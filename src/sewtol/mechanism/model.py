@@ -80,8 +80,6 @@ class FileMechanism:
     clearances: tuple[Clearance, ...] = ()  # [[clearances]]: their offsets are pair parameters
     # [defaults] adjust: the compensators `sewtol run` adjusts when --adjust is not given
     default_adjust: tuple[str, ...] = ()
-    # [defaults] tolerances: the set `sewtol run` takes when --tolerances is not given
-    default_tolerances: str | None = None
 
     @property
     def pair_parameters(self) -> tuple[Parameter, ...]:
