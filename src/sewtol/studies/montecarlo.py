@@ -897,11 +897,11 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
     adds the adjusted case: limit_output minimised over the compensator on each machine, or
     brought to `objective` ("target=T", "centre=L,U": sewtol.adjuster.Objective)
     (`sewtol.studies.adjusting.adjusted`: the generic optimiser, or with fast=True the
-    mechanism's plug-in where it takes the compensator and minimises), columns NAME_adjusted, PARAM_setting,
-    status_adjusted, failed_group_adjusted; `adjust` may also map one parameter to its box (a
-    plug-in's search range). fast=True: the plug-in kernel for the outputs it gives, the
-    plug-in's words for why a machine fails (`named_failures`) and its names of the columns
-    (`Plugins.columns["montecarlo"]`). hold (with a compensator): the fixed case keeps it at
+    mechanism's plug-in where it takes the compensator and minimises), columns NAME_adjusted,
+    PARAM_setting, status_adjusted, failed_group_adjusted; `adjust` may also map one parameter
+    to its box (a plug-in's search range). fast=True: the plug-in kernel for the outputs it
+    gives, the plug-in's words for why a machine fails (`named_failures`) and its names of the
+    columns (`Plugins.columns["montecarlo"]`). hold (with a compensator): the fixed case keeps it at
     its "nominal" value or at the nominal machine's "optimum" (`at_optimum`: the setting an
     assembler finds for the nominal; the result's `held` has the values). backend, store,
     scheduler: as `sample_machines` (joblib backend, study folder, Dask cluster); on the
