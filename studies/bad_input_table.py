@@ -90,6 +90,7 @@ CASES = [
     "needle strategies --adjust guide_angle --setting-error guide_angle=-0.01",
     "needle strategies --adjust guide_angle --setting-error guide_angle=gauss:0.01",
     "feed sobol --n 100",
+    "feed montecarlo --adjust b --objective tgt=2",
     "needle montecarlo --tolerances {d}/fifo.toml",
     "needle montecarlo --tolerances /dev/zero",
     "feed metrics --set EN=50",

@@ -24,7 +24,11 @@ from sewtol.reports import plots
 from sewtol.reports.html import Conclusion, Figure, Report, Section, markdown_index, render
 from sewtol.reports.tables import write_table
 from sewtol.studies import summaries as SU
-from sewtol.tables import feed_131 as T
+
+# the feed report's outputs (the file's closed-form dog figures, output kind feed_dogs)
+OUTPUTS = ("lower_step_mm", "upper_step_mm", "differential_ratio", "mismatch_mm")
+SOBOL_OUTPUTS = OUTPUTS[:3]
+CONTRIBUTOR_OUTPUTS = ("lower_step_mm", "differential_ratio", "mismatch_mm")
 
 FIGURES = [("tooth_paths", "Middle-tooth paths with entry/exit and a dot every 30 deg of phi"),
            ("xy_vs_phi", "x and y of the middle teeth against phi; each dog's working part shaded"),
@@ -35,6 +39,33 @@ SECTIONS = [("Working figures and paths", ["figures", "trajectory"], FIGURES[:2]
             ("Regulator", ["regulator", "regulator_ratio_band"], FIGURES[2:]),
             ("Tolerances: scan, Monte-Carlo, contributors, Sobol",
              ["scan", "montecarlo", "contributors", "sobol", "sobol_convergence"], [])]
+
+
+def feed_file():
+    """The feed's mechanism file (its nominals are `Feed131()`'s values)."""
+    from sewtol.mechanism import load
+    from sewtol.mechanisms import mechanism_file
+
+    return load(mechanism_file("feed_131"))
+
+
+def scan(mech, tolerances):
+    """Each tolerance at its limits, others nominal (sewtol.studies.scan): feed steps, ratio and
+    mismatch, and the changes of the steps and the ratio, one row per tolerance and side."""
+    from sewtol.studies import scan as S
+
+    f = SU.scan_table(S.scan(mech, tolerances, OUTPUTS, zero_width=True),
+                      OUTPUTS).rename(columns={"deviation": "delta_mm"})
+    return f[["param", "side", "delta_mm", *OUTPUTS, *(f"change_{k}" for k in SOBOL_OUTPUTS)]]
+
+
+def montecarlo(mech, tolerances, n: int, seed: int, **options):
+    """Feed outputs of n machines (sewtol.studies.montecarlo; options: n_jobs, progress,
+    scheduler): machine, deviations, outputs."""
+    from sewtol.studies.montecarlo import montecarlo as mc
+
+    res = mc(mech, tolerances, n, seed, OUTPUTS, **options)
+    return res.machines[["machine", *tolerances.active().params, *OUTPUTS]]
 
 
 def write_pages(out: Path, intro: str, conclusions: dict, provenance: dict,
@@ -224,22 +255,24 @@ def main(argv=None) -> None:
     ax.set_title("Stitch regulator: forward, neutral, reverse", fontsize=10)
     plots.save(f, out / "regulator.png", args.figure_format)
 
-    ts = T.tolerance_sets()["assumed"]
+    mech = feed_file()
+    ts = mech.tolerance_sets["assumed"]
     tset = {**settings, "tolerance set": ts.description, "seed": args.seed}
-    sc = T.scan(p, ts)
+    sc = scan(mech, ts)
     sc = sc.reindex(sc["change_lower_step_mm"].abs().sort_values(ascending=False).index)
     write_table(sc.reset_index(drop=True), out, "scan",
                 "Per-parameter scan of the feed (sorted by |change of the lower step|)", tset,
                 floatfmt=".5f")
-    mc = T.montecarlo(p, ts, args.n_mc, args.seed, n_jobs=args.n_jobs, progress=args.progress,
-                         scheduler=args.scheduler)
-    write_table(SU.output_summary(mc, T.OUTPUTS), out, "montecarlo",
+    mc = montecarlo(mech, ts, args.n_mc, args.seed, n_jobs=args.n_jobs, progress=args.progress,
+                    scheduler=args.scheduler)
+    write_table(SU.output_summary(mc, OUTPUTS), out, "montecarlo",
                 f"Monte-Carlo of {args.n_mc} feed mechanisms", tset, floatfmt=".5f")
-    contrib = SU.contributor_table(mc, ts, T.CONTRIBUTOR_OUTPUTS)
+    contrib = SU.contributor_table(mc, ts, CONTRIBUTOR_OUTPUTS)
     write_table(contrib, out, "contributors", "Contributors (bias-corrected eta^2) per output",
                 tset)
-    sob, chosen = T.sobol(p, ts, args.n_sobol, args.seed, mc, n_jobs=args.n_jobs,
-                             progress=args.progress, scheduler=args.scheduler)
+    sob, chosen = SU.screened_sobol(mech, ts, SOBOL_OUTPUTS, args.n_sobol, args.seed, mc,
+                                    n_jobs=args.n_jobs, progress=args.progress,
+                                    scheduler=args.scheduler)
     write_table(sob.to_dataframe(), out, "sobol", "Sobol indices of the feed steps and the "
                 "differential ratio, each over the tolerances that matter to it",
                 {**tset, "base samples N": args.n_sobol, "intervals": "95 % bootstrap",
@@ -251,7 +284,7 @@ def main(argv=None) -> None:
                 {**tset, "base samples N": args.n_sobol})
 
     fmt = "svg" if args.figure_format == "svg" else "png"
-    summary = SU.output_summary(mc, T.OUTPUTS)
+    summary = SU.output_summary(mc, OUTPUTS)
     conclusions = {
         "What holds under every reading of the source, and what depends on it":
             reading_conclusions(res.summary()),

@@ -1,6 +1,8 @@
 """Feed chains of the 131-42+3: source figures, transfer functions, errors, regulator."""
 
+import importlib.util
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,7 +12,20 @@ from sewtol.mechanisms import params as P
 from sewtol.mechanisms.feed_131 import analysis as feed
 from sewtol.mechanisms.feed_131 import model as fd
 from sewtol.mechanisms.feed_131.model import Feed131
-from sewtol.tables import feed_131 as T
+from sewtol.studies import summaries as SU
+
+
+def _report():
+    """studies/feed_131_report.py: the feed report's outputs and tables over the generic
+    studies."""
+    path = Path(__file__).resolve().parents[1] / "studies" / "feed_131_report.py"
+    spec = importlib.util.spec_from_file_location("feed_131_report", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+T = _report()
 
 
 @pytest.fixture(scope="module")
@@ -117,8 +132,8 @@ def test_regulator_forward_neutral_reverse():
 
 def test_scan_rows_equal_direct_calls():
     p = Feed131()
-    ts = T.tolerance_sets()["assumed"]
-    sc = T.scan(p, ts)
+    mech = T.feed_file()
+    sc = T.scan(mech, mech.tolerance_sets["assumed"])
     row = sc[(sc.param == "O3C") & (sc.side == "upper")].iloc[0]
     direct = feed.metrics(p.override(O3C=p.O3C + 0.05))
     assert abs(row.lower_step_mm - direct.lower["feed_step_mm"]) < 1e-9
@@ -126,9 +141,10 @@ def test_scan_rows_equal_direct_calls():
 
 
 def test_feed_montecarlo_reproducible():
-    ts = T.tolerance_sets()["assumed"]
-    a = T.montecarlo(Feed131(), ts, 300, seed=4)
-    b = T.montecarlo(Feed131(), ts, 300, seed=4, n_jobs=2)
+    mech = T.feed_file()
+    ts = mech.tolerance_sets["assumed"]
+    a = T.montecarlo(mech, ts, 300, seed=4)
+    b = T.montecarlo(mech, ts, 300, seed=4, n_jobs=2)
     assert a.equals(b)
     assert a["lower_step_mm"].notna().all()
 
@@ -286,10 +302,11 @@ def test_feed_sobol_each_output_over_its_own_parameters():
     from sewtol.studies.sobol import case_indices, problem_of, sample
 
     p = Feed131()
-    ts = T.tolerance_sets()["assumed"]
-    mc = T.montecarlo(p, ts, 200, seed=3)
-    res, chosen = T.sobol(p, ts, 16, seed=5, machines=mc, chunk_size=20,
-                             which=("lower_step_mm", "differential_ratio"))
+    mech = T.feed_file()
+    ts = mech.tolerance_sets["assumed"]
+    mc = T.montecarlo(mech, ts, 200, seed=3)
+    res, chosen = SU.screened_sobol(mech, ts, ("lower_step_mm", "differential_ratio"), 16, 5,
+                                    mc, chunk_size=20)
     # the ratio's own contributors, not the lower step's
     for output, names in chosen.items():
         eta = contributors(mc, ts.active().params, output)

@@ -340,15 +340,15 @@ def test_feed_file_outputs_are_the_closed_form_for_each_output():
     from sewtol.mechanisms.feed_131 import analysis
     from sewtol.mechanisms.feed_131.model import Feed131
     from sewtol.protocol import machines
-    from sewtol.tables import feed_131 as tables
 
+    tables = _script("feed_131_report")
     p = Feed131()
-    dev = tables.tolerance_sets()["assumed"].sample(np.random.default_rng(11), 40)
+    mech = tables.feed_file()
+    dev = mech.tolerance_sets["assumed"].sample(np.random.default_rng(11), 40)
     dev["O1A1"] = dev["O1A1"].copy()
     dev["O1A1"][:2] = 30.0  # an eccentric longer than the chain can take: two machines fail
     full = analysis.outputs(p, dev)
     assert np.isnan(full["lower_step_mm"][:2]).all()
-    mech = tables.as_mechanism(p)
     together = mech.evaluate(machines(mech, dev), tables.OUTPUTS)
     assert list(together.status[:2]) == ["cannot_close"] * 2
     for k in tables.OUTPUTS:

@@ -1,4 +1,5 @@
-"""`sewtol run FILE scan|worst-case --adjust C --objective target=T|centre=L,U`: the adjusted
+"""`sewtol run FILE STUDY --adjust C --objective target=T|centre=L,U` (scan, worst-case,
+montecarlo, ppm, allocation, strategies, settings): the adjusted
 case brought to a target (an eccentric pivot setting a rocker's swing back) or centred, not
 only minimised, through the generic adjuster (sewtol.adjuster); refused in one line where it
 means nothing."""
@@ -78,8 +79,14 @@ def test_centre_and_worst_case_take_it_too(tmp_path):
      "must be minimise, target=T or centre=L,U (got 'target=x')"),
     ((ROCKER, "scan", "--adjust", "rocker_arm", "--objective", "centre=3"),
      "must be minimise, target=T or centre=L,U"),
-    ((ROCKER, "montecarlo", "--adjust", "rocker_arm", "--objective", "target=50"),
-     "is not used by `run montecarlo`"),
+    ((ROCKER, "sobol", "--objective", "target=50"), "is not used by `run sobol`"),
+    ((ROCKER, "montecarlo", "--objective", "target=50"), "needs --adjust"),
+    ((ROCKER, "ppm", "--adjust", "rocker_arm", "--objective", "target=x"),
+     "must be minimise, target=T or centre=L,U (got 'target=x')"),
+    ((ROCKER, "strategies", "--objective", "centre=1"),
+     "must be minimise, target=T or centre=L,U (got 'centre=1')"),
+    (("feed_131", "montecarlo", "--adjust", "b", "--objective", "tgt=2"),
+     "must be minimise, target=T or centre=L,U (got 'tgt=2')"),
 ])
 def test_bad_objectives_are_one_line_naming_the_flag(argv, rule):
     code, out, err = run("run", *argv)
@@ -94,3 +101,67 @@ def test_the_needle_file_leaves_its_fast_path_for_another_objective():
     ctx = strict_loads(out)["context"]
     assert ctx["path"] == "generic"
     assert ctx["path_reason"] == "--objective centre=2,6: the needle commands minimise SumDelta"
+
+
+SWING = ("--output", "rocker_swing_deg")
+# a two-sided spec around the nominal swing (50.729 deg): minimised, the slot runs to its end
+# and every machine leaves it; brought to 50.73, every machine stays
+SPEC = ("--limit", "50.9", "--lower-limit", "50.6")
+
+
+def test_montecarlo_brings_every_machine_to_the_target_as_the_library_does():
+    """The same seed through the CLI and sewtol.studies.montecarlo(objective=...): the same
+    machines, every adjusted swing at the target, counts adding up to n in both cases."""
+    from sewtol.studies.montecarlo import montecarlo
+
+    n, seed, goal = 40, 3, "target=50.73"
+    code, out, err = run("run", ROCKER, "montecarlo", *SWING, *SPEC, "--adjust", "rocker_arm",
+                         "--objective", goal, "--n", str(n), "--seed", str(seed),
+                         "--format", "json")
+    assert code == 0, err
+    obj = strict_loads(out)
+    mech = load(mechanism_file(ROCKER))
+    res = montecarlo(mech, mech.tolerance_sets["illustrative"], n, seed, ["rocker_swing_deg"],
+                     50.9, "rocker_swing_deg", adjust="rocker_arm", lower_limit=50.6,
+                     objective=goal)
+    ref = res.to_dict()
+    assert obj["counts"] == ref["counts"] and obj["quantiles"] == ref["quantiles"]
+    for case, k in obj["counts"].items():
+        assert k["ok"] + k["out_of_spec"] + k["failed"] == k["n"] == n, case
+    swing = res.machines["rocker_swing_deg_adjusted"].to_numpy()
+    assert len(swing) == n and max(abs(swing - 50.73)) < REACHED_DEG
+    assert obj["counts"]["adjusted_rocker_arm"]["ok"] == n
+    assert obj["context"]["objective"] == goal
+    # minimised instead (the same machines as built), none is near the target
+    minimised = montecarlo(mech, mech.tolerance_sets["illustrative"], n, seed,
+                           ["rocker_swing_deg"], adjust="rocker_arm")
+    assert (minimised.machines["rocker_swing_deg"] == res.machines["rocker_swing_deg"]).all()
+    assert min(abs(minimised.machines["rocker_swing_deg_adjusted"] - 50.73)) > 1.0
+
+
+def test_ppm_strategies_settings_and_allocation_take_the_objective():
+    """ppm: 0 of 100 machines fail when the slot brings the swing to 50.73, all 100 when it
+    minimises it; strategies and settings: every machine of the row at the target."""
+    base = ("run", ROCKER, "ppm", *SWING, *SPEC, "--adjust", "rocker_arm", "--n", "100",
+            "--method", "mc", "--target", "0.05", "--format", "json")
+    reached, minimised = (strict_loads(run(*base, *extra)[1]) for extra in
+                          (("--objective", "target=50.73"), ()))
+    assert reached["failures"] == 0 and minimised["failures"] == 100
+    assert reached["context"]["objective"] == "target=50.73"
+    code, out, err = run("run", ROCKER, "strategies", *SWING, *SPEC, "--strategy",
+                         "slot=rocker_arm", "--n", "20", "--objective", "target=50.73",
+                         "--format", "json")
+    assert code == 0, err
+    (row,) = strict_loads(out)["rows"]
+    assert row["ok"] + row["out_of_spec"] + row["failed"] == row["n"] == 20 == row["ok"]
+    assert abs(row["p50"] - 50.73) < REACHED_DEG and abs(row["p99"] - 50.73) < REACHED_DEG
+    code, out, err = run("run", ROCKER, "settings", "--set", "longer:c=25.02", *SWING, *SPEC,
+                         "--adjust", "rocker_arm", "--n", "20", "--objective", "target=50.73",
+                         "--format", "json")
+    assert code == 0, err
+    (row,) = strict_loads(out)["rows"]
+    assert row["ok_adjusted"] == row["n"] == 20 and abs(row["p95_adjusted"] - 50.73) < REACHED_DEG
+    code, out, err = run("run", ROCKER, "allocation", *SWING, *SPEC, "--adjust", "rocker_arm",
+                         "--n", "20", "--objective", "target=50.73", "--format", "json")
+    assert code == 0, err
+    assert strict_loads(out)["context"]["objective"] == "target=50.73"

@@ -45,19 +45,19 @@ USES = {"nominal": (), "scan": ("output", "tolerances", "adjust", "objective"),
         "worst-case": ("output", "tolerances", "adjust", "objective"),
         "largest-tolerances": ("output", "tolerances", "limit", "adjust"),
         "montecarlo": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "n_jobs",
-                       "adjust", "clearances"),
+                       "adjust", "clearances", "objective"),
         "sobol": ("output", "tolerances", "n", "seed", "clearances"),
         "shapley": ("output", "tolerances", "n", "seed", "adjust", "clearances"),
         "ppm": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "method", "target",
-                "adjust", "n_jobs", "clearances"),
+                "adjust", "n_jobs", "clearances", "objective"),
         "allocation": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "target",
-                       "weight", "adjust", "shape"),
+                       "weight", "adjust", "shape", "objective"),
         "report": ("output", "tolerances", "n", "seed", "limit", "lower_limit"),
         # any of these turns on the settings' yields (sewtol.studies.settings.yield_figures)
         "settings": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "adjust",
-                     "strategy", "n_jobs"),
+                     "strategy", "n_jobs", "objective"),
         "strategies": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "n_jobs",
-                       "strategy", "clearances"),
+                       "strategy", "clearances", "objective"),
         "refine": ("output", "tolerances", "seed", "adjust", "vary", "keep", "require",
                    "restarts", "popsize", "maxiter", "plot"),
         "clearance": ("output", "tolerances", "n", "seed", "limit", "adjust", "target",
@@ -88,6 +88,11 @@ def add_run(sub) -> None:
                    help="mechanism file (format sewtol-mechanism/1), or the name of a built-in "
                         "mechanism (sewtol mechanisms)")
     p.add_argument("study", choices=STUDIES)
+    study_options(p)
+
+
+def study_options(p) -> None:
+    """Every flag of `sewtol run FILE STUDY` (the aliases `sewtol feed STUDY` take the same)."""
     p.add_argument("--output", default=None, metavar="NAME",
                    help="the output studied (default: all for nominal/scan/montecarlo, the "
                         "first for worst-case/sobol)")
@@ -108,9 +113,11 @@ def add_run(sub) -> None:
                         "file's [defaults] adjust for scan, worst-case, montecarlo, ppm and "
                         "allocation; none: no adjustment)")
     p.add_argument("--objective", default=None, metavar="minimise|target=T|centre=L,U",
-                   help="scan, worst-case: what --adjust does with --output on each machine: "
-                        "minimise it (default), bring it to T (an eccentric pivot setting a "
-                        "swing back to 60 deg: target=60) or centre it in [L, U]")
+                   help="scan, worst-case, montecarlo, ppm, allocation, strategies, settings: "
+                        "what --adjust (strategies, settings: each --strategy) does with "
+                        "--output on each machine: minimise it (default), bring it to T (an "
+                        "eccentric pivot setting a swing back to 60 deg: target=60) or centre "
+                        "it in [L, U] (settings: centred in a two-sided spec by default)")
     p.add_argument("--lower-limit", type=float, default=None,
                    help="lower limit of --output (montecarlo, ppm, allocation, report; with or "
                         "without --limit)")
@@ -241,7 +248,7 @@ def _check_flags(args) -> None:
     if args.objective is not None:
         from sewtol.adjuster import Objective
 
-        if args.adjust is None:
+        if args.adjust is None and args.strategy is None and args.study != "strategies":
             raise ParameterError("--objective", "needs --adjust, the compensators that reach it",
                                  args.objective)
         _as_flags(Objective.parse, args.objective)
@@ -336,7 +343,8 @@ def cmd_run(args) -> None:
                 "fixed": (), **({"adjusted": args.adjust.split(",")} if args.adjust else {})}
             tolerances = resolve_tolerances(mech, args.tolerances)
             figures = SE.yield_figures(tolerances, args.n, args.seed, cases, args.spec_output,
-                                       args.spec, fast=args.path != "generic", n_jobs=args.n_jobs)
+                                       args.spec, fast=args.path != "generic", n_jobs=args.n_jobs,
+                                       **_goal(args))
         res = as_flags(SE.compare, mech, settings, figures, flags={
             **RUN_FLAGS, "strategy": "--adjust" if args.strategy is None else "--strategy"})
         return _finish(args, fmt, mech, tolerances, res.to_dict(), {"settings": res.rows},
@@ -361,7 +369,7 @@ def cmd_run(args) -> None:
               f"needle_208 fast path: {args.path_reason}", file=sys.stderr)
     outputs = None if args.output is None else [args.output]
     fast = _kernel_path(args, mech)
-    goal = {} if args.objective is None else {"objective": args.objective}
+    goal = _goal(args)
     if args.study == "scan":
         res = _as_flags(partial(S.scan, fast=fast, **goal), mech, tolerances, outputs,
                         args.adjust)
@@ -401,12 +409,17 @@ def cmd_run(args) -> None:
         return _largest_tolerances(args, fmt, mech, tolerances)
     from sewtol.studies import montecarlo as MC
 
-    res = _as_flags(partial(MC.montecarlo, fast=fast), mech, tolerances, args.n, args.seed,
+    res = _as_flags(partial(MC.montecarlo, fast=fast, **goal), mech, tolerances, args.n, args.seed,
                     outputs, args.limit, args.output, args.n_jobs, False, MC.CHUNK, args.adjust,
                     args.lower_limit)
     return _finish(args, fmt, mech, tolerances, res.to_dict(),
                    {"machines": res.machines, "summary": res.summary_frame()},
                    res.summary_frame())
+
+
+def _goal(args) -> dict:
+    """--objective as the studies' keyword (none given: theirs, the minimum)."""
+    return {} if args.objective is None else {"objective": args.objective}
 
 
 def _default_adjust(args, mech) -> None:
@@ -546,8 +559,8 @@ def _strategies(args, fmt, mech, tolerances) -> None:
     rows = None if args.strategy is None else ST.parse_strategies(args.strategy, mech)
     fast = args.path != "generic"
     args.path_used = (plugins(mech).name or "generic") if fast else "generic"
-    res = _as_flags(partial(ST.strategies, fast=fast, n_jobs=args.n_jobs), mech, tolerances,
-                    args.n, args.seed, rows, args.spec_output, args.spec)
+    res = _as_flags(partial(ST.strategies, fast=fast, n_jobs=args.n_jobs, **_goal(args)), mech,
+                    tolerances, args.n, args.seed, rows, args.spec_output, args.spec)
     frame = res.to_dataframe()
     return _finish(args, fmt, mech, tolerances, res.to_dict(), {"strategies": frame}, frame)
 
@@ -838,12 +851,13 @@ def _yield_study(args, fmt, mech, tolerances) -> None:
     if args.study == "allocation":
         weights = parse_sets(args.weight)
         if args.shape == "set":
-            res = _as_flags(partial(AL.allocate, fast=False), mech, tolerances, output,
-                            args.target, upper, lower, args.n, args.seed, weights, args.adjust)
+            res = _as_flags(partial(AL.allocate, fast=False, **_goal(args)), mech, tolerances,
+                            output, args.target, upper, lower, args.n, args.seed, weights,
+                            args.adjust)
         else:
-            res = as_flags(partial(AL.allocate_by_cost, fast=False), mech, tolerances, output,
-                           args.target, upper, lower, args.n, args.seed, weights, args.adjust,
-                           flags={**RUN_FLAGS, "costs": "--weight"})
+            res = as_flags(partial(AL.allocate_by_cost, fast=False, **_goal(args)), mech,
+                           tolerances, output, args.target, upper, lower, args.n, args.seed,
+                           weights, args.adjust, flags={**RUN_FLAGS, "costs": "--weight"})
         _finish(args, fmt, mech, tolerances, res.to_dict(),
                 {"allocation": res.table, "trials": res.trials}, res.table)
         if fmt == "table":
@@ -855,8 +869,8 @@ def _yield_study(args, fmt, mech, tolerances) -> None:
                   + (" (capped: the yield stays above the target up to this scale)"
                      if res.capped else ""))
         return None
-    ls = _as_flags(partial(PPM.limit_state, fast=False), mech, tolerances, output, upper, lower,
-                   args.adjust)
+    ls = _as_flags(partial(PPM.limit_state, fast=False, **_goal(args)), mech, tolerances, output,
+                   upper, lower, args.adjust)
     res = _as_flags(R.estimate, ls, np.random.default_rng(args.seed), args.method, args.target,
                     args.n, args.n_jobs)
     cond = PPM.limits_text(output if args.adjust is None else f"{output}_adjusted", upper,

@@ -539,10 +539,11 @@ def with_remainder(frame: pd.DataFrame, top: int | None = None) -> pd.DataFrame:
     return pd.concat([frame, rows], ignore_index=True)
 
 
-def _file_model(record, dev, mech, outputs, compensator=None, target=None, fast=False):
+def _file_model(record, dev, mech, outputs, compensator=None, target=None, fast=False,
+                objective=None):
     """One chunk of `montecarlo`: the outputs of machines nominal + dev as built (the plug-in
     kernel where it gives every output, the status of the machines it cannot run from
-    mech.evaluate) and, with a compensator, the adjusted case."""
+    mech.evaluate) and, with a compensator, the adjusted case (target brought to `objective`)."""
     from sewtol.studies.adjusting import adjusted
 
     values = machines(mech, dev)
@@ -550,7 +551,8 @@ def _file_model(record, dev, mech, outputs, compensator=None, target=None, fast=
     a = None
     if compensator is not None:
         comps = [compensator] if isinstance(compensator, str) else compensator
-        a = adjusted(mech, values, comps, target, fast=fast, figures=False)
+        a = adjusted(mech, values, comps, target, fast=fast, figures=False,
+                     objective=objective)
     if pl.kernel is not None and set(outputs) <= set(pl.kernel_outputs):
         # the adjuster's as_built: the kernel's outputs from the work they share
         got = a.extras["as_built"] if a is not None and "as_built" in a.extras and \
@@ -589,11 +591,11 @@ def failure_blank(mech, failure_table, deviations) -> dict:
 
 
 def _montecarlo_chunk(record, dev, mech, outputs, compensator=None, target=None, fast=False,
-                      spec=None, blank=None):
+                      spec=None, blank=None, objective=None):
     """One chunk of `montecarlo`: `_file_model`, and on the fast path each failure named by the
     plug-in (`failure_columns`), chunk by chunk (the study never holds all n machines' values);
     blank: `failure_blank` of the run's first machine."""
-    out = _file_model(record, dev, mech, outputs, compensator, target, fast)
+    out = _file_model(record, dev, mech, outputs, compensator, target, fast, objective)
     pl = plugins(mech) if fast else NO_PLUGINS
     if pl.failure_table is not None:
         out.update(failure_columns(mech, pl.failure_table, dev, {**dev, **out}, target, spec,
@@ -895,18 +897,20 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
                limit: float | None = None, limit_output: str | None = None, n_jobs: int = 1,
                progress=False, chunk_size: int = CHUNK, adjust: str | None = None,
                lower_limit: float | None = None, *, fast: bool = False, backend=None,
-               store=None, scheduler=None, hold: str = "nominal") -> MonteCarloResult:
+               store=None, scheduler=None, hold: str = "nominal",
+               objective=None) -> MonteCarloResult:
     """n machines of the file (see the module doc). Every output with a [[specs]] entry in the
     file splits its ok machines into ok and out_of_spec; `limit`/`lower_limit` replace the
     spec of limit_output (default: the first output studied with limits given, else the first
     output of the file's specs, else the first output). `adjust` (a compensator of the file)
-    adds the adjusted case: limit_output minimised over the compensator on each machine
+    adds the adjusted case: limit_output minimised over the compensator on each machine, or
+    brought to `objective` ("target=T", "centre=L,U": sewtol.adjuster.Objective)
     (`sewtol.studies.adjusting.adjusted`: the generic optimiser, or with fast=True the
-    mechanism's plug-in where it takes the compensator), columns NAME_adjusted, PARAM_setting,
-    status_adjusted, failed_group_adjusted; `adjust` may also map one parameter to its box (a
-    plug-in's search range). fast=True: the plug-in kernel for the outputs it gives, the
-    plug-in's words for why a machine fails (`named_failures`) and its names of the columns
-    (`Plugins.columns["montecarlo"]`). hold (with a compensator): the fixed case keeps it at
+    mechanism's plug-in where it takes the compensator and minimises), columns NAME_adjusted,
+    PARAM_setting, status_adjusted, failed_group_adjusted; `adjust` may also map one parameter
+    to its box (a plug-in's search range). fast=True: the plug-in kernel for the outputs it
+    gives, the plug-in's words for why a machine fails (`named_failures`) and its names of the
+    columns (`Plugins.columns["montecarlo"]`). hold (with a compensator): the fixed case keeps it at
     its "nominal" value or at the nominal machine's "optimum" (`at_optimum`: the setting an
     assembler finds for the nominal; the result's `held` has the values). backend, store,
     scheduler: as `sample_machines` (joblib backend, study folder, Dask cluster); on the
@@ -931,7 +935,7 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
     if hold not in HOLDS:
         raise ParameterError("hold", f"must be one of {', '.join(HOLDS)}", hold)
     if hold == "optimum" and adjust is not None:
-        mech = at_optimum(mech, adjust, limit_output, fast)
+        mech = at_optimum(mech, adjust, limit_output, fast, objective)
     nominal = mech.parameter_record()
     check_seed(seed)
     ncomp = 0 if adjust is None else len(adjust.split(",") if isinstance(adjust, str)
@@ -939,7 +943,9 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
     footprint = montecarlo_bytes(len(names), ncomp)
     check_sampling(nominal, tolerances, n, seed, chunk_size, bytes_per_row=footprint)
     pl = plugins(mech) if fast else NO_PLUGINS
-    if backend is None and scheduler is None and n_jobs != 1 and gil_free(pl, names, adjust):
+    # another objective than the minimum takes the generic adjuster (Python: worker processes)
+    if backend is None and scheduler is None and n_jobs != 1 and gil_free(pl, names, adjust) \
+            and (adjust is None or objective in (None, "minimise")):
         backend = "threading"
     collect = _Collector(chunk_bounds(int(n), chunk_size))
     blank = None if pl.failure_table is None else failure_blank(
@@ -947,7 +953,8 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
     _, draw = _sampled(_montecarlo_chunk, nominal, tolerances, n, seed, n_jobs, progress,
                        backend, chunk_size, f"Monte-Carlo {mech.name}", store, scheduler,
                        collect, dict(mech=mech, outputs=list(names), compensator=adjust,
-                                     target=limit_output, fast=fast, spec=spec, blank=blank),
+                                     target=limit_output, fast=fast, spec=spec, blank=blank,
+                                     objective=objective),
                        footprint)
     params = tuple(tolerances.active().params)
     dev_names = tuple(draw.law.params)
@@ -982,7 +989,7 @@ def gil_free(pl, outputs, adjust) -> bool:
             and (adjust is None or pl.adjuster is not None))
 
 
-def at_optimum(mech, compensators, output: str, fast: bool = True):
+def at_optimum(mech, compensators, output: str, fast: bool = True, objective=None):
     """The mechanism with its compensators' nominals at the nominal machine's optimum of
     `output` (`adjusting.adjusted`, the same adjuster as every machine's): the setting an
     assembler finds for the nominal machine, held in a study's fixed case."""
@@ -990,8 +997,8 @@ def at_optimum(mech, compensators, output: str, fast: bool = True):
 
     one = {k: np.array([v]) for k, v in mech.nominal_values().items()}
     comps = [compensators] if isinstance(compensators, str) else compensators
-    settings = {k: float(v[0]) for k, v in adjusted(mech, one, comps, output, fast=fast)
-                .settings.items()}
+    settings = {k: float(v[0]) for k, v in adjusted(mech, one, comps, output, fast=fast,
+                                                    objective=objective).settings.items()}
     if not np.all(np.isfinite(list(settings.values()))):
         raise ParameterError("hold", "optimum needs a nominal machine that runs at some "
                              "setting of the compensators", settings)

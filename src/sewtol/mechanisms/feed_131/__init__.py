@@ -5,9 +5,8 @@ Data and topology: ``mechanism.toml`` (the file `sewtol run feed_131 ...` runs; 
 main-shaft angle) and ``model.py`` (`Feed131`, the chains in the source's order). Outputs:
 ``metrics.py`` (working figures of the dogs: feed step, dog rise, phases, the differential
 ratio; the file's outputs of kind feed_dogs). The machine's own analysis (trajectories, the
-stitch regulator, the source's read-offs): ``analysis.py``; the generic studies in the feed
-report's columns: ``sewtol.tables.feed_131`` (its assumed set: ``mechanism.toml``'s
-[tolerances.assumed]).
+stitch regulator, the source's read-offs): ``analysis.py``; the tolerance studies are the
+generic ones on ``mechanism.toml`` (its default set: [tolerances.assumed]).
 """
 
 from sewtol.mechanisms.feed_131.model import Feed131

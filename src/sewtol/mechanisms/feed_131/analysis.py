@@ -2,8 +2,8 @@
 the working figures, the stitch regulator (sweep, the b for a step, the b range for a ratio band)
 and the source's read-offs with the explanations tested against them. It stays in the folder:
 these are the model's own figures and the reconstruction of the source's data, not a tolerance
-study; the tolerance studies run on the protocol (sewtol.studies, the feed's columns in
-sewtol.tables.feed_131)."""
+study; the tolerance studies run on the protocol (sewtol.studies on the folder's
+mechanism.toml)."""
 
 from __future__ import annotations
 
