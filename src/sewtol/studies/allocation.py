@@ -43,7 +43,7 @@ from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
 from sewtol.studies.adjusting import evaluated, failures_of
 from sewtol.studies.montecarlo import check_seed
-from sewtol.studies.rare_event import check_adjust, limits_of, output_of
+from sewtol.studies.rare_event import checked_limits, output_of
 from sewtol.studies.scan import checked, scan
 from sewtol.tolerances import Tolerance, ToleranceSet
 
@@ -180,9 +180,7 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
     failures(mech, values, output) -> (status, group) of machines without a value (default the
     mechanism's plug-in, else adjusting.evaluated_failures), counted per trial. fast=False: the
     generic reference path."""
-    mech.output(output)
-    check_adjust(mech, adjust)
-    upper, lower = limits_of(mech, output, upper, lower)
+    upper, lower = checked_limits(mech, output, adjust, upper, lower)
     spec = Spec(output, upper, lower)
     if not (isinstance(target, (int, float)) and 0 < target < 1):
         raise ParameterError("target", "must be a yield strictly between 0 and 1", target)

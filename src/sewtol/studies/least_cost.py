@@ -53,7 +53,7 @@ from sewtol.law import InputLaw, draw_units, unit_streams
 from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
 from sewtol.studies.allocation import AllocatedLimits, refuse_relations
-from sewtol.studies.rare_event import check_adjust, limits_of, output_of
+from sewtol.studies.rare_event import checked_limits, output_of
 from sewtol.studies.scan import checked
 from sewtol.tolerances import Tolerance, ToleranceSet
 
@@ -432,9 +432,7 @@ def least_cost(mech, tolerances: ToleranceSet, output: str, target: float = 0.99
     polish pushes the limits without scanning the centres (cheaper: for slow models). adjust and options: the
     compensators and the strategy adjuster's options, as `sewtol.studies.allocation.allocate`
     takes them; fast=False: the generic reference path."""
-    mech.output(output)
-    check_adjust(mech, adjust)
-    upper, lower = limits_of(mech, output, upper, lower)
+    upper, lower = checked_limits(mech, output, adjust, upper, lower)
     spec = Spec(output, upper, lower)
     if not (isinstance(target, (int, float)) and 0 < target < 1):
         raise ParameterError("target", "must be a yield strictly between 0 and 1", target)

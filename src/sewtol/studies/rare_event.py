@@ -786,11 +786,14 @@ def limits_text(output: str, upper: float | None, lower: float | None, unit: str
     return f"{lower:g}{u} <= {output} <= {upper:g}{u}"
 
 
-def check_adjust(mech, adjust) -> None:
-    """A compensator given by name must be one of the mechanism's."""
+def checked_limits(mech, output: str, adjust, upper: float | None, lower: float | None):
+    """A yield study's case checked: `output` and a compensator `adjust` given by name must be
+    the mechanism's; returns the limits (`limits_of`)."""
+    mech.output(output)
     if isinstance(adjust, str) and adjust not in mech.compensators:
         raise ParameterError("adjust", "must name a compensator of the file ("
                              + (", ".join(mech.compensators) or "it has none") + ")", adjust)
+    return limits_of(mech, output, upper, lower)
 
 
 def output_of(mech, values: dict, output: str, adjust=None, fast: bool = True,
@@ -857,9 +860,7 @@ def limit_state(mech, tolerances: ToleranceSet, output: str, upper: float | None
     (`group_modes`), or, with `modes` (status -> the mechanism's word for it), modes[STATUS].
     fast=False: the generic reference path.
     """
-    mech.output(output)
-    check_adjust(mech, adjust)
-    upper, lower = limits_of(mech, output, upper, lower)
+    upper, lower = checked_limits(mech, output, adjust, upper, lower)
     tol = checked(mech, tolerances)
     if tol.relations:
         # the relations condition the law (sewtol.relations): P(fail | relations) is a ratio of

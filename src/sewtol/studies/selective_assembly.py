@@ -29,7 +29,7 @@ from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
 from sewtol.selective import BY, Selective
 from sewtol.studies.adjusting import evaluated_failures
-from sewtol.studies.rare_event import check_adjust, limits_of, output_of
+from sewtol.studies.rare_event import checked_limits, output_of
 from sewtol.studies.scan import checked
 from sewtol.tolerances import ToleranceSet
 
@@ -72,9 +72,7 @@ def selective_assembly(mech, tolerances: ToleranceSet, output: str, pair: tuple[
                        upper: float | None = None, lower: float | None = None, adjust=None, *,
                        fast: bool = True, **options) -> SelectiveResult:
     """The module docstring's table for each k in `groups`."""
-    mech.output(output)
-    check_adjust(mech, adjust)
-    upper, lower = limits_of(mech, output, upper, lower)
+    upper, lower = checked_limits(mech, output, adjust, upper, lower)
     spec = Spec(output, upper, lower)
     if by not in BY:
         raise ParameterError("by", f"must be one of {', '.join(BY)}", by)
