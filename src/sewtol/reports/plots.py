@@ -62,20 +62,15 @@ def sum_delta_vs_beta(betas, totals_um, beta_opt: float, window: tuple[float, fl
 
 
 def study_parser(doc: str, seed: int | None = 2026, jobs: bool | str = False,
-                 progress: bool = False, figures: bool = False,
-                 **counts: int) -> argparse.ArgumentParser:
-    """The report scripts' command line: --out (default reports), --seed (None: none), a whole
-    number per count (n_mc=10000: --n-mc), --n-jobs (jobs: its help, or True), --progress and
-    --figure-format."""
+                 progress: bool = False, figures: bool = False, **counts: int):
+    """The report scripts' command line: --out, --seed (None: none), a whole number per count
+    (n_mc=10000: --n-mc), --n-jobs (jobs: True or its help), --progress, --figure-format."""
     ap = argparse.ArgumentParser(description=doc.splitlines()[0])
     ap.add_argument("--out", default="reports")
-    if seed is not None:
-        ap.add_argument("--seed", type=int, default=seed)
-    for name, default in counts.items():
-        ap.add_argument("--" + name.replace("_", "-"), type=int, default=default)
-    if jobs:
-        ap.add_argument("--n-jobs", type=int, default=1,
-                        help=jobs if isinstance(jobs, str) else None)
+    ints = ({} if seed is None else {"seed": seed}) | counts | ({"n_jobs": 1} if jobs else {})
+    for name, default in ints.items():
+        ap.add_argument("--" + name.replace("_", "-"), type=int, default=default,
+                        help=jobs if name == "n_jobs" and isinstance(jobs, str) else None)
     if progress:
         ap.add_argument("--progress", action="store_true")
     if figures:
