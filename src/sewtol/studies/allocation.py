@@ -38,7 +38,7 @@ import pandas as pd
 from sewtol.dependence import Dependence
 from sewtol.errors import ParameterError
 from sewtol.intervals import clopper_pearson
-from sewtol.law import InputLaw, draw_units, unit_streams
+from sewtol.law import InputLaw, draw_units, refuse_conditioned, unit_streams
 from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
 from sewtol.studies.adjusting import evaluated, failures_of
@@ -132,16 +132,11 @@ def refuse_relations(tolerances: ToleranceSet) -> None:
     """Allocation scales each tolerance by its own factor; a relation (sewtol.relations) is one
     limit on several of them, which no common scale defines, and the machines it rejects would
     change with the scale (no common random numbers): refused in one line."""
-    if tolerances.relations:
-        raise ParameterError(tolerances.relations[0].where, "allocation scales each tolerance "
-                             "on its own and cannot scale a relation between several; allocate "
-                             "the set without its relations, then add them",
-                             tolerances.relations[0].expr)
-    if tolerances.selective is not None:
-        raise ParameterError(tolerances.selective.where, "allocation draws unmatched machines; "
-                             "compare selective assembly with tightening in the selective "
-                             "assembly study (sewtol.studies.selective_assembly)",
-                             tolerances.selective.as_dict())
+    refuse_conditioned(tolerances, "allocation scales each tolerance on its own and cannot "
+                       "scale a relation between several; allocate the set without its "
+                       "relations, then add them", "allocation draws unmatched machines; compare "
+                       "selective assembly with tightening in the selective assembly study "
+                       "(sewtol.studies.selective_assembly)")
 
 
 def _per_parameter(weights: dict | None, params, field: str) -> np.ndarray:

@@ -45,6 +45,7 @@ from scipy import special, stats
 
 from sewtol.errors import ParameterError
 from sewtol.intervals import clopper_pearson
+from sewtol.law import refuse_conditioned
 from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
 from sewtol.studies.adjusting import adjusted, evaluated, failures_of
@@ -862,16 +863,12 @@ def limit_state(mech, tolerances: ToleranceSet, output: str, upper: float | None
     """
     upper, lower = checked_limits(mech, output, adjust, upper, lower)
     tol = checked(mech, tolerances)
-    if tol.relations:
-        # the relations condition the law (sewtol.relations): P(fail | relations) is a ratio of
-        # two estimates that subset simulation and NAIS do not make; refused, not ignored
-        raise ParameterError(tol.relations[0].where, "conditions the law on a relation, which "
-                             "the rare-event estimators do not take; use the Monte-Carlo (its "
-                             "yield interval) for a set with relations", tol.relations[0].expr)
-    if tol.selective is not None:
-        raise ParameterError(tol.selective.where, "matches parts within lots, which the "
-                             "rare-event estimators do not draw; use the Monte-Carlo for a set "
-                             "with selective assembly", tol.selective.as_dict())
+    # the relations condition the law (sewtol.relations): P(fail | relations) is a ratio of
+    # two estimates that subset simulation and NAIS do not make; refused, not ignored
+    refuse_conditioned(tol, "conditions the law on a relation, which the rare-event estimators "
+                       "do not take; use the Monte-Carlo (its yield interval) for a set with "
+                       "relations", "matches parts within lots, which the rare-event estimators "
+                       "do not draw; use the Monte-Carlo for a set with selective assembly")
     zmap = StandardNormalMap(tol)
     name = name or (output if adjust is None else f"{output}_adjusted")
     limit, name = (upper, name) if lower is None else (0.0, f"{name}_excess")

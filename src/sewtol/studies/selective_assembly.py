@@ -24,7 +24,7 @@ import pandas as pd
 
 from sewtol.errors import ParameterError
 from sewtol.intervals import clopper_pearson
-from sewtol.law import STREAM, InputLaw, unit_streams
+from sewtol.law import STREAM, InputLaw, refuse_conditioned, unit_streams
 from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
 from sewtol.selective import BY, Selective
@@ -79,10 +79,8 @@ def selective_assembly(mech, tolerances: ToleranceSet, output: str, pair: tuple[
     if isinstance(n, bool) or int(n) != n or n < 10:
         raise ParameterError("n", "must be a whole number of machines >= 10", n)
     tol = checked(mech, tolerances)
-    if tol.relations:
-        raise ParameterError(tol.relations[0].where, "this study compares matching with "
-                             "tightening the pair alone; run it on the set without relations",
-                             tol.relations[0].expr)
+    refuse_conditioned(tol, "this study compares matching with tightening the pair alone; run "
+                       "it on the set without relations")
     pair = tuple(pair)
     for p in pair:
         if p not in tol.params:
