@@ -20,7 +20,6 @@ clearance_sobol.csv (indices), clearance_sobol_pairs.csv and clearance_run.json.
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
@@ -31,6 +30,7 @@ from sewtol.io import write_text_atomic
 from sewtol.mechanism import loads
 from sewtol.mechanism.clearance import pair_joints
 from sewtol.provenance import now, version_record
+from sewtol.reports import plots
 from sewtol.studies import clearance as K
 
 PIN_FIT, PIN_DIAMETER_MM = "H7/g6", 6.0
@@ -51,11 +51,7 @@ def md_table(frame: pd.DataFrame, digits: int = 4) -> str:
 
 
 def main(argv=None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--out", default="reports")
-    p.add_argument("--seed", type=int, default=2026)
-    p.add_argument("--n", type=int, default=1000)
-    p.add_argument("--n-sobol", type=int, default=256)
+    p = plots.study_parser(__doc__, n=1000, n_sobol=256)
     args = p.parse_args(argv)
     folder = Path(args.out) / FOLDER
     folder.mkdir(parents=True, exist_ok=True)

@@ -8,7 +8,6 @@ Writes reports/feed_131-42-3/ (tables as CSV + Markdown, PNG plots, index.md).
 
 from __future__ import annotations
 
-import argparse
 from datetime import datetime
 from pathlib import Path
 
@@ -182,16 +181,10 @@ def tighten_conclusions(contrib, sob) -> list[Conclusion]:
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="reports")
-    ap.add_argument("--seed", type=int, default=2026)
-    ap.add_argument("--n-mc", type=int, default=2000)
-    ap.add_argument("--n-sobol", type=int, default=512)
-    ap.add_argument("--n-jobs", type=int, default=1)
-    ap.add_argument("--progress", action="store_true")
+    ap = plots.study_parser(__doc__, jobs=True, progress=True, figures=True, n_mc=2000,
+                            n_sobol=512)
     ap.add_argument("--scheduler", default=None, metavar="ADDRESS",
                     help="run the Monte-Carlo on a Dask cluster (same tables)")
-    plots.add_figure_format(ap)
     args = ap.parse_args(argv)
     started = now()
     out = Path(args.out) / "feed_131-42-3"

@@ -8,7 +8,6 @@ Writes reports/m6_needle/ (tables as CSV + Markdown, motion.png, index.md, run.j
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import matplotlib
@@ -102,11 +101,7 @@ def montecarlo_travel(mech, ts, n: int, seed: int) -> pd.DataFrame:
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="reports")
-    ap.add_argument("--seed", type=int, default=2026)
-    ap.add_argument("--n-mc", type=int, default=10_000)
-    ap.add_argument("--samples", type=int, default=3600)
+    ap = plots.study_parser(__doc__, n_mc=10_000, samples=3600)
     args = ap.parse_args(argv)
     started = now()
     out = Path(args.out) / "m6_needle"

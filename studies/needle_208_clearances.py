@@ -12,7 +12,6 @@ clearance_loaded.csv, clearance_crossings.csv and clearances_run.json.
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
@@ -24,6 +23,7 @@ from sewtol.io import write_text_atomic
 from sewtol.mechanism import loads
 from sewtol.mechanism.kinetostatics import PointLoad
 from sewtol.provenance import now, version_record
+from sewtol.reports import plots
 from sewtol.studies import clearance as K
 from sewtol.tolerances import load_toml
 
@@ -59,10 +59,7 @@ def md_table(frame: pd.DataFrame, digits: int = 3) -> str:
 
 
 def main(argv=None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--out", default="reports")
-    p.add_argument("--seed", type=int, default=2026)
-    p.add_argument("--n", type=int, default=400)
+    p = plots.study_parser(__doc__, n=400)
     args = p.parse_args(argv)
     out = Path(args.out)
     folder = out / "needle_208"

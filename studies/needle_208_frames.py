@@ -10,7 +10,6 @@ on a reconstruction, not on the machine.
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import matplotlib.pyplot as plt
@@ -103,14 +102,8 @@ def verdicts(res: dict) -> list[tuple[str, str, str]]:
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="reports")
-    ap.add_argument("--seed", type=int, default=2026)
-    ap.add_argument("--n-mc", type=int, default=2000)
-    ap.add_argument("--n-sobol", type=int, default=256)
-    ap.add_argument("--n-jobs", type=int, default=1)
-    ap.add_argument("--progress", action="store_true")
-    plots.add_figure_format(ap)
+    ap = plots.study_parser(__doc__, jobs=True, progress=True, figures=True, n_mc=2000,
+                            n_sobol=256)
     args = ap.parse_args(argv)
     out = Path(args.out) / "needle_208"
 

@@ -19,7 +19,6 @@ housing_share.json (the same plus `headline`: one sentence the index page can qu
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -30,6 +29,7 @@ from sewtol.io import write_text_atomic
 from sewtol.mechanisms.needle_208.compensators import exact, strategy_of
 from sewtol.mechanisms.needle_208.model import Needle208
 from sewtol.provenance import now, run_record
+from sewtol.reports import plots
 from sewtol.reports.tables import write_table
 from sewtol.tables.needle_208 import needle_sobol, strategies_table
 from sewtol.tolerances import NEEDLE_208_HOUSING, NEEDLE_208_HOUSING_SETS
@@ -70,12 +70,7 @@ def headline(table: pd.DataFrame, n_sobol: int, n: int) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="reports")
-    ap.add_argument("--seed", type=int, default=2026)
-    ap.add_argument("--n-sobol", type=int, default=1024)
-    ap.add_argument("--n", type=int, default=2000)
-    ap.add_argument("--n-jobs", type=int, default=1)
+    ap = plots.study_parser(__doc__, jobs=True, n_sobol=1024, n=2000)
     args = ap.parse_args(argv)
     started = now()
     out = Path(args.out) / "needle_208"

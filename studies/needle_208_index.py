@@ -9,7 +9,6 @@ conclusions comes from those tables.
 
 from __future__ import annotations
 
-import argparse
 import json
 import re
 from datetime import datetime
@@ -21,6 +20,7 @@ from sewtol.intervals import clopper_pearson
 from sewtol.io import write_text_atomic
 from sewtol.mechanisms.needle_208.compensators import STRATEGY_ROWS as STRATEGY_COMPENSATORS
 from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME
+from sewtol.reports import plots
 from sewtol.reports.html import Conclusion, Figure, Report, Section, markdown_index, render
 
 FIGURE_SUFFIXES = ("svg", "png")  # what the HTML embeds (a pdf run writes a png beside it)
@@ -527,8 +527,7 @@ def provenance(out: Path, sets: list[str], missing: list[str]) -> dict:
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="reports")
+    ap = plots.study_parser(__doc__, seed=None)
     args = ap.parse_args(argv)
     out = Path(args.out) / "needle_208"
     run = _json(out / "run.json")

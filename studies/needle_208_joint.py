@@ -12,7 +12,6 @@ classes beside the tightening that gives the same yield) and joint_run.json.
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from dataclasses import replace
@@ -30,6 +29,7 @@ from sewtol.mechanisms.needle_208.model import Needle208
 from sewtol.protocol import machines
 from sewtol.provenance import now, run_record
 from sewtol.relations import Relation
+from sewtol.reports import plots
 from sewtol.reports.tables import write_table
 from sewtol.studies.rare_event import output_of
 from sewtol.studies.selective_assembly import selective_assembly
@@ -103,10 +103,7 @@ def relation_table(nominal, base, n, seed, target) -> tuple[pd.DataFrame, dict]:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="reports")
-    ap.add_argument("--seed", type=int, default=2026)
-    ap.add_argument("--n", type=int, default=2000)
+    ap = plots.study_parser(__doc__, n=2000)
     ap.add_argument("--target", type=float, default=0.9)
     args = ap.parse_args(argv)
     if not 0 < args.target < 1:

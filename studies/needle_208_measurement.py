@@ -13,7 +13,6 @@ sd (only the scale changes). Writes reports/needle_208/strategies_measurement_er
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
@@ -38,12 +37,7 @@ ROWS = ("beta+shift", "beta+shift+angle", "beta+shift+angle exact")
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="reports")
-    ap.add_argument("--seed", type=int, default=2026)
-    ap.add_argument("--n", type=int, default=500)
-    ap.add_argument("--n-jobs", type=int, default=1)
-    plots.add_figure_format(ap)
+    ap = plots.study_parser(__doc__, jobs=True, figures=True, n=500)
     args = ap.parse_args(argv)
     out = Path(args.out) / "needle_208"
     out.mkdir(parents=True, exist_ok=True)

@@ -8,7 +8,6 @@ sum_delta_vs_beta.png (index.md is written by needle_208_tolerances.py).
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import matplotlib.pyplot as plt
@@ -24,9 +23,7 @@ from sewtol.reports.tables import write_table
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="reports")
-    plots.add_figure_format(ap)
+    ap = plots.study_parser(__doc__, seed=None, figures=True)
     args = ap.parse_args(argv)
     out = Path(args.out) / "needle_208"
 

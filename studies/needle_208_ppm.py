@@ -17,7 +17,6 @@ ppm_exceedance.{md,csv}, ppm_exceedance.png, allocated_tolerances.toml (for
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -70,16 +69,11 @@ def check_args(args) -> None:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="reports")
-    ap.add_argument("--seed", type=int, default=2026)
+    ap = plots.study_parser(__doc__, jobs=True, progress=True, figures=True)
     ap.add_argument("--budget", type=int, default=20000, help="model calls per estimate")
     ap.add_argument("--n-brute", type=int, default=1_000_000,
                     help="brute-force Monte-Carlo machines for the allocated set")
     ap.add_argument("--n-alloc", type=int, default=2000, help="as in needle_208_tolerances.py")
-    ap.add_argument("--n-jobs", type=int, default=1)
-    ap.add_argument("--progress", action="store_true")
-    plots.add_figure_format(ap)
     args = ap.parse_args(argv)
     try:
         check_args(args)

@@ -13,7 +13,6 @@ strategies_run.json.
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -80,17 +79,13 @@ def plot_settings(adj, set_name, out: Path, fmt: str = "png") -> list[Path]:
     return paths
 
 
+JOBS_HELP = "adjust the machines in chunks on this many processes (same tables)"
+
+
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="reports")
-    ap.add_argument("--seed", type=int, default=2026)
-    ap.add_argument("--n", type=int, default=500)
-    ap.add_argument("--n-jobs", type=int, default=1,
-                    help="adjust the machines in chunks on this many processes (same tables)")
-    ap.add_argument("--progress", action="store_true")
+    ap = plots.study_parser(__doc__, jobs=JOBS_HELP, progress=True, figures=True, n=500)
     ap.add_argument("--tolerances", action="append", metavar="FILE.toml[:SET]",
                     help="these sets instead of the built-in base and recommended (repeatable)")
-    plots.add_figure_format(ap)
     args = ap.parse_args(argv)
     try:
         sets = resolve_all(args.tolerances, {k: NEEDLE_208_SETS[k] for k in SETS},

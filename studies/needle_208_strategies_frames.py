@@ -15,7 +15,6 @@ Writes reports/needle_208/strategies_frames.md/.csv and strategies_frames_run.js
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -28,6 +27,7 @@ from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME, frame_names
 from sewtol.mechanisms.needle_208.model import Needle208
 from sewtol.mechanisms.params import field_names
 from sewtol.provenance import now, run_record
+from sewtol.reports import plots
 from sewtol.reports.tables import write_table
 from sewtol.tables.needle_208 import strategies_table
 from sewtol.tolerances import NEEDLE_208_SETS, resolve_all
@@ -55,14 +55,12 @@ def frame_rows(frames: list[str], sets: dict, n: int, seed: int, n_jobs: int = 1
     return both[[c for c in COLUMNS if c in both.columns]]
 
 
+JOBS_HELP = "adjust the machines in chunks on this many processes (same tables)"
+
+
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="reports")
-    ap.add_argument("--seed", type=int, default=2026)
+    ap = plots.study_parser(__doc__, jobs=JOBS_HELP, progress=True)
     ap.add_argument("--n", type=int, default=500, help="machines per set and frame")
-    ap.add_argument("--n-jobs", type=int, default=1,
-                    help="adjust the machines in chunks on this many processes (same tables)")
-    ap.add_argument("--progress", action="store_true")
     ap.add_argument("--tolerances", action="append", metavar="FILE.toml[:SET]",
                     help="these sets instead of the built-in base and recommended (repeatable)")
     args = ap.parse_args(argv)

@@ -11,7 +11,6 @@ Without --tolerances the built-in sets (base, recommended) are studied; with it,
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
@@ -48,18 +47,10 @@ def tol_text(ts) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="reports")
-    ap.add_argument("--seed", type=int, default=2026)
-    ap.add_argument("--n-mc", type=int, default=10000)
-    ap.add_argument("--n-sobol", type=int, default=4096)
-    ap.add_argument("--n-alloc", type=int, default=2000)
-    ap.add_argument("--n-guides", type=int, default=2000)
-    ap.add_argument("--n-jobs", type=int, default=1)
-    ap.add_argument("--progress", action="store_true")
+    ap = plots.study_parser(__doc__, jobs=True, progress=True, figures=True, n_mc=10000,
+                            n_sobol=4096, n_alloc=2000, n_guides=2000)
     ap.add_argument("--tolerances", action="append", metavar="FILE.toml[:SET]",
                     help="study these sets instead of the built-in ones (repeatable)")
-    plots.add_figure_format(ap)
     args = ap.parse_args(argv)
     try:
         sets = resolve_all(args.tolerances, NEEDLE_208_SETS, field_names(Needle208))

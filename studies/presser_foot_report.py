@@ -8,7 +8,6 @@ Writes reports/presser_foot/ (tables as CSV + Markdown, cycle.png, index.md, run
 
 from __future__ import annotations
 
-import argparse
 import math
 from pathlib import Path
 
@@ -26,10 +25,7 @@ from sewtol.tables import presser_foot as S
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="reports")
-    ap.add_argument("--seed", type=int, default=2026)
-    ap.add_argument("--n-mc", type=int, default=10_000)
+    ap = plots.study_parser(__doc__, n_mc=10_000)
     args = ap.parse_args(argv)
     started = now()
     out = Path(args.out) / "presser_foot"

@@ -167,13 +167,6 @@ def compensators_of(mech, adjust) -> tuple:
     return comps
 
 
-def adjust_label(adjust) -> str | None:
-    """The comma form of `adjust` (None stays None), as tables and JSON name it."""
-    if adjust is None:
-        return None
-    return adjust if isinstance(adjust, str) else ",".join(adjust)
-
-
 @dataclass(frozen=True)
 class Adjustment:
     """Per machine: the output at the chosen settings (`value`), the objective's loss there,

@@ -50,6 +50,15 @@ STREAM = 500
 MAX_CANDIDATES_PER_MACHINE = 1000
 
 
+def refuse_conditioned(law, relation: str | None = None, selective: str | None = None) -> None:
+    """Refuse in one line a set or law with relations (rule `relation`) or selective assembly
+    (rule `selective`): a study that does not draw that conditioning (None: it does)."""
+    if relation and law.relations:
+        raise ParameterError(law.relations[0].where, relation, law.relations[0].expr)
+    if selective and law.selective is not None:
+        raise ParameterError(law.selective.where, selective, law.selective.as_dict())
+
+
 @dataclass(frozen=True)
 class InputLaw:
     """The joint law of the toleranced parameters' deviations.

@@ -50,7 +50,6 @@ class GenericReport:
     scan: pd.DataFrame
     dominance: pd.DataFrame  # output, rank, param, change (max |change| over sides), share
     worst_case: pd.DataFrame
-    worst_case_notes: dict
     mc_summary: pd.DataFrame
     machines: pd.DataFrame
     yield_row: dict | None = None
@@ -166,13 +165,13 @@ def build(mech, tolerances, n: int = 1000, seed: int = 0, limit_output: str | No
         upper, lower = spec.upper, spec.lower
     nom = G.nominal(mech).rows
     sc = S.scan(mech, tolerances, fast=False).rows
-    wc_rows, wc_notes, notes = [], {}, []
+    wc_rows, notes = [], []
     for name in mech.output_names:
         try:
             r = W.worst_case(mech, tolerances, name, fast=False)
         except ParameterError as exc:
             # too many corners, or every corner fails: said in the report, not dropped
-            wc_notes[name] = f"{exc.field}: {exc.rule}"
+            notes.append(f"worst case of {name} not computed ({exc.field}: {exc.rule})")
             continue
         f = r.rows[["extreme", "output", "value", "corner_value", "interior"]].copy()
         f["monotone_on_axes"] = r.monotone_on_axes
@@ -180,8 +179,6 @@ def build(mech, tolerances, n: int = 1000, seed: int = 0, limit_output: str | No
         wc_rows.append(f)
     wc = pd.concat(wc_rows, ignore_index=True) if wc_rows else pd.DataFrame(
         columns=["extreme", "output", "value", "corner_value", "interior"])
-    for name, why in wc_notes.items():
-        notes.append(f"worst case of {name} not computed ({why})")
     mc = MC.montecarlo(mech, tolerances, n, seed, limit=upper, lower_limit=lower,
                        limit_output=limit_output)
     notes += law_notes(tolerances, mc.inspection())
@@ -198,7 +195,7 @@ def build(mech, tolerances, n: int = 1000, seed: int = 0, limit_output: str | No
                      "yield": c["ok"] / c["n"], "ci_low": ci_low,
                      "ci_high": ci_high}
     return GenericReport(mech, tolerances, int(n), int(seed), limit_output, upper, lower, nom,
-                         sc, dominance(sc), wc, wc_notes, mc.summary_frame(), machines,
+                         sc, dominance(sc), wc, mc.summary_frame(), machines,
                          yield_row, notes)
 
 

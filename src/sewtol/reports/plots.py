@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import io
 from pathlib import Path
 
@@ -60,11 +61,23 @@ def sum_delta_vs_beta(betas, totals_um, beta_opt: float, window: tuple[float, fl
     return ax
 
 
-def add_figure_format(parser) -> None:
-    """The report scripts' --figure-format option."""
-    parser.add_argument("--figure-format", choices=FIGURE_FORMATS, default="png",
+def study_parser(doc: str, seed: int | None = 2026, jobs: bool | str = False,
+                 progress: bool = False, figures: bool = False, **counts: int):
+    """The report scripts' command line: --out, --seed (None: none), a whole number per count
+    (n_mc=10000: --n-mc), --n-jobs (jobs: True or its help), --progress, --figure-format."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
+    ap.add_argument("--out", default="reports")
+    ints = ({} if seed is None else {"seed": seed}) | counts | ({"n_jobs": 1} if jobs else {})
+    for name, default in ints.items():
+        ap.add_argument("--" + name.replace("_", "-"), type=int, default=default,
+                        help=jobs if name == "n_jobs" and isinstance(jobs, str) else None)
+    if progress:
+        ap.add_argument("--progress", action="store_true")
+    if figures:
+        ap.add_argument("--figure-format", choices=FIGURE_FORMATS, default="png",
                         help=f"png (the default, {FIGURE_DPI} dpi), svg or pdf (pdf also writes "
                         "the png the HTML report embeds)")
+    return ap
 
 
 def save(fig, path: Path, fmt: str | None = None) -> Path:

@@ -38,12 +38,12 @@ import pandas as pd
 from sewtol.dependence import Dependence
 from sewtol.errors import ParameterError
 from sewtol.intervals import clopper_pearson
-from sewtol.law import InputLaw, draw_units, unit_streams
+from sewtol.law import InputLaw, draw_units, refuse_conditioned, unit_streams
 from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
 from sewtol.studies.adjusting import evaluated, failures_of
 from sewtol.studies.montecarlo import check_seed
-from sewtol.studies.rare_event import check_adjust, limits_of, output_of
+from sewtol.studies.rare_event import checked_limits, output_of
 from sewtol.studies.scan import checked, scan
 from sewtol.tolerances import Tolerance, ToleranceSet
 
@@ -61,12 +61,10 @@ COST_METHOD = ("reciprocal cost sum c_i / t_i; shape t_i ~ (c_i / s_i^2)^(1/3) (
 
 
 @dataclass(frozen=True)
-class Allocation:
-    """The largest common scale of a tolerance set that keeps the yield at a target.
-
-    `table`: per parameter its weight, the reference limits and the allocated limits (reference
-    times scale times weight), in the parameter's unit. `trials`: every scale tried with its
-    yield and counts (the step function the bisection walked)."""
+class AllocatedLimits:
+    """What every allocation of one output's yield holds (Allocation, least_cost.LeastCost): the
+    case, and in the subclass the `table` of allocated limits per parameter, `adjust` and the set's
+    `dependence`. KIND: the allocated set's name suffix and description."""
 
     mechanism: str
     output: str
@@ -74,6 +72,34 @@ class Allocation:
     lower: float | None
     tolerances: str
     target: float
+
+    KIND = ("allocated", "allocated by sewtol (studies.allocation)")
+
+    def to_dataframe(self) -> pd.DataFrame:
+        return self.table.copy()
+
+    def as_tolerance_set(self, name: str | None = None) -> ToleranceSet:
+        """The allocated limits as a ToleranceSet (each tolerance keeps its distribution, the
+        set its copula)."""
+        return ToleranceSet(name or f"{self.tolerances}*{self.KIND[0]}", tuple(
+            Tolerance(r["param"], r["lower"], r["upper"], r["dist"])
+            for r in self.table.to_dict("records")), self.KIND[1], dependence=self.dependence)
+
+    def case_dict(self) -> dict:
+        """The head of to_dict(): mechanism, output, limits, adjust, tolerances, target."""
+        return {"mechanism": self.mechanism, "output": self.output, "limit": self.upper,
+                "lower_limit": self.lower, "adjust": self.adjust,
+                "tolerances": self.tolerances, "target": self.target}
+
+
+@dataclass(frozen=True)
+class Allocation(AllocatedLimits):
+    """The largest common scale of a tolerance set that keeps the yield at a target.
+
+    `table`: per parameter its weight, the reference limits and the allocated limits (reference
+    times scale times weight), in the parameter's unit. `trials`: every scale tried with its
+    yield and counts (the step function the bisection walked)."""
+
     n: int
     seed: int
     scale: float
@@ -92,41 +118,25 @@ class Allocation:
             return self.table.copy()
         return self.table[list(self.columns)].rename(columns=self.columns)
 
-    def as_tolerance_set(self, name: str | None = None) -> ToleranceSet:
-        """The allocated limits as a ToleranceSet (each tolerance keeps its distribution)."""
-        return ToleranceSet(name or f"{self.tolerances}*allocated", tuple(
-            Tolerance(r["param"], r["lower"], r["upper"], r["dist"])
-            for r in self.table.to_dict("records")), "allocated by sewtol (studies.allocation)",
-            dependence=self.dependence)
-
     def to_dict(self) -> dict:
         # yield NaN: no scale down to 2**-20 reaches the target (no interval either)
         ci = clopper_pearson(round(self.yield_ * self.n), self.n) \
             if np.isfinite(self.yield_) else None
-        return {"mechanism": self.mechanism, "output": self.output, "limit": self.upper,
-                "lower_limit": self.lower, "adjust": self.adjust,
-                "tolerances": self.tolerances, "target": self.target, "n": self.n,
-                "seed": self.seed, "scale": self.scale, "yield": self.yield_,
-                "yield_ci95": list(ci) if ci else [None, None],
-                "capped": self.capped,
-                "method": self.method, "rows": self.table.to_dict("records"),
-                "trials": self.trials.to_dict("records")}
+        return {**self.case_dict(), "n": self.n, "seed": self.seed, "scale": self.scale,
+                "yield": self.yield_, "yield_ci95": list(ci) if ci else [None, None],
+                "capped": self.capped, "method": self.method,
+                "rows": self.table.to_dict("records"), "trials": self.trials.to_dict("records")}
 
 
 def refuse_relations(tolerances: ToleranceSet) -> None:
     """Allocation scales each tolerance by its own factor; a relation (sewtol.relations) is one
     limit on several of them, which no common scale defines, and the machines it rejects would
     change with the scale (no common random numbers): refused in one line."""
-    if tolerances.relations:
-        raise ParameterError(tolerances.relations[0].where, "allocation scales each tolerance "
-                             "on its own and cannot scale a relation between several; allocate "
-                             "the set without its relations, then add them",
-                             tolerances.relations[0].expr)
-    if tolerances.selective is not None:
-        raise ParameterError(tolerances.selective.where, "allocation draws unmatched machines; "
-                             "compare selective assembly with tightening in the selective "
-                             "assembly study (sewtol.studies.selective_assembly)",
-                             tolerances.selective.as_dict())
+    refuse_conditioned(tolerances, "allocation scales each tolerance on its own and cannot "
+                       "scale a relation between several; allocate the set without its "
+                       "relations, then add them", "allocation draws unmatched machines; compare "
+                       "selective assembly with tightening in the selective assembly study "
+                       "(sewtol.studies.selective_assembly)")
 
 
 def _per_parameter(weights: dict | None, params, field: str) -> np.ndarray:
@@ -165,9 +175,7 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
     failures(mech, values, output) -> (status, group) of machines without a value (default the
     mechanism's plug-in, else adjusting.evaluated_failures), counted per trial. fast=False: the
     generic reference path."""
-    mech.output(output)
-    check_adjust(mech, adjust)
-    upper, lower = limits_of(mech, output, upper, lower)
+    upper, lower = checked_limits(mech, output, adjust, upper, lower)
     spec = Spec(output, upper, lower)
     if not (isinstance(target, (int, float)) and 0 < target < 1):
         raise ParameterError("target", "must be a yield strictly between 0 and 1", target)

@@ -52,8 +52,8 @@ from sewtol.intervals import clopper_pearson
 from sewtol.law import InputLaw, draw_units, unit_streams
 from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
-from sewtol.studies.allocation import refuse_relations
-from sewtol.studies.rare_event import check_adjust, limits_of, output_of
+from sewtol.studies.allocation import AllocatedLimits, refuse_relations
+from sewtol.studies.rare_event import checked_limits, output_of
 from sewtol.studies.scan import checked
 from sewtol.tolerances import Tolerance, ToleranceSet
 
@@ -148,7 +148,7 @@ class ZoneYield:
 
 
 @dataclass(frozen=True)
-class LeastCost:
+class LeastCost(AllocatedLimits):
     """The least-cost zones of a tolerance set for a yield target (see the module doc).
 
     `table`: per parameter the cost model, the reference and allocated limits, half-width,
@@ -156,12 +156,6 @@ class LeastCost:
     at its largest common scale (same criterion, same machines), each with its cost and its
     yield on the search sample and on fresh machines. `restarts`: each search's cost."""
 
-    mechanism: str
-    output: str
-    upper: float | None
-    lower: float | None
-    tolerances: str
-    target: float
     confidence: float | None
     n: int
     seed: int
@@ -177,6 +171,7 @@ class LeastCost:
     dependence: object = None
     evaluations: int = 0
 
+    KIND = ("least_cost", "allocated at least cost by sewtol (studies.least_cost)")
     method = ("differential evolution (scipy) over each zone's log half-width and centre, "
               "cost minimised under the Monte-Carlo yield constraint on common random numbers, "
               "then each limit pushed outward by bisection; restarts from spawned seeds")
@@ -190,21 +185,9 @@ class LeastCost:
         """True when the sample has exactly the failures the target allows."""
         return self.failures == self.allowed_failures
 
-    def to_dataframe(self) -> pd.DataFrame:
-        return self.table.copy()
-
-    def as_tolerance_set(self, name: str | None = None) -> ToleranceSet:
-        """The allocated zones (each tolerance keeps its distribution, the set its copula)."""
-        return ToleranceSet(name or f"{self.tolerances}*least_cost", tuple(
-            Tolerance(r["param"], r["lower"], r["upper"], r["dist"])
-            for r in self.table.to_dict("records")), "allocated at least cost by sewtol "
-            "(studies.least_cost)", dependence=self.dependence)
-
     def to_dict(self) -> dict:
         lo, hi = clopper_pearson(self.n - self.failures, self.n)
-        return {"mechanism": self.mechanism, "output": self.output, "limit": self.upper,
-                "lower_limit": self.lower, "adjust": self.adjust, "tolerances": self.tolerances,
-                "target": self.target, "confidence": self.confidence, "n": self.n,
+        return {**self.case_dict(), "confidence": self.confidence, "n": self.n,
                 "seed": self.seed, "allowed_failures": self.allowed_failures,
                 "failures": self.failures, "yield": self.yield_, "yield_ci95": [lo, hi],
                 "yield_constraint_active": self.constraint_active, "cost": self.cost,
@@ -449,9 +432,7 @@ def least_cost(mech, tolerances: ToleranceSet, output: str, target: float = 0.99
     polish pushes the limits without scanning the centres (cheaper: for slow models). adjust and options: the
     compensators and the strategy adjuster's options, as `sewtol.studies.allocation.allocate`
     takes them; fast=False: the generic reference path."""
-    mech.output(output)
-    check_adjust(mech, adjust)
-    upper, lower = limits_of(mech, output, upper, lower)
+    upper, lower = checked_limits(mech, output, adjust, upper, lower)
     spec = Spec(output, upper, lower)
     if not (isinstance(target, (int, float)) and 0 < target < 1):
         raise ParameterError("target", "must be a yield strictly between 0 and 1", target)

@@ -45,6 +45,7 @@ from scipy import special, stats
 
 from sewtol.errors import ParameterError
 from sewtol.intervals import clopper_pearson
+from sewtol.law import refuse_conditioned
 from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
 from sewtol.studies.adjusting import adjusted, evaluated, failures_of
@@ -786,11 +787,14 @@ def limits_text(output: str, upper: float | None, lower: float | None, unit: str
     return f"{lower:g}{u} <= {output} <= {upper:g}{u}"
 
 
-def check_adjust(mech, adjust) -> None:
-    """A compensator given by name must be one of the mechanism's."""
+def checked_limits(mech, output: str, adjust, upper: float | None, lower: float | None):
+    """A yield study's case checked: `output` and a compensator `adjust` given by name must be
+    the mechanism's; returns the limits (`limits_of`)."""
+    mech.output(output)
     if isinstance(adjust, str) and adjust not in mech.compensators:
         raise ParameterError("adjust", "must name a compensator of the file ("
                              + (", ".join(mech.compensators) or "it has none") + ")", adjust)
+    return limits_of(mech, output, upper, lower)
 
 
 def output_of(mech, values: dict, output: str, adjust=None, fast: bool = True,
@@ -857,20 +861,14 @@ def limit_state(mech, tolerances: ToleranceSet, output: str, upper: float | None
     (`group_modes`), or, with `modes` (status -> the mechanism's word for it), modes[STATUS].
     fast=False: the generic reference path.
     """
-    mech.output(output)
-    check_adjust(mech, adjust)
-    upper, lower = limits_of(mech, output, upper, lower)
+    upper, lower = checked_limits(mech, output, adjust, upper, lower)
     tol = checked(mech, tolerances)
-    if tol.relations:
-        # the relations condition the law (sewtol.relations): P(fail | relations) is a ratio of
-        # two estimates that subset simulation and NAIS do not make; refused, not ignored
-        raise ParameterError(tol.relations[0].where, "conditions the law on a relation, which "
-                             "the rare-event estimators do not take; use the Monte-Carlo (its "
-                             "yield interval) for a set with relations", tol.relations[0].expr)
-    if tol.selective is not None:
-        raise ParameterError(tol.selective.where, "matches parts within lots, which the "
-                             "rare-event estimators do not draw; use the Monte-Carlo for a set "
-                             "with selective assembly", tol.selective.as_dict())
+    # the relations condition the law (sewtol.relations): P(fail | relations) is a ratio of
+    # two estimates that subset simulation and NAIS do not make; refused, not ignored
+    refuse_conditioned(tol, "conditions the law on a relation, which the rare-event estimators "
+                       "do not take; use the Monte-Carlo (its yield interval) for a set with "
+                       "relations", "matches parts within lots, which the rare-event estimators "
+                       "do not draw; use the Monte-Carlo for a set with selective assembly")
     zmap = StandardNormalMap(tol)
     name = name or (output if adjust is None else f"{output}_adjusted")
     limit, name = (upper, name) if lower is None else (0.0, f"{name}_excess")

@@ -486,6 +486,17 @@ def _step_source(mech, name, tolerances) -> str:
     return "1 % of the value" if _is_length(mech, name) else "1 % of the box width"
 
 
+def bound_row(name: str, today: float, value: float, box: tuple[float, float],
+              label: str) -> dict:
+    """A parameter's row of a design table: today, `label` (its value), change, box, and
+    at_bound "low"/"high" within 1e-4 of the box's width of an end ("" inside)."""
+    lo, hi = box
+    eps = 1e-4 * (hi - lo)
+    return {"parameter": name, "today": today, label: value, "change": value - today, "low": lo,
+            "high": hi, "at_bound": "low" if value <= lo + eps else "high" if value >= hi - eps
+            else ""}
+
+
 def refine(mech: Mechanism, parameters: Sequence[str] | Mapping | None = None, *,
            objective: str | None = None, adjust: Sequence[str] | Mapping | None = None,
            constraints: Sequence[Constraint] | None = None, seed: int = 0,
@@ -656,15 +667,8 @@ def refine(mech: Mechanism, parameters: Sequence[str] | Mapping | None = None, *
     after.pop("_status")
     before.pop("_status")
     units = {p.name: p.unit for p in mech.parameters}
-    prow = []
-    for n in names:
-        b_lo, b_hi = bounds[n]
-        v = refined[n]
-        eps = 1e-4 * (b_hi - b_lo)
-        prow.append({"parameter": n, "unit": units[n], "today": start[n], "refined": v,
-                     "change": v - start[n], "low": b_lo, "high": b_hi,
-                     "at_bound": "low" if v <= b_lo + eps else "high" if v >= b_hi - eps
-                     else ""})
+    prow = [{"parameter": n, "unit": units[n],
+             **bound_row(n, start[n], refined[n], bounds[n], "refined")} for n in names]
     for k in sorted(set(refined) - set(names)):
         if refined[k] != start[k]:  # the compensators' settings
             prow.append({"parameter": k, "unit": units[k], "today": today.get(k, start[k]),
@@ -674,12 +678,9 @@ def refine(mech: Mechanism, parameters: Sequence[str] | Mapping | None = None, *
     cb = ca = None
     if mech.output(objective).type == "line_deviation" and hasattr(mech, "curve"):
         q = mech.angles_rad()
-        cb = pd.DataFrame({"q_deg": np.degrees(q),
-                           "value": mech.curve(objective, {k: np.array([v])
-                                                           for k, v in today.items()}, q)[0]})
-        ca = pd.DataFrame({"q_deg": np.degrees(q),
-                           "value": mech.curve(objective, {k: np.array([v])
-                                                           for k, v in refined.items()}, q)[0]})
+        cb, ca = (pd.DataFrame({"q_deg": np.degrees(q), "value": mech.curve(
+            objective, {k: np.array([v]) for k, v in design.items()}, q)[0]})
+            for design in (today, refined))
     return RefineResult(
         mechanism=mech.name, objective=objective, unit=mech.output(objective).unit,
         adjust=tuple(prob.adjust) if not isinstance(prob.adjust, Mapping)

@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 
 from sewtol.errors import ParameterError
-from sewtol.studies.refine import PENALTY, Constraint, DesignProblem
+from sewtol.studies.refine import PENALTY, Constraint, DesignProblem, bound_row
 
 
 @dataclass(frozen=True)
@@ -74,17 +74,10 @@ class RobustResult:
 
     def to_dataframe(self) -> pd.DataFrame:
         """The design's parameters: today, best, change, box, at a bound."""
-        rows = []
         held = self.options.get("hold")
         boxes = {**self.bounds, **({held[2]: tuple(held[3])} if held else {})}
-        for k, (lo, hi) in boxes.items():
-            v = self.best[k]
-            eps = 1e-4 * (hi - lo)
-            rows.append({"parameter": k, "today": self.start[k], "robust": v,
-                         "change": v - self.start[k], "low": lo, "high": hi,
-                         "at_bound": "low" if v <= lo + eps else "high" if v >= hi - eps
-                         else ""})
-        return pd.DataFrame(rows)
+        return pd.DataFrame([bound_row(k, self.start[k], self.best[k], box, "robust")
+                             for k, box in boxes.items()])
 
     def to_dict(self) -> dict:
         return {"mechanism": self.mechanism, "objective": self.objective, "limit": self.limit,

@@ -24,12 +24,12 @@ import pandas as pd
 
 from sewtol.errors import ParameterError
 from sewtol.intervals import clopper_pearson
-from sewtol.law import STREAM, InputLaw, unit_streams
+from sewtol.law import STREAM, InputLaw, refuse_conditioned, unit_streams
 from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
 from sewtol.selective import BY, Selective
 from sewtol.studies.adjusting import evaluated_failures
-from sewtol.studies.rare_event import check_adjust, limits_of, output_of
+from sewtol.studies.rare_event import checked_limits, output_of
 from sewtol.studies.scan import checked
 from sewtol.tolerances import ToleranceSet
 
@@ -72,19 +72,15 @@ def selective_assembly(mech, tolerances: ToleranceSet, output: str, pair: tuple[
                        upper: float | None = None, lower: float | None = None, adjust=None, *,
                        fast: bool = True, **options) -> SelectiveResult:
     """The module docstring's table for each k in `groups`."""
-    mech.output(output)
-    check_adjust(mech, adjust)
-    upper, lower = limits_of(mech, output, upper, lower)
+    upper, lower = checked_limits(mech, output, adjust, upper, lower)
     spec = Spec(output, upper, lower)
     if by not in BY:
         raise ParameterError("by", f"must be one of {', '.join(BY)}", by)
     if isinstance(n, bool) or int(n) != n or n < 10:
         raise ParameterError("n", "must be a whole number of machines >= 10", n)
     tol = checked(mech, tolerances)
-    if tol.relations:
-        raise ParameterError(tol.relations[0].where, "this study compares matching with "
-                             "tightening the pair alone; run it on the set without relations",
-                             tol.relations[0].expr)
+    refuse_conditioned(tol, "this study compares matching with tightening the pair alone; run "
+                       "it on the set without relations")
     pair = tuple(pair)
     for p in pair:
         if p not in tol.params:

@@ -33,7 +33,7 @@ import pandas as pd
 from scipy import special, stats
 
 from sewtol.errors import ParameterError
-from sewtol.law import InputLaw
+from sewtol.law import InputLaw, refuse_conditioned
 
 N_INNER, N_OUTER, N_VAR = 3, 1, 1000
 
@@ -98,16 +98,11 @@ def shapley_effects(model, law: InputLaw, m: int, seed: int | np.random.Generato
     if law.dim < 2:
         raise ParameterError("tolerances", "needs two or more tolerances with a non-zero width "
                              "to share the variance among", law.params)
-    if law.relations:
-        # the estimator draws X_J given X_-J from the copula; a relation truncates that
-        # conditional law, which it does not sample: refused, not ignored
-        raise ParameterError(law.relations[0].where, "conditions the law on a relation, which "
-                             "the Shapley estimator does not sample; remove the relations",
-                             law.relations[0].expr)
-    if law.selective is not None:
-        raise ParameterError(law.selective.where, "matches parts within lots, which the Shapley "
-                             "estimator does not draw; remove the selective assembly",
-                             law.selective.as_dict())
+    # the estimator draws X_J given X_-J from the copula; a relation truncates that
+    # conditional law, which it does not sample: refused, not ignored
+    refuse_conditioned(law, "conditions the law on a relation, which the Shapley estimator does "
+                       "not sample; remove the relations", "matches parts within lots, which "
+                       "the Shapley estimator does not draw; remove the selective assembly")
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(int(seed))
     d = law.dim
     z_var = rng.standard_normal((n_var, d)) @ _root(correlation_of(law)).T

@@ -36,6 +36,7 @@ from SALib.sample import sobol as sobol_sample
 from scipy import stats
 
 from sewtol.errors import ParameterError
+from sewtol.law import refuse_conditioned
 from sewtol.protocol import machines
 from sewtol.studies.adjusting import adjusted, evaluated, failures_of
 from sewtol.studies.parallel import chunk_bounds, run_chunks
@@ -66,15 +67,10 @@ def check_independent(tolerances: ToleranceSet) -> None:
         raise ParameterError("tolerances", f"ties {', '.join(dep.params)} (a correlation); Sobol "
                              "indices need independent inputs: use the Shapley effects "
                              "(sewtol run NAME shapley)", tolerances.name)
-    if tolerances.relations:
-        r = tolerances.relations[0]
-        raise ParameterError(r.where, "limits a quantity of several deviations (a relation), "
-                             "so the inputs are not independent: Sobol indices need "
-                             "independent inputs", r.expr)
-    if tolerances.selective is not None:
-        raise ParameterError(tolerances.selective.where, "matches parts at assembly, so the "
-                             "inputs are not independent: Sobol indices need independent inputs",
-                             tolerances.selective.as_dict())
+    refuse_conditioned(tolerances, "limits a quantity of several deviations (a relation), so "
+                       "the inputs are not independent: Sobol indices need independent inputs",
+                       "matches parts at assembly, so the inputs are not independent: Sobol "
+                       "indices need independent inputs")
 
 
 def problem_of(tolerances: ToleranceSet) -> dict:

@@ -28,6 +28,7 @@ import numpy as np
 import pandas as pd
 
 from sewtol.errors import ParameterError
+from sewtol.law import refuse_conditioned
 from sewtol.protocol import machines
 from sewtol.relations import polytope_vertices
 from sewtol.studies.adjusting import Adjusted, adjusted, evaluated
@@ -116,11 +117,9 @@ def worst_case(mech, tolerances: ToleranceSet, output: str, maxiter: int = 100, 
     lo = np.array([t.lower for t in tol.items])
     hi = np.array([t.upper for t in tol.items])
     cut = linear_relations(tol)
-    if tol.selective is not None:
-        # a matched pair lies in one class: a union of sub-boxes this search does not walk
-        raise ParameterError(tol.selective.where, "matches parts in classes, which the worst "
-                             "case does not search; state the matched pairs' limit as a relation "
-                             "instead", tol.selective.as_dict())
+    # a matched pair lies in one class: a union of sub-boxes this search does not walk
+    refuse_conditioned(tol, selective="matches parts in classes, which the worst case does not "
+                       "search; state the matched pairs' limit as a relation instead")
 
     def values(X):
         X = np.atleast_2d(X)

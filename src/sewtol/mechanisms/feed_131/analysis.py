@@ -7,7 +7,7 @@ mechanism.toml)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 import pandas as pd
@@ -48,9 +48,7 @@ class FeedMetrics:
     settings: dict
 
     def to_dict(self) -> dict:
-        return {"lower": self.lower, "upper": self.upper,
-                "differential_ratio": self.differential_ratio, "mismatch_mm": self.mismatch_mm,
-                "overlap_deg": self.overlap_deg, "settings": self.settings}
+        return asdict(self)
 
     def to_dataframe(self) -> pd.DataFrame:
         rows = [{"dog": d, **getattr(self, d)} for d in ("lower", "upper")]

@@ -127,25 +127,21 @@ def achieved(x, family: Family = SEWTOL_01_FAMILY) -> tuple[dict, Needle208]:
 _INFEASIBLE = 1e3
 
 
-def residuals(x, family: Family = SEWTOL_01_FAMILY, targets: dict | None = None) -> np.ndarray:
-    """Scaled residuals (achieved - target) / scale, in the order of `targets`."""
-    targets = targets or window_targets(family.lean)
-    values, _ = achieved(x, family)
+def scaled(values: dict, targets: dict) -> np.ndarray:
+    """(achieved - target) / scale, in the order of `targets` (_INFEASIBLE where not finite)."""
     r = np.array([(values[k] - t) / s for k, (t, s) in targets.items()])
     return np.where(np.isfinite(r), r, _INFEASIBLE)
+
+
+def residuals(x, family: Family = SEWTOL_01_FAMILY, targets: dict | None = None) -> np.ndarray:
+    """Scaled residuals (achieved - target) / scale, in the order of `targets`."""
+    return scaled(achieved(x, family)[0], targets or window_targets(family.lean))
 
 
 def jacobian(x, family: Family = SEWTOL_01_FAMILY, targets: dict | None = None,
              step: float = JAC_STEP) -> np.ndarray:
     """Central-difference Jacobian of the scaled residuals (per mm or deg of x)."""
-    x = np.asarray(x, float)
-    cols = []
-    for j in range(x.size):
-        e = np.zeros_like(x)
-        e[j] = step
-        cols.append((residuals(x + e, family, targets) - residuals(x - e, family, targets))
-                    / (2 * step))
-    return np.column_stack(cols)
+    return jacobian_of(lambda z: residuals(z, family, targets), x, step)
 
 
 @dataclass(frozen=True)
@@ -639,10 +635,7 @@ def table41_achieved(x5, family: Family, guide_sign: float, rows=TABLE41_FIT_ROW
 
 
 def table41_residuals_vector(x5, family: Family, guide_sign: float) -> np.ndarray:
-    t = table41_targets(family.lean)
-    v = table41_achieved(x5, family, guide_sign)
-    r = np.array([(v[k] - a) / s for k, (a, s) in t.items()])
-    return np.where(np.isfinite(r), r, _INFEASIBLE)
+    return scaled(table41_achieved(x5, family, guide_sign), table41_targets(family.lean))
 
 
 def calibrate_table41(x5_0, family: Family, guide_sign: float, max_nfev: int = 30):
@@ -650,13 +643,7 @@ def calibrate_table41(x5_0, family: Family, guide_sign: float, max_nfev: int = 3
     statements; central-difference Jacobian, step 1e-4."""
 
     def jac(x, *_):
-        cols = []
-        for j in range(x.size):
-            e = np.zeros_like(x)
-            e[j] = JAC_STEP
-            cols.append((table41_residuals_vector(x + e, family, guide_sign)
-                         - table41_residuals_vector(x - e, family, guide_sign)) / (2 * JAC_STEP))
-        return np.column_stack(cols)
+        return jacobian_of(lambda z: table41_residuals_vector(z, family, guide_sign), x)
 
     sol = least_squares(table41_residuals_vector, np.asarray(x5_0, float), jac=jac,
                         args=(family, guide_sign), x_scale=[1.0, 1.0, 0.05, 1.0, 0.01],
