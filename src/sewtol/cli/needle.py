@@ -1,7 +1,8 @@
-"""`sewtol needle COMMAND`: the 208 needle drive's single-machine figures and tolerance studies
-(nominal, deviation, scan, montecarlo, strategies, sobol, ppm, worst-case, guides, allocation,
-largest-tolerances, frames). `sewtol run FILE STUDY` on the needle_208 fast path runs these
-commands themselves."""
+"""`sewtol needle COMMAND`: the 208 needle drive's single-machine figures (nominal, deviation,
+frames) and the studies without a run form (guides, largest-tolerances); and the needle_208
+fast path of `sewtol run FILE STUDY` (FAST_PATH: scan, worst-case, montecarlo, sobol, ppm,
+allocation, strategies, with the plug-in's flags of needle_flags), which `sewtol needle STUDY`
+reaches as an alias of `sewtol run needle_208 STUDY` (cli.run.needle_aliases)."""
 
 from __future__ import annotations
 
@@ -28,7 +29,6 @@ from sewtol.cli.common import (
     plot_option,
     plots,
     print_notes,
-    progress_option,
     run_history,
     save_plot,
     scan_figure,
@@ -174,9 +174,9 @@ def _tolerances(args):
     from sewtol.mechanisms.params import field_names
     from sewtol.tolerances import needle_builtin_sets, resolve, with_housing
 
-    if getattr(args, "tolerance_set", None) is not None:  # `run FILE`: the file's set, resolved
-        return args.tolerance_set
-    ts = resolve(args.tolerances, needle_builtin_sets(), field_names(Needle208))
+    ts = getattr(args, "tolerance_set", None)  # `run FILE`: the file's set, resolved
+    if ts is None:
+        ts = resolve(args.tolerances, needle_builtin_sets(), field_names(Needle208))
     # --housing: the set plus the housing bores (a set that tolerances one already is refused)
     return with_housing(ts) if getattr(args, "housing", False) else ts
 
@@ -496,10 +496,14 @@ def cmd_needle_strategies(args):
         title=f"yield by adjustment strategy, {args.n} machines (95 % interval)"))
 
 
-def _adjust_options(p):
-    p.add_argument("--adjust", default=None, metavar="NAMES",
-                   help="compensators the assembler sets per machine, e.g. beta,guide_shift_um "
-                        "(built in: beta, guide_shift_um, guide_angle, CD; none: no adjustment)")
+def _adjust_options(p, adjust=True):
+    """--adjust (needle guides; `run` has its own), --range, --step, --resolution and
+    --setting-error."""
+    if adjust:
+        p.add_argument("--adjust", default=None, metavar="NAMES",
+                       help="compensators the assembler sets per machine, e.g. "
+                            "beta,guide_shift_um (built in: beta, guide_shift_um, guide_angle, "
+                            "CD; none: no adjustment)")
     p.add_argument("--range", action="append", metavar="NAME=LOW,HIGH",
                    help="a compensator's range (offset from as built; beta absolute, deg)")
     p.add_argument("--step", action="append", metavar="NAME=VALUE",
@@ -765,9 +769,8 @@ def _needle_options(p, **kwargs):
                         "guide_shift_um=UM")
 
 
-def _study_options(p, seed=True):
-    """--tolerances and, for the studies that draw machines, --seed, --n-jobs, --scheduler,
-    --progress, --out and --resume."""
+def _study_options(p):
+    """--tolerances and --housing (needle guides)."""
     p.add_argument("--tolerances", default="base",
                    help="base, recommended, base_housing, recommended_housing (with the "
                         "housing bores), FILE.toml or FILE.toml:SET (default base)")
@@ -775,23 +778,73 @@ def _study_options(p, seed=True):
                    help="add the housing tolerances to the set (bores A, D and the guide: "
                         "+/-0.02 mm per coordinate, the guide's direction +/-0.0229 deg; "
                         "assumed, docs/needle_208.md); the set is named SET_housing")
-    if seed:
-        p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-        p.add_argument("--n-jobs", type=int, default=1,
-                       help="parallel workers on this machine (joblib)")
-        p.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                       help="run on a Dask cluster, e.g. tcp://host:8786 (default: "
-                       "$SEWTOL_SCHEDULER, else this machine); same numbers as a local run")
-        progress_option(p)
-        p.add_argument("--out", default=None, metavar="DIR",
-                       help="write results, machines, run.json and checkpoints here")
-        p.add_argument("--resume", action="store_true",
-                       help="continue the interrupted study in --out without recomputing "
-                            "its finished chunks")
 
 
-def add_needle(sub) -> None:
-    """`sewtol needle COMMAND`: one sub-parser per command."""
+def needle_flags(p) -> None:
+    """The needle_208 plug-in's flags, which `sewtol run` offers (and `sewtol needle STUDY`, its
+    alias): NEEDLE_FLAGS says which study of the fast path reads each."""
+    from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME
+
+    g = p.add_argument_group("the needle_208 fast path (sewtol run needle_208 STUDY, sewtol "
+                             "needle STUDY)")
+    g.add_argument("--frame", default=None, metavar="NAME",
+                   help=f"named frame of the 208 (default {DEFAULT_FRAME}); list them with "
+                        "`sewtol needle frames`")
+    g.add_argument("--guide-shift-um", type=float, default=None, metavar="UM",
+                   help="move the fixed guide along its normal (um); the same as --set "
+                        "guide_shift_um=UM")
+    g.add_argument("--beta-range", nargs=2, type=float, default=None, metavar=("LOW", "HIGH"),
+                   help="regulating range searched for beta* (deg); default 10 35")
+    g.add_argument("--limit-um", type=float, default=None,
+                   help="SumDelta limit (um) of the yield and the window; the same as --limit "
+                        "(default 10)")
+    g.add_argument("--housing", action="store_true", default=None,
+                   help="add the housing tolerances to the set (bores A, D and the guide: "
+                        "+/-0.02 mm per coordinate, the guide's direction +/-0.0229 deg; "
+                        "assumed, docs/needle_208.md); the set is named SET_housing")
+    _adjust_options(g, adjust=False)
+    g.add_argument("--measurement-error", default=None, metavar="SD_UM",
+                   help="strategies: set the compensators from a reading of the needle bar's "
+                        "deviation with a normal error of this sd (um) at each measured "
+                        "position (0: from the true deviation; docs/adjustment.md)")
+    g.add_argument("--measured-positions", type=int, default=None, metavar="K",
+                   help="with --measurement-error: the handwheel positions read, equally "
+                        "spaced over a turn (default 36, every 10 deg)")
+    g.add_argument("--second-order", action="store_true", default=None,
+                   help="sobol: also the second-order indices S2 of every pair (N (2D + 2) runs "
+                        "instead of N (D + 2))")
+    g.add_argument("--budget", type=int, default=None,
+                   help="ppm: model calls (default 20000); the same as --n")
+    g.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="montecarlo, sobol: run on a Dask cluster, e.g. tcp://host:8786 "
+                        "(default: $SEWTOL_SCHEDULER, else this machine); same numbers as a "
+                        "local run")
+    g.add_argument("--resume", action="store_true", default=None,
+                   help="montecarlo, sobol: continue the interrupted study in --out without "
+                        "recomputing its finished chunks")
+
+
+_ALL = ("scan", "worst-case", "montecarlo", "sobol", "ppm", "allocation", "strategies")
+_ADJUSTING = ("scan", "worst-case", "montecarlo", "sobol", "allocation", "strategies")
+# the studies of the needle_208 fast path that read each flag of needle_flags (and --limit,
+# --adjust and --plot, where the generic study takes none of them); `sewtol run` refuses a
+# flag in one line for another study, another mechanism, or when the run leaves the fast path
+# (ppm and strategies take --resume and --scheduler to refuse them in the needle's words)
+NEEDLE_FLAGS = {"frame": _ALL, "guide_shift_um": _ALL, "housing": _ALL,
+                "beta_range": ("scan", "worst-case", "montecarlo", "sobol", "ppm"),
+                "limit_um": ("scan", "montecarlo", "sobol", "ppm"), "limit": ("scan", "sobol"),
+                "adjust": ("sobol", "strategies"),
+                "range": _ADJUSTING, "step": _ADJUSTING, "resolution": _ADJUSTING,
+                "setting_error": _ADJUSTING, "measurement_error": ("strategies",),
+                "measured_positions": ("strategies",), "second_order": ("sobol",),
+                "budget": ("ppm",), "scheduler": ("montecarlo", "sobol", "ppm", "strategies"),
+                "resume": ("montecarlo", "sobol", "ppm", "strategies"),
+                "plot": ("scan", "worst-case", "montecarlo", "sobol", "allocation", "strategies")}
+
+
+def add_needle(sub):
+    """`sewtol needle COMMAND`: one sub-parser per command without a run form; the studies with
+    one are added by sewtol.cli.run.needle_aliases to the sub-parsers returned."""
     needle = sub.add_parser("needle", help="208-class needle drive")
     nsub = needle.add_subparsers(dest="command", required=True, parser_class=Parser)
 
@@ -808,84 +861,9 @@ def add_needle(sub) -> None:
     plot_option(p, "d(phi) over the crank turn")
     p.set_defaults(func=cmd_needle_deviation)
 
-    p = nsub.add_parser("scan", help="each tolerance at its limits, beta re-optimised")
-    _needle_options(p)
-    _study_options(p, seed=False)
-    _beta_options(p)
-    p.add_argument("--out", default=None, metavar="DIR",
-                   help="write scan.csv, scan.json and run.json (the context) here")
-    _adjust_options(p)
-    plot_option(p, "SumDelta at each tolerance's upper and lower limit")
-    wide_option(p)
-    p.set_defaults(func=cmd_needle_scan, seed=None, n_jobs=1)
-
-    p = nsub.add_parser("montecarlo", help="yield with beta fixed and adjusted per machine")
-    _needle_options(p)
-    _study_options(p)
-    p.add_argument("--n", type=int, default=2000, help="machines (default 2000)")
-    _beta_options(p)
-    plot_option(p, "the histograms of SumDelta, beta fixed and adjusted")
-    wide_option(p)
-    p.set_defaults(func=cmd_needle_montecarlo)
-    _adjust_options(p)
-
-    p = nsub.add_parser("strategies", help="yield by adjustment strategy on the same machines")
-    _needle_options(p)
-    _study_options(p)
-    p.add_argument("--n", type=int, default=500, help="machines (default 500)")
-    _adjust_options(p)
-    p.add_argument("--measurement-error", default=None, metavar="SD_UM",
-                   help="set the compensators from a reading of the needle bar's deviation "
-                        "with a normal error of this sd (um) at each measured position (0: "
-                        "from the true deviation; docs/adjustment.md)")
-    p.add_argument("--measured-positions", type=int, default=None, metavar="K",
-                   help="with --measurement-error: the handwheel positions read, equally "
-                        "spaced over a turn (default 36, every 10 deg)")
-    plot_option(p, "the yield of each strategy with its 95 %% interval")
-    wide_option(p)
-    p.set_defaults(func=cmd_needle_strategies)
-
-    p = nsub.add_parser("sobol", help="Sobol indices of SumDelta (SALib)")
-    _needle_options(p)
-    _study_options(p)
-    p.add_argument("--n", type=int, default=256, help="base samples, a power of two")
-    p.add_argument("--second-order", action="store_true",
-                   help="also the second-order indices S2 of every pair (N (2D + 2) runs "
-                        "instead of N (D + 2))")
-    _beta_options(p)
-    plot_option(p, "S1 and ST of the adjusted case with their intervals")
-    _adjust_options(p)
-    p.set_defaults(func=cmd_needle_sobol)
-
-    p = nsub.add_parser("ppm", help="failures per million after adjustment (rare-event methods)")
-    _needle_options(p)
-    _study_options(p)
-    p.add_argument("--adjust", choices=("none", "beta"), default="beta",
-                   help="assembly adjustment: none (beta fixed at nominal beta*) or beta")
-    _beta_options(p)
-    p.add_argument("--method", choices=("auto", "montecarlo", "mc", "subset", "nais"),
-                   default="auto",
-                   help="auto: Monte-Carlo if budget * target >= 10, else subset simulation; "
-                        "montecarlo (or mc), subset or nais")
-    p.add_argument("--target", type=float, default=1e-6,
-                   help="smallest probability to resolve (default 1e-6)")
-    p.add_argument("--budget", "--n", type=int, default=20000,
-                   help="model calls (default 20000); --n as `sewtol run FILE ppm` names it")
-    p.set_defaults(func=cmd_needle_ppm)
-
-    p = nsub.add_parser("worst-case", help="worst SumDelta over the tolerance box, fixed and "
-                        "adjusted")
-    _needle_options(p)
-    _study_options(p, seed=False)
-    p.add_argument("--beta-range", nargs=2, type=float, default=None, metavar=("LOW", "HIGH"),
-                   help="regulating range searched for beta (deg); default 10 35")
-    _adjust_options(p)
-    plot_option(p, "the worst SumDelta of each case against the limit")
-    p.set_defaults(func=cmd_needle_worst_case)
-
     p = nsub.add_parser("guides", help="guide settings compared: beta*, window, yields")
     _needle_options(p)
-    _study_options(p, seed=False)
+    _study_options(p)
     p.add_argument("--n", type=int, default=2000, help="machines per guide setting")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     _beta_options(p)
@@ -893,18 +871,6 @@ def add_needle(sub) -> None:
     plot_option(p, "the yields of each guide setting, beta fixed and adjusted")
     wide_option(p)
     p.set_defaults(func=cmd_needle_guides)
-
-    p = nsub.add_parser("allocation", help="widest tolerances for a yield after adjustment")
-    _needle_options(p)
-    _study_options(p, seed=False)
-    p.add_argument("--n", type=int, default=2000,
-                   help="machines per trial (common random numbers; default 2000)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--target", type=float, default=0.9973,
-                   help="yield after adjustment to keep (default 0.9973)")
-    _adjust_options(p)
-    plot_option(p, "each tolerance's width in the reference set and allocated")
-    p.set_defaults(func=cmd_needle_allocation)
 
     p = nsub.add_parser("largest-tolerances", help="largest single deviation of each part that "
                         "keeps SumDelta(beta*) within the limit")
@@ -919,3 +885,11 @@ def add_needle(sub) -> None:
     p = nsub.add_parser("frames", help="the named frames of the 208 with their residuals")
     p.add_argument("--format", choices=FORMATS, default="table")
     p.set_defaults(func=cmd_needle_frames)
+    return nsub
+
+
+# the needle_208 fast path of `sewtol run` (and so of `sewtol needle STUDY`): each study's
+# command, called with run's arguments as cli.run._needle_namespace maps them
+FAST_PATH = {"scan": cmd_needle_scan, "worst-case": cmd_needle_worst_case,
+             "montecarlo": cmd_needle_montecarlo, "sobol": cmd_needle_sobol, "ppm": cmd_needle_ppm,
+             "allocation": cmd_needle_allocation, "strategies": cmd_needle_strategies}
