@@ -102,6 +102,8 @@ def _feed_study(args):
     from sewtol.mechanisms.feed_131.analysis import metrics
     from sewtol.tables.feed_131 import as_mechanism
 
+    args.seed = 0 if args.seed is None else args.seed
+    args.n_jobs = 1 if args.n_jobs is None else args.n_jobs
     check_study(args)
     params = _feed_params(args)
     metrics(params)  # refuses, in one line, a nominal feed that cannot run
@@ -261,8 +263,9 @@ def add_feed(sub) -> None:
         if n is None:
             return
         p.add_argument("--n", type=int, default=n, help=n_help)
-        p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-        p.add_argument("--n-jobs", type=int, default=1,
+        # None: not given (as `sewtol run` has them), which _feed_study makes 0 and 1
+        p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
+        p.add_argument("--n-jobs", type=int, default=None,
                        help="parallel workers on this machine (joblib)")
         progress_option(p)
         p.add_argument("--out", default=None, metavar="DIR",

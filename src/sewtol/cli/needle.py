@@ -581,6 +581,7 @@ def _sobol_json(res, second_order: bool, context: dict):
 def _small_study(args):
     """Flags of guides/allocation, checked before anything is computed."""
     check_n(args.n)
+    args.seed = 0 if args.seed is None else args.seed  # None: not given, as `run` has it
     if args.seed < 0:
         raise ParameterError("--seed", "must be a whole number >= 0", args.seed)
     strategy = _strategy(args)
@@ -833,7 +834,7 @@ _ADJUSTING = ("scan", "worst-case", "montecarlo", "sobol", "allocation", "strate
 NEEDLE_FLAGS = {"frame": _ALL, "guide_shift_um": _ALL, "housing": _ALL,
                 "beta_range": ("scan", "worst-case", "montecarlo", "sobol", "ppm"),
                 "limit_um": ("scan", "montecarlo", "sobol", "ppm"), "limit": ("scan", "sobol"),
-                "adjust": ("sobol", "strategies"),
+                "adjust": ("sobol", "strategies"), "n_jobs": ("sobol",),
                 "range": _ADJUSTING, "step": _ADJUSTING, "resolution": _ADJUSTING,
                 "setting_error": _ADJUSTING, "measurement_error": ("strategies",),
                 "measured_positions": ("strategies",), "second_order": ("sobol",),
@@ -865,7 +866,7 @@ def add_needle(sub):
     _needle_options(p)
     _study_options(p)
     p.add_argument("--n", type=int, default=2000, help="machines per guide setting")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
     _beta_options(p)
     _adjust_options(p)
     plot_option(p, "the yields of each guide setting, beta fixed and adjusted")

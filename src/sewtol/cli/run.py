@@ -117,7 +117,8 @@ def run_options(p) -> None:
     p.add_argument("--limit", type=float, default=None,
                    help="upper limit of --output (default the first output) for the yield; "
                         "replaces the file's [[specs]] entry of that output")
-    p.add_argument("--n-jobs", type=int, default=None, help="parallel workers (montecarlo)")
+    p.add_argument("--n-jobs", type=int, default=None,
+                   help="parallel workers on this machine (default 1)")
     p.add_argument("--adjust", default=None, metavar="COMPENSATOR[,COMPENSATOR...]|none",
                    help="add the adjusted case: --output (default the first) minimised over "
                         "this [compensators.NAME] of the file on each machine (default: the "
@@ -182,7 +183,9 @@ def run_options(p) -> None:
                         "least-cost 40)")
     p.add_argument("--plot", default=None, metavar="FILE",
                    help="the study's figure (.png/.svg/.pdf): refine, the objective's curve "
-                        "today and refined; the needle_208 fast path, its study's figure")
+                        "today and refined; on the needle_208 fast path scan, worst-case, "
+                        "montecarlo, sobol, allocation and strategies (the yield of each "
+                        "strategy with its 95 %% interval)")
     p.add_argument("--guide-diameter", type=float, default=None, metavar="MM",
                    help="clearance: the guide rod's diameter for its ISO 286 fits (default 8)")
     p.add_argument("--play-limit", type=float, default=None, metavar="UM",
@@ -271,7 +274,7 @@ def _check_flags(args) -> None:
             getattr(args, k) is not None for k in USES["settings"])):
         args.n = DEFAULT_N[args.study]
     args.seed = 0 if args.seed is None else args.seed
-    args.n_jobs = 1 if args.n_jobs is None else args.n_jobs
+    args.n_jobs_given, args.n_jobs = args.n_jobs, 1 if args.n_jobs is None else args.n_jobs
     _check_yield_flags(args)
 
 
@@ -801,7 +804,7 @@ def _check_needle_flags(args, mech) -> None:
     """The needle_208 plug-in's flags (cli.needle.NEEDLE_FLAGS), refused in one line by a study
     that does not read them, another mechanism, or a run that leaves the fast path."""
     for key, studies in N.NEEDLE_FLAGS.items():
-        value = getattr(args, key)
+        value = getattr(args, "n_jobs_given" if key == "n_jobs" else key)
         if value is None or key in USES[args.study]:
             continue
         flag = "--" + key.replace("_", "-")
