@@ -7,7 +7,6 @@ reaches as an alias of `sewtol run needle_208 STUDY` (cli.run.needle_aliases).""
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 import numpy as np
 
@@ -17,7 +16,6 @@ from sewtol.cli.common import (
     as_flags,
     check_n,
     check_step,
-    check_study,
     cluster,
     deviation_columns,
     emit,
@@ -37,7 +35,6 @@ from sewtol.cli.common import (
     write_outputs,
 )
 from sewtol.errors import ParameterError
-from sewtol.io import to_json
 
 BETA_LIMIT_DEG = 360.0
 SOBOL_RESAMPLES, SOBOL_CONF_LEVEL = 200, 0.95
@@ -71,11 +68,11 @@ def _needle_params(args):
     return Needle208.nominal(args.frame).override(**sets)
 
 
-def _beta_options(p, what="searched for beta* (deg)"):
+def _beta_options(p, limit=("--limit-um", "--limit")):
     """--beta-range LOW HIGH and --limit-um (defaults 10 35 and 10, resolved when checked)."""
     p.add_argument("--beta-range", nargs=2, type=float, default=None, metavar=("LOW", "HIGH"),
-                   help=f"regulating range {what}; default 10 35")
-    p.add_argument("--limit-um", "--limit", type=float, default=None,
+                   help="regulating range searched for beta* (deg); default 10 35")
+    p.add_argument(*limit, type=float, default=None,
                    help="SumDelta limit (um) of the yield and the window; default 10 (--limit "
                         "as `sewtol run FILE STUDY` names it)")
 
@@ -296,9 +293,7 @@ def cmd_needle_montecarlo(args):
     from sewtol.studies.montecarlo import CHUNK, check_sampling, montecarlo_bytes
     from sewtol.tables.needle_208 import montecarlo
 
-    check_n(args.n)
-    check_study(args)
-    strategy = _strategy(args)
+    strategy = _strategy(args)  # --n, --seed, --n-jobs, --out: checked by `run`
     _check_beta_range(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
     limit, rng = args.limit_um, tuple(args.beta_range)
@@ -460,8 +455,6 @@ def cmd_needle_strategies(args):
     from sewtol.provenance import now
     from sewtol.tables.needle_208 import strategies_table
 
-    check_n(args.n)
-    check_study(args)
     not_offered(args, "needle strategies",
                  resume="it keeps no checkpoints; rerun with the same seed",
                  scheduler="it runs on this machine; use --n-jobs")
@@ -524,7 +517,6 @@ def cmd_needle_sobol(args):
     from sewtol.tables.needle_208 import needle_sobol
 
     as_flags(check_power_of_two, args.n)  # its error names --n
-    check_study(args)
     strategy = _strategy(args)
     _check_beta_range(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
@@ -619,10 +611,7 @@ def cmd_needle_guides(args):
 def cmd_needle_allocation(args):
     from sewtol.tables.needle_208 import allocate
 
-    if not (np.isfinite(args.target) and 0 < args.target < 1):
-        raise ParameterError("--target", "must be a yield strictly between 0 and 1",
-                             args.target)
-    strategy, params, tolerances = _small_study(args)
+    strategy, params, tolerances = _small_study(args)  # --target: checked by `run`
     res = allocate(params, tolerances, args.target, args.n, args.seed, strategy=strategy)
     table = res.to_dataframe()
     if strategy is None:
@@ -718,9 +707,7 @@ def cmd_needle_ppm(args):
     from sewtol.studies import rare_event as R
     from sewtol.tables import needle_208 as NR
 
-    check_study(args)
     _check_beta_range(args)
-    args.method = {"mc": "montecarlo"}.get(args.method, args.method)  # `run ppm`'s spelling
     not_offered(args, "needle ppm", resume="it keeps no checkpoints; rerun with the same seed",
                  scheduler="its levels run on this machine; use --n-jobs")
     as_flags(R.choose_method, args.target, args.budget,
@@ -734,48 +721,37 @@ def cmd_needle_ppm(args):
     obj = {**res.to_dict(), "tolerances": tolerances.name, "adjust": args.adjust,
            "seed": args.seed, "target": args.target, "budget": args.budget,
            "context": _context(args, params, tolerances, None)}
-    if args.out:
-        from sewtol.io import write_text_atomic
-        from sewtol.provenance import run_record
-        from sewtol.reports.tables import to_csv
-
-        out = Path(args.out)
-        inputs = study_inputs(args, "ppm", params, tolerances, method=args.method,
-                         target=args.target, budget=args.budget, adjust=args.adjust,
-                         limit_um=args.limit_um, beta_search_range_deg=list(args.beta_range))
-        try:
-            write_text_atomic(out / "ppm.json", to_json(obj))
-            for name, frame in (("levels", res.levels), ("failing_examples", res.examples)):
-                write_text_atomic(out / f"{name}.csv", to_csv(frame))
-            write_text_atomic(out / "run.json", to_json(run_record(started, inputs)))
-        except OSError as exc:
-            raise ParameterError("--out", f"cannot be written ({exc.strerror})",
-                                 str(exc.filename or out)) from None
+    inputs = study_inputs(args, "ppm", params, tolerances, method=args.method,
+                          target=args.target, budget=args.budget, adjust=args.adjust,
+                          limit_um=args.limit_um, beta_search_range_deg=list(args.beta_range))
+    write_outputs(args, "ppm", inputs, started, obj,
+                  {"levels": res.levels, "failing_examples": res.examples}, None)
     frame = res.to_dataframe().assign(tolerances=tolerances.name, adjust=args.adjust)
     emit(args.format, obj=obj, frame=frame)
     if args.format == "table":
         print(f"\nP(SumDelta > {args.limit_um:g} um or no value) = {res.statement}")
 
 
-def _needle_options(p, **kwargs):
-    """--set, --format, --frame and --guide-shift-um: every needle command on one machine."""
+def _needle_options(p, machine=True, tolerances=None):
+    """--set and --format (machine), --frame and --guide-shift-um: every needle command on one
+    machine; --housing, and --tolerances unless tolerances is False, with tolerances."""
     from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME
 
-    machine_options(p, **kwargs)
+    if machine:
+        machine_options(p, **({} if machine is True else {"formats": machine}))
     p.add_argument("--frame", default=None, metavar="NAME",
                    help=f"named frame of the 208 (default {DEFAULT_FRAME}); "
                         "list them with `sewtol needle frames`")
     p.add_argument("--guide-shift-um", type=float, default=None, metavar="UM",
                    help="move the fixed guide along its normal (um); the same as --set "
                         "guide_shift_um=UM")
-
-
-def _study_options(p):
-    """--tolerances and --housing (needle guides)."""
-    p.add_argument("--tolerances", default="base",
-                   help="base, recommended, base_housing, recommended_housing (with the "
-                        "housing bores), FILE.toml or FILE.toml:SET (default base)")
-    p.add_argument("--housing", action="store_true",
+    if tolerances is None:
+        return
+    if tolerances:
+        p.add_argument("--tolerances", default="base",
+                       help="base, recommended, base_housing, recommended_housing (with the "
+                            "housing bores), FILE.toml or FILE.toml:SET (default base)")
+    p.add_argument("--housing", action="store_true", default=None,
                    help="add the housing tolerances to the set (bores A, D and the guide: "
                         "+/-0.02 mm per coordinate, the guide's direction +/-0.0229 deg; "
                         "assumed, docs/needle_208.md); the set is named SET_housing")
@@ -784,25 +760,10 @@ def _study_options(p):
 def needle_flags(p) -> None:
     """The needle_208 plug-in's flags, which `sewtol run` offers (and `sewtol needle STUDY`, its
     alias): NEEDLE_FLAGS says which study of the fast path reads each."""
-    from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME
-
     g = p.add_argument_group("the needle_208 fast path (sewtol run needle_208 STUDY, sewtol "
                              "needle STUDY)")
-    g.add_argument("--frame", default=None, metavar="NAME",
-                   help=f"named frame of the 208 (default {DEFAULT_FRAME}); list them with "
-                        "`sewtol needle frames`")
-    g.add_argument("--guide-shift-um", type=float, default=None, metavar="UM",
-                   help="move the fixed guide along its normal (um); the same as --set "
-                        "guide_shift_um=UM")
-    g.add_argument("--beta-range", nargs=2, type=float, default=None, metavar=("LOW", "HIGH"),
-                   help="regulating range searched for beta* (deg); default 10 35")
-    g.add_argument("--limit-um", type=float, default=None,
-                   help="SumDelta limit (um) of the yield and the window; the same as --limit "
-                        "(default 10)")
-    g.add_argument("--housing", action="store_true", default=None,
-                   help="add the housing tolerances to the set (bores A, D and the guide: "
-                        "+/-0.02 mm per coordinate, the guide's direction +/-0.0229 deg; "
-                        "assumed, docs/needle_208.md); the set is named SET_housing")
+    _needle_options(g, machine=False, tolerances=False)
+    _beta_options(g, limit=("--limit-um",))
     _adjust_options(g, adjust=False)
     g.add_argument("--measurement-error", default=None, metavar="SD_UM",
                    help="strategies: set the compensators from a reading of the needle bar's "
@@ -812,25 +773,19 @@ def needle_flags(p) -> None:
                    help="with --measurement-error: the handwheel positions read, equally "
                         "spaced over a turn (default 36, every 10 deg)")
     g.add_argument("--second-order", action="store_true", default=None,
-                   help="sobol: also the second-order indices S2 of every pair (N (2D + 2) runs "
-                        "instead of N (D + 2))")
-    g.add_argument("--budget", type=int, default=None,
-                   help="ppm: model calls (default 20000); the same as --n")
+                   help="sobol: also the second-order indices S2 of every pair")
+    g.add_argument("--budget", type=int, default=None, help="ppm: model calls; the same as --n")
     g.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                   help="montecarlo, sobol: run on a Dask cluster, e.g. tcp://host:8786 "
-                        "(default: $SEWTOL_SCHEDULER, else this machine); same numbers as a "
-                        "local run")
+                   help="montecarlo, sobol: a Dask cluster, e.g. tcp://host:8786 (default: "
+                        "$SEWTOL_SCHEDULER, else this machine); same numbers as a local run")
     g.add_argument("--resume", action="store_true", default=None,
-                   help="montecarlo, sobol: continue the interrupted study in --out without "
-                        "recomputing its finished chunks")
+                   help="montecarlo, sobol: continue the interrupted study in --out")
 
 
 _ALL = ("scan", "worst-case", "montecarlo", "sobol", "ppm", "allocation", "strategies")
 _ADJUSTING = ("scan", "worst-case", "montecarlo", "sobol", "allocation", "strategies")
-# the studies of the needle_208 fast path that read each flag of needle_flags (and --limit,
-# --adjust and --plot, where the generic study takes none of them); `sewtol run` refuses a
-# flag in one line for another study, another mechanism, or when the run leaves the fast path
-# (ppm and strategies take --resume and --scheduler to refuse them in the needle's words)
+# the fast path's studies that read each flag of needle_flags (and --limit, --adjust, --plot,
+# --n-jobs where the generic study does not); `run` refuses the others in one line
 NEEDLE_FLAGS = {"frame": _ALL, "guide_shift_um": _ALL, "housing": _ALL,
                 "beta_range": ("scan", "worst-case", "montecarlo", "sobol", "ppm"),
                 "limit_um": ("scan", "montecarlo", "sobol", "ppm"), "limit": ("scan", "sobol"),
@@ -850,7 +805,7 @@ def add_needle(sub):
     nsub = needle.add_subparsers(dest="command", required=True, parser_class=Parser)
 
     p = nsub.add_parser("nominal", help="beta*, deviation figures, window, guide, stroke")
-    _needle_options(p, formats=("table", "json"))
+    _needle_options(p, machine=("table", "json"))
     _beta_options(p)
     plot_option(p, "SumDelta against beta with beta* and the window")
     p.set_defaults(func=cmd_needle_nominal)
@@ -863,8 +818,7 @@ def add_needle(sub):
     p.set_defaults(func=cmd_needle_deviation)
 
     p = nsub.add_parser("guides", help="guide settings compared: beta*, window, yields")
-    _needle_options(p)
-    _study_options(p)
+    _needle_options(p, tolerances=True)
     p.add_argument("--n", type=int, default=2000, help="machines per guide setting")
     p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
     _beta_options(p)
@@ -889,8 +843,7 @@ def add_needle(sub):
     return nsub
 
 
-# the needle_208 fast path of `sewtol run` (and so of `sewtol needle STUDY`): each study's
-# command, called with run's arguments as cli.run._needle_namespace maps them
+# the needle_208 fast path of `sewtol run` (and `sewtol needle STUDY`): each study's command
 FAST_PATH = {"scan": cmd_needle_scan, "worst-case": cmd_needle_worst_case,
              "montecarlo": cmd_needle_montecarlo, "sobol": cmd_needle_sobol, "ppm": cmd_needle_ppm,
              "allocation": cmd_needle_allocation, "strategies": cmd_needle_strategies}

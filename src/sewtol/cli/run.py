@@ -94,8 +94,7 @@ def add_run(sub) -> None:
 
 
 def needle_aliases(nsub) -> None:
-    """`sewtol needle STUDY ARGS` for every study of the needle_208 fast path: the parser of
-    `sewtol run needle_208 STUDY ARGS` (the same flags, the same namespace, cmd_run)."""
+    """`sewtol needle STUDY ARGS`: `sewtol run needle_208 STUDY ARGS`'s parser and function."""
     for study in FAST_PATH_STUDIES:
         p = nsub.add_parser(study, help=f"the same as `sewtol run needle_208 {study}`")
         run_options(p)
@@ -680,10 +679,7 @@ def _finish(args, fmt, mech, tolerances, obj, frames, frame) -> None:
     emit(fmt, obj=obj, frame=frame, compact=COMPACT.get(args.study), wide=args.wide)
 
 FAST_PATH_STUDIES = tuple(N.FAST_PATH)
-
-
-# the needle commands that report the fixed and the adjusted case together (so with and without
-# --adjust beta); the others run `--adjust none` without --adjust and beta adjusted with it
+# the needle studies that report the fixed and the adjusted case by default
 BOTH_CASES = ("worst-case", "montecarlo", "sobol")
 
 
@@ -740,11 +736,8 @@ def _fast_path_refusal(args, mech) -> str | None:
     upper = None if spec is None else spec.upper
     if upper is not None and not upper > 0:
         return f"{flag} {upper:g}: the needle's SumDelta limit is a positive number of um"
-    if args.study == "allocation" and upper is not None and upper != sb.DEFAULT_LIMIT_UM:
-        return (f"{flag} {upper:g}: `needle allocation` keeps SumDelta within "
-                f"{sb.DEFAULT_LIMIT_UM:g} um")
-    if args.study == "strategies" and upper is not None and upper != sb.DEFAULT_LIMIT_UM:
-        return (f"{flag} {upper:g}: `needle strategies` keeps SumDelta within "
+    if args.study in ("allocation", "strategies") and upper not in (None, sb.DEFAULT_LIMIT_UM):
+        return (f"{flag} {upper:g}: `needle {args.study}` keeps SumDelta within "
                 f"{sb.DEFAULT_LIMIT_UM:g} um")
     if args.study == "strategies" and args.strategy is not None:
         return "--strategy: `needle strategies` compares its own rows"
@@ -770,10 +763,8 @@ def _tolerances_refusal(tolerances) -> str | None:
 
 
 def _needle_adjust_refusal(args, mech) -> str | None:
-    """--adjust on the needle_208 fast path: given, it names the needle's compensators (its
-    parameters: beta, guide_shift_um, guide_angle, CD, any other with --range) and means what
-    `sewtol needle STUDY --adjust` always meant (the exact adjuster, the strategy's rows); not
-    given, the file's [defaults] adjust is the needle commands' own default (beta)."""
+    """An --adjust given names the needle's compensators by parameter (its exact adjuster, the
+    strategy's rows); not given, the file's [defaults] adjust must be the needle's own (beta)."""
     from sewtol.mechanisms.needle_208 import beta as sb
     from sewtol.mechanisms.needle_208.model import Needle208
     from sewtol.mechanisms.params import field_names
@@ -825,16 +816,13 @@ def _needle_synonyms(args) -> None:
         if value is not None and getattr(args, same) is not None:
             raise ParameterError(flag, f"is --{same} in the needle's words; give one of them",
                                  value)
-        if value is not None:
-            setattr(args, same, value)
+        setattr(args, same, getattr(args, same) if value is None else value)
 
 
 def _needle_namespace(args, mech, tolerances=None):
-    """`run`'s arguments as `sewtol needle STUDY` reads them: each study's own defaults (no
-    seed or n where the needle study draws nothing; ppm's n is its budget), the SumDelta limit
-    in force, --adjust as given (`_needle_adjust_refusal`), and the file's nominal machine and
-    tolerance set as nominal_params and tolerance_set (--frame and --guide-shift-um: the
-    needle's own nominal of that frame)."""
+    """`run`'s arguments as cli.needle.FAST_PATH reads them: no seed or n where the study draws
+    nothing, the SumDelta limit in force, --adjust as given, the file's nominal machine (unless
+    --frame or --guide-shift-um) and its tolerance set."""
     from sewtol.mechanisms.needle_208 import beta as sb
     from sewtol.mechanisms.needle_208.fast_path import needle_params
 
