@@ -25,10 +25,11 @@ SMALL = "[sets.small]\nLF = 0.05\nAB = 0.05\nBE = 0.05\n"
 PAIRS = [
     (("scan",), ("scan",)),  # the file's [defaults] adjust = ["beta"]: the needle's default
     (("scan", "--adjust", "none"), ("scan", "--adjust", "none")),
-    (("scan", "--adjust", "beta"), ("scan", "--beta-range", "10", "35")),
+    # --adjust given: the needle's --adjust (its exact adjuster, the strategy's rows)
+    (("scan", "--adjust", "beta"), ("scan", "--adjust", "beta")),
     (("worst-case", "--tolerances", "{small}"), ("worst-case", "--tolerances", "{small}")),
     (("worst-case", "--adjust", "beta", "--tolerances", "{small}"),
-     ("worst-case", "--beta-range", "10", "35", "--tolerances", "{small}")),
+     ("worst-case", "--adjust", "beta", "--tolerances", "{small}")),
     (("sobol", "--n", "16", "--seed", "3", "--tolerances", "{small}"),
      ("sobol", "--n", "16", "--seed", "3", "--tolerances", "{small}")),
     (("ppm", "--adjust", "none", "--limit", "10", "--n", "200", "--target", "0.01", "--seed",
@@ -41,8 +42,10 @@ PAIRS = [
     (("allocation", "--adjust", "none", "--limit", "10", "--n", "40", "--tolerances",
       "{small}"),
      ("allocation", "--adjust", "none", "--n", "40", "--tolerances", "{small}")),
-    (("allocation", "--adjust", "beta", "--limit", "10", "--n", "40", "--tolerances", "{small}"),
+    (("allocation", "--limit", "10", "--n", "40", "--tolerances", "{small}"),
      ("allocation", "--n", "40", "--tolerances", "{small}")),
+    (("allocation", "--adjust", "beta", "--limit", "10", "--n", "40", "--tolerances", "{small}"),
+     ("allocation", "--adjust", "beta", "--n", "40", "--tolerances", "{small}")),
     (("montecarlo", "--n", "60", "--seed", "2"), ("montecarlo", "--n", "60", "--seed", "2")),
 ]
 
@@ -204,7 +207,8 @@ def test_the_fast_path_writes_the_needle_study_folder_naming_the_file(tmp_path):
         assert (a / name).read_bytes() == (b / name).read_bytes()
     inputs = strict_loads((a / "run.json").read_text())["inputs"]
     assert inputs["mechanism_file"] == NEEDLE and inputs["fast_path"] == "needle_208"
-    assert "mechanism_file" not in strict_loads((b / "run.json").read_text())["inputs"]
+    # `needle scan` is `run needle_208 scan`: its run.json names the built-in file
+    assert strict_loads((b / "run.json").read_text())["inputs"]["mechanism_file"] == "needle_208"
 
 
 def test_a_tolerance_on_a_parameter_the_needle_model_lacks_takes_the_generic_path(tmp_path):

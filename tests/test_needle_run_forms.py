@@ -1,8 +1,10 @@
-"""`sewtol needle STUDY` and `sewtol run needle_208 STUDY` are one command: for every needle
-study with a run form the two print the same JSON, without flags (the file's [defaults] adjust =
-["beta"] is the needle's own default) and with the flags both take (the same name, the same
-meaning). The differences that remain are listed in docs/cli.md. `sewtol feed STUDY` is `sewtol
-run feed_131 STUDY` (the same parser and function): the same bytes in every format and folder."""
+"""`sewtol needle STUDY ARGS` is `sewtol run needle_208 STUDY ARGS` for every study of the
+needle_208 fast path: the same parser (the same namespace for any flags), the same function,
+so the same bytes in every format, in the study folder and in the figure. The flags of the
+needle plug-in (--frame, --beta-range, --limit-um, --housing, ...) are flags of `run`, refused
+in one line where nothing reads them. ALIASES is keyed by alias. `sewtol feed STUDY` is
+`sewtol run feed_131 STUDY` (the same parser and function): the same bytes in every format and
+folder."""
 
 from __future__ import annotations
 
@@ -13,29 +15,38 @@ from cli_helpers import run, strict_loads
 # three tolerances (8 corners) keep worst-case, sobol and allocation small; same widths as base
 SMALL = "[sets.small]\nLF = 0.05\nAB = 0.05\nBE = 0.05\n"
 
-# each study at a small size; the flags are given alike to both commands
-DEFAULTS = {
-    "scan": (),
-    "worst-case": ("--tolerances", "{small}"),
-    "montecarlo": ("--n", "40", "--seed", "3"),
-    "sobol": ("--n", "16", "--seed", "3", "--tolerances", "{small}"),
-    "ppm": ("--n", "200", "--seed", "2"),
-    "allocation": ("--n", "40", "--tolerances", "{small}"),
-    "strategies": ("--n", "20", "--seed", "1"),
+# alias -> (the run form's first words, [(study, flags given alike to both forms)])
+ALIASES = {
+    "needle": (("run", "needle_208"), [
+        ("scan", ()),
+        ("scan", ("--adjust", "none", "--set", "CD=30.01")),
+        ("scan", ("--adjust", "beta,guide_shift_um", "--frame", "window", "--housing")),
+        ("scan", ("--limit-um", "8", "--beta-range", "22", "23", "--guide-shift-um", "20")),
+        ("worst-case", ("--tolerances", "{small}")),
+        ("worst-case", ("--tolerances", "{small}", "--adjust", "beta", "--beta-range", "23.5",
+                        "24")),
+        ("montecarlo", ("--n", "40", "--seed", "3")),
+        ("montecarlo", ("--n", "40", "--seed", "5", "--limit", "8", "--tolerances",
+                        "recommended", "--housing")),
+        ("montecarlo", ("--n", "40", "--adjust", "beta,guide_shift_um", "--step",
+                        "guide_shift_um=10")),
+        ("sobol", ("--n", "16", "--seed", "3", "--tolerances", "{small}")),
+        ("sobol", ("--n", "16", "--tolerances", "{small}", "--second-order", "--adjust",
+                   "beta")),
+        ("ppm", ("--n", "200", "--seed", "2")),
+        ("ppm", ("--budget", "300", "--seed", "4", "--limit-um", "8", "--method", "mc",
+                 "--target", "0.01", "--adjust", "none")),
+        ("allocation", ("--n", "40", "--tolerances", "{small}")),
+        ("allocation", ("--n", "40", "--seed", "2", "--target", "0.99", "--adjust", "beta",
+                        "--tolerances", "{small}")),
+        ("strategies", ("--n", "20", "--seed", "1")),
+        ("strategies", ("--n", "20", "--adjust", "guide_angle", "--measurement-error", "1",
+                        "--measured-positions", "12", "--set", "CD=30.01")),
+    ]),
 }
-# flags of the same name and meaning in both forms (--n is needle ppm's --budget, --limit its
-# --limit-um, --method mc its montecarlo, --adjust none "beta stays at the nominal's beta*")
-SHARED = {
-    "scan": ("--adjust", "none", "--set", "CD=30.01"),
-    "worst-case": ("--tolerances", "{small}", "--set", "CD=30.01"),
-    "montecarlo": ("--n", "40", "--seed", "5", "--limit", "8", "--n-jobs", "1",
-                   "--tolerances", "recommended"),
-    "ppm": ("--n", "300", "--seed", "4", "--limit", "8", "--method", "mc", "--target", "0.01",
-            "--adjust", "none"),
-    "allocation": ("--n", "40", "--seed", "2", "--target", "0.99", "--adjust", "none",
-                   "--tolerances", "{small}"),
-    "strategies": ("--n", "20", "--seed", "4", "--n-jobs", "1", "--set", "CD=30.01"),
-}
+CASES = [(alias, study, flags) for alias, (_, rows) in ALIASES.items()
+         for study, flags in rows]
+IDS = [" ".join((alias, study, *flags)).replace("{small}", "S") for alias, study, flags in CASES]
 
 
 @pytest.fixture(scope="module")
@@ -45,28 +56,75 @@ def small(tmp_path_factory):
     return f"{path}:small"
 
 
-def _both(study, flags, small, fmt="json"):
+def _forms(alias, study, flags, small):
     argv = [a.format(small=small) for a in flags]
-    a = run("needle", study, *argv, "--format", fmt)
-    b = run("run", "needle_208", study, *argv, "--format", fmt)
-    assert a[0] == 0 and b[0] == 0, a[2] + b[2]
-    return a, b
+    return [alias, study, *argv], [*ALIASES[alias][0], study, *argv]
 
 
-@pytest.mark.parametrize("study", list(DEFAULTS))
-def test_the_needle_command_and_its_run_form_print_the_same_json(study, small):
-    a, b = _both(study, DEFAULTS[study], small)
+@pytest.mark.parametrize("alias,study,flags", CASES, ids=IDS)
+def test_the_alias_parses_to_the_run_forms_namespace(alias, study, flags, small):
+    from sewtol.cli import build_parser
+
+    a, b = (vars(build_parser().parse_args(f)) for f in _forms(alias, study, flags, small))
+    for ns in (a, b):
+        ns.pop("group")
+        ns.pop("command", None)
+    assert a == b
+
+
+@pytest.mark.parametrize("fmt", ["json", "csv", "table"])
+@pytest.mark.parametrize("alias,study,flags", CASES, ids=IDS)
+def test_the_alias_prints_the_run_forms_bytes(alias, study, flags, fmt, small):
+    a, b = (run(*f, "--format", fmt) for f in _forms(alias, study, flags, small))
+    assert a[0] == b[0] == 0, a[2] + b[2]
     assert a[1] == b[1] and a[2] == b[2] == ""
-    obj = strict_loads(a[1])
-    assert obj["context"]["mechanism"] == "needle_208" and obj["context"]["path"] == "needle_208"
-    if study in ("scan", "ppm", "allocation"):  # beta adjusted on each machine, as the source
-        assert obj["context"]["strategy"] == "beta"
+    if fmt == "json":
+        ctx = strict_loads(a[1])["context"]
+        assert ctx["mechanism"] == "needle_208" and ctx["path"] == "needle_208"
 
 
-@pytest.mark.parametrize("study", list(SHARED))
-def test_the_flags_both_forms_take_mean_the_same(study, small):
-    a, b = _both(study, SHARED[study], small)
-    assert a[1] == b[1] and a[2] == b[2] == ""
+@pytest.mark.parametrize("study,flags,files", [
+    ("scan", ("--plot", "{d}/f.svg"), ("scan.json", "scan.csv", "f.svg")),
+    ("montecarlo", ("--n", "40", "--plot", "{d}/f.svg"),
+     ("montecarlo.json", "machines.csv", "summary.csv", "f.svg")),
+    ("ppm", ("--n", "200", "--seed", "2"), ("ppm.json", "levels.csv")),
+    ("strategies", ("--n", "20", "--plot", "{d}/f.svg"), ("strategies.json", "f.svg")),
+])
+def test_the_alias_writes_the_run_forms_files(study, flags, files, tmp_path):
+    a, b = tmp_path / "alias", tmp_path / "run"
+    for d, prefix in ((a, ("needle",)), (b, ("run", "needle_208"))):
+        argv = [f.format(d=d) for f in flags]
+        d.mkdir()
+        code, _, err = run(*prefix, study, *argv, "--out", str(d / "out"), "--format", "json")
+        assert code == 0, err
+    for name in files:
+        where = "" if name.endswith(".svg") else "out/"
+        assert (a / where / name).read_bytes() == (b / where / name).read_bytes(), name
+    ra, rb = (strict_loads((d / "out" / "run.json").read_text())["inputs"] for d in (a, b))
+    assert ra == rb and ra["mechanism_file"] == "needle_208"
+
+
+@pytest.mark.parametrize("argv,message", [
+    # a plug-in flag on another mechanism, on a study that does not read it, off the fast path
+    (("run", "khujand_feed", "montecarlo", "--n", "10", "--frame", "window"),
+     "--frame: is read by the needle_208 fast path only; `run khujand_feed montecarlo` has none"),
+    (("needle", "worst-case", "--limit-um", "8"), "--limit-um: is not used by `run worst-case`"),
+    (("needle", "allocation", "--beta-range", "10", "30"),
+     "--beta-range: is not used by `run allocation`"),
+    (("needle", "scan", "--housing", "--path", "generic"),
+     "--housing: is read by the needle_208 fast path only, which this run leaves (--path "
+     "generic)"),
+    (("needle", "montecarlo", "--n", "10", "--lower-limit", "1", "--beta-range", "10", "30"),
+     "--beta-range: is read by the needle_208 fast path only, which this run leaves "
+     "(--lower-limit: the needle commands limit SumDelta from above only)"),
+    (("needle", "ppm", "--budget", "300", "--n", "300"),
+     "--budget: is --n in the needle's words; give one of them"),
+])
+def test_a_flag_nothing_reads_is_refused_in_one_line(argv, message):
+    code, out, err = run(*argv)
+    assert code == 2 and out == "" and err == f"sewtol: error: {message} (got " + \
+        err.split("(got ", 1)[1]
+    assert len(err.strip().splitlines()) == 1
 
 
 def test_adjust_none_turns_the_files_default_off():

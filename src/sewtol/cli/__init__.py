@@ -14,7 +14,7 @@ from sewtol.cli.feed import add_feed
 from sewtol.cli.fit import add_fit
 from sewtol.cli.mechanisms import add_mechanisms
 from sewtol.cli.needle import add_needle
-from sewtol.cli.run import add_run
+from sewtol.cli.run import add_run, needle_aliases
 from sewtol.errors import AssemblyError, ParameterError
 from sewtol.io import strict  # noqa: F401  (strict is part of the CLI's API)
 
@@ -32,7 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--version", action="version",
                     version=f"sewtol {__version__} (revision {git_revision()})")
     sub = ap.add_subparsers(dest="group", required=True, parser_class=Parser)
-    add_needle(sub)
+    needle_aliases(add_needle(sub))  # `needle STUDY` is `run needle_208 STUDY`
     add_feed(sub)
     add_run(sub)  # `sewtol run FILE.toml STUDY`
     add_mechanisms(sub)

@@ -17,7 +17,7 @@ from sewtol.cli.common import (
     plots,
     save_plot,
 )
-from sewtol.cli.run import study_options
+from sewtol.cli.run import run_options
 from sewtol.errors import ParameterError
 
 MAX_SWEEP_POINTS = 100_000
@@ -95,5 +95,5 @@ def add_feed(sub) -> None:
     p.set_defaults(func=cmd_feed_regulator)
     for study, text in RUN_STUDIES.items():
         p = fsub.add_parser(study, help=f"{text} (= sewtol run feed_131 {study})")
-        study_options(p)
+        run_options(p)
         p.set_defaults(file="feed_131", study=study)

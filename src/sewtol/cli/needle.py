@@ -1,12 +1,12 @@
-"""`sewtol needle COMMAND`: the 208 needle drive's single-machine figures and tolerance studies
-(nominal, deviation, scan, montecarlo, strategies, sobol, ppm, worst-case, guides, allocation,
-largest-tolerances, frames). `sewtol run FILE STUDY` on the needle_208 fast path runs these
-commands themselves."""
+"""`sewtol needle COMMAND`: the 208 needle drive's single-machine figures (nominal, deviation,
+frames) and the studies without a run form (guides, largest-tolerances); and the needle_208
+fast path of `sewtol run FILE STUDY` (FAST_PATH: scan, worst-case, montecarlo, sobol, ppm,
+allocation, strategies, with the plug-in's flags of needle_flags), which `sewtol needle STUDY`
+reaches as an alias of `sewtol run needle_208 STUDY` (cli.run.needle_aliases)."""
 
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 import numpy as np
 
@@ -16,7 +16,6 @@ from sewtol.cli.common import (
     as_flags,
     check_n,
     check_step,
-    check_study,
     cluster,
     deviation_columns,
     emit,
@@ -28,7 +27,6 @@ from sewtol.cli.common import (
     plot_option,
     plots,
     print_notes,
-    progress_option,
     run_history,
     save_plot,
     scan_figure,
@@ -37,7 +35,6 @@ from sewtol.cli.common import (
     write_outputs,
 )
 from sewtol.errors import ParameterError
-from sewtol.io import to_json
 
 BETA_LIMIT_DEG = 360.0
 SOBOL_RESAMPLES, SOBOL_CONF_LEVEL = 200, 0.95
@@ -71,11 +68,11 @@ def _needle_params(args):
     return Needle208.nominal(args.frame).override(**sets)
 
 
-def _beta_options(p, what="searched for beta* (deg)"):
+def _beta_options(p, limit=("--limit-um", "--limit")):
     """--beta-range LOW HIGH and --limit-um (defaults 10 35 and 10, resolved when checked)."""
     p.add_argument("--beta-range", nargs=2, type=float, default=None, metavar=("LOW", "HIGH"),
-                   help=f"regulating range {what}; default 10 35")
-    p.add_argument("--limit-um", "--limit", type=float, default=None,
+                   help="regulating range searched for beta* (deg); default 10 35")
+    p.add_argument(*limit, type=float, default=None,
                    help="SumDelta limit (um) of the yield and the window; default 10 (--limit "
                         "as `sewtol run FILE STUDY` names it)")
 
@@ -176,9 +173,9 @@ def _tolerances(args):
     from sewtol.mechanisms.params import field_names
     from sewtol.tolerances import needle_builtin_sets, resolve, with_housing
 
-    if getattr(args, "tolerance_set", None) is not None:  # `run FILE`: the file's set, resolved
-        return args.tolerance_set
-    ts = resolve(args.tolerances, needle_builtin_sets(), field_names(Needle208))
+    ts = getattr(args, "tolerance_set", None)  # `run FILE`: the file's set, resolved
+    if ts is None:
+        ts = resolve(args.tolerances, needle_builtin_sets(), field_names(Needle208))
     # --housing: the set plus the housing bores (a set that tolerances one already is refused)
     return with_housing(ts) if getattr(args, "housing", False) else ts
 
@@ -298,9 +295,7 @@ def cmd_needle_montecarlo(args):
     from sewtol.studies.montecarlo import CHUNK, check_sampling, montecarlo_bytes
     from sewtol.tables.needle_208 import montecarlo
 
-    check_n(args.n)
-    check_study(args)
-    strategy = _strategy(args)
+    strategy = _strategy(args)  # --n, --seed, --n-jobs, --out: checked by `run`
     _check_beta_range(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
     limit, rng = args.limit_um, tuple(args.beta_range)
@@ -462,8 +457,6 @@ def cmd_needle_strategies(args):
     from sewtol.provenance import now
     from sewtol.tables.needle_208 import strategies_table
 
-    check_n(args.n)
-    check_study(args)
     not_offered(args, "needle strategies",
                  resume="it keeps no checkpoints; rerun with the same seed",
                  scheduler="it runs on this machine; use --n-jobs")
@@ -498,10 +491,14 @@ def cmd_needle_strategies(args):
         title=f"yield by adjustment strategy, {args.n} machines (95 % interval)"))
 
 
-def _adjust_options(p):
-    p.add_argument("--adjust", default=None, metavar="NAMES",
-                   help="compensators the assembler sets per machine, e.g. beta,guide_shift_um "
-                        "(built in: beta, guide_shift_um, guide_angle, CD; none: no adjustment)")
+def _adjust_options(p, adjust=True):
+    """--adjust (needle guides; `run` has its own), --range, --step, --resolution and
+    --setting-error."""
+    if adjust:
+        p.add_argument("--adjust", default=None, metavar="NAMES",
+                       help="compensators the assembler sets per machine, e.g. "
+                            "beta,guide_shift_um (built in: beta, guide_shift_um, guide_angle, "
+                            "CD; none: no adjustment)")
     p.add_argument("--range", action="append", metavar="NAME=LOW,HIGH",
                    help="a compensator's range (offset from as built; beta absolute, deg)")
     p.add_argument("--step", action="append", metavar="NAME=VALUE",
@@ -522,7 +519,6 @@ def cmd_needle_sobol(args):
     from sewtol.tables.needle_208 import needle_sobol
 
     as_flags(check_power_of_two, args.n)  # its error names --n
-    check_study(args)
     strategy = _strategy(args)
     _check_beta_range(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
@@ -579,6 +575,7 @@ def _sobol_json(res, second_order: bool, context: dict):
 def _small_study(args):
     """Flags of guides/allocation, checked before anything is computed."""
     check_n(args.n)
+    args.seed = 0 if args.seed is None else args.seed  # None: not given, as `run` has it
     if args.seed < 0:
         raise ParameterError("--seed", "must be a whole number >= 0", args.seed)
     strategy = _strategy(args)
@@ -616,10 +613,7 @@ def cmd_needle_guides(args):
 def cmd_needle_allocation(args):
     from sewtol.tables.needle_208 import allocate
 
-    if not (np.isfinite(args.target) and 0 < args.target < 1):
-        raise ParameterError("--target", "must be a yield strictly between 0 and 1",
-                             args.target)
-    strategy, params, tolerances = _small_study(args)
+    strategy, params, tolerances = _small_study(args)  # --target: checked by `run`
     res = allocate(params, tolerances, args.target, args.n, args.seed, strategy=strategy)
     table = res.to_dataframe()
     if strategy is None:
@@ -715,9 +709,7 @@ def cmd_needle_ppm(args):
     from sewtol.studies import rare_event as R
     from sewtol.tables import needle_208 as NR
 
-    check_study(args)
     _check_beta_range(args)
-    args.method = {"mc": "montecarlo"}.get(args.method, args.method)  # `run ppm`'s spelling
     not_offered(args, "needle ppm", resume="it keeps no checkpoints; rerun with the same seed",
                  scheduler="its levels run on this machine; use --n-jobs")
     as_flags(R.choose_method, args.target, args.budget,
@@ -731,74 +723,91 @@ def cmd_needle_ppm(args):
     obj = {**res.to_dict(), "tolerances": tolerances.name, "adjust": args.adjust,
            "seed": args.seed, "target": args.target, "budget": args.budget,
            "context": _context(args, params, tolerances, None)}
-    if args.out:
-        from sewtol.io import write_text_atomic
-        from sewtol.provenance import run_record
-        from sewtol.reports.tables import to_csv
-
-        out = Path(args.out)
-        inputs = study_inputs(args, "ppm", params, tolerances, method=args.method,
-                         target=args.target, budget=args.budget, adjust=args.adjust,
-                         limit_um=args.limit_um, beta_search_range_deg=list(args.beta_range))
-        try:
-            write_text_atomic(out / "ppm.json", to_json(obj))
-            for name, frame in (("levels", res.levels), ("failing_examples", res.examples)):
-                write_text_atomic(out / f"{name}.csv", to_csv(frame))
-            write_text_atomic(out / "run.json", to_json(run_record(started, inputs)))
-        except OSError as exc:
-            raise ParameterError("--out", f"cannot be written ({exc.strerror})",
-                                 str(exc.filename or out)) from None
+    inputs = study_inputs(args, "ppm", params, tolerances, method=args.method,
+                          target=args.target, budget=args.budget, adjust=args.adjust,
+                          limit_um=args.limit_um, beta_search_range_deg=list(args.beta_range))
+    write_outputs(args, "ppm", inputs, started, obj,
+                  {"levels": res.levels, "failing_examples": res.examples}, None)
     frame = res.to_dataframe().assign(tolerances=tolerances.name, adjust=args.adjust)
     emit(args.format, obj=obj, frame=frame)
     if args.format == "table":
         print(f"\nP(SumDelta > {args.limit_um:g} um or no value) = {res.statement}")
 
 
-def _needle_options(p, **kwargs):
-    """--set, --format, --frame and --guide-shift-um: every needle command on one machine."""
+def _needle_options(p, machine=True, tolerances=None):
+    """--set and --format (machine), --frame and --guide-shift-um: every needle command on one
+    machine; --housing, and --tolerances unless tolerances is False, with tolerances."""
     from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME
 
-    machine_options(p, **kwargs)
+    if machine:
+        machine_options(p, **({} if machine is True else {"formats": machine}))
     p.add_argument("--frame", default=None, metavar="NAME",
                    help=f"named frame of the 208 (default {DEFAULT_FRAME}); "
                         "list them with `sewtol needle frames`")
     p.add_argument("--guide-shift-um", type=float, default=None, metavar="UM",
                    help="move the fixed guide along its normal (um); the same as --set "
                         "guide_shift_um=UM")
-
-
-def _study_options(p, seed=True):
-    """--tolerances and, for the studies that draw machines, --seed, --n-jobs, --scheduler,
-    --progress, --out and --resume."""
-    p.add_argument("--tolerances", default="base",
-                   help="base, recommended, base_housing, recommended_housing (with the "
-                        "housing bores), FILE.toml or FILE.toml:SET (default base)")
-    p.add_argument("--housing", action="store_true",
+    if tolerances is None:
+        return
+    if tolerances:
+        p.add_argument("--tolerances", default="base",
+                       help="base, recommended, base_housing, recommended_housing (with the "
+                            "housing bores), FILE.toml or FILE.toml:SET (default base)")
+    p.add_argument("--housing", action="store_true", default=None,
                    help="add the housing tolerances to the set (bores A, D and the guide: "
                         "+/-0.02 mm per coordinate, the guide's direction +/-0.0229 deg; "
                         "assumed, docs/needle_208.md); the set is named SET_housing")
-    if seed:
-        p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-        p.add_argument("--n-jobs", type=int, default=1,
-                       help="parallel workers on this machine (joblib)")
-        p.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                       help="run on a Dask cluster, e.g. tcp://host:8786 (default: "
-                       "$SEWTOL_SCHEDULER, else this machine); same numbers as a local run")
-        progress_option(p)
-        p.add_argument("--out", default=None, metavar="DIR",
-                       help="write results, machines, run.json and checkpoints here")
-        p.add_argument("--resume", action="store_true",
-                       help="continue the interrupted study in --out without recomputing "
-                            "its finished chunks")
 
 
-def add_needle(sub) -> None:
-    """`sewtol needle COMMAND`: one sub-parser per command."""
+def needle_flags(p) -> None:
+    """The needle_208 plug-in's flags, which `sewtol run` offers (and `sewtol needle STUDY`, its
+    alias): NEEDLE_FLAGS says which study of the fast path reads each."""
+    g = p.add_argument_group("the needle_208 fast path (sewtol run needle_208 STUDY, sewtol "
+                             "needle STUDY)")
+    _needle_options(g, machine=False, tolerances=False)
+    _beta_options(g, limit=("--limit-um",))
+    _adjust_options(g, adjust=False)
+    g.add_argument("--measurement-error", default=None, metavar="SD_UM",
+                   help="strategies: set the compensators from a reading of the needle bar's "
+                        "deviation with a normal error of this sd (um) at each measured "
+                        "position (0: from the true deviation; docs/adjustment.md)")
+    g.add_argument("--measured-positions", type=int, default=None, metavar="K",
+                   help="with --measurement-error: the handwheel positions read, equally "
+                        "spaced over a turn (default 36, every 10 deg)")
+    g.add_argument("--second-order", action="store_true", default=None,
+                   help="sobol: also the second-order indices S2 of every pair")
+    g.add_argument("--budget", type=int, default=None, help="ppm: model calls; the same as --n")
+    g.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="montecarlo, sobol: a Dask cluster, e.g. tcp://host:8786 (default: "
+                        "$SEWTOL_SCHEDULER, else this machine); same numbers as a local run")
+    g.add_argument("--resume", action="store_true", default=None,
+                   help="montecarlo, sobol: continue the interrupted study in --out")
+
+
+_ALL = ("scan", "worst-case", "montecarlo", "sobol", "ppm", "allocation", "strategies")
+_ADJUSTING = ("scan", "worst-case", "montecarlo", "sobol", "allocation", "strategies")
+# the fast path's studies that read each flag of needle_flags (and --limit, --adjust, --plot,
+# --n-jobs where the generic study does not); `run` refuses the others in one line
+NEEDLE_FLAGS = {"frame": _ALL, "guide_shift_um": _ALL, "housing": _ALL,
+                "beta_range": ("scan", "worst-case", "montecarlo", "sobol", "ppm"),
+                "limit_um": ("scan", "montecarlo", "sobol", "ppm"), "limit": ("scan", "sobol"),
+                "adjust": ("sobol", "strategies"), "n_jobs": ("sobol",),
+                "range": _ADJUSTING, "step": _ADJUSTING, "resolution": _ADJUSTING,
+                "setting_error": _ADJUSTING, "measurement_error": ("strategies",),
+                "measured_positions": ("strategies",), "second_order": ("sobol",),
+                "budget": ("ppm",), "scheduler": ("montecarlo", "sobol", "ppm", "strategies"),
+                "resume": ("montecarlo", "sobol", "ppm", "strategies"),
+                "plot": ("scan", "worst-case", "montecarlo", "sobol", "allocation", "strategies")}
+
+
+def add_needle(sub):
+    """`sewtol needle COMMAND`: one sub-parser per command without a run form; the studies with
+    one are added by sewtol.cli.run.needle_aliases to the sub-parsers returned."""
     needle = sub.add_parser("needle", help="208-class needle drive")
     nsub = needle.add_subparsers(dest="command", required=True, parser_class=Parser)
 
     p = nsub.add_parser("nominal", help="beta*, deviation figures, window, guide, stroke")
-    _needle_options(p, formats=("table", "json"))
+    _needle_options(p, machine=("table", "json"))
     _beta_options(p)
     plot_option(p, "SumDelta against beta with beta* and the window")
     p.set_defaults(func=cmd_needle_nominal)
@@ -810,103 +819,15 @@ def add_needle(sub) -> None:
     plot_option(p, "d(phi) over the crank turn")
     p.set_defaults(func=cmd_needle_deviation)
 
-    p = nsub.add_parser("scan", help="each tolerance at its limits, beta re-optimised")
-    _needle_options(p)
-    _study_options(p, seed=False)
-    _beta_options(p)
-    p.add_argument("--out", default=None, metavar="DIR",
-                   help="write scan.csv, scan.json and run.json (the context) here")
-    _adjust_options(p)
-    plot_option(p, "SumDelta at each tolerance's upper and lower limit")
-    wide_option(p)
-    p.set_defaults(func=cmd_needle_scan, seed=None, n_jobs=1)
-
-    p = nsub.add_parser("montecarlo", help="yield with beta fixed and adjusted per machine")
-    _needle_options(p)
-    _study_options(p)
-    p.add_argument("--n", type=int, default=2000, help="machines (default 2000)")
-    _beta_options(p)
-    plot_option(p, "the histograms of SumDelta, beta fixed and adjusted")
-    wide_option(p)
-    p.set_defaults(func=cmd_needle_montecarlo)
-    _adjust_options(p)
-
-    p = nsub.add_parser("strategies", help="yield by adjustment strategy on the same machines")
-    _needle_options(p)
-    _study_options(p)
-    p.add_argument("--n", type=int, default=500, help="machines (default 500)")
-    _adjust_options(p)
-    p.add_argument("--measurement-error", default=None, metavar="SD_UM",
-                   help="set the compensators from a reading of the needle bar's deviation "
-                        "with a normal error of this sd (um) at each measured position (0: "
-                        "from the true deviation; docs/adjustment.md)")
-    p.add_argument("--measured-positions", type=int, default=None, metavar="K",
-                   help="with --measurement-error: the handwheel positions read, equally "
-                        "spaced over a turn (default 36, every 10 deg)")
-    plot_option(p, "the yield of each strategy with its 95 %% interval")
-    wide_option(p)
-    p.set_defaults(func=cmd_needle_strategies)
-
-    p = nsub.add_parser("sobol", help="Sobol indices of SumDelta (SALib)")
-    _needle_options(p)
-    _study_options(p)
-    p.add_argument("--n", type=int, default=256, help="base samples, a power of two")
-    p.add_argument("--second-order", action="store_true",
-                   help="also the second-order indices S2 of every pair (N (2D + 2) runs "
-                        "instead of N (D + 2))")
-    _beta_options(p)
-    plot_option(p, "S1 and ST of the adjusted case with their intervals")
-    _adjust_options(p)
-    p.set_defaults(func=cmd_needle_sobol)
-
-    p = nsub.add_parser("ppm", help="failures per million after adjustment (rare-event methods)")
-    _needle_options(p)
-    _study_options(p)
-    p.add_argument("--adjust", choices=("none", "beta"), default="beta",
-                   help="assembly adjustment: none (beta fixed at nominal beta*) or beta")
-    _beta_options(p)
-    p.add_argument("--method", choices=("auto", "montecarlo", "mc", "subset", "nais"),
-                   default="auto",
-                   help="auto: Monte-Carlo if budget * target >= 10, else subset simulation; "
-                        "montecarlo (or mc), subset or nais")
-    p.add_argument("--target", type=float, default=1e-6,
-                   help="smallest probability to resolve (default 1e-6)")
-    p.add_argument("--budget", "--n", type=int, default=20000,
-                   help="model calls (default 20000); --n as `sewtol run FILE ppm` names it")
-    p.set_defaults(func=cmd_needle_ppm)
-
-    p = nsub.add_parser("worst-case", help="worst SumDelta over the tolerance box, fixed and "
-                        "adjusted")
-    _needle_options(p)
-    _study_options(p, seed=False)
-    p.add_argument("--beta-range", nargs=2, type=float, default=None, metavar=("LOW", "HIGH"),
-                   help="regulating range searched for beta (deg); default 10 35")
-    _adjust_options(p)
-    plot_option(p, "the worst SumDelta of each case against the limit")
-    p.set_defaults(func=cmd_needle_worst_case)
-
     p = nsub.add_parser("guides", help="guide settings compared: beta*, window, yields")
-    _needle_options(p)
-    _study_options(p, seed=False)
+    _needle_options(p, tolerances=True)
     p.add_argument("--n", type=int, default=2000, help="machines per guide setting")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
     _beta_options(p)
     _adjust_options(p)
     plot_option(p, "the yields of each guide setting, beta fixed and adjusted")
     wide_option(p)
     p.set_defaults(func=cmd_needle_guides)
-
-    p = nsub.add_parser("allocation", help="widest tolerances for a yield after adjustment")
-    _needle_options(p)
-    _study_options(p, seed=False)
-    p.add_argument("--n", type=int, default=2000,
-                   help="machines per trial (common random numbers; default 2000)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--target", type=float, default=0.9973,
-                   help="yield after adjustment to keep (default 0.9973)")
-    _adjust_options(p)
-    plot_option(p, "each tolerance's width in the reference set and allocated")
-    p.set_defaults(func=cmd_needle_allocation)
 
     p = nsub.add_parser("largest-tolerances", help="largest single deviation of each part that "
                         "keeps SumDelta(beta*) within the limit")
@@ -921,3 +842,10 @@ def add_needle(sub) -> None:
     p = nsub.add_parser("frames", help="the named frames of the 208 with their residuals")
     p.add_argument("--format", choices=FORMATS, default="table")
     p.set_defaults(func=cmd_needle_frames)
+    return nsub
+
+
+# the needle_208 fast path of `sewtol run` (and `sewtol needle STUDY`): each study's command
+FAST_PATH = {"scan": cmd_needle_scan, "worst-case": cmd_needle_worst_case,
+             "montecarlo": cmd_needle_montecarlo, "sobol": cmd_needle_sobol, "ppm": cmd_needle_ppm,
+             "allocation": cmd_needle_allocation, "strategies": cmd_needle_strategies}

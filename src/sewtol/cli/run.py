@@ -1,10 +1,11 @@
 """`sewtol run FILE.toml STUDY`: the studies of sewtol.studies.generic on a mechanism file.
 
 A file that names `fast_path = "needle_208"` (and passed the loader's check that it reproduces
-the built-in needle drive) runs scan, worst-case, montecarlo, sobol, ppm and allocation through
-the very code of `sewtol needle STUDY` (same bytes for the same flags) unless `--path generic`
-is given or a flag asks what the needle command cannot answer (`_fast_path_refusal`; the flag
-mapping is `_needle_namespace`, documented in docs/mechanism_files.md).
+the built-in needle drive) runs scan, worst-case, montecarlo, sobol, ppm, allocation and
+strategies on the needle's exact model (cli.needle.FAST_PATH) unless `--path generic` is given
+or a flag asks what the fast path cannot answer (`_fast_path_refusal`; the mapping is
+`_needle_namespace`, documented in docs/mechanism_files.md). `sewtol needle STUDY ARGS` is
+`sewtol run needle_208 STUDY ARGS` (needle_aliases: the same parser, the same function).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from sewtol.cli.common import (
     check_study_folder,
     emit,
     parse_sets,
+    progress_option,
     wide_option,
     write_outputs,
 )
@@ -88,11 +90,19 @@ def add_run(sub) -> None:
                    help="mechanism file (format sewtol-mechanism/1), or the name of a built-in "
                         "mechanism (sewtol mechanisms)")
     p.add_argument("study", choices=STUDIES)
-    study_options(p)
+    run_options(p)
 
 
-def study_options(p) -> None:
-    """Every flag of `sewtol run FILE STUDY` (the aliases `sewtol feed STUDY` take the same)."""
+def needle_aliases(nsub) -> None:
+    """`sewtol needle STUDY ARGS`: `sewtol run needle_208 STUDY ARGS`'s parser and function."""
+    for study in FAST_PATH_STUDIES:
+        p = nsub.add_parser(study, help=f"the same as `sewtol run needle_208 {study}`")
+        run_options(p)
+        p.set_defaults(file="needle_208", study=study)
+
+
+def run_options(p) -> None:
+    """Every flag of `sewtol run` (the needle_208 plug-in's in one group, cli.needle)."""
     p.add_argument("--output", default=None, metavar="NAME",
                    help="the output studied (default: all for nominal/scan/montecarlo, the "
                         "first for worst-case/sobol)")
@@ -106,7 +116,8 @@ def study_options(p) -> None:
     p.add_argument("--limit", type=float, default=None,
                    help="upper limit of --output (default the first output) for the yield; "
                         "replaces the file's [[specs]] entry of that output")
-    p.add_argument("--n-jobs", type=int, default=None, help="parallel workers (montecarlo)")
+    p.add_argument("--n-jobs", type=int, default=None,
+                   help="parallel workers on this machine (default 1)")
     p.add_argument("--adjust", default=None, metavar="COMPENSATOR[,COMPENSATOR...]|none",
                    help="add the adjusted case: --output (default the first) minimised over "
                         "this [compensators.NAME] of the file on each machine (default: the "
@@ -172,7 +183,10 @@ def study_options(p) -> None:
                    help="refine, least-cost: generations of each restart (default 400; "
                         "least-cost 40)")
     p.add_argument("--plot", default=None, metavar="FILE",
-                   help="refine: the objective's curve today and refined (.png/.svg/.pdf)")
+                   help="the study's figure (.png/.svg/.pdf): refine, the objective's curve "
+                        "today and refined; on the needle_208 fast path scan, worst-case, "
+                        "montecarlo, sobol, allocation and strategies (the yield of each "
+                        "strategy with its 95 %% interval)")
     p.add_argument("--guide-diameter", type=float, default=None, metavar="MM",
                    help="clearance: the guide rod's diameter for its ISO 286 fits (default 8)")
     p.add_argument("--play-limit", type=float, default=None, metavar="UM",
@@ -196,7 +210,9 @@ def study_options(p) -> None:
                         "montecarlo, sobol, ppm and allocation as `sewtol needle STUDY` does "
                         "(exact SumDelta, beta searched by the needle's optimiser) where its "
                         "flags allow; generic: always the sampled studies of the file")
-    p.set_defaults(func=cmd_run, resume=False, progress=False, scheduler=None)
+    progress_option(p)
+    N.needle_flags(p)
+    p.set_defaults(func=cmd_run)
 
 
 def _settings(args) -> list:
@@ -242,9 +258,11 @@ def _check_flags(args) -> None:
                 "popsize", "maxiter", "plot", "guide_diameter", "play_limit", "guide_fit",
                 "cost", "confidence", "check_n", "clearances", "shape", "objective"):
         value = getattr(args, key)
-        if value is not None and key not in USES[args.study]:
+        if value is not None and key not in USES[args.study] \
+                and args.study not in N.NEEDLE_FLAGS.get(key, ()):  # _check_needle_flags
             raise ParameterError("--" + key.replace("_", "-"), f"is not used by `run "
                                  f"{args.study}`", value)
+    _needle_synonyms(args)
     if args.objective is not None:
         from sewtol.adjuster import Objective
 
@@ -257,7 +275,7 @@ def _check_flags(args) -> None:
             getattr(args, k) is not None for k in USES["settings"])):
         args.n = DEFAULT_N[args.study]
     args.seed = 0 if args.seed is None else args.seed
-    args.n_jobs = 1 if args.n_jobs is None else args.n_jobs
+    args.n_jobs_given, args.n_jobs = args.n_jobs, 1 if args.n_jobs is None else args.n_jobs
     _check_yield_flags(args)
 
 
@@ -321,12 +339,14 @@ def cmd_run(args) -> None:
     fmt = "table" if args.format == "text" else args.format
     if args.output is not None:
         mech.output(args.output)
+    args.adjust_given = args.adjust
     _default_adjust(args, mech)
     args.spec = args.spec_source = None
     if args.study in SPEC_STUDIES and args.n is not None:  # the limits: the flags', else the file's
         args.spec_output, args.spec, args.spec_source = mech.resolve_spec(
             args.output, args.limit, args.lower_limit)
     args.path_reason = _fast_path_refusal(args, mech)  # None: the needle_208 fast path
+    _check_needle_flags(args, mech)
     if args.study in ("nominal", "settings"):
         check_study_folder(args, _inputs(args, mech, None), chunked=False)
     if args.study == "nominal":
@@ -360,6 +380,7 @@ def cmd_run(args) -> None:
                             "fast path does not have")
     if args.path_reason is None:
         args.path_reason = _tolerances_refusal(tolerances)
+    _check_needle_flags(args, mech)
     if args.path_reason is None:  # the needle commands check their folder (open_store)
         return _needle_study(args, mech, tolerances)
     check_study_folder(args, _inputs(args, mech, tolerances), chunked=False)
@@ -665,12 +686,8 @@ def _finish(args, fmt, mech, tolerances, obj, frames, frame) -> None:
                       obj, frames, None)
     emit(fmt, obj=obj, frame=frame, compact=COMPACT.get(args.study), wide=args.wide)
 
-FAST_PATH_STUDIES = ("scan", "worst-case", "montecarlo", "sobol", "ppm", "allocation",
-                     "strategies")
-
-
-# the needle commands that report the fixed and the adjusted case together (so with and without
-# --adjust beta); the others run `--adjust none` without --adjust and beta adjusted with it
+FAST_PATH_STUDIES = tuple(N.FAST_PATH)
+# the needle studies that report the fixed and the adjusted case by default
 BOTH_CASES = ("worst-case", "montecarlo", "sobol")
 
 
@@ -710,22 +727,11 @@ def _fast_path_refusal(args, mech) -> str | None:
     if args.output is not None and args.output not in sumdelta_outputs(mech):
         return (f"--output {args.output} is not the SumDelta output "
                 f"({', '.join(sumdelta_outputs(mech))}) the needle commands compute")
-    if args.adjust is not None and "," in args.adjust:
-        return f"--adjust {args.adjust}: the needle commands adjust beta alone"
     if args.objective not in (None, "minimise"):
         return f"--objective {args.objective}: the needle commands minimise SumDelta"
-    if args.adjust is not None:
-        if args.adjust not in mech.compensators:  # refused as the generic studies refuse it
-            raise ParameterError("--adjust", "must name a compensator of the file ("
-                                 + (", ".join(mech.compensators) or "it has none") + ")",
-                                 args.adjust)
-        comp = mech.compensators[args.adjust]
-        if comp.parameter != "beta":
-            return (f"--adjust {args.adjust} sets {comp.parameter}; the needle commands adjust "
-                    "beta")
-        if args.study == "allocation" and (comp.low, comp.high) != sb.DEFAULT_RANGE_DEG:
-            return (f"--adjust {args.adjust} searches beta in [{comp.low:g}, {comp.high:g}] deg; "
-                    "`needle allocation` searches 10 35")
+    reason = _needle_adjust_refusal(args, mech)
+    if reason is not None:
+        return reason
     if getattr(args, "lower_limit", None) is not None:
         return "--lower-limit: the needle commands limit SumDelta from above only"
     spec, flag = getattr(args, "spec", None), ("--limit" if args.limit is not None
@@ -738,11 +744,8 @@ def _fast_path_refusal(args, mech) -> str | None:
     upper = None if spec is None else spec.upper
     if upper is not None and not upper > 0:
         return f"{flag} {upper:g}: the needle's SumDelta limit is a positive number of um"
-    if args.study == "allocation" and upper is not None and upper != sb.DEFAULT_LIMIT_UM:
-        return (f"{flag} {upper:g}: `needle allocation` keeps SumDelta within "
-                f"{sb.DEFAULT_LIMIT_UM:g} um")
-    if args.study == "strategies" and upper is not None and upper != sb.DEFAULT_LIMIT_UM:
-        return (f"{flag} {upper:g}: `needle strategies` keeps SumDelta within "
+    if args.study in ("allocation", "strategies") and upper not in (None, sb.DEFAULT_LIMIT_UM):
+        return (f"{flag} {upper:g}: `needle {args.study}` keeps SumDelta within "
                 f"{sb.DEFAULT_LIMIT_UM:g} um")
     if args.study == "strategies" and args.strategy is not None:
         return "--strategy: `needle strategies` compares its own rows"
@@ -767,46 +770,102 @@ def _tolerances_refusal(tolerances) -> str | None:
     return None
 
 
+def _needle_adjust_refusal(args, mech) -> str | None:
+    """An --adjust given names the needle's compensators by parameter (its exact adjuster, the
+    strategy's rows); not given, the file's [defaults] adjust must be the needle's own (beta)."""
+    from sewtol.mechanisms.needle_208 import beta as sb
+    from sewtol.mechanisms.needle_208.model import Needle208
+    from sewtol.mechanisms.params import field_names
+
+    given = args.adjust_given
+    if given is not None and given.strip().lower() != "none":
+        names = [a.strip() for a in given.split(",")]
+        for name in names:
+            if name in mech.compensators and name not in field_names(Needle208):
+                return (f"--adjust {given}: {name} is a compensator of the file; the needle "
+                        f"commands name theirs by parameter ({mech.compensators[name].parameter})")
+        if args.study == "ppm" and names != ["beta"]:
+            return f"--adjust {given}: `needle ppm` adjusts beta alone"
+        return None
+    if given is None and args.adjust is not None:  # the file's [defaults] adjust
+        for name in args.adjust.split(","):
+            comp = mech.compensators[name]
+            if comp.parameter != "beta":
+                return (f"the file's [defaults] adjust {name} sets {comp.parameter}; the needle "
+                        "commands adjust beta by default")
+            if args.study == "allocation" and (comp.low, comp.high) != sb.DEFAULT_RANGE_DEG:
+                return (f"[compensators.{name}] searches beta in [{comp.low:g}, {comp.high:g}] "
+                        "deg; `needle allocation` searches 10 35")
+    return None
+
+
+def _check_needle_flags(args, mech) -> None:
+    """The needle_208 plug-in's flags (cli.needle.NEEDLE_FLAGS), refused in one line by a study
+    that does not read them, another mechanism, or a run that leaves the fast path."""
+    for key, studies in N.NEEDLE_FLAGS.items():
+        value = getattr(args, "n_jobs_given" if key == "n_jobs" else key)
+        if value is None or key in USES[args.study]:
+            continue
+        flag = "--" + key.replace("_", "-")
+        if args.study not in studies:
+            raise ParameterError(flag, f"is not used by `run {args.study}`", value)
+        if mech.header.fast_path != "needle_208":
+            raise ParameterError(flag, f"is read by the needle_208 fast path only; `run "
+                                 f"{args.file} {args.study}` has none", value)
+        if args.path_reason is not None:
+            raise ParameterError(flag, "is read by the needle_208 fast path only, which this "
+                                 f"run leaves ({args.path_reason})", value)
+
+
+def _needle_synonyms(args) -> None:
+    """--limit-um is --limit, and ppm's --budget its --n, in the needle's words."""
+    for flag, key, same in (("--limit-um", "limit_um", "limit"), ("--budget", "budget", "n")):
+        value = getattr(args, key)
+        if value is not None and getattr(args, same) is not None:
+            raise ParameterError(flag, f"is --{same} in the needle's words; give one of them",
+                                 value)
+        setattr(args, same, getattr(args, same) if value is None else value)
+
+
 def _needle_namespace(args, mech, tolerances=None):
-    """`run`'s flags as the arguments of `sewtol needle STUDY`: that command's own defaults (its
-    parser's), with the flags `run` maps onto it; the file's nominal machine and tolerance set
-    ride along as nominal_params and tolerance_set."""
+    """`run`'s arguments as cli.needle.FAST_PATH reads them: no seed or n where the study draws
+    nothing, the SumDelta limit in force, --adjust as given, the file's nominal machine (unless
+    --frame or --guide-shift-um) and its tolerance set."""
     from sewtol.mechanisms.needle_208 import beta as sb
     from sewtol.mechanisms.needle_208.fast_path import needle_params
 
-    study = args.study
-    parser = argparse.ArgumentParser(prog="sewtol")
-    N.add_needle(parser.add_subparsers(dest="group"))
-    ns = parser.parse_args(["needle", study])
-    if study != "allocation" and args.adjust is not None:
-        comp = mech.compensators[args.adjust]
-        ns.beta_range = [float(comp.low), float(comp.high)]
-    if study in BOTH_CASES or study == "strategies":
-        ns.adjust = None  # the needle command's default: fixed and adjusted, or its rows
-    elif args.adjust is None:
-        ns.adjust = "none"
-    else:  # beta adjusted: the default of needle scan and allocation, --adjust beta of ppm
+    study, given = args.study, args.adjust_given
+    ns = argparse.Namespace(**vars(args))
+    if given is not None:
+        ns.adjust = given
+    elif args.adjust is None:  # no default adjustment in the file
+        ns.adjust = None if study in BOTH_CASES or study == "strategies" else "none"
+    else:  # the file's default: beta, the needle's own default
         ns.adjust = "beta" if study == "ppm" else None
-    if study in ("montecarlo", "sobol", "ppm", "allocation", "strategies"):
-        ns.seed = args.seed
-    if study in ("montecarlo", "sobol", "allocation", "strategies"):
-        ns.n = args.n
-    if study == "strategies":
-        ns.n_jobs = args.n_jobs
+        comp = mech.compensators[args.adjust]
+        if study != "allocation" and args.beta_range is None:
+            ns.beta_range = [float(comp.low), float(comp.high)]
+    if study in ("scan", "worst-case"):
+        ns.seed = None
+    if study in ("scan", "worst-case", "ppm"):
+        ns.n = None
     if study in ("montecarlo", "ppm"):
         # the limit in force; the file's spec of the needle's own default 10 um is passed as
-        # the default, so `run` and `needle` print the same bytes
-        ns.n_jobs, ns.limit_um = args.n_jobs, None if args.spec is None or (
+        # the default, so `run` prints the bytes of the needle's default
+        ns.limit_um = None if args.spec is None or (
             args.limit is None and args.spec.upper == sb.DEFAULT_LIMIT_UM) else args.spec.upper
         ns.spec_source = None if ns.limit_um is None else args.spec_source
+    else:
+        ns.limit_um, ns.spec_source = (args.limit if study in ("scan", "sobol") else None), None
     if study == "ppm":
-        ns.method, ns.target, ns.budget = args.method, args.target, args.n
-    if study == "allocation":
-        ns.target = args.target
+        ns.budget = args.n
     ns.format = "table" if args.format == "text" else args.format
-    ns.progress, ns.out, ns.wide = args.progress, args.out, args.wide
-    ns.nominal_params, ns.tolerance_set = needle_params(mech), tolerances
+    ns.housing, ns.resume = bool(args.housing), bool(args.resume)
+    ns.second_order = bool(args.second_order)
+    own = args.frame is None and args.guide_shift_um is None
+    ns.nominal_params, ns.tolerance_set = (needle_params(mech) if own else None), tolerances
     ns.file_inputs = {"mechanism_file": str(args.file), "fast_path": "needle_208"}
+    ns.func = N.FAST_PATH[study]
     return ns
 
 
