@@ -440,25 +440,27 @@ def test_scan_and_sobol_carry_their_context_in_json_and_run_json(tmp_path):
 def test_a_flag_has_one_type_default_and_arity_in_every_command():
     """Item 7: the shared flags are the same argparse definition wherever they appear."""
     from sewtol.cli import build_parser
-    from sewtol.cli.run import cmd_run
 
     shared = ("--beta-range", "--limit-um", "--guide-shift-um", "--frame", "--seed", "--n-jobs",
               "--out", "--plot", "--progress", "--set", "--resume", "--scheduler")
     seen: dict[str, dict] = {}
     commands = 0
     groups = build_parser()._subparsers._group_actions[0].choices
-    for group in (groups["needle"], groups["feed"]):  # `run FILE` reads a file's own spec
-        for name, cmd in group._subparsers._group_actions[0].choices.items():
-            if cmd.get_default("func") is cmd_run:  # `feed scan`: `run feed_131 scan`'s flags
+    # `run` and its aliases (`needle scan`, `feed scan`, ...) among them
+    commands_of = {"run": groups["run"],
+                   **{f"needle {k}": v for k, v in
+                      groups["needle"]._subparsers._group_actions[0].choices.items()},
+                   **{f"feed {k}": v for k, v in
+                      groups["feed"]._subparsers._group_actions[0].choices.items()}}
+    for name, cmd in commands_of.items():
+        commands += 1
+        for action in cmd._actions:
+            flag = next((f for f in action.option_strings if f in shared), None)
+            if flag is None:
                 continue
-            commands += 1
-            for action in cmd._actions:
-                flag = next((f for f in action.option_strings if f in shared), None)
-                if flag is None:
-                    continue
-                spec = {"type": action.type, "nargs": action.nargs, "default": action.default,
-                        "kind": type(action).__name__}
-                assert seen.setdefault(flag, spec) == spec, (name, flag, spec, seen[flag])
+            spec = {"type": action.type, "nargs": action.nargs, "default": action.default,
+                    "kind": type(action).__name__}
+            assert seen.setdefault(flag, spec) == spec, (name, flag, spec, seen[flag])
     assert commands >= 14 and set(seen) == set(shared)
     assert seen["--progress"]["kind"] == "BooleanOptionalAction"
     assert seen["--beta-range"]["nargs"] == 2 and seen["--beta-range"]["default"] is None
