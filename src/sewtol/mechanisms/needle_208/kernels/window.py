@@ -148,6 +148,36 @@ def _s_at(c, crit, ncrit, imax, imin, m, k, tau, T0, T1, out3):
 
 
 @nb.njit(cache=True)
+def _s_lb(c, crit, ncrit, imax, imin, m, k, ta, tb, T0, T1):
+    """A lower bound (mm) of _s_at over the window starts k + tau, tau in [ta, tb]: every such
+    window covers cell k from tb on and cell k + m up to ta, so its F is at least the extremes
+    there and its G at most (the same comparisons as _s_at), less 1e-12 mm for the rounding of
+    a cubic's value at a computed root (~1e-17 mm)."""
+    A = _cubic(c, k, tb)
+    B = _cubic(c, k + m, ta)
+    F = max(imax[k], A, B)
+    G = min(imin[k], A, B)
+    for r in range(ncrit[k]):
+        if crit[k, r, 0] > tb:
+            F = max(F, crit[k, r, 1])
+            G = min(G, crit[k, r, 1])
+    j = k + m
+    for r in range(ncrit[j]):
+        if crit[j, r, 0] < ta:
+            F = max(F, crit[j, r, 1])
+            G = min(G, crit[j, r, 1])
+    return max(F - G, max(F - T1, T0 - G)) - 1e-12
+
+
+@nb.njit(cache=True)
+def _descent(sv, i, q):
+    """Sample i of sv[0 .. q] is a local minimum, strict on one side at least."""
+    left = sv[i - 1] if i > 0 else np.inf
+    right = sv[i + 1] if i < q else np.inf
+    return sv[i] <= left and sv[i] <= right and (sv[i] < left or sv[i] < right)
+
+
+@nb.njit(cache=True)
 def _locate(u, ua, h, K, tlast):
     k = int(math.floor((u - ua) / h))
     if k < 0:
@@ -341,15 +371,22 @@ def _solve_nodes_ws(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, p
         dt = Lu / q
         for i in range(q + 1):
             sv[i] = _s_at(c, crit, ncrit, imax, imin, m, k, i * dt, T0, T1, out3)
+        least = np.inf  # the least descent of the cell: every one below updates best to it
         for i in range(q + 1):
-            left = sv[i - 1] if i > 0 else np.inf
-            right = sv[i + 1] if i < q else np.inf
-            if not (sv[i] <= left and sv[i] <= right and (sv[i] < left or sv[i] < right)):
+            if _descent(sv, i, q):
+                least = min(least, sv[i])
+        for i in range(q + 1):
+            if not _descent(sv, i, q):
                 continue
             if sv[i] < best:
                 best, bk, bt = sv[i], k, i * dt
             a = max(i - 1, 0) * dt
             b = min(i + 1, q) * dt
+            # a polish that can reach neither below the best so far nor down to the cell's
+            # least descent changes neither the minimum nor where it is first found: skipped
+            lb = _s_lb(c, crit, ncrit, imax, imin, m, k, a, b, T0, T1)
+            if lb >= best or lb > least:
+                continue
             cg = b - _INVPHI * (b - a)
             dg = a + _INVPHI * (b - a)
             fc = _s_at(c, crit, ncrit, imax, imin, m, k, cg, T0, T1, out3)
