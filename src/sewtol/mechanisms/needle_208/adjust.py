@@ -113,7 +113,7 @@ def _rocker(c, feas=None):
 def optimise(c: dict[str, np.ndarray], active: dict[str, tuple[float, float] | None],
              engine: str = "numba", h_deg: float = 2.0, tol_um: float = PLATEAU_TOL_UM,
              angle_grid: int | None = None, feas: nm.Feasibility | None = None,
-             outer_search: str = "fused") -> AdjustResult:
+             outer_search: str = "fused", cutoff_um: np.ndarray | None = None) -> AdjustResult:
     """Joint optimum of the active compensators for machines given as parameter columns
     (c from needle_208.metrics.columns, each (n, 1)); `active` maps compensator names to their
     (low, high) box (None: DEFAULT_BOXES). feas: needle_208.metrics.feasibility(c) if known (the
@@ -153,6 +153,11 @@ def optimise(c: dict[str, np.ndarray], active: dict[str, tuple[float, float] | N
         section's) or ``"loop"`` (the batched Python loop over trial values it was written as,
         kept as the reference; the numpy engine always uses it). tests/test_adjust.py holds
         them to each other.
+    cutoff_um : numpy.ndarray or None
+        Per machine, for the guide angle's fused search: where the grid proves that no angle
+        comes down to it, the grid's best angle without refinement (min_total_um is then
+        above the cutoff but not the minimum); for a search that only ranks machines' minima
+        against a known value (window.outer_batch).
 
     Returns
     -------
@@ -180,7 +185,7 @@ def optimise(c: dict[str, np.ndarray], active: dict[str, tuple[float, float] | N
     if outer:
         if engine == "numba" and outer_search != "loop":
             return _with_outer_fused(outer[0], c, boxes, r_lo, r_hi, code, engine, h_deg,
-                                     tol_um, angle_grid, outer_search == "vsection")
+                                     tol_um, angle_grid, outer_search == "vsection", cutoff_um)
         return _with_outer(outer[0], c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um,
                            angle_grid)
     out = _inner(c, boxes, r_lo, r_hi, engine, h_deg, tol_um)
@@ -231,7 +236,7 @@ def _result(out, boxes, code, tol_um, outer=None) -> AdjustResult:
 # --- the guide angle or CD: an outer search around the exact inner optimum ---------------------
 
 def _with_outer_fused(name, c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um, angle_grid,
-                      vsection=False):
+                      vsection=False, cutoff_um=None):
     """_with_outer's search with every machine's grid and refinements in one numba call
     (kernels.window.outer_batch: V-sections, or golden sections as _with_outer), then the
     full inner optimum at the setting found."""
@@ -253,7 +258,8 @@ def _with_outer_fused(name, c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um, a
     lo = np.ascontiguousarray(r_lo, float).reshape(-1)
     hi = np.ascontiguousarray(r_hi, float).reshape(-1)
     best_rel = KW.outer_batch(KB.pack(cc), _KERNEL_COLUMN[name], lo, hi, blo, bhi, slo, shi,
-                              shift, grid, h_deg, tol_um, 3, vsection)
+                              shift, grid, h_deg, tol_um, 3, vsection,
+                              None if cutoff_um is None else np.asarray(cutoff_um, float))
     cc[name] = (own + best_rel).reshape(-1, 1)
     out = _inner(cc, inner_boxes, r_lo, r_hi, engine, h_deg, tol_um)
     return _result(out, boxes, code, tol_um, (name, (best_rel, best_rel, best_rel)))

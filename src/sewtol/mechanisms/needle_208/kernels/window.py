@@ -867,8 +867,30 @@ def _vsection(a, b, fa, fb_, p, col, own, lo, hi, blo, bhi, T0, T1, h_deg, tol_m
     return xs[j], fs[j]
 
 
+# how far a computed trial minimum may lie from the exact one (um): the surrogate's error bound
+# (SURROGATE_TOL_MM) and the sampling's (SAMPLE_TOL_MM) with room to spare
+TRIAL_ERR_UM = 0.01
+
+
 @nb.njit(cache=True)
-def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_min, vsection):
+def _angle_bound(p, grid, vals):
+    """A lower bound (um) of the trial minimum over the guide angle's whole box from its values
+    at the grid: turning the guide by da (rad) about its point moves every d by at most
+    |E - guide point| da, and |E - guide point| <= |A - guide point| + AB + BE, so SumDelta
+    (max(F - G, F - T1, T0 - G), minimised over beta and the shift) moves by at most twice
+    that; between two grid points the minimum is then at least the mean of their values less
+    that slope times half their gap."""
+    slope = 2.0 * (math.hypot(p[5] - p[11], p[6] - p[12]) + abs(p[0]) + abs(p[2])) \
+        * (math.pi / 180.0) * 1e3
+    lb = np.inf
+    for g in range(grid.size - 1):
+        lb = min(lb, 0.5 * (vals[g] + vals[g + 1] - slope * (grid[g + 1] - grid[g])))
+    return lb - TRIAL_ERR_UM
+
+
+@nb.njit(cache=True)
+def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_min, vsection,
+               cutoff):
     G = grid.size
     own = p[col]
     res = np.empty(8)
@@ -904,6 +926,8 @@ def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_
     i0 = np.argmin(vals)
     best_rel = grid[i0]
     best_val = vals[i0]
+    if col == 13 and cutoff < np.inf and _angle_bound(p, grid, vals) > cutoff:
+        rounds = 0  # no angle can bring this machine down to the cutoff: the grid's best
     for _ in range(rounds):
         i = np.argmin(score)
         if not score[i] < np.inf:
@@ -956,15 +980,22 @@ def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_
 
 @nb.njit(cache=True, parallel=True)
 def outer_batch(P, col, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active, grid,
-                h_deg=2.0, tol_um=1e-3, rounds=3, vsection=False):
+                h_deg=2.0, tol_um=1e-3, rounds=3, vsection=False, cutoff_um=None):
     """Per machine (rows of P with the compensator's own value in column col: 13 the guide
     angle, deg; 3 CD, mm): the offset from its own value, one of `grid` or refined, where the
     exact minimum of SumDelta over beta (and the guide shift) is least: a grid over `grid`,
     then golden section around each of the `rounds` best local minima of the grid (to a
     bracket below 1e-9). needle_208.adjust._with_outer's search (tests/test_adjust.py holds
-    the two to each other)."""
+    the two to each other). cutoff_um (per machine, the guide angle only): where a bound
+    (_angle_bound) shows from the grid that no angle of the box comes down to it, the grid's
+    best is returned without refining it (its minimum, then above the cutoff, only has to lose
+    to the cutoff: an outer search over CD ranks its grid so)."""
     n = P.shape[0]
     out = np.empty(n)
+    if cutoff_um is None:
+        cut = np.full(n, np.inf)
+    else:
+        cut = cutoff_um
     step = 2.0 * (grid[1] - grid[0])
     n_min = 0
     while step >= 1e-9 and n_min < 40:
@@ -977,5 +1008,5 @@ def outer_batch(P, col, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active
         else:
             T0 = T1 = P[i, 14] * 1e-3
         out[i] = _outer_one(P[i], col, lo[i], hi[i], blo, bhi, T0, T1, grid, h_deg,
-                            tol_um * 1e-3, rounds, n_min, vsection)
+                            tol_um * 1e-3, rounds, n_min, vsection, cut[i])
     return out
