@@ -428,6 +428,45 @@ def test_fused_outer_search_equals_the_loop(nominal, outer):
         ad.optimise(c, box, outer_search="grid")
 
 
+def test_angle_cutoff_only_cuts_machines_that_cannot_reach_it(nominal):
+    """The guide angle's search with a cutoff (what the all row's CD grid passes): a cutoff just
+    above each machine's minimum changes nothing, bit for bit; one 0.5 um below it may leave
+    a machine its grid's best angle, whose minimum is then still above the cutoff; and the
+    bound that decides it (window._angle_bound, from the 21-point grid) lies below a dense
+    brute force of the angle (201 points) on every machine."""
+    from sewtol.mechanisms.needle_208.kernels import fused as KB
+    from sewtol.mechanisms.needle_208.kernels import window as KW
+
+    dev = NEEDLE_208_SETS["base"].sample(np.random.default_rng(26), 40)
+    c = _columns(nominal, dev)
+    box = {"beta": (10.0, 35.0), "guide_shift_um": (-100.0, 100.0), "guide_angle": (-0.1, 0.1)}
+    full = ad.optimise(c, box)
+    ok = full.status == "ok"
+    assert ok.sum() >= 35
+    above = ad.optimise(c, box, cutoff_um=full.min_total_um + 1e-9)
+    for k in full.settings:
+        assert np.array_equal(above.settings[k], full.settings[k], equal_nan=True)
+    below = ad.optimise(c, box, cutoff_um=full.min_total_um - 0.5)
+    cut = ok & (below.settings["guide_angle"] != full.settings["guide_angle"])
+    assert np.all(below.min_total_um[cut] > full.min_total_um[cut] - 0.5)
+    grid = np.linspace(-0.1, 0.1, 21)
+    dense = np.linspace(-0.1, 0.1, 201)
+    P = KB.pack(c)
+    r_lo, r_hi, _ = ad._rocker(c)
+    h = 2.0 * np.pi / 180
+    for i in np.flatnonzero(ok):
+        ci = _row(c, i)
+        vals = _inner_minimum(ci, np.zeros(grid.size), grid)
+        brute = _inner_minimum(ci, np.zeros(dense.size), dense).min()
+        geo = np.empty((12, 2))
+        k, w = KW._segments(P[i], r_lo[i], r_hi[i], 10.0, 35.0, geo)
+        nn = max(KW._grid(geo[j, 0], geo[j, 1], w, h)[4] for j in range(k))
+        EN, XN, runs = np.empty((k, nn, 6)), np.empty((k, nn)), np.zeros(12, bool)
+        KW._points(P[i], geo, k, w, 2.0, EN, XN, runs)
+        bound = KW._angle_bound(P[i], grid, vals, EN, geo, k, w, runs, h)
+        assert bound <= min(brute, full.min_total_um[i])
+
+
 def _inner_minimum(c, cd, angle):
     """The exact beta + shift optimum (um, inf where no window runs) of machine c at each
     (CD offset, guide angle offset) pair."""

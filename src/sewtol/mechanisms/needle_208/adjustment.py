@@ -215,7 +215,8 @@ def _search(c: dict, outer: list[Compensator], plateaus: bool, leaf, held=(),
         x = grid[i]
     else:
         a, b = grid[np.maximum(i - 1, 0)], grid[np.minimum(i + 1, grid.size - 1)]
-        x = golden_min(score, a, b, xtol=_xtol(comp), value=False)[0]
+        # each new point scored with the one it is compared with as its cutoff
+        x = golden_min(score, a, b, xtol=_xtol(comp), value=False, cutoff=not rest)[0]
         # never worse than the grid (golden section can stall on an infinite bracket end); the
         # search at x is the one kept unless the grid wins somewhere
         res = sub(_apply(c, comp, x), plateaus)

@@ -873,15 +873,25 @@ TRIAL_ERR_UM = 0.01
 
 
 @nb.njit(cache=True)
-def _angle_bound(p, grid, vals):
+def _angle_bound(p, grid, vals, EN, geo, k, w, ok, h):
     """A lower bound (um) of the trial minimum over the guide angle's whole box from its values
     at the grid: turning the guide by da (rad) about its point moves every d by at most
-    |E - guide point| da, and |E - guide point| <= |A - guide point| + AB + BE, so SumDelta
-    (max(F - G, F - T1, T0 - G), minimised over beta and the shift) moves by at most twice
-    that; between two grid points the minimum is then at least the mean of their values less
-    that slope times half their gap."""
-    slope = 2.0 * (math.hypot(p[5] - p[11], p[6] - p[12]) + abs(p[0]) + abs(p[2])) \
-        * (math.pi / 180.0) * 1e3
+    |E - guide point| da, so SumDelta (max(F - G, F - T1, T0 - G), minimised over beta and the
+    shift) by at most twice that; between two grid points the minimum is then at least the
+    mean of their values less that slope times half their gap. |E - guide point| over every
+    window solved: at most its largest value at the nodes (EN of _points, the segments that
+    run, nodes <= h rad apart) plus h (max |E'| + h max |E''|) between them."""
+    r = 0.0
+    d1 = 0.0
+    d2 = 0.0
+    for i in range(k):
+        if not ok[i]:
+            continue
+        for j in range(_grid(geo[i, 0], geo[i, 1], w, h)[4]):
+            r = max(r, math.hypot(EN[i, j, 0] - p[11], EN[i, j, 1] - p[12]))
+            d1 = max(d1, math.hypot(EN[i, j, 2], EN[i, j, 3]))
+            d2 = max(d2, math.hypot(EN[i, j, 4], EN[i, j, 5]))
+    slope = 2.0 * (r + h * (d1 + h * d2)) * (math.pi / 180.0) * 1e3
     lb = np.inf
     for g in range(grid.size - 1):
         lb = min(lb, 0.5 * (vals[g] + vals[g + 1] - slope * (grid[g + 1] - grid[g])))
@@ -926,7 +936,8 @@ def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_
     i0 = np.argmin(vals)
     best_rel = grid[i0]
     best_val = vals[i0]
-    if col == 13 and cutoff < np.inf and _angle_bound(p, grid, vals) > cutoff:
+    if col == 13 and cutoff < np.inf and _angle_bound(
+            p, grid, vals, EN, geo, k, w, ok, h_deg * (math.pi / 180.0)) > cutoff:
         rounds = 0  # no angle can bring this machine down to the cutoff: the grid's best
     for _ in range(rounds):
         i = np.argmin(score)
