@@ -467,6 +467,40 @@ def test_angle_cutoff_only_cuts_machines_that_cannot_reach_it(nominal):
         assert bound <= min(brute, full.min_total_um[i])
 
 
+def test_golden_min_with_cutoffs_takes_the_same_steps():
+    """golden_min(cutoff=True) lets the objective answer "worse than the point it is compared
+    with" instead of its value (what the all row's CD search does with the angle's bound): on
+    V-shaped and smooth objectives with plateaus, whatever larger value it returns then, x is
+    the same bit for bit as the plain search's, and value=False (the last point not scored)
+    gives the same x as value=True."""
+    from sewtol.optimize import golden_min
+
+    rng = np.random.default_rng(27)
+    n = 500
+    x0 = rng.uniform(-1, 1, n)
+    sl, sr = rng.uniform(0.1, 50, n), rng.uniform(0.1, 50, n)
+    flat = rng.uniform(0, 0.3, n) * (rng.random(n) < 0.3)
+
+    def f(x):
+        return np.where(x < x0 - flat, sl * (x0 - flat - x), np.maximum(0, sr * (x - x0)))
+
+    calls = []
+
+    def f_cut(x, other):
+        v = f(x)
+        worse = v > other
+        calls.append(worse.mean())
+        return np.where(worse, other + rng.uniform(1e-12, 10, n), v)
+
+    plain = golden_min(f, np.full(n, -1.2), np.full(n, 1.3), xtol=1e-9)[0]
+    assert np.array_equal(golden_min(f, np.full(n, -1.2), np.full(n, 1.3), xtol=1e-9,
+                                     value=False)[0], plain)
+    cut = golden_min(f_cut, np.full(n, -1.2), np.full(n, 1.3), xtol=1e-9, value=False,
+                     cutoff=True)[0]
+    assert np.array_equal(cut, plain)
+    assert np.mean(calls) > 0.2  # the cutoffs were taken
+
+
 def _inner_minimum(c, cd, angle):
     """The exact beta + shift optimum (um, inf where no window runs) of machine c at each
     (CD offset, guide angle offset) pair."""

@@ -24,8 +24,8 @@ def golden_min(fun, lo, hi, xtol: float = 1e-10, maxiter: int = 200, value: bool
     b = np.array(hi, float, copy=True)
     c = b - _INVPHI * (b - a)
     d = a + _INVPHI * (b - a)
-    fc = fun(c)
-    fd = fun(d)
+    fc = fun(c, np.full(np.shape(c), np.inf)) if cutoff else fun(c)
+    fd = fun(d, fc) if cutoff else fun(d)  # compared with c first
     for _ in range(maxiter):
         if np.all(np.abs(b - a) < xtol):
             break
