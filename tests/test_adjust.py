@@ -407,9 +407,8 @@ def test_cd_sliding_head_against_a_grid(nominal):
 def test_fused_outer_search_equals_the_loop(nominal, outer):
     """The outer search fused into one kernel call (window.outer_batch) against the batched
     loop it replaced (outer_search="loop"): the same grid; each local minimum refined by a
-    golden section (the default, "fused": a machine may only take more steps than in the loop,
-    each running until its own bracket is below 1e-9) or a V-section ("vsection": the bracket
-    closed to 1e-9 around the best point too). The minima then differ by no more than a 1e-9
+    golden section ("fused": a machine may only take more steps than in the loop, each running
+    until its own bracket is below 1e-9). The minima then differ by no more than a 1e-9
     bracket can cost (slopes of SumDelta below ~600 um/deg in the angle, ~100 um/mm in CD:
     < 1e-6 um), so the settings by no more than a few brackets."""
     dev = NEEDLE_208_SETS["base"].sample(np.random.default_rng(25), 60)
@@ -417,13 +416,12 @@ def test_fused_outer_search_equals_the_loop(nominal, outer):
     box = {"beta": (10.0, 35.0), "guide_shift_um": (-100.0, 100.0),
            outer: (-0.1, 0.1) if outer == "guide_angle" else (-0.3, 0.3)}
     loop = ad.optimise(c, box, outer_search="loop")
-    for search in ("fused", "vsection"):
-        fused = ad.optimise(c, box, outer_search=search)
-        assert np.array_equal(fused.status, loop.status)
-        ok = fused.status == "ok"
-        assert ok.sum() >= 50
-        assert np.max(np.abs(fused.min_total_um[ok] - loop.min_total_um[ok])) < 1e-6
-        assert np.max(np.abs(fused.settings[outer][ok] - loop.settings[outer][ok])) < 1e-8
+    fused = ad.optimise(c, box, outer_search="fused")
+    assert np.array_equal(fused.status, loop.status)
+    ok = fused.status == "ok"
+    assert ok.sum() >= 50
+    assert np.max(np.abs(fused.min_total_um[ok] - loop.min_total_um[ok])) < 1e-6
+    assert np.max(np.abs(fused.settings[outer][ok] - loop.settings[outer][ok])) < 1e-8
     with pytest.raises(ParameterError, match="outer_search"):
         ad.optimise(c, box, outer_search="grid")
 

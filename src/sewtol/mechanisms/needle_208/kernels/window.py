@@ -755,118 +755,6 @@ def _trial_min(p, col, own, rel, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, g
     return _minimum(q, geo, k2, w2, h_deg, T0, T1, tol_mm, res)
 
 
-VSECTION_XTOL = 1e-9  # the bracket the V-section certifies (the golden section's, before)
-_VMAX = 80  # trial points per V-section at most (the golden section took up to 42)
-
-
-@nb.njit(cache=True)
-def _line_meet(x0, f0, x1, f1, x2, f2, x3, f3):
-    """Where the line through (x0, f0), (x1, f1) meets the one through (x2, f2), (x3, f3); NaN
-    unless the first falls and the second rises (a V)."""
-    if not (x1 > x0 and x3 > x2):
-        return np.nan
-    s1 = (f1 - f0) / (x1 - x0)
-    s2 = (f3 - f2) / (x3 - x2)
-    if not (s1 < 0.0 and s2 > 0.0 and np.isfinite(s1) and np.isfinite(s2)):
-        return np.nan
-    # f1 + s1 (x - x1) = f2 + s2 (x - x2)
-    return (f2 - f1 + s1 * x1 - s2 * x2) / (s1 - s2)
-
-
-@nb.njit(cache=True)
-def _vsection(a, b, fa, fb_, p, col, own, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo, k,
-              w, EN, XN, ok, ws, fb):
-    """The minimum of the trial minimum over [a, b] (fa, fb: its values at the ends, from the
-    grid): golden section's first two points, then steps to where the straight sides of a V
-    meet (the exact inner minimum is a V in the guide angle near its minimum, its sides straight
-    to ~1 % over 1e-3 deg: slopes of -400 .. +300 um/deg), a golden step whenever that gives
-    no point inside the bracket or the bracket shrank less than a golden step would, and
-    finally a point VSECTION_XTOL/2 to each side of the best, so the bracket around the best
-    point (its neighbours) ends below VSECTION_XTOL as the golden section's did. Returns (x,
-    value); values NaN (no window runs) count as infinite."""
-    xs = np.empty(_VMAX)
-    fs = np.empty(_VMAX)
-    xs[0], fs[0] = a, (np.inf if math.isnan(fa) else fa)
-    xs[1], fs[1] = b, (np.inf if math.isnan(fb_) else fb_)
-    npts = 2
-    x_new = b - _INVPHI * (b - a)
-    hist = np.full(3, np.inf)  # the bracket's width after each of the last three steps
-    golden_next = False
-    while True:
-        # insert x_new
-        f = _trial_min(p, col, own, x_new, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo, k,
-                       w, EN, XN, ok, ws, fb)
-        f = np.inf if math.isnan(f) else f
-        q = npts
-        while q > 0 and xs[q - 1] > x_new:
-            xs[q] = xs[q - 1]
-            fs[q] = fs[q - 1]
-            q -= 1
-        xs[q] = x_new
-        fs[q] = f
-        npts += 1
-        if npts == 3:  # the golden section's second point
-            x_new = a + _INVPHI * (b - a)
-            continue
-        if npts >= _VMAX:
-            break
-        j = 0
-        for r in range(1, npts):
-            if fs[r] < fs[j]:
-                j = r
-        lo_ = xs[max(j - 1, 0)]
-        hi_ = xs[min(j + 1, npts - 1)]
-        width = hi_ - lo_
-        if width < VSECTION_XTOL:
-            break
-        # three steps that together shrank the bracket less than one golden step would have:
-        # a golden step next
-        hist[npts % 3] = width
-        golden_next = npts >= 6 and width > _INVPHI * hist[(npts + 1) % 3] and not golden_next
-        if golden_next:
-            for r in range(3):
-                hist[r] = np.inf
-        xj = xs[j]
-        gl = xj - lo_  # gap to the left neighbour (0 at the left end)
-        gr = hi_ - xj
-        half = 0.5 * VSECTION_XTOL
-        x_new = np.nan
-        if not golden_next:
-            # the V: through the two points left of the kink and the two right of it; the
-            # kink lies between the best point and one of its neighbours
-            if 1 <= j and j + 2 <= npts - 1:
-                c = _line_meet(xs[j - 1], fs[j - 1], xj, fs[j], xs[j + 1], fs[j + 1],
-                               xs[j + 2], fs[j + 2])
-                if xj < c < xs[j + 1]:
-                    x_new = c
-            if math.isnan(x_new) and 2 <= j and j + 1 <= npts - 1:
-                c = _line_meet(xs[j - 2], fs[j - 2], xs[j - 1], fs[j - 1], xj, fs[j],
-                               xs[j + 1], fs[j + 1])
-                if xs[j - 1] < c < xj:
-                    x_new = c
-            if not math.isnan(x_new):
-                # on the best point already: close the bracket around it
-                if abs(x_new - xj) < half:
-                    x_new = np.nan
-                    if gl >= gr and gl > half:
-                        x_new = xj - 0.9 * half
-                    elif gr > half:
-                        x_new = xj + 0.9 * half
-                elif x_new - lo_ < half or hi_ - x_new < half:
-                    x_new = np.nan
-        if math.isnan(x_new):
-            # golden step into the larger gap (or the close probe once it is small)
-            if gl >= gr:
-                x_new = xj - (0.9 * half if gl < 4.0 * half else (1.0 - _INVPHI) * gl)
-            else:
-                x_new = xj + (0.9 * half if gr < 4.0 * half else (1.0 - _INVPHI) * gr)
-    j = 0
-    for r in range(1, npts):
-        if fs[r] < fs[j]:
-            j = r
-    return xs[j], fs[j]
-
-
 # how far a computed trial minimum may lie from the exact one (um): the surrogate's error bound
 # (SURROGATE_TOL_MM) and the sampling's (SAMPLE_TOL_MM) with room to spare
 TRIAL_ERR_UM = 0.01
@@ -899,8 +787,7 @@ def _angle_bound(p, grid, vals, EN, geo, k, w, ok, h):
 
 
 @nb.njit(cache=True)
-def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_min, vsection,
-               cutoff):
+def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_min, cutoff):
     G = grid.size
     own = p[col]
     res = np.empty(8)
@@ -946,14 +833,6 @@ def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_
         score[i] = np.inf
         a = grid[max(i - 1, 0)]
         b = grid[min(i + 1, G - 1)]
-        if vsection:
-            x, fx = _vsection(a, b, vals[max(i - 1, 0)], vals[min(i + 1, G - 1)], p, col, own,
-                              lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo, k, w, EN, XN,
-                              ok, ws, fb)
-            if fx < best_val:
-                best_val = fx
-                best_rel = x
-            continue
         x1 = b - _INVPHI * (b - a)
         x2 = a + _INVPHI * (b - a)
         f1 = _trial_min(p, col, own, x1, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo,
@@ -991,7 +870,7 @@ def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_
 
 @nb.njit(cache=True, parallel=True)
 def outer_batch(P, col, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active, grid,
-                h_deg=2.0, tol_um=1e-3, rounds=3, vsection=False, cutoff_um=None):
+                h_deg=2.0, tol_um=1e-3, rounds=3, cutoff_um=None):
     """Per machine (rows of P with the compensator's own value in column col: 13 the guide
     angle, deg; 3 CD, mm): the offset from its own value, one of `grid` or refined, where the
     exact minimum of SumDelta over beta (and the guide shift) is least: a grid over `grid`,
@@ -1019,5 +898,5 @@ def outer_batch(P, col, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active
         else:
             T0 = T1 = P[i, 14] * 1e-3
         out[i] = _outer_one(P[i], col, lo[i], hi[i], blo, bhi, T0, T1, grid, h_deg,
-                            tol_um * 1e-3, rounds, n_min, vsection, cut[i])
+                            tol_um * 1e-3, rounds, n_min, cut[i])
     return out
