@@ -763,23 +763,35 @@ TRIAL_ERR_UM = 0.01
 @nb.njit(cache=True)
 def _angle_bound(p, grid, vals, EN, geo, k, w, ok, h):
     """A lower bound (um) of the trial minimum over the guide angle's whole box from its values
-    at the grid: turning the guide by da (rad) about its point moves every d by at most
-    |E - guide point| da, so SumDelta (max(F - G, F - T1, T0 - G), minimised over beta and the
-    shift) by at most twice that; between two grid points the minimum is then at least the
-    mean of their values less that slope times half their gap. |E - guide point| over every
-    window solved: at most its largest value at the nodes (EN of _points, the segments that
-    run, nodes <= h rad apart) plus h (max |E'| + h max |E''|) between them."""
+    at the grid. Turning the guide by da (rad) about its point turns its normal n by da, so
+    each d = n.(E - guide point) - shift moves by at most R da (R: the largest |E - guide
+    point|) and F - G (max and min of d over a window) by at most D da (D: the largest
+    |E - E'| between two needle points), so SumDelta = max(F - G, F - T1, T0 - G), and its
+    minimum over beta and the shift (whose feasible windows no angle changes), by at most
+    max(R, D) da. Between two grid points the minimum is then at least the mean of their
+    values less that slope times half their gap. R and D over every window solved: from the
+    nodes (EN of _points, the segments that run, <= h rad apart) plus h (max |E'| + h max
+    |E''|) for each point between them."""
     r = 0.0
+    dd = 0.0
     d1 = 0.0
     d2 = 0.0
     for i in range(k):
         if not ok[i]:
             continue
-        for j in range(_grid(geo[i, 0], geo[i, 1], w, h)[4]):
-            r = max(r, math.hypot(EN[i, j, 0] - p[11], EN[i, j, 1] - p[12]))
+        nn = _grid(geo[i, 0], geo[i, 1], w, h)[4]
+        for j in range(nn):
+            ex, ey = EN[i, j, 0], EN[i, j, 1]
+            r = max(r, math.hypot(ex - p[11], ey - p[12]))
             d1 = max(d1, math.hypot(EN[i, j, 2], EN[i, j, 3]))
             d2 = max(d2, math.hypot(EN[i, j, 4], EN[i, j, 5]))
-    slope = 2.0 * (r + h * (d1 + h * d2)) * (math.pi / 180.0) * 1e3
+            for i2 in range(i, k):
+                if not ok[i2]:
+                    continue
+                for j2 in range(j + 1 if i2 == i else 0, _grid(geo[i2, 0], geo[i2, 1], w, h)[4]):
+                    dd = max(dd, math.hypot(EN[i2, j2, 0] - ex, EN[i2, j2, 1] - ey))
+    gap = h * (d1 + h * d2)
+    slope = max(r + gap, dd + 2.0 * gap) * (math.pi / 180.0) * 1e3
     lb = np.inf
     for g in range(grid.size - 1):
         lb = min(lb, 0.5 * (vals[g] + vals[g + 1] - slope * (grid[g + 1] - grid[g])))
