@@ -151,10 +151,8 @@ def optimise(c: dict[str, np.ndarray], active: dict[str, tuple[float, float] | N
         kept as the reference; the numpy engine always uses it). tests/test_adjust.py holds
         them to each other.
     cutoff_um : numpy.ndarray or None
-        Per machine, for the guide angle's fused search: where the grid proves that no angle
-        comes down to it, the grid's best angle without refinement (min_total_um is then
-        above the cutoff but not the minimum); for a search that only ranks machines' minima
-        against a known value (window.outer_batch).
+        Per machine (the guide angle's fused search): where the grid proves no angle reaches
+        it, the grid's best angle (min_total_um then above it, not the minimum).
 
     Returns
     -------

@@ -234,7 +234,8 @@ def _solve_interval(p, ua, ub, w, h_target, T0, T1, tol_mm, res, plateau=True):
         f[j] = nx * Ex + ny * Ey - off + shift  # d without the machine's own guide shift
         f1[j] = nx * E1x + ny * E1y
         f2[j] = nx * E2x + ny * E2y
-    return _solve_nodes(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plateau)
+    return _solve_nodes(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plateau,
+                        _work(nn))
 
 
 @nb.njit(cache=True)
@@ -279,15 +280,9 @@ def _work(cap):
 
 
 @nb.njit(cache=True)
-def _solve_nodes(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plateau):
-    """_solve_interval on given node values of d, d', d'' (the guide shift removed)."""
-    return _solve_nodes_ws(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plateau,
-                           _work(x.size))
-
-
-@nb.njit(cache=True)
-def _solve_nodes_ws(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plateau, ws):
-    """_solve_nodes with its scratch arrays given (_work(cap), cap >= the nodes)."""
+def _solve_nodes(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plateau, ws):
+    """_solve_interval on given node values of d, d', d'' (the guide shift removed), with its
+    scratch arrays (_work(cap), cap >= the nodes)."""
     nn = x.size
     nc = nn - 1
     c = ws[0][:nc]
@@ -734,8 +729,8 @@ def _minimum_angle(p, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok, ws, fb)
             f[j] = nx * EN[i, j, 0] + ny * EN[i, j, 1] - off + shift
             f1[j] = nx * EN[i, j, 2] + ny * EN[i, j, 3]
             f2[j] = nx * EN[i, j, 4] + ny * EN[i, j, 5]
-        good = _solve_nodes_ws(XN[i, :nn], f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm,
-                               res, False, ws)
+        good = _solve_nodes(XN[i, :nn], f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res,
+                            False, ws)
         if good and res[7] > SURROGATE_TOL_MM:
             good = _halve(p, ua, ub, w, ht0, T0, T1, tol_mm, res)
         if good and res[0] < best:
@@ -755,11 +750,6 @@ def _trial_min(p, col, own, rel, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, g
     return _minimum(q, geo, k2, w2, h_deg, T0, T1, tol_mm, res)
 
 
-# how far a computed trial minimum may lie from the exact one (um): the surrogate's error bound
-# (SURROGATE_TOL_MM) and the sampling's (SAMPLE_TOL_MM) with room to spare
-TRIAL_ERR_UM = 0.01
-
-
 @nb.njit(cache=True)
 def _angle_bound(p, grid, vals, EN, geo, k, w, ok, h):
     """A lower bound (um) of the trial minimum over the guide angle's whole box from its values
@@ -769,9 +759,9 @@ def _angle_bound(p, grid, vals, EN, geo, k, w, ok, h):
     |E - E'| between two needle points), so SumDelta = max(F - G, F - T1, T0 - G), and its
     minimum over beta and the shift (whose feasible windows no angle changes), by at most
     max(R, D) da. Between two grid points the minimum is then at least the mean of their
-    values less that slope times half their gap. R and D over every window solved: from the
-    nodes (EN of _points, the segments that run, <= h rad apart) plus h (max |E'| + h max
-    |E''|) for each point between them."""
+    values less that slope times half their gap, less 0.01 um for the surrogate's and the
+    sampling's errors (SURROGATE_TOL_MM, SAMPLE_TOL_MM). R and D from the nodes (EN of
+    _points, <= h rad apart) plus h (max |E'| + h max |E''|) for each point between them."""
     r = 0.0
     dd = 0.0
     d1 = 0.0
@@ -795,7 +785,7 @@ def _angle_bound(p, grid, vals, EN, geo, k, w, ok, h):
     lb = np.inf
     for g in range(grid.size - 1):
         lb = min(lb, 0.5 * (vals[g] + vals[g + 1] - slope * (grid[g + 1] - grid[g])))
-    return lb - TRIAL_ERR_UM
+    return lb - 0.01
 
 
 @nb.njit(cache=True)
@@ -888,10 +878,8 @@ def outer_batch(P, col, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active
     exact minimum of SumDelta over beta (and the guide shift) is least: a grid over `grid`,
     then golden section around each of the `rounds` best local minima of the grid (to a
     bracket below 1e-9). needle_208.adjust._with_outer's search (tests/test_adjust.py holds
-    the two to each other). cutoff_um (per machine, the guide angle only): where a bound
-    (_angle_bound) shows from the grid that no angle of the box comes down to it, the grid's
-    best is returned without refining it (its minimum, then above the cutoff, only has to lose
-    to the cutoff: an outer search over CD ranks its grid so)."""
+    the two to each other). cutoff_um (per machine, the guide angle): where _angle_bound
+    proves that no angle reaches it, the grid's best, not refined (its minimum is above it)."""
     n = P.shape[0]
     out = np.empty(n)
     if cutoff_um is None:
