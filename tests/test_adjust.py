@@ -407,9 +407,8 @@ def test_cd_sliding_head_against_a_grid(nominal):
 def test_fused_outer_search_equals_the_loop(nominal, outer):
     """The outer search fused into one kernel call (window.outer_batch) against the batched
     loop it replaced (outer_search="loop"): the same grid; each local minimum refined by a
-    golden section (the default, "fused": a machine may only take more steps than in the loop,
-    each running until its own bracket is below 1e-9) or a V-section ("vsection": the bracket
-    closed to 1e-9 around the best point too). The minima then differ by no more than a 1e-9
+    golden section ("fused": a machine may only take more steps than in the loop, each running
+    until its own bracket is below 1e-9). The minima then differ by no more than a 1e-9
     bracket can cost (slopes of SumDelta below ~600 um/deg in the angle, ~100 um/mm in CD:
     < 1e-6 um), so the settings by no more than a few brackets."""
     dev = NEEDLE_208_SETS["base"].sample(np.random.default_rng(25), 60)
@@ -417,15 +416,87 @@ def test_fused_outer_search_equals_the_loop(nominal, outer):
     box = {"beta": (10.0, 35.0), "guide_shift_um": (-100.0, 100.0),
            outer: (-0.1, 0.1) if outer == "guide_angle" else (-0.3, 0.3)}
     loop = ad.optimise(c, box, outer_search="loop")
-    for search in ("fused", "vsection"):
-        fused = ad.optimise(c, box, outer_search=search)
-        assert np.array_equal(fused.status, loop.status)
-        ok = fused.status == "ok"
-        assert ok.sum() >= 50
-        assert np.max(np.abs(fused.min_total_um[ok] - loop.min_total_um[ok])) < 1e-6
-        assert np.max(np.abs(fused.settings[outer][ok] - loop.settings[outer][ok])) < 1e-8
+    fused = ad.optimise(c, box, outer_search="fused")
+    assert np.array_equal(fused.status, loop.status)
+    ok = fused.status == "ok"
+    assert ok.sum() >= 50
+    assert np.max(np.abs(fused.min_total_um[ok] - loop.min_total_um[ok])) < 1e-6
+    assert np.max(np.abs(fused.settings[outer][ok] - loop.settings[outer][ok])) < 1e-8
     with pytest.raises(ParameterError, match="outer_search"):
         ad.optimise(c, box, outer_search="grid")
+
+
+def test_angle_cutoff_only_cuts_machines_that_cannot_reach_it(nominal):
+    """The guide angle's search with a cutoff (what the all row's CD grid passes): a cutoff just
+    above each machine's minimum changes nothing, bit for bit; one 0.5 um below it may leave
+    a machine its grid's best angle, whose minimum is then still above the cutoff; and the
+    bound that decides it (window._angle_bound, from the 21-point grid) lies below a dense
+    brute force of the angle (201 points) on every machine."""
+    from sewtol.mechanisms.needle_208.kernels import fused as KB
+    from sewtol.mechanisms.needle_208.kernels import window as KW
+
+    dev = NEEDLE_208_SETS["base"].sample(np.random.default_rng(26), 40)
+    c = _columns(nominal, dev)
+    box = {"beta": (10.0, 35.0), "guide_shift_um": (-100.0, 100.0), "guide_angle": (-0.1, 0.1)}
+    full = ad.optimise(c, box)
+    ok = full.status == "ok"
+    assert ok.sum() >= 35
+    above = ad.optimise(c, box, cutoff_um=full.min_total_um + 1e-9)
+    for k in full.settings:
+        assert np.array_equal(above.settings[k], full.settings[k], equal_nan=True)
+    below = ad.optimise(c, box, cutoff_um=full.min_total_um - 0.5)
+    cut = ok & (below.settings["guide_angle"] != full.settings["guide_angle"])
+    assert np.all(below.min_total_um[cut] > full.min_total_um[cut] - 0.5)
+    grid = np.linspace(-0.1, 0.1, 21)
+    dense = np.linspace(-0.1, 0.1, 201)
+    P = KB.pack(c)
+    r_lo, r_hi, _ = ad._rocker(c)
+    h = 2.0 * np.pi / 180
+    for i in np.flatnonzero(ok):
+        ci = _row(c, i)
+        vals = _inner_minimum(ci, np.zeros(grid.size), grid)
+        brute = _inner_minimum(ci, np.zeros(dense.size), dense).min()
+        geo = np.empty((12, 2))
+        k, w = KW._segments(P[i], r_lo[i], r_hi[i], 10.0, 35.0, geo)
+        nn = max(KW._grid(geo[j, 0], geo[j, 1], w, h)[4] for j in range(k))
+        EN, XN, runs = np.empty((k, nn, 6)), np.empty((k, nn)), np.zeros(12, bool)
+        KW._points(P[i], geo, k, w, 2.0, EN, XN, runs)
+        bound = KW._angle_bound(P[i], grid, vals, EN, geo, k, w, runs, h)
+        assert bound <= min(brute, full.min_total_um[i])
+
+
+def test_golden_min_with_cutoffs_takes_the_same_steps():
+    """golden_min(cutoff=True) lets the objective answer "worse than the point it is compared
+    with" instead of its value (what the all row's CD search does with the angle's bound): on
+    V-shaped and smooth objectives with plateaus, whatever larger value it returns then, x is
+    the same bit for bit as the plain search's, and value=False (the last point not scored)
+    gives the same x as value=True."""
+    from sewtol.optimize import golden_min
+
+    rng = np.random.default_rng(27)
+    n = 500
+    x0 = rng.uniform(-1, 1, n)
+    sl, sr = rng.uniform(0.1, 50, n), rng.uniform(0.1, 50, n)
+    flat = rng.uniform(0, 0.3, n) * (rng.random(n) < 0.3)
+
+    def f(x):
+        return np.where(x < x0 - flat, sl * (x0 - flat - x), np.maximum(0, sr * (x - x0)))
+
+    calls = []
+
+    def f_cut(x, other):
+        v = f(x)
+        worse = v > other
+        calls.append(worse.mean())
+        return np.where(worse, other + rng.uniform(1e-12, 10, n), v)
+
+    plain = golden_min(f, np.full(n, -1.2), np.full(n, 1.3), xtol=1e-9)[0]
+    assert np.array_equal(golden_min(f, np.full(n, -1.2), np.full(n, 1.3), xtol=1e-9,
+                                     value=False)[0], plain)
+    cut = golden_min(f_cut, np.full(n, -1.2), np.full(n, 1.3), xtol=1e-9, value=False,
+                     cutoff=True)[0]
+    assert np.array_equal(cut, plain)
+    assert np.mean(calls) > 0.2  # the cutoffs were taken
 
 
 def _inner_minimum(c, cd, angle):

@@ -10,7 +10,7 @@ high). The minimum is the global one in the box:
 - the guide shift t turns SumDelta into max(F - G, F - T1, T0 - G), so it is solved inside the
   same search, and t's optimal range at beta* is [max(G, T0), min(F, T1)];
 - the guide angle and CD change d(psi) itself; each is an outer search (a grid over its box,
-  then golden section, or a V-section, around each machine's three best local minima of the
+  then golden section around each machine's three best local minima of the
   grid) around the exact inner optimum, every machine's whole search in one kernel call
   (kernels/window.py: outer_batch): checked against a dense grid in the tests, not proven
   global. One outer compensator at a time.
@@ -38,7 +38,7 @@ DEFAULT_BOXES = {"beta": (10.0, 35.0), "guide_shift_um": (-100.0, 100.0),
 OUTER = ("guide_angle", "CD")
 OUTER_GRID = {"guide_angle": 21, "CD": 61}  # default grid points of the outer search
 STATUS = ("ok", "cannot assemble", "dead point")
-OUTER_SEARCHES = ("fused", "vsection", "loop")
+OUTER_SEARCHES = ("fused", "loop")
 _KERNEL_COLUMN = {"guide_angle": 13, "CD": 3}  # kernels.fused.FIELDS
 PLATEAU_TOL_UM = 1e-3
 
@@ -113,7 +113,7 @@ def _rocker(c, feas=None):
 def optimise(c: dict[str, np.ndarray], active: dict[str, tuple[float, float] | None],
              engine: str = "numba", h_deg: float = 2.0, tol_um: float = PLATEAU_TOL_UM,
              angle_grid: int | None = None, feas: nm.Feasibility | None = None,
-             outer_search: str = "fused") -> AdjustResult:
+             outer_search: str = "fused", cutoff_um: np.ndarray | None = None) -> AdjustResult:
     """Joint optimum of the active compensators for machines given as parameter columns
     (c from needle_208.metrics.columns, each (n, 1)); `active` maps compensator names to their
     (low, high) box (None: DEFAULT_BOXES). feas: needle_208.metrics.feasibility(c) if known (the
@@ -146,13 +146,13 @@ def optimise(c: dict[str, np.ndarray], active: dict[str, tuple[float, float] | N
     outer_search : str
         How the guide angle's or CD's outer search runs with the numba engine: ``"fused"``
         (every machine's whole search in one kernel call, window.outer_batch, each local
-        minimum of the grid refined by the golden section of before: the same numbers),
-        ``"vsection"`` (the same call, each local minimum refined by a V-section: steps to
-        where the straight sides of the V meet, golden steps as a safeguard, the bracket closed
-        to 1e-9 around the best point; 1.2-1.4x faster, minima within ~2e-7 um of the golden
-        section's) or ``"loop"`` (the batched Python loop over trial values it was written as,
+        minimum of the grid refined by the golden section of before: the same numbers) or
+        ``"loop"`` (the batched Python loop over trial values it was written as,
         kept as the reference; the numpy engine always uses it). tests/test_adjust.py holds
         them to each other.
+    cutoff_um : numpy.ndarray or None
+        Per machine (the guide angle's fused search): where the grid proves no angle reaches
+        it, the grid's best angle (min_total_um then above it, not the minimum).
 
     Returns
     -------
@@ -180,7 +180,7 @@ def optimise(c: dict[str, np.ndarray], active: dict[str, tuple[float, float] | N
     if outer:
         if engine == "numba" and outer_search != "loop":
             return _with_outer_fused(outer[0], c, boxes, r_lo, r_hi, code, engine, h_deg,
-                                     tol_um, angle_grid, outer_search == "vsection")
+                                     tol_um, angle_grid, cutoff_um)
         return _with_outer(outer[0], c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um,
                            angle_grid)
     out = _inner(c, boxes, r_lo, r_hi, engine, h_deg, tol_um)
@@ -231,9 +231,9 @@ def _result(out, boxes, code, tol_um, outer=None) -> AdjustResult:
 # --- the guide angle or CD: an outer search around the exact inner optimum ---------------------
 
 def _with_outer_fused(name, c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um, angle_grid,
-                      vsection=False):
+                      cutoff_um=None):
     """_with_outer's search with every machine's grid and refinements in one numba call
-    (kernels.window.outer_batch: V-sections, or golden sections as _with_outer), then the
+    (kernels.window.outer_batch: golden sections as _with_outer), then the
     full inner optimum at the setting found."""
     from sewtol.mechanisms.needle_208.kernels import fused as KB
     from sewtol.mechanisms.needle_208.kernels import window as KW
@@ -253,7 +253,8 @@ def _with_outer_fused(name, c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um, a
     lo = np.ascontiguousarray(r_lo, float).reshape(-1)
     hi = np.ascontiguousarray(r_hi, float).reshape(-1)
     best_rel = KW.outer_batch(KB.pack(cc), _KERNEL_COLUMN[name], lo, hi, blo, bhi, slo, shi,
-                              shift, grid, h_deg, tol_um, 3, vsection)
+                              shift, grid, h_deg, tol_um, 3,
+                              None if cutoff_um is None else np.asarray(cutoff_um, float))
     cc[name] = (own + best_rel).reshape(-1, 1)
     out = _inner(cc, inner_boxes, r_lo, r_hi, engine, h_deg, tol_um)
     return _result(out, boxes, code, tol_um, (name, (best_rel, best_rel, best_rel)))

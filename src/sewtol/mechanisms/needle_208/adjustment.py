@@ -128,7 +128,7 @@ def shift_optimum(M, m, s0, comp: Compensator | None):
     return np.where(np.isnan(M), np.nan, total), t - s0, pl - s0, ph - s0
 
 
-def _shift_leaf(c: dict, shift: Compensator | None) -> _Inner:
+def _shift_leaf(c: dict, shift: Compensator | None, cutoff_um=None) -> _Inner:
     """The guide shift's optimum (or none) on the exact band of the path, beta as in c."""
     feas = nm.feasibility(c)
     s0 = c["guide_shift_um"][:, 0]
@@ -167,20 +167,23 @@ def _plateau(fun, x_opt, best, comp: Compensator, xtol=None):
 # --- outer 1-D searches -------------------------------------------------------------------
 
 
-def _search(c: dict, outer: list[Compensator], plateaus: bool, leaf, held=()) -> _Inner:
-    """Nested 1-D searches over `outer` (outermost first) around `leaf` (columns -> _Inner, the
-    inner optimum; `held` are the compensators it sets, held at its settings when an outer
-    plateau is measured)."""
+def _search(c: dict, outer: list[Compensator], plateaus: bool, leaf, held=(),
+            guess=None) -> _Inner:
+    """Nested 1-D searches over `outer` (outermost first) around `leaf` (columns, cutoff ->
+    _Inner, the inner optimum, or where the leaf proves it above the cutoff (um, per machine),
+    perhaps only a value above it; `held` are the compensators it sets, held at its settings
+    when an outer plateau is measured). guess: columns -> a cheap SumDelta per machine that
+    orders the innermost grid (the likely best first, so the cutoffs cut early)."""
     if not outer:
         return leaf(c)
     comp, rest = outer[0], outer[1:]
     n = next(iter(c.values())).shape[0]
 
-    def sub(cc, plat=False):
-        return _search(cc, rest, plat, leaf, held)
+    def sub(cc, plat=False, cutoff_um=None):
+        return _search(cc, rest, plat, leaf, held, guess) if rest else leaf(cc, cutoff_um)
 
-    def score(x):
-        return _finite(sub(_apply(c, comp, x)).total)
+    def score(x, cutoff_um=None):
+        return _finite(sub(_apply(c, comp, x), cutoff_um=cutoff_um).total)
 
     grid = _grid(comp)
     if comp.discrete:
@@ -193,14 +196,27 @@ def _search(c: dict, outer: list[Compensator], plateaus: bool, leaf, held=()) ->
             vals[:, j:j + g.size] = _finite(sub(_apply(cc, comp, np.tile(g, n))).total
                                             ).reshape(n, g.size)
     else:
-        vals = np.stack([score(np.full(n, g)) for g in grid], axis=1)
+        # only the grid's best is used (its value, and where it is): every later grid point is
+        # scored with the best so far as its cutoff, so a point that cannot beat it may keep
+        # a value above the cutoff instead of its minimum (the argmin is the same)
+        vals = np.empty((n, grid.size))
+        best = np.full(n, np.inf)
+        rows = np.arange(n)
+        order = np.tile(np.arange(grid.size), (n, 1))
+        if guess is not None and not rest:
+            order = np.argsort(np.stack([_finite(guess(_apply(c, comp, np.full(n, g))))
+                                         for g in grid], axis=1), axis=1, kind="stable")
+        for j in order.T:
+            vals[rows, j] = score(grid[j], best)
+            best = np.minimum(best, vals[rows, j])
     i = np.argmin(vals, axis=1)
     res = None
     if comp.discrete:
         x = grid[i]
     else:
         a, b = grid[np.maximum(i - 1, 0)], grid[np.minimum(i + 1, grid.size - 1)]
-        x = golden_min(score, a, b, xtol=_xtol(comp), value=False)[0]
+        # each new point scored with the one it is compared with as its cutoff
+        x = golden_min(score, a, b, xtol=_xtol(comp), value=False, cutoff=not rest)[0]
         # never worse than the grid (golden section can stall on an infinite bracket end); the
         # search at x is the one kept unless the grid wins somewhere
         res = sub(_apply(c, comp, x), plateaus)
@@ -261,9 +277,10 @@ def _exact_boxes(c: dict, comps) -> dict | None:
     return boxes
 
 
-def _exact(c: dict, comps, boxes: dict) -> _Inner:
-    """needle_208.adjust.optimise, its settings and plateau ranges in this module's terms."""
-    r = exact.optimise(c, boxes)
+def _exact(c: dict, comps, boxes: dict, feas=None, cutoff_um=None) -> _Inner:
+    """needle_208.adjust.optimise, its settings and plateau ranges in this module's terms
+    (feas: the machines' feasibility if known; cutoff_um: as optimise's)."""
+    r = exact.optimise(c, boxes, feas=feas, cutoff_um=cutoff_um)
     out = _Inner(total=np.asarray(r.min_total_um, float))
     for k in comps:
         x, lo, hi = (np.asarray(v[k.name], float) for v in (r.settings, r.low, r.high))
@@ -294,17 +311,29 @@ def _joint_optimum(c: dict, strategy: Strategy, plateaus: bool = True) -> _Inner
         return _exact(c, comps, boxes)
     inner = [k for k in comps if k.name in EXACT_INNER and not k.discrete]
     if _exact_boxes(c, inner) is not None:
-        def leaf(cc):
-            return _exact(cc, inner, _exact_boxes(cc, inner))
+        # the rocker's interval (all optimise reads of the feasibility) is the same at every
+        # setting of every compensator: once for these machines (a discrete search's
+        # repeated machines compute their own)
+        feas = nm.feasibility(c)
+
+        def leaf(cc, cutoff_um=None, comps=inner):
+            same = np.shape(cc["AB"])[0] == np.shape(feas.lo)[0]
+            return _exact(cc, comps, _exact_boxes(cc, comps), feas if same else None,
+                          cutoff_um)
+
+        def guess(cc):  # the guide angle as built: one window solve per machine
+            return leaf(cc, comps=[k for k in inner if k.name != "guide_angle"]).total
     else:
         inner = [k for k in comps if k.name == "guide_shift_um"]
 
-        def leaf(cc):
+        def leaf(cc, cutoff_um=None):
             return _shift_leaf(cc, inner[0] if inner else None)
+
+        guess = None
     outer = sorted((k for k in comps if k not in inner),
                    key=lambda k: ("beta", "guide_angle").index(k.name) + 1
                    if k.name in ("beta", "guide_angle") else 0)
-    return _search(c, outer, plateaus, leaf, inner)
+    return _search(c, outer, plateaus, leaf, inner, guess)
 
 
 # --- the result ---------------------------------------------------------------------------

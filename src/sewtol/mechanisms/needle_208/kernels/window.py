@@ -148,6 +148,36 @@ def _s_at(c, crit, ncrit, imax, imin, m, k, tau, T0, T1, out3):
 
 
 @nb.njit(cache=True)
+def _s_lb(c, crit, ncrit, imax, imin, m, k, ta, tb, T0, T1):
+    """A lower bound (mm) of _s_at over the window starts k + tau, tau in [ta, tb]: every such
+    window covers cell k from tb on and cell k + m up to ta, so its F is at least the extremes
+    there and its G at most (the same comparisons as _s_at), less 1e-12 mm for the rounding of
+    a cubic's value at a computed root (~1e-17 mm)."""
+    A = _cubic(c, k, tb)
+    B = _cubic(c, k + m, ta)
+    F = max(imax[k], A, B)
+    G = min(imin[k], A, B)
+    for r in range(ncrit[k]):
+        if crit[k, r, 0] > tb:
+            F = max(F, crit[k, r, 1])
+            G = min(G, crit[k, r, 1])
+    j = k + m
+    for r in range(ncrit[j]):
+        if crit[j, r, 0] < ta:
+            F = max(F, crit[j, r, 1])
+            G = min(G, crit[j, r, 1])
+    return max(F - G, max(F - T1, T0 - G)) - 1e-12
+
+
+@nb.njit(cache=True)
+def _descent(sv, i, q):
+    """Sample i of sv[0 .. q] is a local minimum, strict on one side at least."""
+    left = sv[i - 1] if i > 0 else np.inf
+    right = sv[i + 1] if i < q else np.inf
+    return sv[i] <= left and sv[i] <= right and (sv[i] < left or sv[i] < right)
+
+
+@nb.njit(cache=True)
 def _locate(u, ua, h, K, tlast):
     k = int(math.floor((u - ua) / h))
     if k < 0:
@@ -204,7 +234,8 @@ def _solve_interval(p, ua, ub, w, h_target, T0, T1, tol_mm, res, plateau=True):
         f[j] = nx * Ex + ny * Ey - off + shift  # d without the machine's own guide shift
         f1[j] = nx * E1x + ny * E1y
         f2[j] = nx * E2x + ny * E2y
-    return _solve_nodes(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plateau)
+    return _solve_nodes(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plateau,
+                        _work(nn))
 
 
 @nb.njit(cache=True)
@@ -249,15 +280,9 @@ def _work(cap):
 
 
 @nb.njit(cache=True)
-def _solve_nodes(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plateau):
-    """_solve_interval on given node values of d, d', d'' (the guide shift removed)."""
-    return _solve_nodes_ws(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plateau,
-                           _work(x.size))
-
-
-@nb.njit(cache=True)
-def _solve_nodes_ws(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plateau, ws):
-    """_solve_nodes with its scratch arrays given (_work(cap), cap >= the nodes)."""
+def _solve_nodes(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, plateau, ws):
+    """_solve_interval on given node values of d, d', d'' (the guide shift removed), with its
+    scratch arrays (_work(cap), cap >= the nodes)."""
     nn = x.size
     nc = nn - 1
     c = ws[0][:nc]
@@ -341,15 +366,22 @@ def _solve_nodes_ws(x, f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res, p
         dt = Lu / q
         for i in range(q + 1):
             sv[i] = _s_at(c, crit, ncrit, imax, imin, m, k, i * dt, T0, T1, out3)
+        least = np.inf  # the least descent of the cell: every one below updates best to it
         for i in range(q + 1):
-            left = sv[i - 1] if i > 0 else np.inf
-            right = sv[i + 1] if i < q else np.inf
-            if not (sv[i] <= left and sv[i] <= right and (sv[i] < left or sv[i] < right)):
+            if _descent(sv, i, q):
+                least = min(least, sv[i])
+        for i in range(q + 1):
+            if not _descent(sv, i, q):
                 continue
             if sv[i] < best:
                 best, bk, bt = sv[i], k, i * dt
             a = max(i - 1, 0) * dt
             b = min(i + 1, q) * dt
+            # a polish that can reach neither below the best so far nor down to the cell's
+            # least descent changes neither the minimum nor where it is first found: skipped
+            lb = _s_lb(c, crit, ncrit, imax, imin, m, k, a, b, T0, T1)
+            if lb >= best or lb > least:
+                continue
             cg = b - _INVPHI * (b - a)
             dg = a + _INVPHI * (b - a)
             fc = _s_at(c, crit, ncrit, imax, imin, m, k, cg, T0, T1, out3)
@@ -698,8 +730,8 @@ def _minimum_angle(p, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok, ws, fb)
             f[j] = nx * EN[i, j, 0] + ny * EN[i, j, 1] - off + shift
             f1[j] = nx * EN[i, j, 2] + ny * EN[i, j, 3]
             f2[j] = nx * EN[i, j, 4] + ny * EN[i, j, 5]
-        good = _solve_nodes_ws(XN[i, :nn], f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm,
-                               res, False, ws)
+        good = _solve_nodes(XN[i, :nn], f, f1, f2, ua, ub, m, h, K, tlast, T0, T1, tol_mm, res,
+                            False, ws)
         if good and res[7] > SURROGATE_TOL_MM:
             good = _halve(p, ua, ub, w, ht0, T0, T1, tol_mm, res)
         if good and res[0] < best:
@@ -719,120 +751,46 @@ def _trial_min(p, col, own, rel, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, g
     return _minimum(q, geo, k2, w2, h_deg, T0, T1, tol_mm, res)
 
 
-VSECTION_XTOL = 1e-9  # the bracket the V-section certifies (the golden section's, before)
-_VMAX = 80  # trial points per V-section at most (the golden section took up to 42)
-
-
 @nb.njit(cache=True)
-def _line_meet(x0, f0, x1, f1, x2, f2, x3, f3):
-    """Where the line through (x0, f0), (x1, f1) meets the one through (x2, f2), (x3, f3); NaN
-    unless the first falls and the second rises (a V)."""
-    if not (x1 > x0 and x3 > x2):
-        return np.nan
-    s1 = (f1 - f0) / (x1 - x0)
-    s2 = (f3 - f2) / (x3 - x2)
-    if not (s1 < 0.0 and s2 > 0.0 and np.isfinite(s1) and np.isfinite(s2)):
-        return np.nan
-    # f1 + s1 (x - x1) = f2 + s2 (x - x2)
-    return (f2 - f1 + s1 * x1 - s2 * x2) / (s1 - s2)
-
-
-@nb.njit(cache=True)
-def _vsection(a, b, fa, fb_, p, col, own, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo, k,
-              w, EN, XN, ok, ws, fb):
-    """The minimum of the trial minimum over [a, b] (fa, fb: its values at the ends, from the
-    grid): golden section's first two points, then steps to where the straight sides of a V
-    meet (the exact inner minimum is a V in the guide angle near its minimum, its sides straight
-    to ~1 % over 1e-3 deg: slopes of -400 .. +300 um/deg), a golden step whenever that gives
-    no point inside the bracket or the bracket shrank less than a golden step would, and
-    finally a point VSECTION_XTOL/2 to each side of the best, so the bracket around the best
-    point (its neighbours) ends below VSECTION_XTOL as the golden section's did. Returns (x,
-    value); values NaN (no window runs) count as infinite."""
-    xs = np.empty(_VMAX)
-    fs = np.empty(_VMAX)
-    xs[0], fs[0] = a, (np.inf if math.isnan(fa) else fa)
-    xs[1], fs[1] = b, (np.inf if math.isnan(fb_) else fb_)
-    npts = 2
-    x_new = b - _INVPHI * (b - a)
-    hist = np.full(3, np.inf)  # the bracket's width after each of the last three steps
-    golden_next = False
-    while True:
-        # insert x_new
-        f = _trial_min(p, col, own, x_new, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo, k,
-                       w, EN, XN, ok, ws, fb)
-        f = np.inf if math.isnan(f) else f
-        q = npts
-        while q > 0 and xs[q - 1] > x_new:
-            xs[q] = xs[q - 1]
-            fs[q] = fs[q - 1]
-            q -= 1
-        xs[q] = x_new
-        fs[q] = f
-        npts += 1
-        if npts == 3:  # the golden section's second point
-            x_new = a + _INVPHI * (b - a)
+def _angle_bound(p, grid, vals, EN, geo, k, w, ok, h):
+    """A lower bound (um) of the trial minimum over the guide angle's whole box from its values
+    at the grid. Turning the guide by da (rad) about its point turns its normal n by da, so
+    each d = n.(E - guide point) - shift moves by at most R da (R: the largest |E - guide
+    point|) and F - G (max and min of d over a window) by at most D da (D: the largest
+    |E - E'| between two needle points), so SumDelta = max(F - G, F - T1, T0 - G), and its
+    minimum over beta and the shift (whose feasible windows no angle changes), by at most
+    max(R, D) da. Between two grid points the minimum is then at least the mean of their
+    values less that slope times half their gap, less 0.01 um for the surrogate's and the
+    sampling's errors (SURROGATE_TOL_MM, SAMPLE_TOL_MM). R and D from the nodes (EN of
+    _points, <= h rad apart) plus h (max |E'| + h max |E''|) for each point between them."""
+    r = 0.0
+    dd = 0.0
+    d1 = 0.0
+    d2 = 0.0
+    for i in range(k):
+        if not ok[i]:
             continue
-        if npts >= _VMAX:
-            break
-        j = 0
-        for r in range(1, npts):
-            if fs[r] < fs[j]:
-                j = r
-        lo_ = xs[max(j - 1, 0)]
-        hi_ = xs[min(j + 1, npts - 1)]
-        width = hi_ - lo_
-        if width < VSECTION_XTOL:
-            break
-        # three steps that together shrank the bracket less than one golden step would have:
-        # a golden step next
-        hist[npts % 3] = width
-        golden_next = npts >= 6 and width > _INVPHI * hist[(npts + 1) % 3] and not golden_next
-        if golden_next:
-            for r in range(3):
-                hist[r] = np.inf
-        xj = xs[j]
-        gl = xj - lo_  # gap to the left neighbour (0 at the left end)
-        gr = hi_ - xj
-        half = 0.5 * VSECTION_XTOL
-        x_new = np.nan
-        if not golden_next:
-            # the V: through the two points left of the kink and the two right of it; the
-            # kink lies between the best point and one of its neighbours
-            if 1 <= j and j + 2 <= npts - 1:
-                c = _line_meet(xs[j - 1], fs[j - 1], xj, fs[j], xs[j + 1], fs[j + 1],
-                               xs[j + 2], fs[j + 2])
-                if xj < c < xs[j + 1]:
-                    x_new = c
-            if math.isnan(x_new) and 2 <= j and j + 1 <= npts - 1:
-                c = _line_meet(xs[j - 2], fs[j - 2], xs[j - 1], fs[j - 1], xj, fs[j],
-                               xs[j + 1], fs[j + 1])
-                if xs[j - 1] < c < xj:
-                    x_new = c
-            if not math.isnan(x_new):
-                # on the best point already: close the bracket around it
-                if abs(x_new - xj) < half:
-                    x_new = np.nan
-                    if gl >= gr and gl > half:
-                        x_new = xj - 0.9 * half
-                    elif gr > half:
-                        x_new = xj + 0.9 * half
-                elif x_new - lo_ < half or hi_ - x_new < half:
-                    x_new = np.nan
-        if math.isnan(x_new):
-            # golden step into the larger gap (or the close probe once it is small)
-            if gl >= gr:
-                x_new = xj - (0.9 * half if gl < 4.0 * half else (1.0 - _INVPHI) * gl)
-            else:
-                x_new = xj + (0.9 * half if gr < 4.0 * half else (1.0 - _INVPHI) * gr)
-    j = 0
-    for r in range(1, npts):
-        if fs[r] < fs[j]:
-            j = r
-    return xs[j], fs[j]
+        nn = _grid(geo[i, 0], geo[i, 1], w, h)[4]
+        for j in range(nn):
+            ex, ey = EN[i, j, 0], EN[i, j, 1]
+            r = max(r, math.hypot(ex - p[11], ey - p[12]))
+            d1 = max(d1, math.hypot(EN[i, j, 2], EN[i, j, 3]))
+            d2 = max(d2, math.hypot(EN[i, j, 4], EN[i, j, 5]))
+            for i2 in range(i, k):
+                if not ok[i2]:
+                    continue
+                for j2 in range(j + 1 if i2 == i else 0, _grid(geo[i2, 0], geo[i2, 1], w, h)[4]):
+                    dd = max(dd, math.hypot(EN[i2, j2, 0] - ex, EN[i2, j2, 1] - ey))
+    gap = h * (d1 + h * d2)
+    slope = max(r + gap, dd + 2.0 * gap) * (math.pi / 180.0) * 1e3
+    lb = np.inf
+    for g in range(grid.size - 1):
+        lb = min(lb, 0.5 * (vals[g] + vals[g + 1] - slope * (grid[g + 1] - grid[g])))
+    return lb - 0.01
 
 
 @nb.njit(cache=True)
-def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_min, vsection):
+def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_min, cutoff):
     G = grid.size
     own = p[col]
     res = np.empty(8)
@@ -868,6 +826,9 @@ def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_
     i0 = np.argmin(vals)
     best_rel = grid[i0]
     best_val = vals[i0]
+    if col == 13 and cutoff < np.inf and _angle_bound(
+            p, grid, vals, EN, geo, k, w, ok, h_deg * (math.pi / 180.0)) > cutoff:
+        rounds = 0  # no angle can bring this machine down to the cutoff: the grid's best
     for _ in range(rounds):
         i = np.argmin(score)
         if not score[i] < np.inf:
@@ -875,14 +836,6 @@ def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_
         score[i] = np.inf
         a = grid[max(i - 1, 0)]
         b = grid[min(i + 1, G - 1)]
-        if vsection:
-            x, fx = _vsection(a, b, vals[max(i - 1, 0)], vals[min(i + 1, G - 1)], p, col, own,
-                              lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo, k, w, EN, XN,
-                              ok, ws, fb)
-            if fx < best_val:
-                best_val = fx
-                best_rel = x
-            continue
         x1 = b - _INVPHI * (b - a)
         x2 = a + _INVPHI * (b - a)
         f1 = _trial_min(p, col, own, x1, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo,
@@ -920,15 +873,20 @@ def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_
 
 @nb.njit(cache=True, parallel=True)
 def outer_batch(P, col, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active, grid,
-                h_deg=2.0, tol_um=1e-3, rounds=3, vsection=False):
+                h_deg=2.0, tol_um=1e-3, rounds=3, cutoff_um=None):
     """Per machine (rows of P with the compensator's own value in column col: 13 the guide
     angle, deg; 3 CD, mm): the offset from its own value, one of `grid` or refined, where the
     exact minimum of SumDelta over beta (and the guide shift) is least: a grid over `grid`,
     then golden section around each of the `rounds` best local minima of the grid (to a
     bracket below 1e-9). needle_208.adjust._with_outer's search (tests/test_adjust.py holds
-    the two to each other)."""
+    the two to each other). cutoff_um (per machine, the guide angle): where _angle_bound
+    proves that no angle reaches it, the grid's best, not refined (its minimum is above it)."""
     n = P.shape[0]
     out = np.empty(n)
+    if cutoff_um is None:
+        cut = np.full(n, np.inf)
+    else:
+        cut = cutoff_um
     step = 2.0 * (grid[1] - grid[0])
     n_min = 0
     while step >= 1e-9 and n_min < 40:
@@ -941,5 +899,5 @@ def outer_batch(P, col, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active
         else:
             T0 = T1 = P[i, 14] * 1e-3
         out[i] = _outer_one(P[i], col, lo[i], hi[i], blo, bhi, T0, T1, grid, h_deg,
-                            tol_um * 1e-3, rounds, n_min, vsection)
+                            tol_um * 1e-3, rounds, n_min, cut[i])
     return out
