@@ -280,4 +280,6 @@ def test_run_takes_a_comma_list(tmp_path):
                          "--tolerances", f"{one}:one", "--format", "json")
     ctx = strict_loads(out)["context"]
     assert code == 0 and ctx["path"] == "generic"
-    assert ctx["path_reason"] == "--adjust beta,guide_shift: the needle commands adjust beta alone"
+    assert ctx["path_reason"] == ("--adjust beta,guide_shift: guide_shift is a compensator of "
+                                  "the file; the needle commands name theirs by parameter "
+                                  "(guide_shift_um)")
