@@ -18,7 +18,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from functools import cache
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -56,12 +55,10 @@ MAX_CORNER_PARAMS = 14
 FIGURES = ("plus_um", "minus_um", "total_um")
 
 
-@cache
 def _file():
-    from sewtol.mechanism import load
-    from sewtol.mechanisms import mechanism_file
+    from sewtol.mechanism.loader import builtin
 
-    return load(mechanism_file("needle_208"))
+    return builtin("needle_208")
 
 
 def as_mechanism(params: Needle208):

@@ -24,12 +24,10 @@ MODES = ("contact_status", "impacts", "intervals", "lost_by_force")
 LEVELS = (0.00135, 0.5, 0.99865)  # p0.135 and p99.865: the +/-3 sigma equivalents
 
 
-@cache
 def _file():
-    from sewtol.mechanism import load
-    from sewtol.mechanisms import mechanism_file
+    from sewtol.mechanism.loader import builtin
 
-    return load(mechanism_file("presser_foot"))
+    return builtin("presser_foot")
 
 
 @cache
