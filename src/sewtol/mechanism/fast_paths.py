@@ -33,8 +33,7 @@ class FastPath:
 
 @cache
 def fast_paths() -> dict[str, FastPath]:
-    """Every built-in fast path by name, from the mechanism folders' FAST_PATHS (collected once
-    per process: the loader and every study's plugins() ask for them)."""
+    """Every built-in fast path by name, from the mechanism folders' FAST_PATHS (once)."""
     import importlib
 
     from sewtol.mechanisms import declared
