@@ -315,14 +315,14 @@ def load_mechanism(text: str, overrides: dict | None = None):
     name. A built-in file is named by its place in the package (the same on every machine)."""
     from sewtol import mechanisms as M
     from sewtol.mechanism import load
-    from sewtol.mechanism.loader import loads
+    from sewtol.mechanism.loader import builtin, loads
 
     p = Path(text)
     if p.exists() or p.suffix or len(p.parts) > 1:
         return load(p, overrides)
-    if text in M.names():
-        return loads(M.mechanism_file(text).read_text(),
-                     f"sewtol/mechanisms/{text}/{M.FILE}", overrides)
+    if text in M.names():  # parsed once: the needle and presser tables use the same object
+        return loads(M.mechanism_file(text).read_text(), f"sewtol/mechanisms/{text}/{M.FILE}",
+                     overrides) if overrides else builtin(text)
     raise ParameterError("FILE.toml", "is neither a file nor a built-in mechanism ("
                          + ", ".join(M.names()) + ")", text)
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cache
 
 POSITION_TOL_MM = 1e-9
 # the file's SumDelta takes its extremes on the sampled angles, the built-in model exactly: at
@@ -30,8 +31,9 @@ class FastPath:
     plugins: object = None  # sewtol.protocol.Plugins: its fused kernel and exact adjuster
 
 
+@cache
 def fast_paths() -> dict[str, FastPath]:
-    """Every built-in fast path by name, from the mechanism folders' FAST_PATHS."""
+    """Every built-in fast path by name, from the mechanism folders' FAST_PATHS (once)."""
     import importlib
 
     from sewtol.mechanisms import declared

@@ -88,6 +88,15 @@ def load(path, overrides: dict | None = None):
     return loads(read_text(path), str(path), overrides)
 
 
+@functools.cache
+def builtin(name: str):
+    """The FileMechanism of the built-in mechanism `name`, parsed once per process and named by
+    its place in the package (the same on every machine); `override` makes changed copies."""
+    from sewtol import mechanisms as M
+
+    return loads(M.mechanism_file(name).read_text(), f"sewtol/mechanisms/{name}/{M.FILE}")
+
+
 def loads(text: str, path: str = "<text>", overrides: dict | None = None):
     from sewtol.mechanism.model import FileMechanism
 

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from functools import cache
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -26,6 +25,7 @@ import pandas as pd
 
 from sewtol.errors import ParameterError
 from sewtol.measurement_error import MeasurementError
+from sewtol.mechanism.loader import builtin
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.needle_208 import beta as sb
 from sewtol.mechanisms.needle_208.adjustment import Adjustment, adjust, columns_of
@@ -56,18 +56,11 @@ MAX_CORNER_PARAMS = 14
 FIGURES = ("plus_um", "minus_um", "total_um")
 
 
-@cache
-def _file():
-    from sewtol.mechanism import load
-    from sewtol.mechanisms import mechanism_file
-
-    return load(mechanism_file("needle_208"))
-
-
 def as_mechanism(params: Needle208):
     """The needle drive `params` (scalar fields) as a protocol mechanism: the folder's
     mechanism.toml (fast_path needle_208) with the machine's values as its nominals."""
-    return _file().override(**{k: float(getattr(params, k)) for k in P.field_names(type(params))})
+    return builtin("needle_208").override(**{k: float(getattr(params, k))
+                                             for k in P.field_names(type(params))})
 
 
 def _beta_box(range_deg, limit_um=sb.DEFAULT_LIMIT_UM) -> dict:

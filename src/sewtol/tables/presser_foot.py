@@ -14,6 +14,7 @@ from functools import cache
 import numpy as np
 import pandas as pd
 
+from sewtol.mechanism.loader import builtin
 from sewtol.mechanisms.presser_foot import model as PF
 from sewtol.studies import summaries as SU
 from sewtol.tolerances import ToleranceSet
@@ -25,29 +26,22 @@ LEVELS = (0.00135, 0.5, 0.99865)  # p0.135 and p99.865: the +/-3 sigma equivalen
 
 
 @cache
-def _file():
-    from sewtol.mechanism import load
-    from sewtol.mechanisms import mechanism_file
-
-    return load(mechanism_file("presser_foot"))
-
-
-@cache
 def field_names() -> dict[str, str]:
     """The file's parameter -> the model's field, as its presser_contact outputs map them."""
-    out = next(o for o in _file().outputs if o.kind == "presser_contact")
+    out = next(o for o in builtin("presser_foot").outputs if o.kind == "presser_contact")
     return {e.text: k for k, e in out.fields.items()
-            if getattr(e, "text", None) in _file().parameter_names}
+            if getattr(e, "text", None) in builtin("presser_foot").parameter_names}
 
 
 def as_mechanism(nominal: PF.PresserFoot):
     """The folder's mechanism file with the machine's values as its nominals."""
-    return _file().override(**{p: float(getattr(nominal, f)) for p, f in field_names().items()})
+    return builtin("presser_foot").override(**{p: float(getattr(nominal, f))
+                                               for p, f in field_names().items()})
 
 
 def tolerance_sets() -> dict[str, ToleranceSet]:
     """The file's sets: assumed, and spring (the family the source's table cannot tell apart)."""
-    return dict(_file().tolerance_sets)
+    return dict(builtin("presser_foot").tolerance_sets)
 
 
 def _read(f: pd.DataFrame, nominal: dict) -> pd.DataFrame:

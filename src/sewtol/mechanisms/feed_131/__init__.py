@@ -9,9 +9,5 @@ stitch regulator, the source's read-offs): ``analysis.py``; the tolerance studie
 generic ones on ``mechanism.toml`` (its default set: [tolerances.assumed]).
 """
 
-from sewtol.mechanisms.feed_131.model import Feed131
-
-__all__ = ["Feed131"]
-
 # the custom output kind a mechanism file may name, and the module that registers it
 OUTPUT_KINDS = {"feed_dogs": "sewtol.mechanisms.feed_131.metrics"}
