@@ -236,8 +236,8 @@ def test_cli_needle_ppm_json_and_refusals(tmp_path):
     assert d["method"] == "montecarlo" and d["model_calls"] == 2000
     assert d["failures"] == round(d["probability"] * 2000)
     assert (tmp_path / "o" / "ppm.json").exists() and (tmp_path / "o" / "run.json").exists()
-    for argv, msg in ((("--budget", "5"), "--budget: must be a whole number of model calls"),
-                      (("--target", "0"), "--target: must be a probability in (0, 1)"),
+    for argv, msg in ((("--budget", "5"), "--budget: must be >= 100 for `run ppm` (got 5)"),
+                      (("--target", "0"), "--target: must be a probability strictly between 0 and 1"),
                       (("--limit-um", "-1"), "--limit-um: must be a positive number"),
                       (("--out", str(tmp_path / "r"), "--resume"), "--resume: is not offered")):
         code, out, err = run("needle", "ppm", *argv)

@@ -301,8 +301,9 @@ def _check_yield_flags(args) -> None:
                              args.lower_limit)
     minimum = {"montecarlo": 2, "ppm": 100, "allocation": 10, "report": 2,
                "strategies": 2, "least-cost": 10, "settings": 2}[args.study]
-    if args.n < minimum:
-        raise ParameterError("--n", f"must be >= {minimum} for `run {args.study}`", args.n)
+    if args.n < minimum:  # in the words the user gave: needle ppm's --budget is its --n
+        flag = "--budget" if getattr(args, "budget", None) is not None else "--n"
+        raise ParameterError(flag, f"must be >= {minimum} for `run {args.study}`", args.n)
     if args.study == "ppm":
         args.method = {None: "auto", "mc": "montecarlo"}.get(args.method, args.method)
     if args.study == "report" and not args.out:
@@ -781,6 +782,10 @@ def _needle_adjust_refusal(args, mech) -> str | None:
     if given is not None and given.strip().lower() != "none":
         names = [a.strip() for a in given.split(",")]
         for name in names:
+            if name and name not in mech.compensators and name not in field_names(Needle208):
+                raise ParameterError("--adjust", "must name a compensator of the file ("
+                                     f"{', '.join(mech.compensators)}) or, on the needle_208 "
+                                     "fast path, a parameter of the needle", given)
             if name in mech.compensators and name not in field_names(Needle208):
                 return (f"--adjust {given}: {name} is a compensator of the file; the needle "
                         f"commands name theirs by parameter ({mech.compensators[name].parameter})")
@@ -819,6 +824,8 @@ def _check_needle_flags(args, mech) -> None:
 
 def _needle_synonyms(args) -> None:
     """--limit-um is --limit, and ppm's --budget its --n, in the needle's words."""
+    if args.limit_um is not None and not args.limit_um > 0:
+        raise ParameterError("--limit-um", "must be a positive number of um", args.limit_um)
     for flag, key, same in (("--limit-um", "limit_um", "limit"), ("--budget", "budget", "n")):
         value = getattr(args, key)
         if value is not None and getattr(args, same) is not None:
