@@ -444,12 +444,14 @@ def cmd_run(args) -> None:
                     args.lower_limit)
     _finish(args, fmt, mech, tolerances, res.to_dict(),
             {"machines": res.machines, "summary": res.summary_frame()}, res.summary_frame())
-    # the adjusted case's counts are its own (case "adjusted"), its limits the output's
-    case = {**{o: o for o in res.outputs}, **({res.adjusted_output: "adjusted"} if res.adjust
-                                              else {})}
-    return _figure(args, list(case), lambda name, ax: plots().output_histogram(
-        res.values(name), res.counts(case[name]), res.spec(name), ax,
-        f"{name} ({_unit(mech, name)})"))
+    from sewtol.reports.generic_report import output_histogram
+
+    spec = {s.output: (s.lower, s.upper) for s in res.specs}  # the adjusted case: the output's
+    return _figure(args, [*res.outputs, *([res.adjusted_output] if res.adjust else [])],
+                   lambda name, ax: output_histogram(
+                       res.values(name), ax, f"{name} ({_unit(mech, name)})",
+                       spec.get(name.removesuffix("_adjusted"), ()), None,
+                       f"{name}: {res.n} machines, seed {res.seed}"))
 
 
 def _figure(args, outputs, draw) -> None:

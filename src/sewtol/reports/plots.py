@@ -234,31 +234,6 @@ def panels(names, draw, height_in: float = 2.6):
     return fig
 
 
-def output_histogram(values, counts: dict, spec=None, ax=None, xlabel: str = "",
-                     nbins: int = 40):
-    """A Monte-Carlo output's histogram over the machines that run (the whole finite range:
-    nothing drawn is dropped), its spec's limits as dashed lines, and in the legend the counts
-    ok + out_of_spec + failed = n (counts as MonteCarloResult.counts gives them)."""
-    ax = ax or plt.gca()
-    x = np.asarray(values, float)
-    x = x[np.isfinite(x)]
-    lo, hi = (float(x.min()), float(x.max())) if x.size else (0.0, 1.0)
-    edges = np.linspace(lo, hi if hi > lo else lo + 1.0, nbins + 1)
-    b = binned(x, edges)
-    ax.stairs(b["counts"], edges, color="C0", lw=1.4, fill=True, alpha=0.6,
-              label=f"{counts['ok']} ok, {counts['out_of_spec']} out of spec, "
-                    f"{counts['failed']} failed of {counts['n']}")
-    for name, limit in (("lower", getattr(spec, "lower", None)),
-                        ("upper", getattr(spec, "upper", None))):
-        if limit is not None:
-            ax.axvline(limit, color="C3", ls="--", lw=1, label=f"{name} limit {limit:g}")
-    ax.set_xlabel(xlabel)
-    ax.set_ylabel("machines")
-    ax.grid(True, lw=0.3)
-    ax.legend(fontsize=7)
-    return ax
-
-
 def _at_phi(traj, column: str, phi_deg: float) -> float:
     """A trajectory column at a phase, interpolated periodically (traj is sampled on phi_deg)."""
     phi = np.asarray(traj["phi_deg"], float)
