@@ -214,3 +214,75 @@ def test_single_machine_json_names_its_machine_and_keeps_the_csv_rows(argv, key)
     # the coarsest printed place
     assert np.allclose(np_rows.to_numpy(float), frame.to_numpy(float), rtol=0, atol=5.1e-7,
                        equal_nan=True)
+
+
+FOUR_BAR = "examples/four_bar.toml"
+FILE_PLOTS = {"scan": ("--adjust", "frame"), "montecarlo": ("--n", "200", "--adjust", "frame"),
+              "sobol": ("--n", "32", "--seed", "4")}
+
+
+@pytest.mark.parametrize("study", list(FILE_PLOTS))
+def test_a_file_mechanisms_figure_is_the_same_on_a_rerun(study, tmp_path):
+    from pathlib import Path
+
+    file = str(Path(__file__).parents[1] / FOUR_BAR)
+    for suffix, magic in ((".svg", b"<?xml"), (".png", b"\x89PNG")):
+        paths = [tmp_path / f"{k}{suffix}" for k in "ab"]
+        for path in paths:
+            code, _, err = run("run", file, study, *FILE_PLOTS[study], "--plot", str(path))
+            assert code == 0, err
+        a, b = (p.read_bytes() for p in paths)
+        assert a == b and a.startswith(magic)
+
+
+def _drawn(monkeypatch, study, *argv):
+    """The printed JSON of `run four_bar STUDY ARGV --plot` and the figure it saves."""
+    from pathlib import Path
+
+    import sewtol.cli.run as R
+
+    figs = []
+    monkeypatch.setattr(R, "save_figure", lambda args, fig: figs.append(fig))
+    file = str(Path(__file__).parents[1] / FOUR_BAR)
+    code, out, err = run("run", file, study, *argv, "--format", "json", "--plot", "x.svg")
+    assert code == 0, err
+    assert len(figs) == 1
+    return strict_loads(out), figs[0]
+
+
+def test_the_file_scan_figure_draws_the_printed_changes(monkeypatch):
+    """A panel per output (the adjusted case its own), its bars the printed change at each
+    tolerance's upper limits, then its lower ones."""
+    obj, fig = _drawn(monkeypatch, "scan", *FILE_PLOTS["scan"])
+    outputs = list(dict.fromkeys(r["output"] for r in obj["rows"]))
+    assert outputs == ["rocker_swing_deg", "rocker_swing_deg_adjusted"]
+    assert len(fig.axes) == len(outputs)
+    for ax, name in zip(fig.axes, outputs, strict=True):
+        rows = [r for r in obj["rows"] if r["output"] == name]
+        want = [r["change"] for side in ("upper", "lower") for r in rows if r["side"] == side]
+        assert [p.get_height() for p in ax.patches] == pytest.approx(want, abs=1e-12)
+        assert ax.get_title().startswith(name + ":")
+
+
+def test_the_file_montecarlo_figure_counts_every_machine(monkeypatch):
+    """A panel per case (fixed, adjusted), the report's histogram: the legend's machines in
+    range, beyond it and that cannot run add up to n (the bars hold those in range; the printed
+    failures are those that cannot run), the dashed line is the spec's upper limit, 46.1 deg."""
+    obj, fig = _drawn(monkeypatch, "montecarlo", *FILE_PLOTS["montecarlo"])
+    assert obj["cases"] == ["fixed_frame", "adjusted_frame"] and len(fig.axes) == 2
+    for ax, case in zip(fig.axes, obj["cases"], strict=True):
+        counts = [int(t.get_text().split()[0]) for t in ax.get_legend().get_texts()[:3]]
+        assert sum(counts) == obj["counts"][case]["n"] == 200
+        assert sum(p.get_height() for p in ax.patches) == counts[0]
+        assert counts[2] == obj["counts"][case]["failed"]
+        assert [line.get_xdata()[0] for line in ax.get_lines() if len(line.get_xdata())] \
+            == [46.1]
+    assert obj["counts"]["fixed_frame"]["out_of_spec"] > 0  # the limit cuts the fixed panel
+
+
+def test_the_file_sobol_figure_draws_the_printed_indices(monkeypatch):
+    obj, fig = _drawn(monkeypatch, "sobol", *FILE_PLOTS["sobol"])
+    (ax,) = fig.axes
+    rows = obj["rows"]
+    want = [r["S1"] for r in rows] + [r["ST"] for r in rows]
+    assert [p.get_height() for p in ax.patches] == pytest.approx(want, abs=1e-12)

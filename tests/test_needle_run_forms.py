@@ -119,6 +119,10 @@ def test_the_alias_writes_the_run_forms_files(study, flags, files, tmp_path):
      "(--lower-limit: the needle commands limit SumDelta from above only)"),
     (("needle", "ppm", "--budget", "300", "--n", "300"),
      "--budget: is --n in the needle's words; give one of them"),
+    # a study without a figure off the fast path (scan, montecarlo, sobol and refine have one)
+    (("run", "feed_131", "worst-case", "--plot", "x.svg"),
+     "--plot: is read by the needle_208 fast path only; `run feed_131 worst-case` has none"),
+    (("run", "feed_131", "ppm", "--plot", "x.svg"), "--plot: is not used by `run ppm`"),
 ])
 def test_a_flag_nothing_reads_is_refused_in_one_line(argv, message):
     code, out, err = run(*argv)
@@ -199,3 +203,23 @@ def test_the_feed_refuses_as_run_refuses():
         a, b = run("feed", *argv), run("run", "feed_131", *argv)
         assert a[0] == b[0] == 2 and a[1] == b[1] == "" and a[2] == b[2], argv
         assert len(a[2].strip().splitlines()) == 1
+
+
+# the figures' runs: the default set (six links), every output, a panel each
+FEED_PLOTS = {"scan": (), "montecarlo": ("--n", "30", "--seed", "2"), "sobol": FEED["sobol"]}
+
+
+@pytest.mark.parametrize("study", list(FEED_PLOTS))
+def test_the_feed_figure_is_its_run_forms_and_a_rerun_is_the_same(study, tmp_path):
+    """`feed STUDY --plot` draws run's figure: the same SVG bytes in both forms and on a rerun,
+    and the figure changes nothing printed."""
+    plain = run("feed", study, *FEED_PLOTS[study], "--format", "json")
+    outs = []
+    for name, form in (("a", ("feed",)), ("b", ("run", "feed_131")), ("c", ("feed",))):
+        code, out, err = run(*form, study, *FEED_PLOTS[study], "--format", "json", "--plot",
+                             str(tmp_path / f"{name}.svg"))
+        assert code == 0 and err == "", err
+        outs.append(out)
+    a, b, c = ((tmp_path / f"{name}.svg").read_bytes() for name in "abc")
+    assert a == b == c and a.startswith(b"<?xml")
+    assert outs == [plain[1]] * 3

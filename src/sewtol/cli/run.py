@@ -24,7 +24,10 @@ from sewtol.cli.common import (
     check_study_folder,
     emit,
     parse_sets,
+    plots,
     progress_option,
+    save_figure,
+    scan_figure,
     wide_option,
     write_outputs,
 )
@@ -43,12 +46,12 @@ DEFAULT_TARGET = {"ppm": 1e-6, "allocation": 0.9973, "least-cost": 0.9973}
 SPEC_STUDIES = ("montecarlo", "ppm", "allocation", "report", "strategies", "least-cost",
                 "settings")
 # which flags each study reads; any other given flag is refused in one line
-USES = {"nominal": (), "scan": ("output", "tolerances", "adjust", "objective"),
+USES = {"nominal": (), "scan": ("output", "tolerances", "adjust", "objective", "plot"),
         "worst-case": ("output", "tolerances", "adjust", "objective"),
         "largest-tolerances": ("output", "tolerances", "limit", "adjust"),
         "montecarlo": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "n_jobs",
-                       "adjust", "clearances", "objective"),
-        "sobol": ("output", "tolerances", "n", "seed", "clearances"),
+                       "adjust", "clearances", "objective", "plot"),
+        "sobol": ("output", "tolerances", "n", "seed", "clearances", "plot"),
         "shapley": ("output", "tolerances", "n", "seed", "adjust", "clearances"),
         "ppm": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "method", "target",
                 "adjust", "n_jobs", "clearances", "objective"),
@@ -183,9 +186,11 @@ def run_options(p) -> None:
                    help="refine, least-cost: generations of each restart (default 400; "
                         "least-cost 40)")
     p.add_argument("--plot", default=None, metavar="FILE",
-                   help="the study's figure (.png/.svg/.pdf): refine, the objective's curve "
-                        "today and refined; on the needle_208 fast path scan, worst-case, "
-                        "montecarlo, sobol, allocation and strategies (the yield of each "
+                   help="the study's figure (.png/.svg/.pdf), a panel per output: scan, each "
+                        "tolerance's change at its limits; montecarlo, each output's histogram "
+                        "with its spec limits; sobol, S1 and ST with their intervals; refine, "
+                        "the objective's curve today and refined; on the needle_208 fast path "
+                        "also worst-case, allocation and strategies (the yield of each "
                         "strategy with its 95 %% interval)")
     p.add_argument("--guide-diameter", type=float, default=None, metavar="MM",
                    help="clearance: the guide rod's diameter for its ISO 286 fits (default 8)")
@@ -395,7 +400,8 @@ def cmd_run(args) -> None:
     if args.study == "scan":
         res = _as_flags(partial(S.scan, fast=fast, **goal), mech, tolerances, outputs,
                         args.adjust)
-        return _finish(args, fmt, mech, tolerances, res.to_dict(), {"scan": res.rows}, res.rows)
+        _finish(args, fmt, mech, tolerances, res.to_dict(), {"scan": res.rows}, res.rows)
+        return _figure(args, res.rows["output"], partial(_scan_panel, mech, res.rows))
     if args.study == "worst-case":
         res = _as_flags(partial(W.worst_case, fast=False, **goal), mech, tolerances,
                         args.output or mech.output_names[0], 100, args.adjust)
@@ -410,8 +416,11 @@ def cmd_run(args) -> None:
                "seed": res.seed, "output": args.output or mech.output_names[0],
                "rows": res.to_records(), "convergence": res.convergence.to_dict("records"),
                **({"assembly": res.assembly()} if res.has_failures else {})}
-        return _finish(args, fmt, mech, tolerances, obj,
-                       {**res.frames(), "indices": res.indices}, res.to_dataframe())
+        table = res.to_dataframe()
+        _finish(args, fmt, mech, tolerances, obj, {**res.frames(), "indices": res.indices},
+                table)
+        return _figure(args, table["case"], lambda name, ax: plots().sobol_bars(
+            table[table["case"] == name], ax=ax, title=f"Sobol indices of {name}"))
     if args.study == "shapley":
         from sewtol.studies.shapley import shapley
 
@@ -434,9 +443,35 @@ def cmd_run(args) -> None:
     res = _as_flags(partial(MC.montecarlo, fast=fast, **goal), mech, tolerances, args.n, args.seed,
                     outputs, args.limit, args.output, args.n_jobs, False, MC.CHUNK, args.adjust,
                     args.lower_limit)
-    return _finish(args, fmt, mech, tolerances, res.to_dict(),
-                   {"machines": res.machines, "summary": res.summary_frame()},
-                   res.summary_frame())
+    _finish(args, fmt, mech, tolerances, res.to_dict(),
+            {"machines": res.machines, "summary": res.summary_frame()}, res.summary_frame())
+    from sewtol.reports.generic_report import output_histogram
+
+    spec = {s.output: (s.lower, s.upper) for s in res.specs}  # the adjusted case: the output's
+    return _figure(args, [*res.outputs, *([res.adjusted_output] if res.adjust else [])],
+                   lambda name, ax: output_histogram(
+                       res.values(name), ax, f"{name} ({_unit(mech, name)})",
+                       spec.get(name.removesuffix("_adjusted"), ()), None,
+                       f"{name}: {res.n} machines, seed {res.seed}"))
+
+
+def _figure(args, outputs, draw) -> None:
+    """--plot of the generic scan, montecarlo and sobol: draw(output, ax) on a panel per output
+    (in the order given, each once)."""
+    if args.plot is not None:
+        save_figure(args, plots().panels(list(dict.fromkeys(outputs)), draw))
+
+
+def _scan_panel(mech, rows, name, ax):
+    """One output's change at each tolerance's upper and lower limit."""
+    scan_figure(rows[rows["output"] == name], "change", ax, f"change ({_unit(mech, name)})")
+    ax.set_title(f"{name}: each tolerance at its limits", fontsize=9)
+    return ax
+
+
+def _unit(mech, name: str) -> str:
+    """An output's unit, of its adjusted case (OUTPUT_adjusted) too."""
+    return mech.output(name.removesuffix("_adjusted")).unit
 
 
 def _goal(args) -> dict:

@@ -212,17 +212,22 @@ def axis_label(output: str, unit: str) -> str:
 
 
 def histogram(report: GenericReport, output: str, ax):
-    """Histogram of one output over the machines that run; the legend counts the machines
-    beyond the plotted range and the machines that cannot run."""
-    m = report.mechanism
-    v = report.machines[output].to_numpy(float)
+    """The report's histogram of one output (`output_histogram`), its limits and nominal."""
+    limits = (report.lower, report.upper) if report.limit_output == output else ()
+    return output_histogram(report.machines[output], ax, axis_label(output, _unit(
+        report.mechanism, output)), limits, report.nominal.set_index("output")["value"].get(
+        output), f"{output}: {report.n} machines, seed {report.seed}")
+
+
+def output_histogram(values, ax, label: str, limits=(), nom=None, title: str = ""):
+    """Histogram of one output over the machines that run, its limits (None: none) dashed, its
+    nominal value (if any) a grey line; the legend counts the machines in and beyond the
+    plotted range and the machines that cannot run, which add up to n (the report's
+    figures and `sewtol run FILE montecarlo --plot`'s panels)."""
+    v = np.asarray(values, float)
     ok = v[np.isfinite(v)]
     failed = int(v.size - ok.size)
-    unit = _unit(m, output)
-    label = axis_label(output, unit)
-    lines = []
-    if report.limit_output == output:
-        lines = [x for x in (report.lower, report.upper) if x is not None]
+    lines = [x for x in limits if x is not None]
     beyond = 0
     if ok.size:
         lo, hi = np.quantile(ok, PLOT_QUANTILES)
@@ -239,13 +244,12 @@ def histogram(report: GenericReport, output: str, ax):
         ax.axvline(x, color="C3", ls="--", lw=1)
     if lines:
         ax.plot([], [], color="C3", ls="--", lw=1, label="limit")
-    nom = report.nominal.set_index("output")["value"].get(output)
     if nom is not None and np.isfinite(nom):
         ax.axvline(nom, color="0.3", lw=0.8)
         ax.plot([], [], color="0.3", lw=0.8, label=f"nominal {nom:.6g}")
     ax.set_xlabel(label)
     ax.set_ylabel("machines")
-    ax.set_title(f"{output}: {report.n} machines, seed {report.seed}", fontsize=9)
+    ax.set_title(title, fontsize=9)
     ax.legend(fontsize=7)
     ax.grid(True, lw=0.3)
     return ax

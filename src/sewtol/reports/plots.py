@@ -224,6 +224,16 @@ def sobol_bars(indices, ax=None, title: str = ""):
     return ax
 
 
+def panels(names, draw, height_in: float = 2.6):
+    """A figure of one panel per name, stacked; draw(name, ax) fills each (the figures of
+    `sewtol run FILE scan|montecarlo|sobol`, a panel per output)."""
+    fig, axes = plt.subplots(len(names), 1, figsize=(7, height_in * len(names)), squeeze=False)
+    for ax, name in zip(axes[:, 0], names, strict=True):
+        draw(name, ax)
+    fig.tight_layout()
+    return fig
+
+
 def _at_phi(traj, column: str, phi_deg: float) -> float:
     """A trajectory column at a phase, interpolated periodically (traj is sampled on phi_deg)."""
     phi = np.asarray(traj["phi_deg"], float)
