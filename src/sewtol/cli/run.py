@@ -820,7 +820,8 @@ def _needle_adjust_refusal(args, mech) -> str | None:
             if name and name not in mech.compensators and name not in field_names(Needle208):
                 raise ParameterError("--adjust", "must name a compensator of the file ("
                                      f"{', '.join(mech.compensators)}) or, on the needle_208 "
-                                     "fast path, a parameter of the needle", given)
+                                     f"fast path, a parameter of the needle; unknown parameter "
+                                     f"{name!r}", given)
             if name in mech.compensators and name not in field_names(Needle208):
                 return (f"--adjust {given}: {name} is a compensator of the file; the needle "
                         f"commands name theirs by parameter ({mech.compensators[name].parameter})")
