@@ -1,16 +1,28 @@
-"""Helpers shared by the test modules: the CLI run in-process, strict JSON, a stretched dyad."""
+"""Helpers shared by the test modules: the CLI run in-process, strict JSON, a stretched dyad,
+a study script loaded as a module."""
 
 from __future__ import annotations
 
+import importlib.util
 import io
 import json
 from contextlib import redirect_stderr, redirect_stdout
+from pathlib import Path
 
 import numpy as np
 
 from sewtol.cli import main
 from sewtol.mechanisms.needle_208 import model as nd
 from sewtol.mechanisms.needle_208.model import Needle208
+
+
+def study_script(name: str):
+    """studies/NAME.py (a report script, not a package module) loaded as a module."""
+    path = Path(__file__).resolve().parents[1] / "studies" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
 
 
 def run(*argv):

@@ -1,17 +1,15 @@
 """Every bad input gives one line on stderr and exit 2, before anything is written; the table in
 docs/cli.md is what the CLI prints (studies/bad_input_table.py generates it)."""
 
-import importlib.util
 import re
 from pathlib import Path
 
 import pytest
 
+from cli_helpers import study_script
+
 ROOT = Path(__file__).resolve().parents[1]
-spec = importlib.util.spec_from_file_location("bad_input_table",
-                                              ROOT / "studies" / "bad_input_table.py")
-table = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(table)
+table = study_script("bad_input_table")
 
 
 def readme_rows() -> dict[str, str]:

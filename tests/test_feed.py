@@ -1,12 +1,11 @@
 """Feed chains of the 131-42+3: source figures, transfer functions, errors, regulator."""
 
-import importlib.util
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from cli_helpers import study_script
 from sewtol.errors import AssemblyError, ParameterError
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.feed_131 import analysis as feed
@@ -18,11 +17,7 @@ from sewtol.studies import summaries as SU
 def _report():
     """studies/feed_131_report.py: the feed report's outputs and tables over the generic
     studies."""
-    path = Path(__file__).resolve().parents[1] / "studies" / "feed_131_report.py"
-    spec = importlib.util.spec_from_file_location("feed_131_report", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return study_script("feed_131_report")
 
 
 T = _report()

@@ -135,14 +135,9 @@ def test_unknown_frame_on_the_command_line_is_one_line_exit_2(capsys):
 
 
 def _calibration_script():
-    import importlib.util
-    from pathlib import Path
+    from cli_helpers import study_script
 
-    path = Path(__file__).resolve().parents[1] / "studies" / "calibrate_needle_208.py"
-    spec = importlib.util.spec_from_file_location("calibrate_needle_208", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return study_script("calibrate_needle_208")
 
 
 def test_calibration_report_uses_the_packaged_frames_and_never_writes_package_data(tmp_path):

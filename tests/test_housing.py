@@ -137,15 +137,13 @@ def test_the_housing_share_table_adds_up(tmp_path):
     """studies/needle_208_housing.py on a small run: the ST shares of each case add up to
     100 %, the two group rows are the sums of their members (7 housing features, 6 links), and
     the headline quotes the housing row."""
-    import importlib.util
     import json
 
     import pandas as pd
 
-    spec = importlib.util.spec_from_file_location(
-        "needle_208_housing", ROOT / "studies" / "needle_208_housing.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    from cli_helpers import study_script
+
+    script = study_script("needle_208_housing")
     assert script.main(["--out", str(tmp_path), "--n-sobol", "32", "--n", "60"]) == 0
     folder = tmp_path / "needle_208"
     t = pd.read_csv(folder / "housing_share.csv", comment="#")

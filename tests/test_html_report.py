@@ -4,13 +4,14 @@ in the HTML one, every image embedded, "µm" in every label, histograms that dro
 from __future__ import annotations
 
 import base64
-import importlib.util
 import json
 import re
 import shutil
 from pathlib import Path
 
 import matplotlib
+
+from cli_helpers import study_script
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -49,10 +50,7 @@ UM_LABEL = re.compile(r"(?<![A-Za-z_])um(?![A-Za-z_])")
 
 
 def _script(name: str):
-    spec = importlib.util.spec_from_file_location(name, ROOT / "studies" / f"{name}.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return study_script(name)
 
 
 @pytest.fixture(scope="module")

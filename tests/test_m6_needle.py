@@ -400,17 +400,15 @@ def test_example_file_reproduces_the_module():
 
 
 def test_report_matches_the_committed_tables(tmp_path):
-    import importlib.util
 
     import pandas as pd
 
     from test_report_reproducible import compare_printed
 
     root = Path(__file__).resolve().parents[1]
-    spec = importlib.util.spec_from_file_location("m6_report", root / "studies" /
-                                                  "m6_needle_report.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    from cli_helpers import study_script
+
+    mod = study_script("m6_needle_report")
     mod.main(["--out", str(tmp_path)])
     new, old = tmp_path / "m6_needle", root / "reports" / "m6_needle"
     names = sorted(p.name for p in old.glob("*.csv"))

@@ -4,12 +4,12 @@ committed table's frame dependence as the issue's independent run measured it.""
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from cli_helpers import study_script
 from sewtol.mechanisms.needle_208.compensators import default_strategies
 from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME, frame_names
 from sewtol.mechanisms.needle_208.model import Needle208
@@ -21,11 +21,7 @@ COMMITTED = ROOT / "reports" / "needle_208" / "strategies_frames.csv"
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location(
-        "needle_208_strategies_frames", ROOT / "studies" / "needle_208_strategies_frames.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return study_script("needle_208_strategies_frames")
 
 
 def test_frame_rows_are_the_strategies_table_on_that_frame():

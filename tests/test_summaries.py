@@ -4,13 +4,13 @@ definitions computed by hand."""
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 
+from cli_helpers import study_script
 from sewtol.errors import ParameterError
 from sewtol.mechanism import load
 from sewtol.mechanisms import mechanism_file
@@ -23,11 +23,7 @@ REPORT = Path(__file__).parents[1] / "reports" / "feed_131-42-3"
 
 def _report():
     """studies/feed_131_report.py, which wrote REPORT: its outputs and tables."""
-    path = Path(__file__).resolve().parents[1] / "studies" / "feed_131_report.py"
-    spec = importlib.util.spec_from_file_location("feed_131_report", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return study_script("feed_131_report")
 
 
 def _committed(name: str) -> pd.DataFrame:
