@@ -1,19 +1,13 @@
-"""Adjustment at assembly, for every study: one dispatch from a mechanism and its compensators to
-the per-machine optimum of one output.
+"""Adjustment at assembly, for every study: one dispatch from a mechanism and its compensators
+to the per-machine optimum of one output.
 
     a = adjusted(mech, values, ["beta"], "SumDelta_um")
     a.value, a.settings["beta"], a.status, a.at_bound["beta"]
 
-`compensators` names the compensators of the mechanism (its [compensators.NAME], boxes from the
-file), or maps parameters to boxes (low, high), or is a sequence of compensator objects (name,
-low, high and, where declared, steps, resolution, mode), or a strategy holding them. The
-optimum comes from the mechanism's plug-ins (sewtol.protocol.Plugins) where they take that set
-and output (the exact adjuster for boxes, the strategy adjuster for objects), otherwise from
-the generic adjuster (one call: sewtol.adjuster.adjust, 1 to 3 compensators jointly). `fast=False`
-takes the generic one always (the reference path of `sewtol run FILE --path generic`).
-
-`evaluated(mech, values, output)` is the same choice for a plain evaluation: the plug-in kernel
-where it gives the output, else mech.evaluate.
+The optimum comes from the mechanism's plug-ins (sewtol.protocol.Plugins) where they take that
+set and output, else from the generic adjuster (sewtol.adjuster.adjust); `fast=False` takes the
+generic one always. `evaluated(mech, values, output)` is the same choice for a plain
+evaluation.
 """
 
 from __future__ import annotations
@@ -73,12 +67,18 @@ def _objects(compensators) -> bool:
 def adjusted(mech, values: dict | None, compensators, output: str, *, fast: bool = True,
              objective=None, figures: bool = True, **options) -> Adjusted:
     """Each machine of `values` (absolute parameter values; the rest nominal) adjusted: `output`
-    minimised over the compensators (see the module docstring), or brought to a target or
+    minimised over the compensators, or brought to a target or
     centred in a spec (`objective`: sewtol.adjuster.Objective or "target=T", "centre=L,U";
     the plug-ins minimise, so another objective takes the generic adjuster). `options` go to
     the plug-in (e.g. limit_um, plateaus for the needle's strategy adjuster); figures=False
     tells the exact adjuster that only the value, settings, status, bounds and plateaus are
-    read (Plugins.adjuster), so it may skip its further figures."""
+    read (Plugins.adjuster), so it may skip its further figures.
+
+    `compensators` names compensators of the mechanism (boxes from the file), or maps
+    parameters to boxes (low, high), or is a sequence of compensator objects (name, low, high
+    and, where declared, steps, resolution, mode), or a strategy holding them; the plug-in's
+    exact adjuster takes boxes, its strategy adjuster objects, the generic adjuster 1 to 3
+    compensators jointly."""
     from sewtol.adjuster import Objective
 
     mech.output(output)

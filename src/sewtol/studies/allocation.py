@@ -1,30 +1,12 @@
-"""Tolerance allocation of any mechanism: the largest common scale of a tolerance set that keeps
-the yield of one output at a target.
-
-`allocate(mech, tolerances, output, target, upper, lower, ...)`: the largest scale k of the set
-(each tolerance's limits times k times its weight) at which the yield (the fraction of n
-machines that give a value within the limits; machines that cannot run count against it)
-reaches the target. The output is as evaluated (the plug-in kernel where the mechanism has one)
-or minimised over the compensators `adjust` (`sewtol.studies.adjusting.adjusted`: the needle's
-exact beta optimum). Common random numbers: one matrix of uniforms (the one sampler,
-sewtol.law) for every trial k, so each machine's deviation moves along a fixed ray from nominal
-as k grows. The yield is then a step function of k, and non-increasing in k when the pass
-region is star-shaped about the nominal along those rays (e.g. an output monotone in each
-parameter, or |2 r - 2 r0| < limit); bisection finds the crossing. Where the pass region is not
-star-shaped the yield need not be monotone, and the bisection finds a crossing, not necessarily
-the largest one: `trials` lists every k tried. The bracket is found by doubling (or halving)
-from k = 1, or given (`bracket`, e.g. the needle's (0, max_mm) for a set of shapes); the
-bisection runs to a relative SCALE_RTOL, or a given number of `steps`.
-
-`allocate_by_cost`: the shape first, then its scale. Cost is reciprocal, sum c_i / t_i; s_i is
-the output's largest change (fixed, or adjusted) at a tolerance's reference limits, that one
-alone (the scan), per unit of its width; t_i ~ (c_i / s_i^2)^(1/3) is the root-sum-square
-optimum. symmetric (the needle's source study): +/- t_i, widths the larger side, the scale (the
-widest tolerance) bisected in (0, cap). Otherwise each tolerance keeps its own limits, scaled to
-half-width min(k t_i, cap), k bisected geometrically (it spans decades); one that moves the
-output by less than `hold_below` at its reference limits (a compensator cancels it alone, or the
-output does not see it) has no slope to shape it and is held there (`held_at_reference`): scaled,
-it would take the cap at once and could use up the compensators' range the others need.
+"""Tolerance allocation of any mechanism: the largest common scale k of a tolerance set (each
+limit times k times its weight) at which the yield of one output (as evaluated or adjusted;
+machines that cannot run count against it) reaches a target, on common random numbers so that
+each machine moves along a fixed ray as k grows; bracket by doubling or halving (or given),
+then bisection to SCALE_RTOL or `steps`. Where the pass region is not star-shaped about the
+nominal the crossing found need not be the largest: `trials` lists every k tried.
+`allocate_by_cost`: the root-sum-square optimum shape t_i ~ (c_i / s_i^2)^(1/3), then its scale;
+a tolerance that moves the output by less than `hold_below` is held at its reference limits
+(`held_at_reference`). See docs/mechanism_files.md, "Allocation".
 """
 
 from __future__ import annotations

@@ -1,21 +1,8 @@
-"""Checkpoints of a chunked study: each finished chunk is saved at once, atomically, so an
-interrupted study keeps its finished part and `--resume` continues without recomputing it.
-
-A study folder is data, never code: nothing in it is executed or trusted unchecked.
-
-- manifest.json says what the study is (every input that decides its numbers, with the sewtol
-  version and revision); the study hash is the SHA-256 of its canonical JSON.
-- chunk_NNNNN.npz holds one chunk's arrays (numeric dtypes only, read with
-  allow_pickle=False, so a file cannot run code) and a JSON header naming the format, the study
-  hash, the chunk index, the layout of the result and a SHA-256 of the arrays.
-- A chunk is used only if all of that matches (and the study's own check of its rows passes);
-  otherwise it is recomputed and stderr says which chunk and why. Files of any other name
-  (e.g. an old or crafted chunk_00001.pkl) are never opened.
-- An exclusive lock (filelock) on the folder keeps two runs from writing into one study.
-
-The checksum detects corruption, truncation and chunks copied between studies or positions; it
-is not a signature: someone who may write into the folder can forge numbers (never code), so
-share study folders only with people you trust with the results.
+"""Checkpoints of a chunked study: each finished chunk is saved at once, atomically, so
+`--resume` continues without recomputing it. A study folder is data, never code: a manifest
+(the study hash is the SHA-256 of its canonical JSON), chunk_NNNNN.npz files of numeric arrays
+read with allow_pickle=False and a JSON header checked before use, and a file lock against two
+runs in one folder. The checksum is not a signature: see docs/study_folders.md.
 """
 
 from __future__ import annotations

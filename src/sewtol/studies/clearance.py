@@ -1,28 +1,9 @@
-"""Joint clearances in studies: the clearance Jacobian, the worst case, random journals, and the
-guide pair as the criterion.
-
-A revolute pair j with radial clearance c_j lets its journal sit anywhere in a circle
-|r_j| <= c_j (`sewtol.mechanism.clearance`: r_j = (dx, dy) is a pair parameter of the model).
-To first order the output's signal s(phi) at each crank angle (the signed deviation d of a point
-from a line for a ``line_deviation`` output, the coordinate for ``coordinate``, the angle for
-``angle``) moves by  sum_j J_j(phi) . r_j , with J_j = (ds/ddx_j, ds/ddy_j) taken by central
-finite differences of the real model (`jacobian`). So:
-
-- **worst case**: the vectors chosen adversarially at each angle give |delta s| <= W(phi) =
-  sum_j c_j |J_j(phi)|, reached in either sign (`worst_case`);
-- **Ting's bound** (Ting, Zhu & Watkins 2000, Mech. Mach. Theory 35, 391-401): in a single loop
-  the link directions depend on the clearance vectors only through their sum R = sum_j r_j, so
-  every pair of the loop has the same |J_j| for a link's direction, and the worst direction error
-  is (sum_j c_j) |d theta / d R|; a point P reached from the frame through the pairs K of an open
-  chain moves by those pairs' vectors plus its links' turns, |delta P| <= sum_{j in K} c_j +
-  (sum_j c_j) sum_i l_i |d theta_i / d R|. `ting_bound` computes it for a four-bar and the
-  tests hold the worst case to it (equal for the direction and for a single link);
-- **random**: per machine each journal uniform in its circle, or on its rim
-  (`random_offsets`), seeded, evaluated through the real model (nonlinear, not first order).
-
-`guide_criterion` is the guide pair as the criterion of a zero-mobility drive (the 208 needle):
-see its docstring. Assumptions: rigid links, small clearances (first order for W), no impact
-dynamics; the offsets are held over the turn in the frame's axes.
+"""Joint clearances in studies: the clearance Jacobian (`jacobian`, central differences of the
+real model), the first-order worst case W(phi) = sum_j c_j |J_j(phi)| (`worst_case`), Ting's
+bound for a four-bar (`ting_bound`), random journals in or on their circles (`random_offsets`,
+through the real model) and the guide pair as the criterion of a zero-mobility drive
+(`guide_criterion`). Assumptions: rigid links, small clearances, no impact dynamics, offsets
+held over the turn in the frame's axes. See docs/clearances.md.
 """
 
 from __future__ import annotations

@@ -1,41 +1,12 @@
-"""Least-cost tolerance allocation of any mechanism: asymmetric tolerance zones of least total
-cost that keep the yield of one output at a target.
-
-`least_cost(mech, tolerances, output, target, ...)`: each toleranced parameter gets a zone
-[lower, upper] around its nominal (both limits free: the zone's width and its centre, i.e. a
-mean shift); the total cost sum_i c_i(t_i) (sewtol.costs: reciprocal, power or exponential in
-the half-width t_i = (upper_i - lower_i) / 2) is minimised subject to the yield: of n machines
-drawn from the zones, at most `allowed_failures` may fail (give a value outside the limits, or
-no value: cannot close, dead point). With `confidence` (default 0.95) that count is the largest
-whose one-sided Clopper-Pearson lower bound on the yield still reaches the target, so the zone
-meets the target with that confidence on the sample, not only on average; confidence None:
-the plain share, yield >= target.
-
-Common random numbers: one matrix of uniforms (the one sampler's, sewtol.law, for the seed) is
-mapped through every candidate's zones (each tolerance's distribution over its zone, the set's
-copula kept), so machine j moves continuously with the zone and the yield changes only where a
-machine crosses a limit: a step function of the zone, smooth on the scale of the steps.
-
-Search: scipy's differential evolution (pymoo and cma are not installed) over, per parameter,
-log(t_i / t_ref_i) in [log narrow, log widen] (t_ref_i the reference set's half-width) and the
-centre ratio r_i = centre_i / t_i in [-1, 1] (the zone always holds the nominal dimension);
-the objective is the cost where the yield constraint holds and, where it does not, the largest
-cost in the box plus the missing machines (feasible points always win: Deb's rule as a
-penalty). The first restart's start population holds the reference shape scaled to the
-largest common scale that keeps the target (`common_scale`), so it never ends above it. Local polish: each
-limit in turn (lower, then upper, parameter by parameter) is pushed outward by bisection as far
-as the constraint holds and the width bound allows (every model's cost falls with t), for
-`sweeps` sweeps. `restarts` independent searches (children of the seed's SeedSequence; only the first
-holds the common-scale point in its start population) must agree; the result reports each
-(a restart that finds no feasible zone is reported as such) and their spread.
-
-Active constraints: per limit, what stops it: "yield" (1 % more of the half-width breaks the
-constraint), "max width" (the half-width is at t_ref * widen), "nominal" (the limit is 0: the
-zone may not leave the nominal), or "" (none found at 1 %).
-
-Check on fresh machines (`fresh_check`): the allocated set's yield re-estimated with another
-seed and more machines, with its exact (Clopper-Pearson) 95 % interval; the allocation meets the
-target when the interval's upper end reaches it.
+"""Least-cost tolerance allocation of any mechanism: asymmetric zones (width and centre per
+parameter) of least total cost (sewtol.costs) that keep the yield of one output at a target,
+with a Clopper-Pearson `confidence` on n machines of common random numbers (one matrix of
+uniforms of the one sampler, mapped through every candidate's zones). Search: scipy's
+differential evolution over log half-width and centre ratio, infeasible points scored above
+every feasible one, the first restart seeded with the set's largest common scale, then a
+bisection polish of each limit for `sweeps` sweeps; restarts from children of the seed must
+agree. Active constraints per limit: "yield", "max width", "nominal" or "". `fresh_check`
+re-estimates the yield on fresh machines. See docs/mechanism_files.md, "Least-cost allocation".
 """
 
 from __future__ import annotations

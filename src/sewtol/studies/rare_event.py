@@ -1,37 +1,11 @@
-"""Rare-event probability of failure: plain Monte-Carlo, subset simulation, NAIS importance sampling.
-
-The question a production engineer asks of a tolerance set that is nearly good enough is "how
-many machines per million still fail after adjustment?". Plain Monte-Carlo cannot answer below
-about 3/n (zero failures in n is not "0 ppm"), so this module also estimates small probabilities
-in the standard-normal space of the tolerances:
-
-- `LimitState`: any output of any mechanism as a callable from standard normals z (n, dim) to
-  (value, mode): value is the output (e.g. SumDelta in um), mode 0 where it was computed and
-  k >= 1 for the k-th named failure mode without a value (cannot assemble, dead point). The
-  machine fails when value > limit or mode != 0: the union of the modes.
-- `StandardNormalMap`: the isoprobabilistic transform from independent standard normals to the
-  deviations of a tolerance set (uniform, normal at +/-3 sigma, truncnorm), x = F^-1(Phi(z));
-  with the set's copula, the Nataf transform x = F^-1(Phi(L z)).
-- `monte_carlo` (the reference), `subset_simulation` (Au & Beck 2001 with the adaptive
-  conditional sampler of Papaioannou et al. 2015, a preconditioned Crank-Nicolson move, p0 = 0.1)
-  and `nais` (non-parametric adaptive importance sampling, Morio 2011, with a defensive share of
-  the standard normal), and `estimate`, which chooses among them from the target probability and
-  the budget of model calls.
-
-Every estimate carries its coefficient of variation, a 95 % interval, the model calls, the
-failures found per mode, and the most probable failing samples of each mode. Where nothing failed
-the result says "< X at 95 %". See docs/rare_event.md for the methods and their assumptions.
-
-Failures per million of any mechanism: `limit_state(mech, tolerances, output, upper, lower,
-adjust)` maps the tolerance set's standard normals to machines of the protocol mechanism and
-gives their output: as evaluated (the plug-in kernel where the mechanism has one) or minimised
-over the compensators `adjust` (`sewtol.studies.adjusting.adjusted`: the needle's exact beta
-optimum). A machine fails when its value lies beyond a limit or when it gives no value; a
-machine without a value is counted under a named failure mode, never dropped: by default each
-group that can fail gives two modes, "cannot_close at G" and "dead_point at G" (the group that
-failed first, in assembly order, at the nominal compensators); a mechanism's adapter may name
-its failures in its own words (`modes`, a status -> word map, and `failures`: the needle's
-"cannot assemble", "dead point"). Limits default to the output's [[specs]] entry.
+"""Failures per million: plain Monte-Carlo, subset simulation (Au & Beck 2001, adaptive
+conditional sampling) and NAIS importance sampling (Morio 2011) in the standard-normal space of
+a tolerance set (`StandardNormalMap`, the Nataf transform with a copula); `estimate` chooses
+among them from the target and the budget. `limit_state(mech, tolerances, output, ...)` is any
+output of a protocol mechanism (as evaluated or adjusted) as a `LimitState`; a machine without
+a value fails under a named mode ("cannot_close at G", "dead_point at G", or the mechanism's
+words), never dropped. Limits default to the output's [[specs]] entry. Methods, assumptions and
+validation: docs/rare_event.md.
 """
 
 from __future__ import annotations

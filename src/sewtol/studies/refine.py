@@ -1,33 +1,10 @@
-"""Nominal refinement: change the design, not only judge it.
-
-`refine(mech, ...)` minimises one output of a mechanism (the objective, default its first
-output) over chosen nominal parameters inside bounds, under constraints on other outputs. The
-objective is taken after the assembler's adjustment: the compensators in `adjust` (default every
-compensator of the mechanism) are set on the nominal machine by the one adjustment dispatch
-(sewtol.studies.adjusting: the mechanism's exact adjuster where it has one, e.g. the needle's
-beta and guide-shift optimum), so a design is judged at its best setting, not at today's.
-
-Constraints (`Constraint`): an output held within bounds at the adjusted design, e.g. "within
-+-tol of today's value" (`keep`) or "at least a value" (`at_least`; every transmission output
-at least 40 deg is the dead-point margin of `default_constraints`). A design that cannot run a
-full turn (the generic evaluation's status, and the adjuster's) is infeasible.
-
-Search: scipy.optimize.differential_evolution from several restarts (children of one seed's
-Generator, `rng.spawn`), each over the whole box and vectorised over its population; the best
-restart is polished by a bounded Nelder-Mead. Infeasible designs score PENALTY plus their
-scaled violation, so every feasible design beats every infeasible one. The optimum is
-confirmed by the restarts' agreement (spread of the objective and of each parameter), by the
-polish (how much it still gained) and, for contrast, by a Nelder-Mead from today's design
-alone (a local search, which finds a local optimum).
-
-Degree of influence (after Polukhin) of each parameter at the optimum: the objective's slope
-dJ/dp (central difference, compensators re-optimised at each point, constraints ignored) times
-a step dp: the parameter's tolerance half-width in the given tolerance set, else 1 % of its
-value for a length (rule positive), else 1 % of its box's width (a frame coordinate's +-2 mm
-box: 0.04 mm; an angle's +-0.5 deg: 0.01 deg). The objective's change at p +- dp
-is reported too: at an optimum of a max-type objective the two sides differ.
-
-Nothing here names a mechanism.
+"""Nominal refinement: minimise one output of the adjusted nominal design over chosen
+parameters inside boxes, under constraints on other outputs (`Constraint`; by default every
+transmission output >= 40 deg). Differential evolution from restarts spawned from one seed,
+infeasible designs scored PENALTY plus their scaled violation, a Nelder-Mead or minimax
+polish, a local search from today's design for contrast, and the degree of influence (after
+Polukhin) at the optimum: the methods, defaults and checks are in docs/refine.md. Nothing here
+names a mechanism.
 """
 
 from __future__ import annotations

@@ -1,26 +1,9 @@
-"""Robust design: maximise the yield of a tolerance set under an adjustment strategy over the
-nominal design (the design question after nominal refinement: straightness is not robustness).
-
-`robust(mech, bounds, tolerances, adjust=[...], ...)` searches the nominal design (parameters
-inside `bounds`) for the largest yield: the share of machines (nominal + deviations drawn from
-the tolerance set's law) whose objective, after the assembler sets the compensators `adjust`
-per machine, is at most `limit`. Common random numbers: the same n machines' deviations
-(InputLaw.draw(n, seed)) are laid on every design, so two designs differ only by the design and
-the objective is a deterministic function of it. A machine that cannot run, or that the
-adjuster cannot set, counts against the yield.
-
-The nominal design itself is held by `constraints` (refine.Constraint; outputs of the nominal
-design with the compensators `nominal_adjust` set, e.g. the stroke within +-0.1 mm and every
-transmission angle >= 40 deg) and, for an epsilon-constraint sweep, by `nominal_limit` (its
-adjusted objective at most that value). Search: scipy differential evolution from `restarts`
-children of one seed (rng.spawn), vectorised over the population, today's design and any
-`init_designs` in the first population; a tie-break below one machine's worth (half the mean
-of objective / (objective + limit), divided by n) guides the search across the yield's
-plateaus. Every design the search evaluates is archived with its yield,
-nominal objective and the first kept output's error (the stroke error on the needle): the
-non-dominated designs of that archive approximate the Pareto front (pymoo is not a dependency:
-no NSGA-II; an epsilon-constraint sweep of `nominal_limit` adds designs along the front).
-
+"""Robust design: maximise over the nominal design (inside `bounds`) the yield of a tolerance set
+under an adjustment strategy, on common random numbers (the same n machines' deviations laid
+on every design), the nominal held by `constraints` and, for an epsilon-constraint sweep, by
+`nominal_limit`. Differential evolution from restarts spawned from one seed, a tie-break below
+one machine's worth across the yield's plateaus, and the archive of every design evaluated,
+whose non-dominated designs approximate the Pareto front. See docs/refine.md, "Robust design".
 Nothing here names a mechanism.
 """
 

@@ -1,15 +1,8 @@
-"""The per-parameter scan, and the largest single deviations, of any mechanism (the protocol).
-
-- scan: each toleranced parameter at its upper and its lower limit, every other one nominal;
-  every output's value and change from nominal (machines that cannot run keep their status),
-  and with compensators the adjusted output (`sewtol.studies.adjusting.adjusted`) with each
-  setting. All 2k machines are one batch.
-- largest_tolerances: per parameter and side, the largest |deviation| <= max_dev keeping one
-  output (fixed, or adjusted) within an upper limit: a geometric grid from 1e-3 brackets the
-  first crossing, bisection refines it to xtol.
-
-Nothing here names a mechanism; a mechanism's own table layout (the needle's beta_deg,
-plus_um, ...) is a mapping of these results in its folder.
+"""The per-parameter scan, and the largest single deviations, of any mechanism (the protocol):
+`scan` sets each toleranced parameter at each limit (all 2k machines one batch; with
+compensators the adjusted output and its settings); `largest_tolerances` finds per parameter
+and side the largest |deviation| keeping one output within an upper limit (a geometric grid,
+then bisection). Nothing here names a mechanism.
 """
 
 from __future__ import annotations

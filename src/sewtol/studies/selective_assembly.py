@@ -1,18 +1,8 @@
-"""Selective assembly against tightening: the yield when two parts are matched in k classes,
-and how far their tolerances would have to shrink to give that yield without matching.
-
-`selective_assembly(mech, tolerances, output, pair, groups, by, n, seed, ...)`: for each k in
-`groups`, the set with `selective = { params = pair, groups = k, by = by }` (sewtol.selective;
-k = 1 is no matching at all), n machines built by the one sampler (lots of its streams, the
-parts a class has too many of left unmatched: counted over the first lot of each stream), their
-output as evaluated or adjusted (`adjust`, as every study takes it), and the yield ok / n with
-its Clopper-Pearson
-interval; machines that cannot run count against it. Beside it the tightening: the largest
-factor f <= 1 on both parts' limits (the others as they are) at which the same n machines
-without matching (common random numbers: each machine's ranks kept as f shrinks) reach that
-yield, bisected to FACTOR_STEPS halvings (the yield is a step function of f, as in
-sewtol.studies.allocation: the crossing is exact for the sample where the pass region is
-star-shaped about the nominal).
+"""Selective assembly against tightening: the yield when two parts are matched in k classes
+(sewtol.selective; k = 1 is no matching), with its Clopper-Pearson interval, beside the largest
+factor f <= 1 on both parts' limits at which the same machines without matching reach that
+yield (common random numbers, bisected to FACTOR_STEPS halvings). See docs/mechanism_files.md,
+"Selective assembly".
 """
 
 from __future__ import annotations

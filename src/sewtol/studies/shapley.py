@@ -1,26 +1,9 @@
-"""Shapley effects: each tolerance's share of an output's variance, for dependent inputs too.
-
-Sobol indices split the variance of independent inputs; with a correlation (a tolerance set's
-`correlation` or `setup`, sewtol.dependence) they no longer add up and `sobol` refuses. The
-Shapley effect of input i is its average marginal contribution to the explained variance over
-every order in which the inputs can be revealed (Owen 2014); the effects are non-negative and
-sum to Var(Y) for any law (Iooss & Prieur 2019), and equal the Sobol "half interaction" split
-for independent ones.
-
-The estimator is Song, Nelson & Staum (2016), random permutations, as R
-sensitivity::shapleyPermRand: cost c(J) = E[Var(Y | X_-J)], for each of m random permutations
-the increments of c along it, c at each step estimated from n_outer draws of X_-J and n_inner
-draws of X_J given X_-J (their defaults 1 and 3), c(all) = Var(Y) from n_var independent
-machines. Each permutation gives one unbiased estimate per input; the effect is their mean and
-its interval the normal one over the m permutations (the variance estimate's own error is not
-in it). The conditional draws are exact for the law's Gaussian copula: in normal scores z,
-z_J given z_-J is normal with mean R_J,-J R_-J,-J^+ z_-J and covariance R_JJ - R_J,-J
-R_-J,-J^+ R_-J,J, mapped back through each tolerance's own distribution.
-
-`shapley_effects(model, law, m, seed)` takes any vectorised model of an (N, d) matrix of
-deviations; `shapley(mech, tolerances, output, m, seed)` is the study of a protocol mechanism
-(the output as evaluated, or adjusted over compensators). Machines without a value (NaN) are
-counted and left out of the variances they fall in (`failed`).
+"""Shapley effects: each tolerance's share of an output's variance, for dependent inputs too
+(non-negative, summing to Var(Y) for any law). The estimator is Song, Nelson & Staum (2016),
+random permutations, as R sensitivity::shapleyPermRand, with conditional draws exact for the
+law's Gaussian copula. `shapley_effects(model, law, m, seed)` takes any vectorised model;
+`shapley(mech, tolerances, output, m, seed)` is the study of a protocol mechanism. Machines
+without a value are counted (`failed`) and left out. See docs/studies.md.
 """
 
 from __future__ import annotations

@@ -1,27 +1,10 @@
-"""Sobol global sensitivity with SALib: first and total order with bootstrap intervals.
-
-`sobol(mech, tolerances, output, n, seed, cases=...)` is the study of any protocol mechanism:
-one output, as evaluated (the plug-in kernel where the mechanism has one) and/or adjusted per
-machine (`sewtol.studies.adjusting.adjusted`: the needle's exact beta optimum), one case each,
-run in chunks (`sewtol.studies.parallel.run_chunks`: workers, a Dask cluster, a study folder
-that resumes). `case_indices` takes any output on the design `sample` gives (an (N, D)
-matrix of inputs). The Sobol' sample of 2N base points starts with the sample of N base points,
-so one model run gives the indices at N and 2N, and their difference shows whether they have
-converged.
-
-second_order=True (SALib's calc_second_order) runs the design of N (2D + 2) rows instead of
-N (D + 2) and adds the second-order indices S2_ij of every pair with their bootstrap intervals:
-the share of Var(Y) that only the pair i, j together explains (ST_i - S1_i is the sum of every
-interaction that involves i, so a large ST - S1 with S2 shows which partner it is).
-
-Machines that cannot be built (POLICY, docs/studies.md "Sobol with machines that cannot be
-built"): never a refusal, never a silent drop. Every row of the design gets an outcome
-(assembled, or its failure: cannot_close, dead_point, ... with the group where known), counted
-per case; `feasibility` holds the S1/ST of the indicator "assembles" on the whole design (which
-tolerances make machines unbuildable); S1/ST/S2 of the output come from the base samples whose
-every row assembled (complete blocks), and S1_given, the first-order index among all assembled
-rows, is the one estimate that stays exact when the failures make the inputs dependent. With
-no failure, every number and output is the one of the plain Saltelli analysis.
+"""Sobol global sensitivity with SALib: first and total order (and, with second_order, S2 of
+every pair) with bootstrap intervals, of one output of any protocol mechanism, as evaluated
+and/or adjusted per machine, run in chunks (`sewtol.studies.parallel.run_chunks`). The design
+of 2N base points starts with that of N, so one run gives the indices at N and 2N. Machines
+that cannot be built are never refused nor dropped: every row gets an outcome, `feasibility`
+holds the indices of "assembles", S1/ST/S2 come from the complete blocks and S1_given from all
+assembled rows (docs/studies.md, "Sobol with machines that cannot be built").
 """
 
 from __future__ import annotations

@@ -1,22 +1,9 @@
-"""The worst case of one output over the tolerance box, of any mechanism (the protocol).
-
-Corners are not enough for a nonlinear output (a shift and a shape change can peak inside the
-box), so every corner and the centre are evaluated as one batch, and the best `starts` of them
-are polished by L-BFGS-B inside the box. The result is never below any point evaluated, but it
-is not proven global: the corner answer is exact when the output is monotone in each parameter
-over the box (`monotone_on_axes` checks that along the axes through the centre, which supports
-but does not prove it). With compensators, the output is the adjusted one on every trial machine
-(the max over the box of the optimum over the settings, `sewtol.studies.adjusting.adjusted`).
-
-The search (`Search`): how many starts, L-BFGS-B's gradient (central differences of every
-coordinate in one batch, or scipy's forward differences) and whether a machine that cannot run
-is left out (counted in `failed_corners`) or counts as the worst value.
-
-Relations (`sewtol.relations`, e.g. |AB - BE| <= 0.01) bound the search: the region is what the
-relations leave of the box. A linear relation cuts the box to a polytope; its vertices
-(`relations.polytope_vertices`) replace the box's corners as the candidates, and the polish is
-SLSQP with the relations as linear constraints. A relation that is not linear is refused (its
-region has no vertices to start from).
+"""The worst case of one output over the tolerance box, of any mechanism (the protocol): every
+corner and the centre as one batch, the best `starts` polished by L-BFGS-B inside the box (never
+below a point evaluated, not proven global; `monotone_on_axes` supports the corner answer).
+With compensators the output is the adjusted one on every trial machine. Linear relations cut
+the box to a polytope whose vertices are the candidates and SLSQP the polish; a relation that
+is not linear is refused. See docs/mechanism_files.md.
 """
 
 from __future__ import annotations
