@@ -39,7 +39,9 @@ class Adjusted:
     terms: str = "absolute"
 
 
-def _boxes(mech, compensators) -> dict[str, tuple[float, float]]:
+def boxes_of(mech, compensators) -> dict[str, tuple[float, float]]:
+    """The compensators' boxes as absolute (low, high) per parameter (an offset compensator's
+    box added to the nominal): names of the mechanism's compensators, or parameter -> box."""
     if isinstance(compensators, Mapping):
         return {k: tuple(map(float, v)) for k, v in compensators.items()}
     if isinstance(compensators, str):
@@ -94,7 +96,7 @@ def adjusted(mech, values: dict | None, compensators, output: str, *, fast: bool
             return _of(pl.strategy_adjuster(mech, values or {}, tuple(compensators), **options),
                        pl.name, "own")
         compensators = {c.name: (c.low, c.high) for c in compensators}
-    boxes = _boxes(mech, compensators)
+    boxes = boxes_of(mech, compensators)
     if pl is not None and output == pl.adjusted_output and pl.adjusts(boxes):
         return _of(pl.adjuster(mech, values or {}, boxes, figures=figures), pl.name)
     return _generic(mech, values, boxes, output, objective)
@@ -119,7 +121,7 @@ def _generic(mech, values, boxes, output, objective) -> Adjusted:
                              + (", ".join(mech.compensators) or "it has none") + ")",
                              ",".join(unknown))
     names = [by_param[p] for p in boxes]
-    if _boxes(mech, names) != boxes:
+    if boxes_of(mech, names) != boxes:
         raise ParameterError("adjust", "the generic adjuster takes the file's boxes ("
                              + ", ".join(f"{n} {mech.compensators[n].low:g}.."
                                          f"{mech.compensators[n].high:g}" for n in names)

@@ -23,9 +23,9 @@ from sewtol.intervals import clopper_pearson
 from sewtol.law import InputLaw, draw_units, refuse_conditioned, unit_streams
 from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
-from sewtol.studies.adjusting import evaluated, failures_of
+from sewtol.studies.adjusting import evaluated
 from sewtol.studies.montecarlo import check_seed
-from sewtol.studies.rare_event import checked_limits, output_of
+from sewtol.studies.rare_event import checked_limits, spec_counts
 from sewtol.studies.scan import checked, scan
 from sewtol.tolerances import Tolerance, ToleranceSet
 
@@ -182,21 +182,12 @@ def allocate(mech, tolerances: ToleranceSet, output: str, target: float = 0.9973
             trials.append({"scale": k, "yield": np.nan, "ok": 0, "out_of_limits": 0,
                            "cannot_close": 0, "dead_point": 0, "note": exc.rule})
             return -1.0
-        values = machines(mech, InputLaw.of(trial).of_uniforms(u))
-        y = output_of(mech, values, output, adjust, fast, **options)
-        status = np.full(y.size, "ok", dtype=object)
-        bad = ~np.isfinite(y)
-        if bad.any():
-            status[bad] = failures_of(mech, fast, failures)(
-                mech, {p: v[bad] for p, v in values.items()}, output)[0]
-        runs = status == "ok"
-        inside = runs & spec.passes(y)
-        yk = float(np.mean(inside))
-        trials.append({"scale": k, "yield": yk, "ok": int(inside.sum()),
-                       "out_of_limits": int((runs & ~inside).sum()),
-                       "cannot_close": int(np.sum(status == "cannot_close")),
-                       "dead_point": int(np.sum(status == "dead_point")), "note": ""})
-        return yk
+        ok, out, cannot_close, dead_point = spec_counts(
+            mech, machines(mech, InputLaw.of(trial).of_uniforms(u)), output, spec, adjust, fast,
+            failures, **options)
+        trials.append({"scale": k, "yield": ok / n, "ok": ok, "out_of_limits": out,
+                       "cannot_close": cannot_close, "dead_point": dead_point, "note": ""})
+        return ok / n
 
     # the bracket: given, or (1, 2^j) by doubling, or (0, 1), whose bisection halves from 1
     lo, hi = (0.0, 1.0) if bracket is None else map(float, bracket)

@@ -451,23 +451,12 @@ def guide_criterion(mech, tolerances, n: int, seed: int, *, output: str | None =
                     fits=GUIDE_FITS, play_limit_um: float = 20.0,
                     target_yield: float = 0.95) -> GuideCriterion:
     """The guide pair as the criterion (a line_deviation output: its point E slides on a rod
-    along the line).
-
-    For each of n machines drawn from `tolerances` (seeded; compensators `adjust` set per
-    machine on `output`, ``()`` for none: the plug-in adjuster where the mechanism has one, as
-    the journals are centred here), at each crank angle: d the
-    signed deviation of E from the guide (um), W_min, W_max the first-order worst-case reach of
-    E across the guide under the pin clearances at their smallest and largest (sum c_j |J_j|).
-    The journals let E lie anywhere in [d - W, d + W]; the guide's bore, with diametral gap g,
-    lets it lie in [-g/2, g/2]. So:
-
-    - the machine runs without binding iff the two overlap at every angle; the gap it needs is
-      ``needed_gap_um`` = 2 max(0, max_phi(|d| - W_min)) (pins at their tightest);
-    - the lateral play at the stitch (the crank angle where E is lowest along the guide) is
-      the overlap's length with the fit's largest gap and the pins at their largest;
-    - a fit's yield: machines that run with the fit's smallest gap and whose play with its
-      largest stays within `play_limit_um`; failed machines (cannot close, dead point) count
-      against it. Fits are listed tightest first (by their largest clearance)."""
+    along the line), on n machines drawn from `tolerances` (seeded; compensators `adjust` set
+    per machine on `output`, ``()`` for none). Per machine: the guide gap it needs to run
+    without binding with the pins at their tightest (``needed_gap_um``) and the lateral play at
+    the stitch with each fit's largest gap and the pins at their largest; per fit, tightest
+    first, the machines that run and keep the play within `play_limit_um` (failed machines
+    count against the yield). The method: docs/clearances.md, "The guide pair as the criterion"."""
     pairs = revolute(mech)
     if output is None:
         output = next((o.name for o in mech.outputs if o.type == "line_deviation"), None)
@@ -502,7 +491,8 @@ def guide_criterion(mech, tolerances, n: int, seed: int, *, output: str | None =
     frame = pd.DataFrame({
         "machine": rows, "status": status,
         f"{output}_adjusted" if adjust else output: np.where(ok, adj_value, np.nan),
-        **{f"{p}_setting": values[p] for p in _adjusted_params(mech, adjust)},
+        **{f"{mech.compensators[c].parameter}_setting": values[mech.compensators[c].parameter]
+           for c in adjust or ()},
         "needed_gap_ideal_pins_um": np.where(ok, needed_ideal, np.nan),
         "needed_gap_um": np.where(ok, needed, np.nan),
         "stitch_deg": np.degrees(mech.angles_rad())[k],
@@ -535,10 +525,6 @@ def guide_criterion(mech, tolerances, n: int, seed: int, *, output: str | None =
     return GuideCriterion(mech.name, ts_name, strategy, int(n), int(seed),
                           float(guide_diameter_mm), float(play_limit_um), float(target_yield),
                           frame, fits_frame, pins)
-
-
-def _adjusted_params(mech, adjust) -> list[str]:
-    return [mech.compensators[c].parameter for c in (adjust or ())]
 
 
 # --- their share of the error ----------------------------------------------------------------

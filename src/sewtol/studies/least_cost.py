@@ -117,6 +117,11 @@ class ZoneYield:
         inside = runs & self.spec.passes(y)
         return int(inside.sum()), int((runs & ~inside).sum()), int((~runs).sum())
 
+    def meets(self, lower, upper, need_ok: int) -> bool:
+        """True when at least need_ok machines pass in the zones (False for a rejected one)."""
+        c = self.counts(lower, upper)
+        return c is not None and c[0] >= need_ok
+
 
 @dataclass(frozen=True)
 class LeastCost(AllocatedLimits):
@@ -206,8 +211,7 @@ def common_scale(zy: ZoneYield, lower, upper, max_half, need_ok: int,
         return h * (ratio - 1.0), h * (ratio + 1.0)
 
     def ok(k):
-        c = zy.counts(*limits(k))
-        return c is not None and c[0] >= need_ok
+        return zy.meets(*limits(k), need_ok)
 
     hi = float(np.max(max_half / np.where(half > 0, half, np.inf)))
     if ok(hi):
@@ -246,52 +250,42 @@ def slide(zy: ZoneYield, lower, upper, i: int, max_half, need_ok: int,
     best = (upper[i] - lower[i], lower.copy(), upper.copy())
     if 0.5 * best[0] >= max_half[i] * (1 - 1e-9):
         return lower, upper  # at its largest width: nothing to gain
-    span = SLIDE_SPAN
-    for _ in range(1):
-        half0 = 0.5 * (best[2][i] - best[1][i])
-        centre0 = 0.5 * (best[2][i] + best[1][i])
-        for c in centre0 + half0 * np.linspace(-span, span, SLIDE_POINTS):
-            lo, hi = best[1].copy(), best[2].copy()
+    half0 = 0.5 * (best[2][i] - best[1][i])
+    centre0 = 0.5 * (best[2][i] + best[1][i])
+    for c in centre0 + half0 * np.linspace(-SLIDE_SPAN, SLIDE_SPAN, SLIDE_POINTS):
+        lo, hi = best[1].copy(), best[2].copy()
 
-            def ok(h, c=c, lo=lo, hi=hi):
-                if not c - h <= 0.0 <= c + h:
-                    return False
-                lo[i], hi[i] = c - h, c + h
-                r = zy.counts(lo, hi)
-                return r is not None and r[0] >= need_ok
+        def ok(h, c=c, lo=lo, hi=hi):
+            if not c - h <= 0.0 <= c + h:
+                return False
+            lo[i], hi[i] = c - h, c + h
+            return zy.meets(lo, hi, need_ok)
 
-            good, bad, h = None, None, half0
-            while good is None or bad is None:
-                if ok(h):
-                    good = h
-                    if h >= max_half[i]:
-                        break
-                    h = min(2.0 * h, max_half[i]) if bad is None else h
-                    if bad is None and good == max_half[i]:
-                        break
-                    if bad is None:
-                        continue
-                else:
-                    bad = h
-                    if good is None:
-                        h *= 0.5
-                        if h < 1e-3 * half0:
-                            break
-                        continue
-            if good is None:
-                continue
-            for _ in range(steps):
-                if bad is None or bad - good <= POLISH_RTOL * half0:
+        # bracket: double while it holds (up to max_half), else halve until it holds
+        good, bad, h = None, None, half0
+        while True:
+            if ok(h):
+                good = h
+                if bad is not None or h >= max_half[i]:
                     break
-                mid = 0.5 * (good + bad)
-                if ok(mid):
-                    good = mid
-                else:
-                    bad = mid
-            if 2.0 * good > best[0]:
-                lo[i], hi[i] = c - good, c + good
-                best = (2.0 * good, lo.copy(), hi.copy())
-        span /= 5.0
+                h = min(2.0 * h, max_half[i])
+            else:
+                bad = h
+                if good is not None:
+                    break
+                h *= 0.5
+                if h < 1e-3 * half0:
+                    break
+        if good is None:
+            continue
+        for _ in range(steps):
+            if bad is None or bad - good <= POLISH_RTOL * half0:
+                break
+            mid = 0.5 * (good + bad)
+            good, bad = (mid, bad) if ok(mid) else (good, mid)
+        if 2.0 * good > best[0]:
+            lo[i], hi[i] = c - good, c + good
+            best = (2.0 * good, lo.copy(), hi.copy())
     return best[1], best[2]
 
 
@@ -310,8 +304,7 @@ def push(zy: ZoneYield, lower, upper, i: int, max_half, need_ok: int,
         def ok(v, i=i, side=side):
             lo, hi = lower.copy(), upper.copy()
             (lo if side == 0 else hi)[i] = v
-            c = zy.counts(lo, hi)
-            return c is not None and c[0] >= need_ok
+            return zy.meets(lo, hi, need_ok)
 
         # bracket by doubling steps of the half-width, then bisect to POLISH_RTOL of it
         sign = -1.0 if side == 0 else 1.0
@@ -348,8 +341,7 @@ def recentre(zy: ZoneYield, lower, upper, need_ok: int) -> tuple[np.ndarray, np.
             continue
         lo, hi = lower.copy(), upper.copy()
         lo[i], hi[i] = -half, half
-        c = zy.counts(lo, hi)
-        if c is not None and c[0] >= need_ok:
+        if zy.meets(lo, hi, need_ok):
             lower, upper = lo, hi
     return lower, upper
 
@@ -370,8 +362,7 @@ def limited_by(zy: ZoneYield, lower, upper, max_half, need_ok: int) -> list[tupl
                 lo[i] -= step
             else:
                 hi[i] += step
-            c = zy.counts(lo, hi)
-            if c is None or c[0] < need_ok:
+            if not zy.meets(lo, hi, need_ok):
                 sides.append("yield")
             elif (lower[i] if side == 0 else upper[i]) == 0.0:
                 sides.append("nominal")

@@ -358,11 +358,8 @@ def monte_carlo(ls: LimitState, n: int, rng: np.random.Generator, chunk_size: in
     parts = run_chunks(_mc_chunk, [(ls, stream_window(streams, a, b), examples_per_mode)
                                    for a, b in chunk_bounds(int(n), int(chunk_size))],
                        n_jobs=n_jobs, backend=backend, progress=progress, desc="Monte-Carlo")
-    value = np.concatenate([p[0] for p in parts])
-    labels = np.concatenate([p[1] for p in parts]).astype(int)
-    ez = np.concatenate([p[2] for p in parts])
-    ev = np.concatenate([p[3] for p in parts])
-    el = np.concatenate([p[4] for p in parts])
+    value, labels, ez, ev, el = (np.concatenate(c) for c in zip(*parts, strict=True))
+    labels = labels.astype(int)
     n = value.size
     k = int(np.sum(labels > 0))
     p, cov, lo, hi, upper = _binomial(k, n)
@@ -489,11 +486,9 @@ def subset_simulation(ls: LimitState, n_per_level: int, rng: np.random.Generator
             full[chain_mask] = ind
             gamma = _chain_gamma(full, lengths)
         d2 = (1 - p_j) / (n * p_j) * (1 + gamma) if p_j > 0 else np.inf
-        cv.append(value)
-        cw.append(weight)
-        cc.append(sum_delta)
-        cg.append(gamma)
-        cf.append(floor)
+        for curve, v in zip((cv, cw, cc, cg, cf), (value, weight, sum_delta, gamma, floor),
+                            strict=True):
+            curve.append(v)
         rows.append({"level": level, "threshold": b + ls.limit, "samples": n,
                      "conditional_probability": p_j, "gamma": gamma,
                      "cov": float(np.sqrt(d2)) if np.isfinite(d2) else np.nan})
@@ -778,6 +773,22 @@ def output_of(mech, values: dict, output: str, adjust=None, fast: bool = True,
     if adjust is None:
         return evaluated(mech, values, output, fast=fast)
     return adjusted(mech, values, adjust, output, fast=fast, **options).value
+
+
+def spec_counts(mech, values: dict, output: str, spec: Spec, adjust=None, fast: bool = True,
+                failures: Callable | None = None, **options) -> tuple[int, int, int, int]:
+    """(ok, out of the spec, cannot_close, dead_point) of machines `values` by `output_of`; a
+    machine without a value counts under its status (`failures`, as `failures_of` picks it)."""
+    y = output_of(mech, values, output, adjust, fast, **options)
+    status = np.full(y.size, "ok", dtype=object)
+    bad = ~np.isfinite(y)
+    if bad.any():
+        status[bad] = failures_of(mech, fast, failures)(
+            mech, {p: v[bad] for p, v in values.items()}, output)[0]
+    runs = status == "ok"
+    inside = runs & spec.passes(y)
+    return (int(inside.sum()), int((runs & ~inside).sum()),
+            int(np.sum(status == "cannot_close")), int(np.sum(status == "dead_point")))
 
 
 def group_modes(mech) -> tuple[str, ...]:

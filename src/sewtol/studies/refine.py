@@ -203,13 +203,11 @@ class DesignProblem:
         y, settings, ok = self.adjusted(self.values(Xs))
         f = np.where(ok, y, PENALTY * 2)
         if self.constraints:
-            full = {**self.values(Xs), **{k: np.where(ok, v, np.nan) for k, v in settings.items()}}
+            full = self.values(Xs)
             # designs the adjuster could not set are evaluated at their own values (and count
             # as infeasible anyway)
-            for k in settings:
-                own = full.get(k)
-                base = self.values(Xs).get(k, np.full(len(y), self.mech.nominal_values()[k]))
-                full[k] = np.where(np.isfinite(own), own, base)
+            full.update({k: np.where(ok & np.isfinite(v), v, full.get(
+                k, np.full(len(y), self.mech.nominal_values()[k]))) for k, v in settings.items()})
             ev = self.mech.evaluate(full, [c.output for c in self.constraints])
             runs = np.array([str(s) == "ok" for s in ev.status])
             viol = sum(c.violation(ev.outputs[c.output]) for c in self.constraints)
@@ -294,8 +292,7 @@ class RefineResult:
         """How the optimum was confirmed, in words."""
         r = self.restarts
         u = self.unit
-        names = [n for n in self.bounds]
-        wide = {n: float(r[n].max() - r[n].min()) for n in names}
+        wide = {n: float(r[n].max() - r[n].min()) for n in self.bounds}
         widest = max(wide, key=wide.get) if wide else ""
         return [
             f"{len(r)} differential-evolution restarts (seeds spawned from {self.seed}) reached "
@@ -402,15 +399,10 @@ def influence(mech, design: dict, names: Sequence[str], objective: str, adjust=N
     change at p + dp and p - dp; constraints are not applied."""
     prob = DesignProblem(mech, objective, {n: (0.0, 0.0) for n in names}, adjust, (), fast)
     steps = {n: _tol_step(mech, n, design[n], tolerances, bounds) for n in names}
-    rows, cols = [], {n: [] for n in names}
-    offsets = []
-    for n in names:
-        for frac in (0.1, -0.1, 1.0, -1.0):
-            offsets.append((n, frac))
-    for n in names:
-        base = float(design[n])
-        for (m, frac) in offsets:
-            cols[n].append(base + (frac * steps[m] if m == n else 0.0))
+    offsets = [(n, frac) for n in names for frac in (0.1, -0.1, 1.0, -1.0)]
+    cols = {n: [float(design[n]) + (frac * steps[m] if m == n else 0.0) for m, frac in offsets]
+            for n in names}
+    rows = []
     nominal = mech.nominal_values()
     # the design's other changed values ride along (compensators are re-adjusted anyway)
     others = {k: float(v) for k, v in design.items()
@@ -449,12 +441,8 @@ def _is_length(mech, name) -> bool:
 
 
 def _tolerance_of(name, tolerances):
-    if tolerances is None:
-        return None
-    for t in tolerances.active().items:
-        if t.param == name:
-            return float(t.lower), float(t.upper)
-    return None
+    items = () if tolerances is None else tolerances.active().items
+    return next(((float(t.lower), float(t.upper)) for t in items if t.param == name), None)
 
 
 def _step_source(mech, name, tolerances) -> str:
@@ -535,16 +523,16 @@ def refine(mech: Mechanism, parameters: Sequence[str] | Mapping | None = None, *
     """
     from scipy.optimize import differential_evolution, minimize
 
+    from sewtol.studies.adjusting import boxes_of
+
     t0 = time.perf_counter()
     objective = objective or mech.output_names[0]
     mech.output(objective)
     if parameters is None:
         parameters = default_parameters(mech)
     if isinstance(parameters, Mapping):
-        bounds = {}
         defaults = default_bounds(mech, [k for k, v in parameters.items() if v is None])
-        for k, v in parameters.items():
-            bounds[k] = defaults[k] if v is None else _box(k, v)
+        bounds = {k: defaults[k] if v is None else _box(k, v) for k, v in parameters.items()}
         default_bounds(mech, list(bounds))  # names and branches checked
     else:
         bounds = default_bounds(mech, list(parameters))
@@ -578,10 +566,9 @@ def refine(mech: Mechanism, parameters: Sequence[str] | Mapping | None = None, *
                                strict=True):
         t = time.perf_counter()
         prob.nfev = 0
-        init = "latinhypercube"
         res = differential_evolution(prob, list(zip(lo, hi, strict=True)), rng=rng,
                                      popsize=popsize, maxiter=maxiter, tol=tol, polish=False,
-                                     init=init, vectorized=True, updating="deferred",
+                                     init="latinhypercube", vectorized=True, updating="deferred",
                                      mutation=(0.5, 1.0), recombination=0.9)
         rows.append({"restart": child_seed, "objective": float(res.fun),
                      **{n: float(v) for n, v in zip(names, res.x, strict=True)},
@@ -603,7 +590,7 @@ def refine(mech: Mechanism, parameters: Sequence[str] | Mapping | None = None, *
     if polish not in (True, False, "nelder-mead", "minimax"):
         raise ParameterError("polish", "must be True, False, 'nelder-mead' or 'minimax'", polish)
     if polish == "minimax":
-        boxes = _adjust_boxes(mech, prob.adjust)
+        boxes = boxes_of(mech, prob.adjust)
         starts = [(int(r_["restart"]), np.array([r_[n] for n in names], float))
                   for _, r_ in table.iterrows()]
         if inside and local_search:
@@ -666,7 +653,7 @@ def refine(mech: Mechanism, parameters: Sequence[str] | Mapping | None = None, *
         restarts=table, polished_gain=gain, local_from_start=local, influence=infl,
         curve_before=cb, curve_after=ca, seed=int(seed), seconds=time.perf_counter() - t0,
         polished=polished,
-        options={"adjust_boxes": _adjust_boxes(mech, prob.adjust), "restarts": restarts,
+        options={"adjust_boxes": boxes_of(mech, prob.adjust), "restarts": restarts,
                  "popsize": popsize, "maxiter": maxiter, "tol": tol,
                  "polish": polish, "polish_evaluations": polish_evaluations,
                  "local_search": local_search, "penalty": PENALTY,
@@ -803,18 +790,3 @@ def _box(name, v) -> tuple[float, float]:
     if not (np.isfinite(lo) and np.isfinite(hi)):
         raise ParameterError(name, "box must be finite", v)
     return lo, hi
-
-
-def _adjust_boxes(mech, adjust) -> dict[str, tuple[float, float]]:
-    """The compensators' boxes (parameter -> absolute (low, high)) as the adjustment used them."""
-    if isinstance(adjust, Mapping):
-        return {k: tuple(map(float, v)) for k, v in adjust.items()}
-    out = {}
-    for name in adjust:
-        c = mech.compensators[name]
-        lo, hi = float(c.low), float(c.high)
-        if getattr(c, "mode", "absolute") == "offset":
-            own = float(mech.nominal_values()[c.parameter])
-            lo, hi = own + lo, own + hi
-        out[c.parameter] = (lo, hi)
-    return out

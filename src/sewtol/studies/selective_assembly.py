@@ -19,7 +19,7 @@ from sewtol.mechanism.spec import Spec
 from sewtol.protocol import machines
 from sewtol.selective import BY, Selective
 from sewtol.studies.adjusting import evaluated_failures
-from sewtol.studies.rare_event import checked_limits, output_of
+from sewtol.studies.rare_event import checked_limits, spec_counts
 from sewtol.studies.scan import checked
 from sewtol.tolerances import ToleranceSet
 
@@ -83,19 +83,10 @@ def selective_assembly(mech, tolerances: ToleranceSet, output: str, pair: tuple[
     def score(ts):
         law = InputLaw.of(ts)
         dev = law.draw(int(n), int(seed))
-        values = machines(mech, dev)
-        y = output_of(mech, values, output, adjust, fast, **options)
-        status = np.full(y.size, "ok", dtype=object)
-        bad = ~np.isfinite(y)
-        if bad.any():
-            status[bad] = evaluated_failures(mech, {p: v[bad] for p, v in values.items()},
-                                             output)[0]
-        runs = status == "ok"
-        inside = runs & spec.passes(y)
-        return law, {
-            "ok": int(inside.sum()), "out_of_spec": int((runs & ~inside).sum()),
-            "cannot_close": int(np.sum(status == "cannot_close")),
-            "dead_point": int(np.sum(status == "dead_point"))}
+        counts = spec_counts(mech, machines(mech, dev), output, spec, adjust, fast,
+                             evaluated_failures, **options)
+        return law, dict(zip(("ok", "out_of_spec", "cannot_close", "dead_point"), counts,
+                             strict=True))
 
     def plain_yield(f):
         return score(plain.scaled({p: f for p in pair}))[1]["ok"] / n

@@ -130,14 +130,15 @@ def _analyze(problem: dict, y: np.ndarray, seed: int, resamples: int, conf_level
                                 seed=_salib_seed(seed))
     first = pd.DataFrame({"param": problem["names"], "S1": res["S1"], "S1_conf": res["S1_conf"],
                           "ST": res["ST"], "ST_conf": res["ST_conf"]})
-    if not second_order:
-        return first, None
-    names = problem["names"]
-    pairs = pd.DataFrame([{"param_i": names[i], "param_j": names[j], "S2": res["S2"][i, j],
-                           "S2_conf": res["S2_conf"][i, j]}
-                          for i in range(len(names)) for j in range(i + 1, len(names))],
-                         columns=["param_i", "param_j", "S2", "S2_conf"])
-    return first, pairs
+    return first, _pairs(problem["names"], res["S2"], res["S2_conf"]) if second_order else None
+
+
+def _pairs(names, s2, s2_conf) -> pd.DataFrame:
+    """S2 and its interval of every pair i < j of the inputs."""
+    return pd.DataFrame([{"param_i": names[i], "param_j": names[j], "S2": s2[i, j],
+                          "S2_conf": s2_conf[i, j]}
+                         for i in range(len(names)) for j in range(i + 1, len(names))],
+                        columns=["param_i", "param_j", "S2", "S2_conf"])
 
 
 @dataclass(frozen=True)
@@ -302,11 +303,8 @@ def _undefined(problem: dict, second_order: bool):
     names = problem["names"]
     first = pd.DataFrame({"param": names, **dict.fromkeys(("S1", "S1_conf", "ST", "ST_conf"),
                                                            np.nan)})
-    pairs = pd.DataFrame([{"param_i": names[i], "param_j": names[j], "S2": np.nan,
-                           "S2_conf": np.nan}
-                          for i in range(len(names)) for j in range(i + 1, len(names))],
-                         columns=["param_i", "param_j", "S2", "S2_conf"])
-    return first, pairs if second_order else None
+    nan = np.full((len(names), len(names)), np.nan)
+    return first, _pairs(names, nan, nan) if second_order else None
 
 
 def case_indices(problem: dict, X: np.ndarray, y: np.ndarray, n: int, seed: int,
