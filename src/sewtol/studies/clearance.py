@@ -179,21 +179,12 @@ VARIABLE_MODES = ("disc", "rim")
 
 def clearance_variables(mech, tolerances, mode: str = "disc"):
     """The mechanism and tolerance set with each revolute pair's journal as two further
-    variables beside the link tolerances, so that every study of the one stack (Monte-Carlo,
-    Sobol, Shapley, ppm, strategies) draws them: the offset r = sqrt(r2) (cos phi, sin phi)
-    (`sewtol.mechanism.clearance.polar_names`), phi uniform in [0, 360) deg and
-
-    - ``disc``: r2 uniform in [0, c^2], the journal uniform over its clearance's disc
-      (r = c sqrt(U));
-    - ``rim``: on the rim, r = c (r2's nominal is c^2; phi alone scatters);
-
-    c the pair's largest radial clearance (of a fit: the loosest pair it allows).
-
-    Returns (mechanism, tolerance set): a copy of the file whose parameters include r2 and phi
-    (nominal 0, or c_max^2 on the rim) and that names no fast path (a plug-in does not see
-    the journals), and the set named ``NAME+clearances`` with the pairs' items after the
-    links'. Refused: a file without revolute clearances, a set that already names them, an
-    unknown mode."""
+    variables beside the link tolerances, drawn by every study of the one stack: the offset
+    r = sqrt(r2) (cos phi, sin phi) (`sewtol.mechanism.clearance.polar_names`), phi uniform in
+    [0, 360) deg and r2 uniform in [0, c^2] (``disc``: uniform over the disc) or r2 = c^2
+    (``rim``), c the pair's largest radial clearance. Returns (a copy of the file with r2 and
+    phi as parameters and no fast path, the set ``NAME+clearances``); refused: a file without
+    revolute clearances, a set that already names them, an unknown mode (docs/clearances.md)."""
     import dataclasses
 
     from sewtol.mechanism.spec import Parameter
@@ -263,10 +254,7 @@ def sobol_share(mech, tolerances, output: str, n: int, seed: int, *, mode: str =
     res = sobol(varied, ts, output, n, seed, fast=False, **options)
     f = res.to_dataframe()
     f = f[f["case"] == f["case"].iloc[0]].copy()
-    pair = {}
-    for c in revolute(mech):
-        for name in polar_names(c.joint):
-            pair[name] = c.joint
+    pair = {name: c.joint for c in revolute(mech) for name in polar_names(c.joint)}
     f.insert(0, "source", ["pin" if p in pair else "link" for p in f["param"]])
     f.insert(1, "pair", [pair.get(p, "") for p in f["param"]])
     pins = f[f["source"] == "pin"]
@@ -281,15 +269,12 @@ def sobol_share(mech, tolerances, output: str, n: int, seed: int, *, mode: str =
 
 @dataclass(frozen=True)
 class LoadedClearance:
-    """The loaded mode: each journal on its rim, r_j = c_j u_j, in the direction u_j of the
-    force it presses on its bearing with (`sewtol.mechanism.kinetostatics.joint_forces` under
-    `loads` at `rpm`), per machine and angle; the output's signal moves by
-    ``total`` = sum_j c_j J_j . u_j (first order; ``by_pair`` each pair's term). A pair whose
-    force is zero (below 1e-9 of the largest) leaves its journal centred (its place is not
-    determined by the load). ``crossings_deg``: joint -> per machine, the crank angles at which
-    the force's direction reverses (turns by more than 90 deg between two samples) and the
-    journal crosses its clearance, interpolated where the force's component along its former
-    direction passes zero."""
+    """The loaded mode (docs/clearances.md): each journal on its rim, r_j = c_j u_j, along the
+    force u_j it presses on its bearing with (`kinetostatics.joint_forces`), per machine and
+    angle; ``total`` = sum_j c_j J_j . u_j (first order; ``by_pair`` each term). A pair whose
+    force is below 1e-9 of the largest stays centred. ``crossings_deg``: joint -> per machine,
+    the crank angles where the force turns by more than 90 deg between two samples, interpolated
+    where its component along its former direction passes zero."""
 
     output: str
     unit: str

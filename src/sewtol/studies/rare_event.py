@@ -439,20 +439,11 @@ def _acs_level(ls: LimitState, seeds_z, seeds_out, b, n, rng, lam, target_accept
 def subset_simulation(ls: LimitState, n_per_level: int, rng: np.random.Generator,
                       p0: float = 0.1, max_levels: int = 25, down_to: float | None = None,
                       p_floor: float = 1e-12, examples_per_mode: int = 3) -> RareEventResult:
-    """Subset simulation (Au & Beck 2001) with adaptive conditional sampling.
-
-    Intermediate thresholds are the (1 - p0) quantiles of the margin value - limit; the run stops
-    when a threshold reaches the limit (P = prod p_j * fraction failing at the last level) or,
-    with down_to, when the probability reached falls below down_to (for an exceedance curve that
-    reaches far past the limit). A limit that the inputs cannot reach (bounded tolerances whose
-    worst case stays below it) makes the thresholds creep towards the largest value; the run then
-    stops once the probability reached is below p_floor and, with no failure at that level,
-    reports the 95 % bound P(level) x (1 - 0.05^(1/N)) as "< X". Each level has
-    delta_j^2 = (1-p_j)/(N p_j) (1+gamma_j), gamma_j the chain correlation factor. The levels
-    are correlated (the seeds of one level are samples of the previous), so sqrt(sum delta_j^2)
-    (Au & Beck's usual figure, given in the notes) understates the scatter; the c.o.v. reported
-    and its 95 % interval use the fully correlated bound sum delta_j (Au & Beck 2001), which
-    repeated runs of the validation cases stay inside (docs/rare_event.md)."""
+    """Subset simulation (Au & Beck 2001) with adaptive conditional sampling: levels at the
+    (1 - p0) quantiles of the margin until one reaches the limit, or (down_to) until the
+    probability reached falls below down_to, for an exceedance curve; a limit the inputs cannot
+    reach stops below p_floor with the 95 % bound "< X". The c.o.v. is the fully correlated
+    bound sum_j delta_j (the levels' independent figure is in the notes): docs/rare_event.md."""
     _check_common(rng, n_per_level, "n_per_level", 10)
     if not (0 < p0 <= 0.5):
         raise ParameterError("p0", "must be in (0, 0.5]", p0)

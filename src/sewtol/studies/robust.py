@@ -92,14 +92,8 @@ class RobustResult:
 
 def _nondominated(obj: np.ndarray) -> np.ndarray:
     """Mask of the rows of obj (minimised columns) that no other row dominates."""
-    keep = np.ones(len(obj), bool)
-    for i in range(len(obj)):
-        if not keep[i]:
-            continue
-        dom = np.all(obj <= obj[i], axis=1) & np.any(obj < obj[i], axis=1)
-        if dom.any():
-            keep[i] = False
-    return keep
+    return np.array([not np.any(np.all(obj <= o, axis=1) & np.any(obj < o, axis=1))
+                     for o in obj], bool)
 
 
 def front_of(archive: pd.DataFrame) -> pd.DataFrame:

@@ -89,8 +89,6 @@ def worst_case(mech, tolerances: ToleranceSet, output: str, maxiter: int = 100, 
     `adjust` (compensators as `adjusting.adjusted` takes them) of the output adjusted on each
     trial machine. `search` defaults to Search(maxiter=maxiter); axes: check monotonicity
     along the axes; fast: use the mechanism's plug-ins; options go to its strategy adjuster."""
-    from scipy.optimize import minimize  # here: `sewtol run` imports this module for every study
-
     mech.output(output)
     if isinstance(adjust, str) and adjust not in mech.compensators:
         raise ParameterError("adjust", "must name a compensator of the file ("
@@ -148,18 +146,7 @@ def worst_case(mech, tolerances: ToleranceSet, output: str, maxiter: int = 100, 
         corner_s = float(np.max(s[:-1]))
         for i in order:
             z0 = (cands[i] - lo) / width
-            if cut is not None:
-                res = _polish_in_polytope(f, score, z0, lo, width, cut, sign, search)
-            elif search.step is None:
-                def neg(z, score=score):
-                    return -float(score(lo + z * width)[0])
-
-                res = minimize(neg, z0, method="L-BFGS-B", bounds=[(0, 1)] * len(names),
-                               options={"eps": search.eps, "maxiter": search.maxiter})
-            else:
-                res = minimize(_central(f, lo, width, sign, search.step), z0, jac=True,
-                               method="L-BFGS-B", bounds=[(0.0, 1.0)] * len(names),
-                               options={"maxiter": search.maxiter})
+            res = _polish(f, score, z0, lo, width, cut, sign, search)
             x_opt = lo + np.clip(res.x, 0.0, 1.0) * width
             if cut is not None and not _inside(x_opt, cut):
                 continue  # SLSQP may end a hair outside the relations: that point is not a machine
@@ -212,31 +199,33 @@ def _inside(x, cut, rtol: float = 1e-9) -> bool:
     return bool(np.all((ax >= lower - tol) & (ax <= upper + tol)))
 
 
-def _polish_in_polytope(f, score, z0, lo, width, cut, sign, search):
-    """SLSQP from z0 inside the box scaled to [0, 1], the relations as linear constraints
-    lower <= a (lo + z width) <= upper."""
+def _polish(f, score, z0, lo, width, cut, sign, search):
+    """L-BFGS-B from z0 inside the box scaled to [0, 1]; with relations (`cut`) SLSQP, the
+    relations as linear constraints lower <= a (lo + z width) <= upper."""
     from scipy.optimize import minimize
 
-    a, lower, upper = cut
-    az = a * width[None, :]
-    base = a @ lo
-    cons = []
-    for k in range(len(a)):
-        if np.isfinite(lower[k]):
-            cons.append({"type": "ineq", "fun": lambda z, k=k: az[k] @ z + base[k] - lower[k],
-                         "jac": lambda z, k=k: az[k]})
-        if np.isfinite(upper[k]):
-            cons.append({"type": "ineq", "fun": lambda z, k=k: upper[k] - base[k] - az[k] @ z,
-                         "jac": lambda z, k=k: -az[k]})
+    kw = {"method": "L-BFGS-B"}
+    if cut is not None:
+        a, lower, upper = cut
+        az, base = a * width[None, :], a @ lo
+        cons = []
+        for k in range(len(a)):
+            if np.isfinite(lower[k]):
+                cons.append({"type": "ineq", "fun": lambda z, k=k: az[k] @ z + base[k] - lower[k],
+                             "jac": lambda z, k=k: az[k]})
+            if np.isfinite(upper[k]):
+                cons.append({"type": "ineq", "fun": lambda z, k=k: upper[k] - base[k] - az[k] @ z,
+                             "jac": lambda z, k=k: -az[k]})
+        kw = {"method": "SLSQP", "constraints": cons}
     bounds = [(0.0, 1.0)] * len(z0)
     if search.step is None:
         def neg(z):
-            return -float(score(lo + np.clip(z, 0, 1) * width)[0])
+            return -float(score(lo + (z if cut is None else np.clip(z, 0, 1)) * width)[0])
 
-        return minimize(neg, z0, method="SLSQP", bounds=bounds, constraints=cons,
+        return minimize(neg, z0, bounds=bounds, **kw,
                         options={"eps": search.eps, "maxiter": search.maxiter})
-    return minimize(_central(f, lo, width, sign, search.step), z0, jac=True, method="SLSQP",
-                    bounds=bounds, constraints=cons, options={"maxiter": search.maxiter})
+    return minimize(_central(f, lo, width, sign, search.step), z0, jac=True, bounds=bounds,
+                    options={"maxiter": search.maxiter}, **kw)
 
 
 def _central(f, lo, width, sign, step):
