@@ -431,9 +431,7 @@ def least_cost(mech, tolerances: ToleranceSet, output: str, target: float = 0.99
     u = draw_units(unit_streams(seed, n), len(tol.items), 0, n)
     zy = ZoneYield(mech, tol, output, spec, u, adjust, fast, options)
 
-    ref_lo = np.array([t.lower for t in tol.items])
-    ref_hi = np.array([t.upper for t in tol.items])
-    ref_half = 0.5 * (ref_hi - ref_lo)
+    ref_half = 0.5 * np.array([t.upper - t.lower for t in tol.items], float)
     cap = max_half if isinstance(max_half, dict) else {p: max_half for p in tol.params}
     bad = sorted(set(cap) - set(tol.params))
     if bad:

@@ -691,9 +691,8 @@ def estimate(ls: LimitState, rng: np.random.Generator, method: str = "auto",
     """
     if method not in METHODS:
         raise ParameterError("method", f"must be one of {', '.join(METHODS)}", method)
-    chosen = choose_method(target, budget) if method == "auto" else method
-    if method != "auto":
-        choose_method(target, budget)  # the same checks of target and budget
+    chosen = choose_method(target, budget)  # checks target and budget for every method
+    chosen = chosen if method == "auto" else method
     if chosen == "montecarlo":
         return monte_carlo(ls, int(budget), rng, n_jobs=n_jobs,
                            examples_per_mode=examples_per_mode, progress=progress)

@@ -191,7 +191,6 @@ class DesignProblem:
         for o in outputs or ():
             out[o] = float(ev.outputs[o][0])
         out["_settings"] = {k: float(v[0]) for k, v in settings.items()}
-        out["_status"] = str(ev.status[0]) if ev is not None else ("ok" if ok[0] else "failed")
         return out
 
     def __call__(self, X) -> np.ndarray:
@@ -628,8 +627,6 @@ def refine(mech: Mechanism, parameters: Sequence[str] | Mapping | None = None, *
     before = prob.outputs_at(start, outs)
     refined = {**refined_vals, **after.pop("_settings")}
     today = {**start, **before.pop("_settings")}
-    after.pop("_status")
-    before.pop("_status")
     units = {p.name: p.unit for p in mech.parameters}
     prow = [{"parameter": n, "unit": units[n],
              **bound_row(n, start[n], refined[n], bounds[n], "refined")} for n in names]
