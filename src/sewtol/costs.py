@@ -1,30 +1,14 @@
 """Cost-tolerance models: what it costs to make a parameter within a tolerance.
 
-The three models of Chase, Greenwood & Loosli (1990), "Least cost tolerance allocation for
-mechanical assemblies with automated process selection", Manufacturing Review 3(1), fitted there
-to shop data of machining processes:
+The three models of Chase, Greenwood & Loosli (1990), Manufacturing Review 3(1), of the
+half-width t = (upper - lower) / 2 (the parameter's unit; where the zone sits costs nothing):
 
     reciprocal     c(t) = a + b / t
-    power          c(t) = a + b / t**k        (reciprocal power)
+    power          c(t) = a + b / t**k
     exponential    c(t) = a + b * exp(-m t)
 
-t is the half-width of the tolerance zone, (upper - lower) / 2, in the parameter's unit (mm, deg
-or um): the +/- value of a symmetric tolerance. Where the zone sits (its centre, i.e. a mean
-shift from nominal) costs nothing: only its width does. a is the fixed cost (cost units, >= 0),
-b > 0 the coefficient of precision (cost * unit**k for power, cost * unit for reciprocal, cost
-for exponential), k > 0 and m > 0 (1/unit) the models' shape. Every model falls as t grows.
-
-In a tolerance file (or a mechanism file's [tolerances.NAME]), a set's `cost` table:
-
-    [sets.mine.cost]
-    model = "reciprocal"                               # the default model of the entries below
-    AB = { a = 1.0, b = 0.02 }
-    BE = { model = "exponential", a = 0.5, b = 4.0, m = 60.0 }
-    LM = { model = "power", a = 0.2, b = 0.001, k = 2.0 }
-
-sewtol states no default coefficients: the least-cost study (sewtol.studies.least_cost) refuses
-to run, in one line, when a parameter it allocates has none (the coefficients are the shop's, not
-the model's).
+with a >= 0, b > 0, k > 0, m > 0. A set's `cost` table (docs/mechanism_files.md, "Cost of a
+tolerance") gives the coefficients; sewtol states no defaults (they are the shop's).
 """
 
 from __future__ import annotations
