@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sewtol.errors import ParameterError
+from sewtol.errors import ParameterError, number, real
 
 KEY = "cost"
 # each model's coefficients (every one required)
@@ -46,8 +46,7 @@ class CostModel:
                                  self.model)
         for key in ("a", "b", "k", "m"):
             v = getattr(self, key)
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) \
-                    or not np.isfinite(v):
+            if not real(v, finite=True):
                 raise ParameterError(f"{at}.{key}", "must be a finite number", v)
         if self.a < 0:
             raise ParameterError(f"{at}.a", "must be >= 0 (the fixed cost)", self.a)
@@ -100,12 +99,9 @@ def model_of(param: str, spec, where: str, default: str | None = None) -> CostMo
     if missing:
         raise ParameterError(f"{where}.{missing[0]}", f"is required by model {model} "
                              f"({model_text(model)})", None)
-    for k in need:
-        v = spec[k]
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise ParameterError(f"{where}.{k}", "must be a number", v)
-    return CostModel(param, model, *(float(spec[k]) for k in ("a", "b")),
-                     k=float(spec.get("k", 1.0)), m=float(spec.get("m", 0.0)), where=where)
+    v = {k: number(f"{where}.{k}", spec[k]) for k in need}
+    return CostModel(param, model, v["a"], v["b"], k=v.get("k", 1.0), m=v.get("m", 0.0),
+                     where=where)
 
 
 def model_text(model: str) -> str:

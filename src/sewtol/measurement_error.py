@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import special
 
-from sewtol.errors import ParameterError
+from sewtol.errors import ParameterError, real
 from sewtol.law import STREAM, draw_units
 
 # handwheel every 10 deg: the positions a fitter reads per machine unless told otherwise
@@ -39,8 +39,7 @@ class MeasurementError:
 
     def __post_init__(self):
         sd = self.sd_um
-        if isinstance(sd, bool) or not isinstance(sd, (int, float)) or not math.isfinite(sd) \
-                or sd < 0:
+        if not real(sd, finite=True) or sd < 0:
             raise ParameterError("measurement_error.sd_um", "must be a finite number >= 0", sd)
         object.__setattr__(self, "sd_um", float(sd))
         k = self.positions

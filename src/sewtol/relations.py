@@ -21,7 +21,7 @@ from functools import cached_property
 
 import numpy as np
 
-from sewtol.errors import ParameterError
+from sewtol.errors import ParameterError, number, real
 
 # sewtol.mechanism.expressions is imported where it is used: it depends on nothing of sewtol, but
 # importing it runs sewtol.mechanism's __init__, whose loader imports sewtol.tolerances, which
@@ -62,8 +62,7 @@ class Relation:
                                  self.expr)
         for side in ("lower", "upper"):
             v = getattr(self, side)
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) \
-                    or np.isnan(v):
+            if not real(v) or np.isnan(v):
                 raise ParameterError(f"{self.where}.{side}", "must be a number", v)
         if not (np.isfinite(self.lower) or np.isfinite(self.upper)):
             raise ParameterError(self.where, "needs a lower or an upper limit (or both)",
@@ -155,12 +154,6 @@ def _affine(node) -> tuple[dict[str, float], float] | None:
     return None
 
 
-def _number(where, v) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise ParameterError(where, "must be a number", v)
-    return float(v)
-
-
 def parse(set_name: str, body: dict, known: list[str]) -> tuple[Relation, ...]:
     """The relations a tolerance set's table declares (key `relations`, the module docstring),
     over the set's parameters `known`."""
@@ -188,8 +181,8 @@ def parse(set_name: str, body: dict, known: list[str]) -> tuple[Relation, ...]:
                                     f"set ({', '.join(known)})")
             raise ParameterError(f"{at}.expr", rule, e["expr"]) from None
         del parsed
-        out.append(Relation(e["expr"], _number(f"{at}.lower", e.get("lower", -np.inf)),
-                            _number(f"{at}.upper", e.get("upper", np.inf)), at))
+        out.append(Relation(e["expr"], number(f"{at}.lower", e.get("lower", -np.inf)),
+                            number(f"{at}.upper", e.get("upper", np.inf)), at))
     return tuple(out)
 
 

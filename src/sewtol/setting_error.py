@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import special
 
-from sewtol.errors import ParameterError
+from sewtol.errors import ParameterError, real
 from sewtol.law import STREAM, draw_units
 
 DISTS = ("normal", "uniform")
@@ -42,8 +42,7 @@ class SettingError:
             raise ParameterError("setting_error.dist", f"must be one of {', '.join(DISTS)}",
                                  self.dist)
         w = self.width
-        if isinstance(w, bool) or not isinstance(w, (int, float)) or not math.isfinite(w) \
-                or w < 0:
+        if not real(w, finite=True) or w < 0:
             raise ParameterError(f"setting_error.{self.key}", "must be a finite number >= 0", w)
         object.__setattr__(self, "width", float(w))
 
@@ -104,8 +103,7 @@ def parse(value, where: str) -> SettingError | None:
         where = f"{where}.{key}"
     else:
         dist, width = "uniform", value
-    if isinstance(width, bool) or not isinstance(width, (int, float)) \
-            or not math.isfinite(width) or width < 0:
+    if not real(width, finite=True) or width < 0:
         raise ParameterError(where, "must be a finite number >= 0", width)
     return None if width == 0 else SettingError(dist, float(width))
 
