@@ -1,10 +1,7 @@
 """Tolerance specifications: limits and distributions for any parameter, built-in sets, TOML.
 
-A tolerance gives the lower and upper deviation from nominal (mm, or the parameter's own unit),
-and how machines scatter inside: `uniform` over the limits, `normal` with the limits at
-+/-3 sigma around their midpoint, or `truncnorm`, a normal (sigma = width/6) cut at the limits.
-Built-in sets restate the source study (docs/needle_208.md, "Tolerances"): `base` and
-`recommended`. CD has no base tolerance in the source; `base` leaves CD exact.
+A `Tolerance` gives a parameter's limits and how machines scatter inside them; the built-in
+sets restate the source study (docs/needle_208.md, "Tolerances").
 
 TOML form (a file of one or more sets):
 
@@ -357,13 +354,9 @@ CD +/-0.01. All uniform.
 """
 
 
-# The housing features of the 208 (ASSUMED: the source tolerances none of them; docs/needle_208.md,
-# "Housing tolerances"): the upper-shaft bore A, the rear-rocker pivot bore D and the guide bore
-# (its point N1 and its direction); F is the frame's origin. Bore positions: ISO 1101 position
-# tolerance diameter 0.04 mm (bores machined in one clamping on a machining centre or jig
-# borer), drawn as +-0.02 mm per coordinate; the guide bore's direction: 0.02 mm over the
-# 50 mm guide, +-0.0229 deg. (ISO 2768-1's general tolerances, class f +-0.15 mm for 30 ... 120
-# mm, are for dimensions a drawing leaves untoleranced, not for functional bores.)
+# The housing bores of the 208, A, D and the guide (ASSUMED: the source tolerances none of them;
+# docs/needle_208.md, "Housing tolerances"): ISO 1101 position diameter 0.04 mm, drawn as +-0.02
+# mm per coordinate; the guide's direction 0.02 mm over its 50 mm, +-0.0229 deg.
 NEEDLE_208_HOUSING = (
     _sym("Ax", 0.02), _sym("Ay", 0.02), _sym("Dx", 0.02), _sym("Dy", 0.02),
     _sym("guide_x", 0.02), _sym("guide_y", 0.02), _sym("guide_angle", 0.0229))
