@@ -347,19 +347,13 @@ def holding_m_s2(params: PresserFoot):
 # cycle's four figures, then its modes as numbers (contact_status: the index in STATUS)
 MEASURES = ("loss_deg", "regain_deg", "lost_deg", "separation_mm", "contact_status", "impacts",
             "intervals", "lost_by_force")
+_REQUIRED = ("expr", None, None)
 PRESSER_CONTACT_FIELDS = {
     # name: (kind, default, choices) in the registry's form (default None: required)
-    "crank_mm": ("expr", None, None),
-    "rod_mm": ("expr", None, None),
-    "offset_mm": ("expr", None, None),
-    "speed_rad_s": ("expr", None, None),
-    "phase_deg": ("expr", 0.0, None),
-    "material_mm": ("expr", None, None),
-    "mass_kg": ("expr", None, None),
-    "stiffness_n_per_mm": ("expr", None, None),
-    "preload_n": ("expr", None, None),
-    "damping_ratio": ("expr", 0.012, None),
-    "measure": ("choice", "separation_mm", MEASURES),
+    "crank_mm": _REQUIRED, "rod_mm": _REQUIRED, "offset_mm": _REQUIRED,
+    "speed_rad_s": _REQUIRED, "phase_deg": ("expr", 0.0, None), "material_mm": _REQUIRED,
+    "mass_kg": _REQUIRED, "stiffness_n_per_mm": _REQUIRED, "preload_n": _REQUIRED,
+    "damping_ratio": ("expr", 0.012, None), "measure": ("choice", "separation_mm", MEASURES),
 }
 
 
