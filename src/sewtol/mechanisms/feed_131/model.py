@@ -105,8 +105,19 @@ class Feed131:
                                    "O6R + O6S", self.RS)
 
     def override(self, **changes: float) -> Feed131:
-        """A copy with some parameters changed (mm, deg), validated like a new machine; an
-        unknown name fails and lists the valid ones."""
+        """A copy with some parameters changed (validated like a new machine).
+
+        Parameters
+        ----------
+        **changes : float
+            New values by parameter name (mm, deg); an unknown name fails and lists the valid
+            ones.
+
+        Returns
+        -------
+        Feed131
+            The changed copy; this machine is unchanged.
+        """
         return P.override(self, changes)
 
 
