@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sewtol import engine
-from sewtol.errors import ParameterError
+from sewtol.errors import ParameterError, real
 from sewtol.fits import check_diameter, iso_fit
 
 PAIRS = ("revolute", "prismatic")
@@ -110,12 +110,12 @@ class Clearance:
         if self.pair not in PAIRS:
             raise ParameterError("pair", f"must be one of {', '.join(PAIRS)}", self.pair)
         lo, hi = self.clearance_min_mm, self.clearance_max_mm
-        if not (_finite(lo) and _finite(hi) and 0.0 <= lo <= hi):
+        if not (real(lo, finite=True) and real(hi, finite=True) and 0.0 <= lo <= hi):
             raise ParameterError("clearance_mm", "must be 0 <= min <= max, finite (mm)", (lo, hi))
         if (self.pair == "prismatic") != (self.length_mm is not None):
             raise ParameterError("length_mm", "is required for a prismatic pair and only for one",
                                  self.length_mm)
-        if self.length_mm is not None and not (_finite(self.length_mm) and self.length_mm > 0):
+        if self.length_mm is not None and not (real(self.length_mm, finite=True) and self.length_mm > 0):
             raise ParameterError("length_mm", "must be a positive length in mm", self.length_mm)
 
     @property
@@ -135,10 +135,6 @@ class Clearance:
         return math.degrees(math.atan2(self.clearance_max_mm, self.length_mm))
 
 
-def _finite(v) -> bool:
-    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
-
-
 def pair_joints(groups) -> dict[str, set[str]]:
     """The names a clearance may take, per pair kind, from the file's groups."""
     revolute, prismatic = set(), set()
@@ -153,7 +149,7 @@ def pair_joints(groups) -> dict[str, set[str]]:
 def _range(value, what: str) -> tuple[float, float]:
     """A value or [min, max] in mm, as (min, max)."""
     pair = value if isinstance(value, list) else [value, value]
-    if len(pair) != 2 or not all(_finite(v) for v in pair) or not 0 <= pair[0] <= pair[1]:
+    if len(pair) != 2 or not all(real(v, finite=True) for v in pair) or not 0 <= pair[0] <= pair[1]:
         raise ParameterError(what, "must be a number >= 0 or [min, max] with 0 <= min <= max "
                                    "(mm)", value)
     return float(pair[0]), float(pair[1])
@@ -240,6 +236,6 @@ def _clearance(c, joints, line) -> Clearance:
 
 
 def _length(v) -> float:
-    if not (_finite(v) and v > 0):
+    if not (real(v, finite=True) and v > 0):
         raise ParameterError("length_mm", "must be a positive length in mm", v)
     return float(v)
