@@ -10,12 +10,11 @@ clearances (docs/clearances.md, "Loaded mode"). The M6 needle's Newton-Euler sol
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from sewtol.errors import ParameterError
+from sewtol.errors import ParameterError, real
 from sewtol.mechanism.clearance import offset_names
 
 G_M_S2 = 9.81  # gravity along -y of the file's frame (every built-in has y up)
@@ -24,7 +23,7 @@ MM = 1e-3
 
 
 def _number(field: str, v, rule: str, ok) -> float:
-    if not (isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and ok(v)):
+    if not (real(v, finite=True) and ok(v)):
         raise ParameterError(field, rule, v)
     return float(v)
 
