@@ -1,43 +1,13 @@
 """Adjustment at assembly for any mechanism file: 1 to 3 compensators set jointly per machine.
 
-A fitter sets the file's compensators ([compensators.NAME]) on each machine, inside their box,
-to serve one output (an `Objective`):
-
-- ``minimise``: the smallest output;
-- ``target`` T: the output brought to T (|y - T| minimised; an eccentric pivot sets a rocker's
-  swing back to 60 deg, not to its smallest value);
-- ``centre`` [L, U]: the output centred in its two-sided spec (the margin min(y - L, U - y)
-  maximised).
-
-The search (`adjust`), vectorised over machines (every machine repeated against its candidate
-settings, one `FileMechanism.evaluate` call per stage):
-
-1. a grid over the box: the centres of GRID[d] cells per continuous compensator (d of them),
-   every setting of a stepped one (low + k step, so a stepped compensator is searched
-   exactly);
-2. branch and bound on the cells: each cell carries a drop per axis, SAFETY times the largest
-   change of the objective to its neighbours along that axis (how far it could fall inside
-   the cell if its slope stays within the measured ones); a cell whose bound (value minus
-   drops, never below the objective's floor) lies more than `tol` below the machine's best
-   value is cut in three along its axis of largest drop, until no cell qualifies (or cells
-   reach MIN_STEP of the box, or MAX_ROUNDS rounds). A cut cell's outer thirds keep a share
-   (INHERIT) of their parent's slope towards the neighbour beyond its face, so a minimum
-   against a steep wall at a cell's face is not lost when the cell is cut; then each continuous
-   setting is tried on both faces of the box (cell centres never reach them);
-3. plateaus: where settings along a compensator's axis give the optimum within `plateau_tol`
-   (a guide shift anywhere between the path's extremes gives the same SumDelta), its extent is
-   found by bisection and the setting moved to the point of it nearest the machine's own
-   setting (a fitter moves as little as possible): the as-built value for an ``absolute``
-   compensator, 0 for an ``offset`` one. Compensators are taken in the order given; a plateau
-   that is a curve across several axes (two compensators hitting a target) is left where the
-   search ended on it.
-
-Global here means: the best of a grid over the whole box, refined wherever the measured slopes
-allow a better value. The certificate: `grid_step` per compensator, `gap_bound` (how far below
-the optimum found the lowest bound of any remaining cell lies: 0 when no cell can hold a better
-value, under the slope assumption) and `local_change` (the best cell's own drop). A basin
-narrower than a cell with slopes steeper than its neighbours' can still hide: the tests and
-benchmarks/validate_generic_adjuster.py compare the search with dense brute force.
+A fitter sets the file's compensators on each machine, inside their box, to serve one output
+(an `Objective`: ``minimise`` it, bring it to a ``target`` T, or ``centre`` it in [L, U]).
+`adjust` searches a grid over the box, refines it by branch and bound on the cells (a cell's
+possible drop: SAFETY times the largest change to its neighbours), tries the box's faces, then
+moves each setting along its plateau to the point nearest the machine's own setting. The
+search, the meaning of "global" and its certificate (`grid_step`, `gap_bound`,
+`local_change`): docs/mechanism_files.md, "Adjustment at assembly"; `brute_force` is the
+reference it is tested against.
 """
 
 from __future__ import annotations
@@ -58,15 +28,12 @@ GRID = {1: 25, 2: 13, 3: 7}
 # cell is not cut below a half-width of MIN_STEP of the box
 SPLITS, MAX_ROUNDS, MIN_STEP = 8, 1000, 1e-7
 # a cell's drop along an axis: SAFETY times the largest change to its neighbours there (0.5
-# would be exact for a slope that never exceeds the one measured along the cell's centre lines;
-# 2 allows four times that: with 1, 5 of 500 needle machines (beta + guide shift) stopped up to
-# 0.019 um above the brute force, SumDelta's slope in beta differing off the centre lines)
+# would be exact for slopes no steeper than those measured; with 1, 5 of 500 needle machines
+# stopped up to 0.019 um above the brute force: docs/mechanism_files.md)
 SAFETY = 2.0
-# an outer third of a cut cell keeps INHERIT times its parent's slope towards that side (the
-# neighbour beyond the parent's face), the middle third only the slopes inside the trio: without
-# it, 2 of 2,000 needle machines stopped up to 7.5e-3 um above the brute force, their optimum a
-# V against a steep wall at a face of a first-grid cell (machines 1388 and 900 of the
-# benchmark's draw); 0.03 finds both at 1.8 times the evaluations (0.1: 2.2 times)
+# an outer third of a cut cell keeps INHERIT times its parent's slope towards that side, so a V
+# against a steep wall at the parent's face is not lost (needle machines 900 and 1388 of the
+# benchmark's draw); 0.03 costs 1.8 times the evaluations (0.1: 2.2 times)
 INHERIT = 0.03
 # a cell is cut while its bound lies more than TOL[unit] (default TOL_OTHER) below the best
 # value: 1e-4 um, in mm 1e-7 mm (the same), deg 1e-6 deg

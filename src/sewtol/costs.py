@@ -1,30 +1,14 @@
 """Cost-tolerance models: what it costs to make a parameter within a tolerance.
 
-The three models of Chase, Greenwood & Loosli (1990), "Least cost tolerance allocation for
-mechanical assemblies with automated process selection", Manufacturing Review 3(1), fitted there
-to shop data of machining processes:
+The three models of Chase, Greenwood & Loosli (1990), Manufacturing Review 3(1), of the
+half-width t = (upper - lower) / 2 (the parameter's unit; where the zone sits costs nothing):
 
     reciprocal     c(t) = a + b / t
-    power          c(t) = a + b / t**k        (reciprocal power)
+    power          c(t) = a + b / t**k
     exponential    c(t) = a + b * exp(-m t)
 
-t is the half-width of the tolerance zone, (upper - lower) / 2, in the parameter's unit (mm, deg
-or um): the +/- value of a symmetric tolerance. Where the zone sits (its centre, i.e. a mean
-shift from nominal) costs nothing: only its width does. a is the fixed cost (cost units, >= 0),
-b > 0 the coefficient of precision (cost * unit**k for power, cost * unit for reciprocal, cost
-for exponential), k > 0 and m > 0 (1/unit) the models' shape. Every model falls as t grows.
-
-In a tolerance file (or a mechanism file's [tolerances.NAME]), a set's `cost` table:
-
-    [sets.mine.cost]
-    model = "reciprocal"                               # the default model of the entries below
-    AB = { a = 1.0, b = 0.02 }
-    BE = { model = "exponential", a = 0.5, b = 4.0, m = 60.0 }
-    LM = { model = "power", a = 0.2, b = 0.001, k = 2.0 }
-
-sewtol states no default coefficients: the least-cost study (sewtol.studies.least_cost) refuses
-to run, in one line, when a parameter it allocates has none (the coefficients are the shop's, not
-the model's).
+with a >= 0, b > 0, k > 0, m > 0. A set's `cost` table (docs/mechanism_files.md, "Cost of a
+tolerance") gives the coefficients; sewtol states no defaults (they are the shop's).
 """
 
 from __future__ import annotations
@@ -33,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sewtol.errors import ParameterError
+from sewtol.errors import ParameterError, number, real
 
 KEY = "cost"
 # each model's coefficients (every one required)
@@ -62,8 +46,7 @@ class CostModel:
                                  self.model)
         for key in ("a", "b", "k", "m"):
             v = getattr(self, key)
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) \
-                    or not np.isfinite(v):
+            if not real(v, finite=True):
                 raise ParameterError(f"{at}.{key}", "must be a finite number", v)
         if self.a < 0:
             raise ParameterError(f"{at}.a", "must be >= 0 (the fixed cost)", self.a)
@@ -116,12 +99,9 @@ def model_of(param: str, spec, where: str, default: str | None = None) -> CostMo
     if missing:
         raise ParameterError(f"{where}.{missing[0]}", f"is required by model {model} "
                              f"({model_text(model)})", None)
-    for k in need:
-        v = spec[k]
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise ParameterError(f"{where}.{k}", "must be a number", v)
-    return CostModel(param, model, *(float(spec[k]) for k in ("a", "b")),
-                     k=float(spec.get("k", 1.0)), m=float(spec.get("m", 0.0)), where=where)
+    v = {k: number(f"{where}.{k}", spec[k]) for k in need}
+    return CostModel(param, model, v["a"], v["b"], k=v.get("k", 1.0), m=v.get("m", 0.0),
+                     where=where)
 
 
 def model_text(model: str) -> str:

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import math
+from numbers import Real
+
 
 class ParameterError(ValueError):
     """A parameter broke a rule. The message names the field, the rule and the value.
@@ -67,3 +70,19 @@ class AssemblyError(ValueError):
             f"dyad {group} cannot close at angle {self.angle_deg:.3f} deg: misses by "
             f"{self.miss_mm:.6g} mm{extra}"
         )
+
+
+def real(v, finite: bool = False) -> bool:
+    """True for an int or float (NumPy's too) but not a bool (TOML's true is no number);
+    `finite`: and finite."""
+    try:
+        return isinstance(v, Real) and not isinstance(v, bool) and (not finite or math.isfinite(v))
+    except OverflowError:  # an int of hundreds of digits
+        return False
+
+
+def number(where: str, v) -> float:
+    """v as a float, or ParameterError: `where` must be a number."""
+    if not real(v):
+        raise ParameterError(where, "must be a number", v)
+    return float(v)

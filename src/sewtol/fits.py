@@ -10,12 +10,10 @@ including 500 mm (a diameter on a range limit, e.g. 30 mm, belongs to the range 
 
 from __future__ import annotations
 
-import math
-import numbers
 import re
 from dataclasses import asdict, dataclass
 
-from sewtol.errors import ParameterError
+from sewtol.errors import ParameterError, real
 
 SOURCE = "ISO 286-1:2010 Tables 1-3, via pressfit 0.1.0"
 GRADES = tuple(range(5, 12))
@@ -76,9 +74,7 @@ class Fit:
 
 def parse_fit(text: object) -> tuple[int, str, int]:
     """(hole grade, shaft letter, shaft grade) of a fit such as ``"H7/g6"``, or ParameterError."""
-    if not isinstance(text, str):
-        raise ParameterError("fit", _FORM, text)
-    m = _FIT.fullmatch(text)
+    m = _FIT.fullmatch(text) if isinstance(text, str) else None
     if m is None:
         raise ParameterError("fit", _FORM, text)
     hole, hole_grade, letter, shaft_grade = m.group(1), int(m.group(2)), m.group(3), int(m.group(4))
@@ -94,8 +90,7 @@ def parse_fit(text: object) -> tuple[int, str, int]:
 
 def check_diameter(value: object, field: str = "diameter_mm") -> float:
     """A nominal diameter in ISO 286's range (over 0 up to and including 500 mm), as a float."""
-    ok = isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
-    if not ok or not 0.0 < value <= MAX_DIAMETER_MM:
+    if not real(value, finite=True) or not 0.0 < value <= MAX_DIAMETER_MM:
         raise ParameterError(field, f"must be a diameter over 0 up to and including "
                                     f"{MAX_DIAMETER_MM:g} mm", value)
     return float(value)

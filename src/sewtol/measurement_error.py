@@ -1,33 +1,12 @@
-"""The measurement error of the needle path: a fitter sets the compensators from a measurement.
+"""The measurement error of the needle path: a fitter sets the compensators from a reading.
 
-On the line a fitter does not see the true deviation of the needle bar from its guide; he reads
-it with a dial gauge (or an electronic probe) at a number of handwheel positions and sets the
-compensators so that the deviation he READS is smallest. sewtol models that reading as
-
-    measured d_k = true d(phi_k; settings) + e_k,   e_k ~ normal(0, sd_um),  k = 1 .. positions
-
-at `positions` crank angles phi_k = 360 deg * k / positions (a graduated handwheel turned in equal
-steps), one error e_k per position and machine, the same for every setting tried (the error of
-that reading: the gauge's indication error at that point of its travel, the needle bar's form
-error under the probe; a fitter who re-measured every trial setting with fresh errors would
-search a different function every time). The setting chosen is the optimum of the measured
-SumDelta (max over k of the reading, minus min, the guide shift centring the band); the
-machine's figure is then the TRUE SumDelta at that setting (exact extremes over the whole
-cycle). Two things separate it from the exact optimum: the positions miss the true extremes
-between them, and the errors move the reading's extremes.
-
-Typical values (assumptions, stated as such in every table): a mechanical dial gauge graduated in
-0.01 mm repeats to about 3 um, one graduated in 0.001 mm (or a dial test indicator) to about
-0.5-1 um, an inductive probe to a few tenths of a um (ISO 463:2006 gives the maximum
-permissible errors of mechanical dial gauges; makers' data sheets give repeatability of this
-order). Against a 10 um criterion only the finer instruments make sense; the strategies report
-draws the yield against sd 0 ... 3 um.
-
-The draws: machine k's errors are `normal_draws(seed, k, k + 1, positions)`, standard normals of
-a stream of their own (spawn key (MEASURE_KEY, block)) beside the machines' and the setting
-errors', drawn per block of STREAM machines as the one sampler does: the same seed gives the same
-tables for any chunking, adding the option changes no other stream, and every level of a curve
-uses the same draws (only the scale changes: common random numbers).
+measured d_k = true d(phi_k; settings) + e_k, e_k ~ normal(0, sd_um), at `positions` crank
+angles phi_k = 360 deg * k / positions, one error per position and machine, the same for every
+setting tried. The setting is the optimum of the measured SumDelta; the machine's figure is
+the TRUE SumDelta there. The errors are standard normals of a stream of their own (spawn key
+(MEASURE_KEY, block), per block of STREAM machines as the one sampler draws): the same seed
+gives the same tables for any chunking, and every level of a curve uses the same draws. The
+model and typical instrument sd: docs/adjustment.md, "Setting from a measurement".
 """
 
 from __future__ import annotations
@@ -38,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import special
 
-from sewtol.errors import ParameterError
+from sewtol.errors import ParameterError, real
 from sewtol.law import STREAM, draw_units
 
 # handwheel every 10 deg: the positions a fitter reads per machine unless told otherwise
@@ -60,8 +39,7 @@ class MeasurementError:
 
     def __post_init__(self):
         sd = self.sd_um
-        if isinstance(sd, bool) or not isinstance(sd, (int, float)) or not math.isfinite(sd) \
-                or sd < 0:
+        if not real(sd, finite=True) or sd < 0:
             raise ParameterError("measurement_error.sd_um", "must be a finite number >= 0", sd)
         object.__setattr__(self, "sd_um", float(sd))
         k = self.positions

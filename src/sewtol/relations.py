@@ -3,25 +3,13 @@
     relations = [{ expr = "AB - BE", lower = -0.01, upper = 0.01 }]
     relations = [{ expr = "hypot(Ax, Ay)", upper = 0.05 }]    # a true-position tolerance
 
-The names in `expr` stand for the parameters' deviations from nominal, each in its unit (as the
-set's own limits are), and the expression is read by the mechanism files' safe parser
-(`sewtol.mechanism.expressions`: a whitelist walked node by node, never eval). `lower` and
-`upper` bound it (either may be left out, not both; lower < upper).
-
-What a relation means: inspection. A part pair (or a machine) whose deviations break a
-relation is rejected before assembly, so the machines that are built follow the set's joint law
-(marginals tied by the copula, `sewtol.dependence`) conditioned on every relation. The sampler
-(`sewtol.law.InputLaw`) draws that conditional law by rejection: candidates come from the
-unconditioned law and those that break a relation are left out and counted (the acceptance,
-i.e. the inspection's pass rate, is a number the engineer wants: what the relation scraps).
-Rejection is exact for any relation, linear or not, and any copula. A linear change of
-variables (drawing AB and AB - BE instead of AB and BE) would be cheaper for a linear relation,
-but it changes the marginals: BE would no longer be uniform within its own limits, so it is a
-different tolerance scheme, not the one the file declares.
-
-The worst case (`sewtol.studies.worst_case`) searches the region the relations leave of the
-tolerance box; for linear relations (`Relation.linear`, read from the syntax tree: sums of
-names times constants) that region is a polytope and its vertices replace the box's corners.
+`expr` names the parameters' deviations from nominal (their units) and is read by the safe
+parser of `sewtol.mechanism.expressions`; `lower` and `upper` bound it (one may be left out). A
+relation is inspection: machines that break it are rejected before assembly, so the machines
+built follow the set's joint law conditioned on every relation, drawn by rejection
+(`sewtol.law.InputLaw`; the acceptance is counted). The worst case searches what the relations
+leave of the tolerance box: for linear relations (`Relation.linear`) a polytope whose vertices
+replace the box's corners. docs/mechanism_files.md, "Relational tolerances".
 """
 
 from __future__ import annotations
@@ -33,7 +21,7 @@ from functools import cached_property
 
 import numpy as np
 
-from sewtol.errors import ParameterError
+from sewtol.errors import ParameterError, number, real
 
 # sewtol.mechanism.expressions is imported where it is used: it depends on nothing of sewtol, but
 # importing it runs sewtol.mechanism's __init__, whose loader imports sewtol.tolerances, which
@@ -74,8 +62,7 @@ class Relation:
                                  self.expr)
         for side in ("lower", "upper"):
             v = getattr(self, side)
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) \
-                    or np.isnan(v):
+            if not real(v) or np.isnan(v):
                 raise ParameterError(f"{self.where}.{side}", "must be a number", v)
         if not (np.isfinite(self.lower) or np.isfinite(self.upper)):
             raise ParameterError(self.where, "needs a lower or an upper limit (or both)",
@@ -167,12 +154,6 @@ def _affine(node) -> tuple[dict[str, float], float] | None:
     return None
 
 
-def _number(where, v) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise ParameterError(where, "must be a number", v)
-    return float(v)
-
-
 def parse(set_name: str, body: dict, known: list[str]) -> tuple[Relation, ...]:
     """The relations a tolerance set's table declares (key `relations`, the module docstring),
     over the set's parameters `known`."""
@@ -200,8 +181,8 @@ def parse(set_name: str, body: dict, known: list[str]) -> tuple[Relation, ...]:
                                     f"set ({', '.join(known)})")
             raise ParameterError(f"{at}.expr", rule, e["expr"]) from None
         del parsed
-        out.append(Relation(e["expr"], _number(f"{at}.lower", e.get("lower", -np.inf)),
-                            _number(f"{at}.upper", e.get("upper", np.inf)), at))
+        out.append(Relation(e["expr"], number(f"{at}.lower", e.get("lower", -np.inf)),
+                            number(f"{at}.upper", e.get("upper", np.inf)), at))
     return tuple(out)
 
 

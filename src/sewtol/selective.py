@@ -2,18 +2,12 @@
 
     selective = { params = ["AB", "BE"], groups = 4, by = "count" }
 
-The parts of the pair are made on their own (each from its tolerance; a copula may still tie
-them), measured, and sorted into `groups` classes; a part is assembled only with a part of the
-same class. `by = "count"`: classes of equal count, the lot sorted by size and cut into k equal
-runs (the practice of matching by rank); `by = "width"`: classes of equal width over each part's
-limits (gauge classes; a normal part beyond its limits falls in the end class). Within a class
-the parts pair in the order they were made; the parts a class has too many of are left
-unmatched and counted (with equal-count classes only the remainder of lot / k).
-
-The lot is a stream of the one sampler (`sewtol.law.STREAM` machines): each lot's candidates
-are matched, and machine k is the (k % STREAM)-th matched machine of its stream's lots, in
-order, so the window property of the sampler holds. A matched machine keeps every deviation of
-the first part's machine and takes the second part from its partner's.
+Classes of equal count (``by = "count"``, matching by rank) or of equal width over each part's
+limits (``"width"``, gauge classes); within a class parts pair in the order made, and those a
+class has too many of are left unmatched and counted. Each lot is a stream of the one sampler
+(`sewtol.law.STREAM` machines), so machine k is the (k % STREAM)-th matched machine of its
+stream's lots; a matched machine takes the second part from its partner's machine.
+docs/mechanism_files.md, "Selective assembly".
 """
 
 from __future__ import annotations

@@ -1,29 +1,14 @@
 """The setting error of a compensator: how far from the setting aimed at a fitter's setting lands.
 
-A fitter never sets a compensator exactly. sewtol models what a setting made on the line is, per
-machine, in the compensator's own unit (deg for beta and the guide angle, um for the guide
-shift, mm for CD):
+    setting made = round(setting aimed at, resolution) + error,  clipped to the compensator's range
 
-    setting made = round(setting aimed at, resolution) + error,  error ~ the setting error
-
-clipped to the compensator's range (a setting cannot pass the end stops). The error is one of
-
-- ``normal``: a normal error with standard deviation ``sd`` (a setting read off an indicator and
-  clamped: many small causes);
-- ``uniform``: a uniform error on +-``half_width`` (a setting known only to lie within a band,
-  e.g. one graduation of a scale).
-
-Declared in a mechanism file's ``[compensators.NAME]`` as ``setting_error = {dist = "normal",
-sd = 0.005}`` or ``{dist = "uniform", half_width = 0.01}`` (a bare number is a uniform
-half-width), on the needle's command line as ``--setting-error NAME=SD`` (normal) or
-``NAME=uniform:HALF_WIDTH``.
-
-The draws: machine k's error on compensator NAME is ``from_unit(u)`` of one standard uniform u
-of the stream ``(seed, NAME)`` (`unit_draws`), a stream of its own beside the machines' (the
-same machines for the seed, whatever the setting errors), drawn per block of STREAM machines as
-the one sampler does (sewtol.law), so any chunk of machines draws the same numbers and the same
-seed gives the same tables. Every strategy and every level of a yield-vs-error curve uses the
-same u (common random numbers): only the scale changes.
+in the compensator's own unit; the error is ``normal`` (``sd``) or ``uniform`` (+-``half_width``).
+A mechanism file declares ``setting_error = {dist = "normal", sd = 0.005}`` (a bare number is a
+uniform half-width), the needle's command line ``--setting-error NAME=SD`` or
+``NAME=uniform:HALF_WIDTH``. Machine k's error on NAME is ``from_unit(u)`` of one uniform of the
+stream (seed, NAME) (`unit_draws`), per block of STREAM machines as the one sampler draws, so
+any chunking gives the same numbers and every strategy and level of a curve uses the same u.
+docs/adjustment.md, "Setting as a fitter does it".
 """
 
 from __future__ import annotations
@@ -35,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import special
 
-from sewtol.errors import ParameterError
+from sewtol.errors import ParameterError, real
 from sewtol.law import STREAM, draw_units
 
 DISTS = ("normal", "uniform")
@@ -57,8 +42,7 @@ class SettingError:
             raise ParameterError("setting_error.dist", f"must be one of {', '.join(DISTS)}",
                                  self.dist)
         w = self.width
-        if isinstance(w, bool) or not isinstance(w, (int, float)) or not math.isfinite(w) \
-                or w < 0:
+        if not real(w, finite=True) or w < 0:
             raise ParameterError(f"setting_error.{self.key}", "must be a finite number >= 0", w)
         object.__setattr__(self, "width", float(w))
 
@@ -119,8 +103,7 @@ def parse(value, where: str) -> SettingError | None:
         where = f"{where}.{key}"
     else:
         dist, width = "uniform", value
-    if isinstance(width, bool) or not isinstance(width, (int, float)) \
-            or not math.isfinite(width) or width < 0:
+    if not real(width, finite=True) or width < 0:
         raise ParameterError(where, "must be a finite number >= 0", width)
     return None if width == 0 else SettingError(dist, float(width))
 

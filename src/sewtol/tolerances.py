@@ -1,10 +1,7 @@
 """Tolerance specifications: limits and distributions for any parameter, built-in sets, TOML.
 
-A tolerance gives the lower and upper deviation from nominal (mm, or the parameter's own unit),
-and how machines scatter inside: `uniform` over the limits, `normal` with the limits at
-+/-3 sigma around their midpoint, or `truncnorm`, a normal (sigma = width/6) cut at the limits.
-Built-in sets restate the source study (docs/needle_208.md, "Tolerances"): `base` and
-`recommended`. CD has no base tolerance in the source; `base` leaves CD exact.
+A `Tolerance` gives a parameter's limits and how machines scatter inside them; the built-in
+sets restate the source study (docs/needle_208.md, "Tolerances").
 
 TOML form (a file of one or more sets):
 
@@ -32,7 +29,7 @@ import numpy as np
 from sewtol import costs, dependence, relations, selective
 from sewtol.costs import CostModel
 from sewtol.dependence import Dependence
-from sewtol.errors import ParameterError
+from sewtol.errors import ParameterError, number, real
 from sewtol.relations import Relation
 from sewtol.selective import Selective
 
@@ -84,8 +81,7 @@ class Tolerance:
     def __post_init__(self):
         for side in ("lower", "upper"):
             v = getattr(self, side)
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
-                raise ParameterError(f"{self.param}.{side}", "must be a number", v)
+            number(f"{self.param}.{side}", v)
         if not (np.isfinite(self.lower) and np.isfinite(self.upper)):
             raise ParameterError(f"{self.param}.limits", "must be finite numbers",
                                  (self.lower, self.upper))
@@ -101,8 +97,7 @@ class Tolerance:
         self._check_shift()
 
     def _check_shift(self):
-        if isinstance(self.shift, bool) or not isinstance(self.shift, (int, float, np.integer, np.floating)) \
-                or not np.isfinite(self.shift):
+        if not real(self.shift, finite=True):
             raise ParameterError(f"{self.param}.shift", "must be a finite number", self.shift)
         if self.shift and self.dist == "uniform":
             raise ParameterError(f"{self.param}.shift", "needs dist normal or truncnorm (a "
@@ -305,8 +300,7 @@ class ToleranceSet:
             raise ParameterError("factors", f"name tolerances not in set '{self.name}' "
                                  f"({', '.join(self.params)})", unknown)
         for k, f in factors.items():
-            if isinstance(f, bool) or not isinstance(f, (int, float, np.integer, np.floating)) \
-                    or not (np.isfinite(f) and f >= 0):
+            if not real(f, finite=True) or f < 0:
                 raise ParameterError(f"factors.{k}", "must be a finite number >= 0", f)
         changed = {k: f for k, f in factors.items() if f != 1.0}
         if name is None:
@@ -360,13 +354,9 @@ CD +/-0.01. All uniform.
 """
 
 
-# The housing features of the 208 (ASSUMED: the source tolerances none of them; docs/needle_208.md,
-# "Housing tolerances"): the upper-shaft bore A, the rear-rocker pivot bore D and the guide bore
-# (its point N1 and its direction); F is the frame's origin. Bore positions: ISO 1101 position
-# tolerance diameter 0.04 mm (bores machined in one clamping on a machining centre or jig
-# borer), drawn as +-0.02 mm per coordinate; the guide bore's direction: 0.02 mm over the
-# 50 mm guide, +-0.0229 deg. (ISO 2768-1's general tolerances, class f +-0.15 mm for 30 ... 120
-# mm, are for dimensions a drawing leaves untoleranced, not for functional bores.)
+# The housing bores of the 208, A, D and the guide (ASSUMED: the source tolerances none of them;
+# docs/needle_208.md, "Housing tolerances"): ISO 1101 position diameter 0.04 mm, drawn as +-0.02
+# mm per coordinate; the guide's direction 0.02 mm over its 50 mm, +-0.0229 deg.
 NEEDLE_208_HOUSING = (
     _sym("Ax", 0.02), _sym("Ay", 0.02), _sym("Dx", 0.02), _sym("Dy", 0.02),
     _sym("guide_x", 0.02), _sym("guide_y", 0.02), _sym("guide_angle", 0.0229))
@@ -405,20 +395,13 @@ SYMMETRIC_RULE = ("must not be negative: a symmetric tolerance +/-X needs X >= 0
                   "and upper for a one-sided one)")
 
 
-def _number(where: str, v) -> float:
-    # TOML has real numbers: true, "0.1" or [1, 2] are mistakes, not tolerances
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise ParameterError(where, "must be a number", v)
-    return float(v)
-
-
 def parse_item(set_name: str, param: str, spec) -> Tolerance:
     where = f"{set_name}.{param}"
     if not isinstance(spec, dict):
-        if isinstance(spec, bool) or not isinstance(spec, (int, float)):
+        if not real(spec):
             raise ParameterError(where, "must be a number (+/-) or a table with lower/upper or "
                                  "plus_minus", spec)
-        pm = _number(where, spec)
+        pm = float(spec)
         if pm < 0:
             raise ParameterError(where, SYMMETRIC_RULE, pm)
         return _sym(param, pm)
@@ -430,19 +413,19 @@ def parse_item(set_name: str, param: str, spec) -> Tolerance:
     dist = spec.get("dist", "uniform")
     if not isinstance(dist, str):
         raise ParameterError(f"{where}.dist", f"must be one of {', '.join(DISTRIBUTIONS)}", dist)
-    shift = _number(f"{where}.shift", spec.get("shift", 0.0))
+    shift = number(f"{where}.shift", spec.get("shift", 0.0))
     if "plus_minus" in spec:
         if "lower" in spec or "upper" in spec:
             raise ParameterError(where, "give either plus_minus or lower and upper, not both",
                                  spec)
-        pm = _number(f"{where}.plus_minus", spec["plus_minus"])
+        pm = number(f"{where}.plus_minus", spec["plus_minus"])
         if pm < 0:
             raise ParameterError(f"{where}.plus_minus", SYMMETRIC_RULE, pm)
         return Tolerance(param, -pm, pm, dist, shift)
     if "lower" not in spec or "upper" not in spec:
         raise ParameterError(where, "needs both lower and upper (or plus_minus)", spec)
-    return Tolerance(param, _number(f"{where}.lower", spec["lower"]),
-                     _number(f"{where}.upper", spec["upper"]), dist, shift)
+    return Tolerance(param, number(f"{where}.lower", spec["lower"]),
+                     number(f"{where}.upper", spec["upper"]), dist, shift)
 
 
 def parse_toml(text: str, field) -> dict:
@@ -462,27 +445,32 @@ def parse_toml(text: str, field) -> dict:
                              str(exc)) from None
 
 
-def load_toml(path: str | Path, valid_params: list[str] | None = None) -> dict[str, ToleranceSet]:
-    """Tolerance sets from a TOML file; a syntax error reports its line and column."""
+def read_toml_text(path: str | Path, limit: int = MAX_TOML_BYTES,
+                   what: str = "a tolerance file is a few lines") -> str:
+    """The text of a small UTF-8 file; every refusal one ParameterError naming the path."""
     path = Path(path)
     try:
         # stat first: a FIFO would block and /dev/zero would never end
         st = path.stat()
         if not stat.S_ISREG(st.st_mode):
             raise ParameterError(str(path), "is not a regular file", _kind(st.st_mode))
-        if st.st_size > MAX_TOML_BYTES:
-            raise ParameterError(str(path), f"is larger than {MAX_TOML_BYTES} bytes; a tolerance "
-                                 "file is a few lines", st.st_size)
+        if st.st_size > limit:
+            raise ParameterError(str(path), f"is larger than {limit} bytes; {what}", st.st_size)
         with open(path, "rb") as fh:
-            raw = fh.read(MAX_TOML_BYTES + 1)
-        if len(raw) > MAX_TOML_BYTES:
-            raise ParameterError(str(path), f"is larger than {MAX_TOML_BYTES} bytes", len(raw))
-        data = parse_toml(raw.decode("utf-8"), lambda line: str(path))
+            raw = fh.read(limit + 1)
+        if len(raw) > limit:
+            raise ParameterError(str(path), f"is larger than {limit} bytes", len(raw))
+        return raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise ParameterError(str(path), "is not UTF-8 text (TOML files are UTF-8)",
                              f"byte {exc.object[exc.start]:#04x} at offset {exc.start}") from None
     except OSError as exc:
         raise ParameterError(str(path), "cannot be read", exc.strerror) from None
+
+
+def load_toml(path: str | Path, valid_params: list[str] | None = None) -> dict[str, ToleranceSet]:
+    """Tolerance sets from a TOML file; a syntax error reports its line and column."""
+    data = parse_toml(read_toml_text(path), lambda line: str(path))
     sets = data.get("sets")
     if not isinstance(sets, dict) or not sets:
         raise ParameterError(str(path), "must hold at least one [sets.NAME] table", list(data))
@@ -567,20 +555,8 @@ def resolve_all(specs: list[str] | None, builtin: dict[str, ToleranceSet],
 
 
 def needle_set(tolerances: ToleranceSet | str) -> ToleranceSet:
-    """The needle tolerance set a study was given: a ToleranceSet as it is, or its string
-    shortcut, a built-in name ("base", "recommended", or either with the housing:
-    "base_housing", "recommended_housing") or "FILE.toml[:SET]".
-
-    Parameters
-    ----------
-    tolerances : ToleranceSet or str
-        The set, or its name or file.
-
-    Returns
-    -------
-    ToleranceSet
-        The set itself.
-    """
+    """The needle tolerance set a study was given: a ToleranceSet as it is, or a built-in name
+    ("base", "recommended", "base_housing", "recommended_housing") or "FILE.toml[:SET]"."""
     if isinstance(tolerances, ToleranceSet):
         return tolerances
     if isinstance(tolerances, str):

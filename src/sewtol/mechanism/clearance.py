@@ -1,28 +1,13 @@
 """Joint clearances of a mechanism file: the `[[clearances]]` tables, checked into Clearance data.
 
-A revolute pair names its joint point and gives a radial clearance c (``radial_mm``: one value,
-or ``[min, max]``) or an ISO 286 fit at a pin diameter (``fit = "H7/g6"``,
-``diameter_mm = 8``). A prismatic pair (``pair = "prismatic"``) names its slider group and gives
-the gap across the guide (``gap_mm``, hole minus rod or slot minus block) or a fit, and the
-guide's length (``length_mm``). Stored as the diametral clearance range (hole minus shaft, mm),
-the way ISO 286 states it.
-
-How a revolute clearance enters the model (the effective-link model: the clearance is a link of
-length |r| <= c of any direction between journal and bearing, Ting, Zhu & Watkins 2000): each
-revolute pair with a clearance gets two pair parameters, the offset r = (dx, dy) mm of the
-journal's centre from the bearing's, in the frame's axes, held over the turn (a constant r gives
-at each angle the offset at that angle: the position analysis is angle by angle). At r = 0 the
-model is the ideal one, bit for bit. Where r enters, by the group that makes the joint's point:
-
-- a frame point, a crank pin, a point on a body (``point``, ``crank``, ``on_body``): the point
-  the next link turns about is moved by r (the next link's journal, r from this body's);
-- the joint of a dyad (``rrr``, ``rrp``): link 2's journal is r from link 1's, so link 1 turns
-  about p1 + r; the joint's point is link 2's, except for a point on a body fixed to link 1
-  (an ``on_body`` group whose origin or direction names the dyad's p1), which sees link 1's
-  (= link 2's - r). A third link pinned at the same point takes link 2's.
-
-Prismatic pairs (a gap and a length) are data: the guide-pair criterion
-(`sewtol.studies.clearance`) reads them; they do not enter the model.
+A revolute pair gives a radial clearance (``radial_mm``) or an ISO 286 fit at a pin diameter; a
+prismatic pair the gap across its guide (or a fit) and the guide's length. Stored as the
+diametral clearance range (hole minus shaft, mm). A revolute clearance enters the model as two
+pair parameters, the journal's offset r = (dx, dy) mm from the bearing's centre (the
+effective-link model; r = 0 is the ideal model, bit for bit): the group that makes the joint's
+point moves the next link's journal by r; a dyad's link 1 turns about p1 + r, and an
+``on_body`` group fixed to link 1 sees link 1's point (link 2's - r). Prismatic pairs are data
+the guide-pair criterion reads (`sewtol.studies.clearance`). docs/clearances.md, "The model".
 """
 
 from __future__ import annotations
@@ -33,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sewtol import engine
-from sewtol.errors import ParameterError
+from sewtol.errors import ParameterError, real
 from sewtol.fits import check_diameter, iso_fit
 
 PAIRS = ("revolute", "prismatic")
@@ -125,12 +110,12 @@ class Clearance:
         if self.pair not in PAIRS:
             raise ParameterError("pair", f"must be one of {', '.join(PAIRS)}", self.pair)
         lo, hi = self.clearance_min_mm, self.clearance_max_mm
-        if not (_finite(lo) and _finite(hi) and 0.0 <= lo <= hi):
+        if not (real(lo, finite=True) and real(hi, finite=True) and 0.0 <= lo <= hi):
             raise ParameterError("clearance_mm", "must be 0 <= min <= max, finite (mm)", (lo, hi))
         if (self.pair == "prismatic") != (self.length_mm is not None):
             raise ParameterError("length_mm", "is required for a prismatic pair and only for one",
                                  self.length_mm)
-        if self.length_mm is not None and not (_finite(self.length_mm) and self.length_mm > 0):
+        if self.length_mm is not None and not (real(self.length_mm, finite=True) and self.length_mm > 0):
             raise ParameterError("length_mm", "must be a positive length in mm", self.length_mm)
 
     @property
@@ -150,10 +135,6 @@ class Clearance:
         return math.degrees(math.atan2(self.clearance_max_mm, self.length_mm))
 
 
-def _finite(v) -> bool:
-    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
-
-
 def pair_joints(groups) -> dict[str, set[str]]:
     """The names a clearance may take, per pair kind, from the file's groups."""
     revolute, prismatic = set(), set()
@@ -168,7 +149,7 @@ def pair_joints(groups) -> dict[str, set[str]]:
 def _range(value, what: str) -> tuple[float, float]:
     """A value or [min, max] in mm, as (min, max)."""
     pair = value if isinstance(value, list) else [value, value]
-    if len(pair) != 2 or not all(_finite(v) for v in pair) or not 0 <= pair[0] <= pair[1]:
+    if len(pair) != 2 or not all(real(v, finite=True) for v in pair) or not 0 <= pair[0] <= pair[1]:
         raise ParameterError(what, "must be a number >= 0 or [min, max] with 0 <= min <= max "
                                    "(mm)", value)
     return float(pair[0]), float(pair[1])
@@ -255,6 +236,6 @@ def _clearance(c, joints, line) -> Clearance:
 
 
 def _length(v) -> float:
-    if not (_finite(v) and v > 0):
+    if not (real(v, finite=True) and v > 0):
         raise ParameterError("length_mm", "must be a positive length in mm", v)
     return float(v)

@@ -1,25 +1,14 @@
 """A mechanism file's groups compiled into one numba kernel over (machines x angles).
 
-`compiled(mech, outputs)` generates Python source from the file's groups (assembly order) and
-the outputs asked for, compiles it with numba (``cache=True``: the source is written to a file
-named by its hash under the kernel directory, so a second process loads the machine code from
-disk) and returns a `CompiledModel` whose ``evaluate(values)`` gives the same `Evaluation` as
-`FileMechanism.evaluate` -- outputs, status and failed group per machine -- without building a
-(machines, angles) array: every machine is one pass over the sampled angles, each output
-reduced as it goes.
-
-The kernel follows the numpy evaluation (sewtol.engine) operation for operation on positions;
-the per-machine quantities (expressions, unit conversions, the trigonometry of fixed angles)
-are computed by numpy before the kernel runs, with the very expressions of the reference. It
-differs from `FileMechanism.evaluate` only where numpy's vectorised arctan2/arcsin and libm's
-differ in the last bits (tests/test_compiled.py holds it to rounding on every file). A
-dead-point test reduces the smallest sine of the transmission angle and takes arcsin once per
-machine (arcsin is monotone, so the minimum is the same).
-
-What it covers: the groups point, crank, rrr, on_body, rpr, rrp; the outputs line_deviation,
-coordinate, angle and transmission (of an rrr group). Anything else (velocities, spatial
-groups, custom outputs, pair clearances) returns None from `compiled` with the reason in
-`unsupported`, and the caller keeps the numpy evaluation.
+`compiled(mech, outputs)` generates Python source from the file's groups and the outputs asked
+for, compiles it with numba's disk cache (the source named by its hash under `kernel_dir`) and
+returns a `CompiledModel` whose ``evaluate(values)`` gives `FileMechanism.evaluate`'s
+`Evaluation` without a (machines, angles) array: each machine is one pass over the angles, each
+output reduced as it goes. Per-machine quantities are computed by numpy first, with the
+reference's expressions; the kernel follows sewtol.engine operation for operation and equals it
+to rounding (tests/test_compiled.py). A dead-point test takes arcsin once per machine of the
+smallest sine (arcsin is monotone). What it does not cover returns None from `compiled`, with
+the reason in `unsupported` (docs/mechanism_files.md, "The compiled kernel").
 """
 
 from __future__ import annotations

@@ -70,17 +70,9 @@ def _crank(q, center, radius, phase_deg, sense):
     return engine.polar(center, radius, ang), None
 
 
-def _rrr(q, p1, r1, p2, r2, branch):
-    return engine.rrr(p1, r1, p2, r2, branch)
-
-
 def _on_body(q, origin, u, v, offset_deg, direction=None, angle=None):
     base = direction if direction is not None else angle
     return engine.on_body(origin, base + offset_deg * DEG, u + 1j * v), None
-
-
-def _rpr(q, pivot, block, offset):
-    return engine.rpr(pivot, block, offset)
 
 
 def _rrp(q, p1, r, x, y, angle_deg, branch):
@@ -107,7 +99,7 @@ register_group("crank", _crank, fields={
     "center": ("point", None), "radius": ("expr", None), "phase_deg": ("expr", 0.0),
     "sense": ("branch", 1.0)},
     doc="crank pin center + radius e^{i(sense q + phase)}")
-register_group("rrr", _rrr, fields={
+register_group("rrr", lambda q, **f: engine.rrr(**f), fields={
     "p1": ("point", None), "r1": ("expr", None), "p2": ("point", None), "r2": ("expr", None),
     "branch": ("branch", None)},
     doc="RRR dyad: joint at r1 from p1 and r2 from p2, on the left of p1->p2 for branch +1")
@@ -116,7 +108,7 @@ register_group("on_body", _on_body, fields={
     "offset_deg": ("expr", 0.0), "u": ("expr", None), "v": ("expr", 0.0)},
     one_of=(("direction", "angle"),),
     doc="origin + (u + i v) e^{i(base + offset)}, base = ang(direction) or a named angle")
-register_group("rpr", _rpr, produces="angle", fields={
+register_group("rpr", lambda q, **f: engine.rpr(**f), produces="angle", fields={
     "pivot": ("point", None), "block": ("point", None), "offset": ("expr", 0.0)},
     doc="RPR group: angle of the slotted body pivoted at `pivot`, the block at `block`")
 register_group("rrp", _rrp, fields={

@@ -1,36 +1,20 @@
 """Quasi-static joint forces of a file mechanism (kinetostatics at a uniform crank speed), found
-through its pair parameters: the force a revolute pair with a clearance carries is the
-generalised force of its journal offset.
-
-Why that holds (virtual work, d'Alembert): hold the crank at its angle (the driving torque then
-does no work) and free the journal of pair j inside its bearing, so the offset r_j = (dx, dy) of
-`sewtol.mechanism.clearance` becomes a coordinate. The loads P_k (applied forces, weights and
-inertia forces -m a) do the virtual work  sum_k P_k . dp_k/dr_j . delta r_j ; the only other
-forces that work on delta r_j are the pair's own contact forces, which do N . delta r_j (N the
-bearing's force on the journal). Equilibrium for every delta r_j gives
-
-    Q_j = sum_k (dp_k/dr_j)^T P_k = -N,
-
-the force the journal presses on its bearing with. Under it a free journal moves to the rim in
-the direction of Q_j: the loaded contact direction is u_j = Q_j / |Q_j|. dp_k/dr_j comes from
-central differences of the real model (the same model that gives the outputs), so the joint
-forces need no second description of the bodies. The M6 needle's own Newton-Euler solution
-(`sewtol.mechanisms.m6_needle.model.reactions`) is the independent check (tests).
-
-Assumptions: rigid links; the loads are point loads at points the file draws (a mass there, its
-weight along -y and its inertia force at the uniform crank speed, and a force of given size along
-a given direction, constant or against the point's motion); a link's rotary inertia, friction
-and impact are not modelled; the joint force at r = 0 (first order in the clearances).
+through its pair parameters: by virtual work, the force a revolute pair with a clearance
+carries is the generalised force of its journal offset, Q_j = sum_k (dp_k/dr_j)^T P_k = -N
+(P_k the loads: applied forces, weights, inertia forces -m a), with dp_k/dr_j by central
+differences of the real model; the loaded contact direction is Q_j / |Q_j|. Rigid links, point
+loads at points the file draws, no rotary inertia, friction or impact, first order in the
+clearances (docs/clearances.md, "Loaded mode"). The M6 needle's Newton-Euler solution
+(`sewtol.mechanisms.m6_needle.model.reactions`) is the independent check.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from sewtol.errors import ParameterError
+from sewtol.errors import ParameterError, real
 from sewtol.mechanism.clearance import offset_names
 
 G_M_S2 = 9.81  # gravity along -y of the file's frame (every built-in has y up)
@@ -39,7 +23,7 @@ MM = 1e-3
 
 
 def _number(field: str, v, rule: str, ok) -> float:
-    if not (isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and ok(v)):
+    if not (real(v, finite=True) and ok(v)):
         raise ParameterError(field, rule, v)
     return float(v)
 

@@ -9,15 +9,12 @@ from __future__ import annotations
 
 import functools
 import importlib
-import math
 import re
-import stat
-from pathlib import Path
 
 import numpy as np
 
 from sewtol import costs, dependence, relations, selective, setting_error
-from sewtol.errors import ParameterError
+from sewtol.errors import ParameterError, real
 from sewtol.mechanism import expressions as X
 from sewtol.mechanism.clearance import offset_names, parse_clearances
 from sewtol.mechanism.groups import GROUPS
@@ -36,7 +33,7 @@ from sewtol.mechanism.spec import (
     Spec,
 )
 from sewtol.mechanisms.params import check_names, check_rule
-from sewtol.tolerances import Tolerance, ToleranceSet, parse_item, parse_toml
+from sewtol.tolerances import Tolerance, ToleranceSet, parse_item, parse_toml, read_toml_text
 
 MAX_BYTES = 1 << 20
 NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -66,26 +63,10 @@ class _Ctx:
         raise ParameterError(f"{self.path}:{self.loc.line(*where_path)}: {where}", rule, value)
 
 
-def read_text(path) -> str:
-    path = Path(path)
-    try:
-        st = path.stat()
-        if not stat.S_ISREG(st.st_mode):
-            raise ParameterError(str(path), "is not a regular file", str(path))
-        if st.st_size > MAX_BYTES:
-            raise ParameterError(str(path), f"is larger than {MAX_BYTES} bytes; a mechanism file "
-                                 "is a few pages", st.st_size)
-        return path.read_bytes().decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise ParameterError(str(path), "is not UTF-8 text (TOML files are UTF-8)",
-                             f"offset {exc.start}") from None
-    except OSError as exc:
-        raise ParameterError(str(path), "cannot be read", exc.strerror) from None
-
-
 def load(path, overrides: dict | None = None):
     """The FileMechanism of a file; `overrides` (name -> value) replace nominal values."""
-    return loads(read_text(path), str(path), overrides)
+    return loads(read_toml_text(path, MAX_BYTES, "a mechanism file is a few pages"), str(path),
+                 overrides)
 
 
 @functools.cache
@@ -158,11 +139,7 @@ def _str(ctx, path, where, v, pattern=None, what="a string"):
 
 
 def _number(ctx, path, where, v):
-    try:
-        ok = not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
-    except OverflowError:  # an int of hundreds of digits
-        ok = False
-    if not ok:
+    if not real(v, finite=True):
         ctx.fail(path, where, "must be a finite number", v)
     return float(v)
 

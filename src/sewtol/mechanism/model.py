@@ -194,7 +194,7 @@ class FileMechanism:
             seen = points
             if link1 and g.type == "on_body":
                 seen = on_body_view(g, points, link1, self.groups)
-            fields = _resolved(g.fields, gt.fields, seen, angles, cols)
+            fields = resolved(g.fields, gt.fields, seen, angles, cols)
             r = offsets.get(g.name)
             if r is not None and g.type in DYADS:
                 # the journal of link 2 sits r from link 1's: link 1 turns about p1 + r
@@ -241,7 +241,7 @@ class FileMechanism:
                                  output)
         state = self.state(values, q_rad)
         status, _ = self.status_of(state)
-        kwargs = _resolved(o.fields, OUTPUT_TYPES[o.type].fields, state.points, state.angles,
+        kwargs = resolved(o.fields, OUTPUT_TYPES[o.type].fields, state.points, state.angles,
                            state.values)
         with np.errstate(invalid="ignore"):
             d = np.broadcast_to(line_distance_um(state, **kwargs), state.shape)
@@ -256,7 +256,7 @@ class FileMechanism:
             for o in chosen:
                 # provide: a worker process that unpickled the file imports the kind's module
                 ot = provide(o.kind) if o.type == "custom" else OUTPUT_TYPES[o.type]
-                kwargs = _resolved(o.fields, ot.fields, state.points, state.angles, state.values)
+                kwargs = resolved(o.fields, ot.fields, state.points, state.angles, state.values)
                 y = np.asarray(ot.fn(state, **kwargs), float).reshape(-1)
                 y = np.broadcast_to(y, (state.shape[0],))
                 out[o.name] = np.where(ok, y, np.nan)
@@ -300,7 +300,6 @@ def resolved(fields: dict, kinds: dict, points: dict, angles: dict, values: dict
     return out
 
 
-_resolved = resolved
 _CLASSES: dict = {}
 
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sewtol.errors import ParameterError
+from sewtol.errors import ParameterError, real
 from sewtol.setting_error import SettingError
 
 FORMAT = "sewtol-mechanism/1"
@@ -96,8 +96,7 @@ class Spec:
             raise ParameterError("upper", "give an upper and/or a lower limit", None)
         for name in ("upper", "lower"):
             v = getattr(self, name)
-            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
-                                  or not np.isfinite(v)):
+            if v is not None and not real(v, finite=True):
                 raise ParameterError(name, "must be a finite number", v)
             if v is not None:
                 object.__setattr__(self, name, float(v))

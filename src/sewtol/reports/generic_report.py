@@ -1,11 +1,9 @@
 """A report of any mechanism file: nominal, scan, worst case, Monte-Carlo, in one folder.
 
-`build(mech, tolerances, ...)` runs the studies of sewtol.studies.generic and returns a frozen
-GenericReport; `write(report, out)` writes it: every table as CSV and Markdown, one histogram
-per output (PNG), index.md and a self-contained report.html (tables inline, figures embedded
-as base64 PNG; no script, no link outside the file). The top of the report says in words what
-a reader needs first: the file's title, source and assumptions, which tolerances dominate each
-output (from the scan) and, with a limit, the yield.
+`build(mech, tolerances, ...)` runs the studies and returns a frozen GenericReport; `write(report,
+out)` writes every table as CSV and Markdown, a histogram per output, index.md and a
+self-contained report.html, opening with the file's title, source, assumptions, the dominant
+tolerances of each output and, with a limit, the yield.
 """
 
 from __future__ import annotations

@@ -1,12 +1,7 @@
-"""A self-contained HTML report: the headline (what the yield is, what to do, how far it depends on
-the frame) in three lines, the conclusions in words, then figures and tables, then the
-provenance. Pure: data in, one string out (no file is read or written here); figures are embedded
-(PNG as base64 data URIs, SVG inline), so the page opens anywhere and pastes into a report.
-
-The tables come as the Markdown the table writer produced (tables.to_markdown: a title, the
-settings as a bullet list, a pipe table); `markdown_to_html` converts exactly that subset
-(headings, bullets, pipe tables, paragraphs, **bold**, `code`, [links](x.md)), so every table of
-the Markdown report appears in the HTML one with its settings.
+"""A self-contained HTML report: the headline, the conclusions in words, figures and tables,
+the provenance. Pure: data in, one string out; figures embedded (PNG as base64 data URIs, SVG
+inline). `markdown_to_html` converts exactly the Markdown subset the table writer produces
+(headings, bullets, pipe tables, paragraphs, **bold**, `code`, [links](x.md)).
 """
 
 from __future__ import annotations

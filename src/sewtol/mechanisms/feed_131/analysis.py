@@ -104,24 +104,15 @@ def b_for_step(params: Feed131, step_mm: float, b_range=(0.0, 60.0)) -> float:
 
 def b_range_for_ratio(params: Feed131, band=(1.0, 1.2), b_range=(0.0, 60.0),
                       step_deg: float = 0.25) -> pd.DataFrame:
-    """Intervals of b (on a grid, edges refined by bisection) where the ratio lies in band."""
+    """The runs of the grid of b (step_deg apart) where the ratio lies in band: each run's first
+    and last b and the ratio there."""
     b = np.arange(b_range[0], b_range[1] + 1e-9, step_deg)
     r = regulator_sweep(params, b)["differential_ratio"].to_numpy()
-    inside = (r >= band[0]) & (r <= band[1])
-    rows = []
-    k = 0
-    while k < len(b):
-        if inside[k]:
-            j = k
-            while j + 1 < len(b) and inside[j + 1]:
-                j += 1
-            rows.append({"b_low_deg": b[k], "b_high_deg": b[j],
-                         "ratio_at_low": r[k], "ratio_at_high": r[j]})
-            k = j + 1
-        else:
-            k += 1
-    frame = pd.DataFrame(rows, columns=["b_low_deg", "b_high_deg", "ratio_at_low",
-                                        "ratio_at_high"])
+    inside = np.r_[False, (r >= band[0]) & (r <= band[1]), False]
+    lo = np.flatnonzero(inside[1:] & ~inside[:-1])
+    hi = np.flatnonzero(inside[:-1] & ~inside[1:]) - 1
+    frame = pd.DataFrame({"b_low_deg": b[lo], "b_high_deg": b[hi], "ratio_at_low": r[lo],
+                          "ratio_at_high": r[hi]})
     frame.attrs["grid_step_deg"] = step_deg
     return frame
 

@@ -1,19 +1,12 @@
 """The m6_needle fast path: the needle travel exactly, as the protocol's kernel plug-in.
 
-The file's travel (a `coordinate` of J along the guide, `range`) takes J's extremes on the
-sampled crank angles; the model (model.py) has them in closed form (`extremes`, `travel_mm`):
-J at the lever's extremes (the crank perpendicular to the slot) or where it stands still inside
-the swing (the rod along the arm). The kernel gives
-that travel for every machine the closed form covers: a slotted-lever rocker (crank shorter
-than pivot_mm - |slot_offset_mm|) whose rod reaches the guide over the whole swing. Any other
-machine keeps the file's own (sampled) evaluation, so the kernel and the generic path agree on
-which machines run.
-
-The bound (kernel_bound): at each extreme q* the nearest sample lies within h/2 of it (h the
-file's sample step) and s'(q*) = 0, so the sampled extreme falls short by at most
-max|s''| (h/2)^2 / 2 over [q* - h/2, q* + h/2] (Taylor), s'' from the chain's exact second
-transfer function on a FINE grid over 1.5 samples either side of the sampled extreme (which
-lies within a sample of q*); plus POSITION_TOL_MM at each end for the two models' positions.
+The file's travel takes J's extremes on the sampled crank angles; the model has them in closed
+form (`extremes`, `travel_mm`) for a slotted-lever rocker (crank shorter than pivot_mm -
+|slot_offset_mm|) whose rod reaches the guide over the whole swing; any other machine keeps the
+file's own evaluation, so both paths agree on which machines run. The bound (`kernel_bound`):
+the sampled extreme falls short by at most max|s''| (h/2)^2 / 2 (h the sample step; s'' exact,
+on a FINE grid over 1.5 samples either side) plus POSITION_TOL_MM at each end (this folder's
+README.md).
 """
 
 from __future__ import annotations

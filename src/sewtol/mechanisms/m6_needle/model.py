@@ -283,10 +283,8 @@ def evaluate(params: M6Needle, samples: int = 720) -> M6Figures:
     travel = np.asarray(travel_mm(params), float)
     ok = m.status == "ok"
     with np.errstate(invalid="ignore"):
-        vmax = np.where(ok, np.nanmax(np.where(np.isnan(m.speed_m_s), -np.inf, m.speed_m_s),
-                                      axis=-1), np.nan)
-        amax = np.where(ok, np.nanmax(np.where(np.isnan(m.accel_m_s2), -np.inf, m.accel_m_s2),
-                                      axis=-1), np.nan)
+        vmax, amax = (np.where(ok, np.nanmax(np.where(np.isnan(x), -np.inf, x), axis=-1), np.nan)
+                      for x in (m.speed_m_s, m.accel_m_s2))
     travel = np.where(ok, np.broadcast_to(travel, np.shape(ok)), np.nan)
     return M6Figures(travel, vmax, amax, m.status, m.failed_group)
 

@@ -1,15 +1,10 @@
 """Event-driven contact dynamics of the presser foot on its crank-slider (numba, one machine per
-loop iteration). The model and its conventions: mechanisms/presser_foot/model.py and
-docs/presser_foot.md. Everything here is in the crank-angle domain: phi in radians,
-derivatives d/dphi, lengths mm; accelerations in mm/rad^2 (times omega^2 for mm/s^2).
-
-Per machine the inputs are the slider (crank r, rod L, offset a), the foot's normalised
-oscillator (nu = natural frequency / crank speed, damping ratio zeta, x_eq = the position of
-the seat coordinate y where the spring and gravity balance) and the material (the seat
-coordinate y_m at which the foot sole meets the material; +inf: never).
-
-Between events the foot's motion is the exact damped free vibration about x_eq; events are
-found by sampling at STEP_RAD and refining the bracketed root by bisection to ROOT_TOL_RAD.
+loop iteration; the model: model.py and this folder's README.md). Crank-angle domain: phi in
+radians, derivatives d/dphi, lengths mm, accelerations mm/rad^2 (times omega^2 for mm/s^2).
+Inputs per machine: the slider (crank r, rod L, offset a), the foot's normalised oscillator (nu
+= natural frequency / crank speed, damping ratio zeta, balance x_eq in the seat coordinate y)
+and the material level y_m (+inf: none). Between events the foot's motion is the exact damped
+free vibration; events are sampled at STEP_RAD and bisected to ROOT_TOL_RAD.
 """
 
 from __future__ import annotations

@@ -1,30 +1,13 @@
 """Embroidery presser foot with an elastic link (Vitebsk semi-automatic machine).
 
-The model (docs/presser_foot.md states it with every assumption):
-
-- A crank-slider drives the seat D along a straight line. y is the seat's distance from the
-  crank axis along the line, pointing away from the crank (downwards, towards the needle plate):
-  y(phi) = sqrt(L^2 - (r sin phi)^2) + r cos phi + a (the source's formula; phi is the crank
-  angle from the y axis, a the distance from the rod's hinge C to the seat D). The seat is
-  lowest (y = L + r + a) at phi = 0.
-- The foot's lug rests on the seat from above (smaller y). A preloaded spring anchored to the
-  frame, and gravity, push the foot down onto the seat; the seat lifts it. The foot's free
-  motion is a damped oscillator about the position x_eq where spring and weight balance:
-  y_f'' = -omega_n^2 (y_f - x_eq) - 2 zeta omega_n y_f' (damping ratio zeta = 0.012 of the
-  source; the damper acts on the foot's absolute speed).
-- Contact foot-seat is lost (1) when the seat accelerates down faster than the spring and
-  gravity can accelerate the foot (the seat's push per unit mass would turn negative), or
-  (2) when the seat passes the material level y_m: the foot's sole stops on the material and
-  stays there (pressed by its spring) while the seat goes on down and back.
-- Contact returns when the seat meets the foot again: a plastic impact (the seat's reduced mass
-  is much larger than the foot's), the foot takes the seat's speed. If the seat's push is then
-  negative the foot leaves again at once (a bounce, counted).
-- Separation = seat minus foot (mm): how far the seat is below the foot's lug.
-- Angles reported are shaft angles theta = phi + phase_deg: the source's table counts the
-  crank angle from another origin than its formula; phase_deg is fitted (docs).
-
-Only k/m, (F + m g)/m and the geometry enter the motion: mass, stiffness and preload are not
-separately identifiable (docs/presser_foot.md, "Identifiability").
+A crank-slider drives the seat D along a straight line (y: the seat's distance from the crank
+axis, downwards: y(phi) = sqrt(L^2 - (r sin phi)^2) + r cos phi + a, lowest at phi = 0); the
+foot's lug rests on the seat, pushed down by a preloaded spring and gravity, and moves freely
+as a damped oscillator about its balance x_eq when contact is lost (the seat accelerating down
+faster than the foot can follow, or the foot's sole stopping on the material). Contact returns
+by a plastic impact. Separation = seat minus foot (mm). Angles reported are shaft angles
+theta = phi + phase_deg (phase_deg fitted). Only k/m, (F + m g)/m and the geometry enter the
+motion. The model and every assumption: this folder's README.md (docs/presser_foot.md).
 """
 
 from __future__ import annotations
@@ -364,19 +347,13 @@ def holding_m_s2(params: PresserFoot):
 # cycle's four figures, then its modes as numbers (contact_status: the index in STATUS)
 MEASURES = ("loss_deg", "regain_deg", "lost_deg", "separation_mm", "contact_status", "impacts",
             "intervals", "lost_by_force")
+_REQUIRED = ("expr", None, None)
 PRESSER_CONTACT_FIELDS = {
     # name: (kind, default, choices) in the registry's form (default None: required)
-    "crank_mm": ("expr", None, None),
-    "rod_mm": ("expr", None, None),
-    "offset_mm": ("expr", None, None),
-    "speed_rad_s": ("expr", None, None),
-    "phase_deg": ("expr", 0.0, None),
-    "material_mm": ("expr", None, None),
-    "mass_kg": ("expr", None, None),
-    "stiffness_n_per_mm": ("expr", None, None),
-    "preload_n": ("expr", None, None),
-    "damping_ratio": ("expr", 0.012, None),
-    "measure": ("choice", "separation_mm", MEASURES),
+    "crank_mm": _REQUIRED, "rod_mm": _REQUIRED, "offset_mm": _REQUIRED,
+    "speed_rad_s": _REQUIRED, "phase_deg": ("expr", 0.0, None), "material_mm": _REQUIRED,
+    "mass_kg": _REQUIRED, "stiffness_n_per_mm": _REQUIRED, "preload_n": _REQUIRED,
+    "damping_ratio": ("expr", 0.012, None), "measure": ("choice", "separation_mm", MEASURES),
 }
 
 
