@@ -2,10 +2,11 @@
 
 A file that names `fast_path = "needle_208"` (and passed the loader's check that it reproduces
 the built-in needle drive) runs scan, worst-case, montecarlo, sobol, ppm, allocation and
-strategies on the needle's exact model (cli.needle.FAST_PATH) unless `--path generic` is given
-or a flag asks what the fast path cannot answer (`_fast_path_refusal`; the mapping is
-`_needle_namespace`, documented in docs/mechanism_files.md). `sewtol needle STUDY ARGS` is
-`sewtol run needle_208 STUDY ARGS` (needle_aliases: the same parser, the same function).
+strategies (and settings without --set SETTING:..., the guide's settings) on the needle's exact
+model (cli.needle.FAST_PATH) unless `--path generic` is given or a flag asks what the fast path
+cannot answer (`_fast_path_refusal`; the mapping is `_needle_namespace`, documented in
+docs/mechanism_files.md). `sewtol needle STUDY ARGS` is `sewtol run needle_208 STUDY ARGS`
+(NEEDLE_ALIASES: the same parser, the same function; `needle guides` is `settings`).
 """
 
 from __future__ import annotations
@@ -73,7 +74,8 @@ USES = {"nominal": (), "scan": ("output", "tolerances", "adjust", "objective", "
 # the studies that adjust the file's [defaults] adjust when --adjust is not given (the ones
 # with a `sewtol needle` form; refine adjusts every compensator by default, shapley, clearance
 # and least-cost none); `--adjust none` adjusts nothing
-DEFAULT_ADJUST_STUDIES = ("scan", "worst-case", "montecarlo", "ppm", "allocation")
+DEFAULT_ADJUST_STUDIES = ("scan", "worst-case", "montecarlo", "ppm", "allocation",
+                          "largest-tolerances")
 # the columns a table prints without --wide (JSON and CSV keep every column); `failed` sums
 # the failure counts where the table has no such column, so ok + out_of_spec + failed = n
 COMPACT = {"montecarlo": ("output", "case", "n", "ok", "out_of_spec", "failed", "mean", "std",
@@ -97,9 +99,9 @@ def add_run(sub) -> None:
 
 
 def needle_aliases(nsub) -> None:
-    """`sewtol needle STUDY ARGS`: `sewtol run needle_208 STUDY ARGS`'s parser and function."""
-    for study in FAST_PATH_STUDIES:
-        p = nsub.add_parser(study, help=f"the same as `sewtol run needle_208 {study}`")
+    """`sewtol needle ALIAS ARGS`: `sewtol run needle_208 STUDY ARGS`'s parser and function."""
+    for alias, study in NEEDLE_ALIASES.items():
+        p = nsub.add_parser(alias, help=f"the same as `sewtol run needle_208 {study}`")
         run_options(p)
         p.set_defaults(file="needle_208", study=study)
 
@@ -229,9 +231,6 @@ def _settings(args) -> list:
         return []
     items = [i for i in args.set or [] if ":" in i.partition("=")[0]]
     args.set = [i for i in args.set or [] if i not in items]
-    if not items:
-        raise ParameterError("--set", "`run settings` needs at least one "
-                             "SETTING:NAME=VALUE[,NAME=VALUE...]", None)
     out = []
     for item in items:
         name, _, body = item.partition(":")
@@ -351,18 +350,23 @@ def cmd_run(args) -> None:
     if args.study in SPEC_STUDIES and args.n is not None:  # the limits: the flags', else the file's
         args.spec_output, args.spec, args.spec_source = mech.resolve_spec(
             args.output, args.limit, args.lower_limit)
-    args.path_reason = _fast_path_refusal(args, mech)  # None: the needle_208 fast path
+    args.path_reason = _fast_path_refusal(args, mech, settings)  # None: the needle_208 fast path
     _check_needle_flags(args, mech)
-    if args.study in ("nominal", "settings"):
+    generic_settings = args.study == "settings" and args.path_reason is not None
+    if args.study == "nominal" or generic_settings:
         check_study_folder(args, _inputs(args, mech, None), chunked=False)
     if args.study == "nominal":
         res = G.nominal(mech)
         return _finish(args, fmt, mech, None, res.to_dict(), {"nominal": res.to_dataframe()},
                        res.to_dataframe())
-    if args.study == "settings":
+    if generic_settings:
         from sewtol.studies import settings as SE
         from sewtol.studies.strategies import parse_strategies
 
+        if not settings:
+            raise ParameterError("--set", "`run settings` needs at least one SETTING:NAME=VALUE"
+                                 "[,NAME=VALUE...]" + ("" if mech.header.fast_path != "needle_208"
+                                 else f" off the needle_208 fast path ({args.path_reason})"), None)
         figures = tolerances = None
         if args.n is not None:  # the same machines on every setting, per case
             cases = parse_strategies(args.strategy, mech) if args.strategy else {
@@ -389,6 +393,10 @@ def cmd_run(args) -> None:
     _check_needle_flags(args, mech)
     if args.path_reason is None:  # the needle commands check their folder (open_store)
         return _needle_study(args, mech, tolerances)
+    if args.study == "settings":  # without --set SETTING:...: the guide's, on the needle model
+        raise ParameterError("--tolerances", "must vary the needle model's parameters alone for "
+                             "the guide's settings (give --set SETTING:... to compare others)",
+                             tolerances.name)
     check_study_folder(args, _inputs(args, mech, tolerances), chunked=False)
     if mech.header.fast_path == "needle_208" and args.path == "auto" \
             and args.study in FAST_PATH_STUDIES:
@@ -723,6 +731,10 @@ def _finish(args, fmt, mech, tolerances, obj, frames, frame) -> None:
     emit(fmt, obj=obj, frame=frame, compact=COMPACT.get(args.study), wide=args.wide)
 
 FAST_PATH_STUDIES = tuple(N.FAST_PATH)
+# `sewtol needle ALIAS` -> `sewtol run needle_208 STUDY` (NEEDLE_NAME: the study's needle name)
+NEEDLE_ALIASES = {**{s: s for s in FAST_PATH_STUDIES if s != "settings"}, "guides": "settings",
+                  "largest-tolerances": "largest-tolerances"}
+NEEDLE_NAME = {study: alias for alias, study in NEEDLE_ALIASES.items()}
 # the needle studies that report the fixed and the adjusted case by default
 BOTH_CASES = ("worst-case", "montecarlo", "sobol")
 
@@ -748,7 +760,7 @@ def _kernel_path(args, mech) -> bool:
     return True
 
 
-def _fast_path_refusal(args, mech) -> str | None:
+def _fast_path_refusal(args, mech, settings=()) -> str | None:
     """None when `run FILE STUDY` runs on the needle_208 fast path, else why it does not."""
     from sewtol.mechanisms.needle_208 import beta as sb
     from sewtol.mechanisms.needle_208.fast_path import sumdelta_outputs
@@ -783,14 +795,16 @@ def _fast_path_refusal(args, mech) -> str | None:
     if args.study in ("allocation", "strategies") and upper not in (None, sb.DEFAULT_LIMIT_UM):
         return (f"{flag} {upper:g}: `needle {args.study}` keeps SumDelta within "
                 f"{sb.DEFAULT_LIMIT_UM:g} um")
-    if args.study == "strategies" and args.strategy is not None:
-        return "--strategy: `needle strategies` compares its own rows"
+    if args.study in ("strategies", "settings") and args.strategy is not None:
+        return f"--strategy: `needle {NEEDLE_NAME[args.study]}` compares its own rows"
+    if settings:
+        return "--set SETTING:...: `needle guides` compares the guide's own settings"
     if args.weight is not None:
         return "--weight: `needle allocation` weighs every tolerance alike"
     if args.shape == "set":
         return "--shape set: `needle allocation` shapes the tolerances by their slopes"
-    if args.out and args.study in ("worst-case", "allocation"):
-        return f"--out: `needle {args.study}` writes no study folder"
+    if args.out and args.study in ("worst-case", "allocation", "settings"):
+        return f"--out: `needle {NEEDLE_NAME[args.study]}` writes no study folder"
     return None
 
 
@@ -882,7 +896,7 @@ def _needle_namespace(args, mech, tolerances=None):
     if given is not None:
         ns.adjust = given
     elif args.adjust is None:  # no default adjustment in the file
-        ns.adjust = None if study in BOTH_CASES or study == "strategies" else "none"
+        ns.adjust = None if study in (*BOTH_CASES, "strategies", "settings") else "none"
     else:  # the file's default: beta, the needle's own default
         ns.adjust = "beta" if study == "ppm" else None
         comp = mech.compensators[args.adjust]
@@ -892,7 +906,9 @@ def _needle_namespace(args, mech, tolerances=None):
         ns.seed = None
     if study in ("scan", "worst-case", "ppm"):
         ns.n = None
-    if study in ("montecarlo", "ppm"):
+    if study == "settings" and ns.n is None:  # the guide's settings always draw machines
+        ns.n = DEFAULT_N[study]
+    if study in ("montecarlo", "ppm", "settings"):
         # the limit in force; the file's spec of the needle's own default 10 um is passed as
         # the default, so `run` prints the bytes of the needle's default
         ns.limit_um = None if args.spec is None or (
