@@ -399,10 +399,13 @@ def _strategy(args, setting_errors: bool = False):
 
 
 def _strategy_record(strategy) -> dict:
-    return {c.name: {"low": c.low, "high": c.high, "step": c.step, "resolution": c.resolution,
-                     "mode": c.mode, **({} if c.setting_error is None else
-                                        {"setting_error": c.setting_error.to_dict()})}
-            for c in strategy.compensators}
+    """{"compensators": each compensator's box, step, resolution, mode and setting error}, or
+    {} without a strategy (the studies' JSON and run.json)."""
+    return {} if strategy is None else {"compensators": {
+        c.name: {"low": c.low, "high": c.high, "step": c.step, "resolution": c.resolution,
+                 "mode": c.mode, **({} if c.setting_error is None else
+                                    {"setting_error": c.setting_error.to_dict()})}
+        for c in strategy.compensators}}
 
 
 def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
@@ -412,8 +415,7 @@ def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
 
     params = _at_beta_star(args, params, strategy)
     inputs = study_inputs(args, "montecarlo_adjusted", params, tolerances, limit_um=limit,
-                          chunk_size=CHUNK, strategy=strategy.name,
-                          compensators=_strategy_record(strategy))
+                          chunk_size=CHUNK, strategy=strategy.name, **_strategy_record(strategy))
 
     def study(store, client):
         machines = sample_machines(adjusted_montecarlo_model, params, tolerances, args.n,
@@ -422,8 +424,7 @@ def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
                                    limit_um=limit)
         summary = adjusted_summary(params, machines, strategy, limit)
         record = {**summary.iloc[0].to_dict(), "seed": args.seed, "tolerances": tolerances.name,
-                  "compensators": _strategy_record(strategy),
-                  **_fixed_record(args, params, strategy),
+                  **_strategy_record(strategy), **_fixed_record(args, params, strategy),
                   "context": _context(args, params, tolerances, strategy)}
         return summary, record, {"machines": deviation_columns(
             machines, tolerances.active().params), "summary": summary}
@@ -472,7 +473,7 @@ def cmd_needle_strategies(args):
         frames[f"machines_{safe}"] = deviation_columns(res.machines(r.name), res.params)
     reading = {} if measurement is None else {"measurement_error": measurement.to_dict()}
     inputs = study_inputs(args, "strategies", params, tolerances, limit_um=10.0,
-                          strategies={r.name: _strategy_record(r) for r in rows}, **reading)
+                          strategies={r.name: _strategy_record(r)["compensators"] for r in rows}, **reading)
     context = {**_context(args, params, tolerances, strategy),
                "strategy": [r.name for r in rows], "limit_um": 10.0, **reading}
     obj = {"context": context, **_fixed_record(args, params, strategy),
@@ -514,7 +515,6 @@ def cmd_needle_sobol(args):
     rng = tuple(args.beta_range)
     started = now()
     context = _context(args, params, tolerances, strategy)
-    extra = {} if strategy is None else {"compensators": _strategy_record(strategy)}
     inputs = study_inputs(args, "sobol", params, tolerances, beta_search_range_deg=list(rng),
                      limit_um=args.limit_um, second_order=args.second_order, context=context,
                      chunk_size=CHUNK, resamples=SOBOL_RESAMPLES,
@@ -522,7 +522,7 @@ def cmd_needle_sobol(args):
                      strategy="beta fixed at the nominal's beta* (fixed_beta=optimum) and beta "
                      "re-optimised per sample" if strategy is None else "beta fixed at the "
                      f"nominal's beta* (fixed_beta=optimum) and {strategy.name} adjusted per "
-                     "sample (exact joint optimum)", **extra)
+                     "sample (exact joint optimum)", **_strategy_record(strategy))
     store = open_store(args, inputs)
     try:
         runs = run_history(store, started)
@@ -584,7 +584,7 @@ def cmd_needle_guides(args):
                                "prints it for that guide)",
            "context": _context(args, params, tolerances, strategy),
            "strategy": "fixed beta and beta adjusted" if strategy is None else strategy.name,
-           **({} if strategy is None else {"compensators": _strategy_record(strategy)}),
+           **_strategy_record(strategy),
            "rows": table.to_dict(orient="records")}
     emit(args.format, obj=obj, frame=table, compact=COMPACT["guides"], wide=args.wide)
     save_plot(args, lambda ax: plots().grouped_bars(
@@ -608,7 +608,7 @@ def cmd_needle_allocation(args):
            "scale": res.scale,
            "cost_model": "reciprocal: sum c_i / width_i; shape (c_i / s_i^2)^(1/3), common "
                          "scale by bisection on the Monte-Carlo yield (common random numbers)",
-           **({} if strategy is None else {"compensators": _strategy_record(strategy)}),
+           **_strategy_record(strategy),
            "context": _context(args, params, tolerances, strategy),
            "rows": table.to_dict(orient="records")}
     emit(args.format, obj=obj, frame=table)
@@ -645,7 +645,7 @@ def cmd_needle_worst_case(args):
     obj = {"tolerances": tolerances.name, **_fixed_record(args, params, strategy),
            "context": _context(args, params, tolerances, strategy),
            "strategy": "beta" if strategy is None else strategy.name,
-           **({} if strategy is None else {"compensators": _strategy_record(strategy)}),
+           **_strategy_record(strategy),
            "method": "every corner and the centre, the best 3 polished by L-BFGS-B in the box "
                      "(never below any evaluated point; not proven global)",
            "rows": table.to_dict(orient="records")}

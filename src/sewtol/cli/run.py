@@ -126,8 +126,8 @@ def run_options(p) -> None:
     p.add_argument("--adjust", default=None, metavar="COMPENSATOR[,COMPENSATOR...]|none",
                    help="add the adjusted case: --output (default the first) minimised over "
                         "this [compensators.NAME] of the file on each machine (default: the "
-                        "file's [defaults] adjust for scan, worst-case, montecarlo, ppm and "
-                        "allocation; none: no adjustment)")
+                        "file's [defaults] adjust for scan, worst-case, montecarlo, ppm, "
+                        "allocation and largest-tolerances; none: no adjustment)")
     p.add_argument("--objective", default=None, metavar="minimise|target=T|centre=L,U",
                    help="scan, worst-case, montecarlo, ppm, allocation, strategies, settings: "
                         "what --adjust (strategies, settings: each --strategy) does with "
@@ -192,8 +192,8 @@ def run_options(p) -> None:
                         "tolerance's change at its limits; montecarlo, each output's histogram "
                         "with its spec limits; sobol, S1 and ST with their intervals; refine, "
                         "the objective's curve today and refined; on the needle_208 fast path "
-                        "also worst-case, allocation and strategies (the yield of each "
-                        "strategy with its 95 %% interval)")
+                        "also worst-case, allocation, strategies (the yield of each "
+                        "strategy with its 95 %% interval) and settings (the guide's yields)")
     p.add_argument("--guide-diameter", type=float, default=None, metavar="MM",
                    help="clearance: the guide rod's diameter for its ISO 286 fits (default 8)")
     p.add_argument("--play-limit", type=float, default=None, metavar="UM",
@@ -257,10 +257,7 @@ def resolve_tolerances(mech, spec):
 
 
 def _check_flags(args) -> None:
-    for key in ("output", "tolerances", "n", "seed", "limit", "n_jobs", "adjust", "lower_limit",
-                "method", "target", "weight", "strategy", "vary", "keep", "require", "restarts",
-                "popsize", "maxiter", "plot", "guide_diameter", "play_limit", "guide_fit",
-                "cost", "confidence", "check_n", "clearances", "shape", "objective"):
+    for key in dict.fromkeys(k for keys in USES.values() for k in keys):  # every study flag
         value = getattr(args, key)
         if value is not None and key not in USES[args.study] \
                 and args.study not in N.NEEDLE_FLAGS.get(key, ()):  # _check_needle_flags
@@ -391,8 +388,9 @@ def cmd_run(args) -> None:
     if args.path_reason is None:
         args.path_reason = _tolerances_refusal(tolerances)
     _check_needle_flags(args, mech)
-    if args.path_reason is None:  # the needle commands check their folder (open_store)
-        return _needle_study(args, mech, tolerances)
+    if args.path_reason is None:  # the needle command (cli.needle.FAST_PATH) checks its folder
+        ns = _needle_namespace(args, mech, tolerances)
+        return ns.func(ns)
     if args.study == "settings":  # without --set SETTING:...: the guide's, on the needle model
         raise ParameterError("--tolerances", "must vary the needle model's parameters alone for "
                              "the guide's settings (give --set SETTING:... to compare others)",
@@ -504,7 +502,6 @@ def _least_cost(args, fmt, mech, tolerances) -> None:
     import math
 
     from sewtol import costs as C
-    from sewtol.protocol import plugins
     from sewtol.studies import least_cost as LC
 
     given = {}
@@ -522,8 +519,7 @@ def _least_cost(args, fmt, mech, tolerances) -> None:
                              confidence)
     if args.check_n is not None and args.check_n < 0:
         raise ParameterError("--check-n", "must be a whole number >= 0", args.check_n)
-    fast = args.path != "generic"
-    args.path_used = (plugins(mech).name or "generic") if fast else "generic"
+    fast = _plugin_path(args, mech)
     spec = args.spec
     upper, lower = (None, None) if spec is None else (spec.upper, spec.lower)
     res = _as_flags(partial(LC.least_cost, fast=fast, confidence=confidence or None,
@@ -560,7 +556,6 @@ def _largest_tolerances(args, fmt, mech, tolerances) -> None:
 
     import pandas as pd
 
-    from sewtol.protocol import plugins
     from sewtol.studies import scan as S
     from sewtol.studies.adjusting import adjusted, evaluated
 
@@ -575,8 +570,7 @@ def _largest_tolerances(args, fmt, mech, tolerances) -> None:
         raise ParameterError(f"[[specs]] {output}", "must have no lower limit for `run "
                              "largest-tolerances`, which searches an upper limit (--limit "
                              "replaces the spec)", spec.lower)
-    fast = args.path != "generic"
-    args.path_used = (plugins(mech).name or "generic") if fast else "generic"
+    fast = _plugin_path(args, mech)
     adjust = args.adjust
     set_by = set() if adjust is None else {mech.compensators[c].parameter for c in
                                            adjust.split(",") if c in mech.compensators}
@@ -618,12 +612,10 @@ def _largest_tolerances(args, fmt, mech, tolerances) -> None:
 def _strategies(args, fmt, mech, tolerances) -> None:
     """`run FILE strategies` (sewtol.studies.strategies): the same machines under each strategy,
     through the file's plug-ins unless --path generic."""
-    from sewtol.protocol import plugins
     from sewtol.studies import strategies as ST
 
     rows = None if args.strategy is None else ST.parse_strategies(args.strategy, mech)
-    fast = args.path != "generic"
-    args.path_used = (plugins(mech).name or "generic") if fast else "generic"
+    fast = _plugin_path(args, mech)
     res = _as_flags(partial(ST.strategies, fast=fast, n_jobs=args.n_jobs, **_goal(args)), mech,
                     tolerances, args.n, args.seed, rows, args.spec_output, args.spec)
     frame = res.to_dataframe()
@@ -742,6 +734,15 @@ BOTH_CASES = ("worst-case", "montecarlo", "sobol")
 # the studies a fast path other than needle_208's serves through its plug-ins (the m6 needle's
 # exact travel), unless --path generic
 KERNEL_STUDIES = ("scan", "montecarlo")
+
+
+def _plugin_path(args, mech) -> bool:
+    """True (the studies' `fast`) unless --path generic; the context names the path taken."""
+    from sewtol.protocol import plugins
+
+    fast = args.path != "generic"
+    args.path_used = (plugins(mech).name or "generic") if fast else "generic"
+    return fast
 
 
 def _kernel_path(args, mech) -> bool:
@@ -928,20 +929,12 @@ def _needle_namespace(args, mech, tolerances=None):
     return ns
 
 
-def _needle_study(args, mech, tolerances) -> None:
-    """The needle_208 fast path: `sewtol needle STUDY` itself (cli.needle.cmd_needle_*), on the
-    file's nominal machine and tolerance set; see docs/mechanism_files.md for the flag mapping."""
-    ns = _needle_namespace(args, mech, tolerances)
-    ns.func(ns)
-
-
 def _yield_study(args, fmt, mech, tolerances) -> None:
     """ppm, allocation and report (sewtol.studies.rare_event, allocation, sewtol.reports.generic_report)."""
     import numpy as np
 
     from sewtol.studies import allocation as AL
     from sewtol.studies import rare_event as PPM
-    from sewtol.studies import rare_event as R
 
     output, spec = args.spec_output, args.spec
     upper, lower = (None, None) if spec is None else (spec.upper, spec.lower)
@@ -989,7 +982,7 @@ def _yield_study(args, fmt, mech, tolerances) -> None:
         return None
     ls = _as_flags(partial(PPM.limit_state, fast=False, **_goal(args)), mech, tolerances, output,
                    upper, lower, args.adjust)
-    res = _as_flags(R.estimate, ls, np.random.default_rng(args.seed), args.method, args.target,
+    res = _as_flags(PPM.estimate, ls, np.random.default_rng(args.seed), args.method, args.target,
                     args.n, args.n_jobs)
     cond = PPM.limits_text(output if args.adjust is None else f"{output}_adjusted", upper,
                           lower, mech.output(output).unit)
@@ -1062,7 +1055,6 @@ def _parse_constraints(args, mech, adjust, objective) -> list:
 def _refine(args, fmt, mech) -> None:
     """`run FILE refine` (sewtol.studies.refine): the design refined, today's beside it."""
     from sewtol.cli.common import save_plot
-    from sewtol.protocol import plugins
     from sewtol.studies import refine as RF
 
     tolerances = (resolve_tolerances(mech, args.tolerances)
@@ -1072,8 +1064,7 @@ def _refine(args, fmt, mech) -> None:
     objective = args.output or mech.output_names[0]
     params = _parse_vary(args.vary, mech)
     constraints = _parse_constraints(args, mech, adjust, objective)
-    fast = args.path != "generic"
-    args.path_used = (plugins(mech).name or "generic") if fast else "generic"
+    fast = _plugin_path(args, mech)
     check_study_folder(args, _inputs(args, mech, tolerances), chunked=False)
     res = RF.refine(mech, params, objective=objective, adjust=adjust, constraints=constraints,
                     seed=args.seed, restarts=args.restarts or 3, popsize=args.popsize or 10,
