@@ -2,7 +2,7 @@
 frames); and the needle_208 fast path of `sewtol run FILE STUDY` (FAST_PATH: scan, worst-case,
 montecarlo, sobol, ppm, allocation, strategies, settings, with the plug-in's flags of
 needle_flags), which `sewtol needle STUDY` reaches as an alias of `sewtol run needle_208 STUDY`
-(cli.run.NEEDLE_ALIASES: `needle guides` is `run needle_208 settings`)."""
+(cli.run.needle_aliases: `needle guides` is `run needle_208 settings`)."""
 
 from __future__ import annotations
 

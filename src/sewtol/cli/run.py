@@ -6,7 +6,7 @@ strategies (and settings without --set SETTING:..., the guide's settings) on the
 model (cli.needle.FAST_PATH) unless `--path generic` is given or a flag asks what the fast path
 cannot answer (`_fast_path_refusal`; the mapping is `_needle_namespace`, documented in
 docs/mechanism_files.md). `sewtol needle STUDY ARGS` is `sewtol run needle_208 STUDY ARGS`
-(NEEDLE_ALIASES: the same parser, the same function; `needle guides` is `settings`).
+(needle_aliases: the same parser, the same function; `needle guides` is `settings`).
 """
 
 from __future__ import annotations
@@ -34,9 +34,6 @@ from sewtol.cli.common import (
 )
 from sewtol.errors import ParameterError
 
-STUDIES = ("nominal", "scan", "montecarlo", "sobol", "worst-case", "ppm", "allocation", "report",
-           "settings", "strategies", "shapley", "refine", "clearance", "least-cost",
-           "largest-tolerances")
 RUN_FORMATS = ("text", "table", "json", "csv")
 DEFAULT_N = {"montecarlo": 2000, "strategies": 2000, "sobol": 256, "ppm": 20000,
              "allocation": 2000, "report": 1000, "shapley": 200, "clearance": 400,
@@ -46,14 +43,12 @@ DEFAULT_TARGET = {"ppm": 1e-6, "allocation": 0.9973, "least-cost": 0.9973}
 # the studies whose limits default to the file's [[specs]] (--limit/--lower-limit override them)
 SPEC_STUDIES = ("montecarlo", "ppm", "allocation", "report", "strategies", "least-cost",
                 "settings")
-# which flags each study reads; any other given flag is refused in one line
+# which flags each study reads (any other given flag is refused in one line); its keys: STUDIES
 USES = {"nominal": (), "scan": ("output", "tolerances", "adjust", "objective", "plot"),
-        "worst-case": ("output", "tolerances", "adjust", "objective"),
-        "largest-tolerances": ("output", "tolerances", "limit", "adjust"),
         "montecarlo": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "n_jobs",
                        "adjust", "clearances", "objective", "plot"),
         "sobol": ("output", "tolerances", "n", "seed", "clearances", "plot"),
-        "shapley": ("output", "tolerances", "n", "seed", "adjust", "clearances"),
+        "worst-case": ("output", "tolerances", "adjust", "objective"),
         "ppm": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "method", "target",
                 "adjust", "n_jobs", "clearances", "objective"),
         "allocation": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "target",
@@ -64,13 +59,16 @@ USES = {"nominal": (), "scan": ("output", "tolerances", "adjust", "objective", "
                      "strategy", "n_jobs", "objective"),
         "strategies": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "n_jobs",
                        "strategy", "clearances", "objective"),
+        "shapley": ("output", "tolerances", "n", "seed", "adjust", "clearances"),
         "refine": ("output", "tolerances", "seed", "adjust", "vary", "keep", "require",
                    "restarts", "popsize", "maxiter", "plot"),
         "clearance": ("output", "tolerances", "n", "seed", "limit", "adjust", "target",
                       "guide_diameter", "play_limit", "guide_fit"),
         "least-cost": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "target",
                        "adjust", "cost", "confidence", "check_n", "restarts", "popsize",
-                       "maxiter")}
+                       "maxiter"),
+        "largest-tolerances": ("output", "tolerances", "limit", "adjust")}
+STUDIES = tuple(USES)
 # the studies that adjust the file's [defaults] adjust when --adjust is not given (the ones
 # with a `sewtol needle` form; refine adjusts every compensator by default, shapley, clearance
 # and least-cost none); `--adjust none` adjusts nothing
@@ -100,8 +98,9 @@ def add_run(sub) -> None:
 
 def needle_aliases(nsub) -> None:
     """`sewtol needle ALIAS ARGS`: `sewtol run needle_208 STUDY ARGS`'s parser and function."""
-    for alias, study in NEEDLE_ALIASES.items():
-        p = nsub.add_parser(alias, help=f"the same as `sewtol run needle_208 {study}`")
+    for study in (*N.FAST_PATH, "largest-tolerances"):
+        p = nsub.add_parser(NEEDLE_NAME.get(study, study),
+                            help=f"the same as `sewtol run needle_208 {study}`")
         run_options(p)
         p.set_defaults(file="needle_208", study=study)
 
@@ -231,11 +230,8 @@ def _settings(args) -> list:
         return []
     items = [i for i in args.set or [] if ":" in i.partition("=")[0]]
     args.set = [i for i in args.set or [] if i not in items]
-    out = []
-    for item in items:
-        name, _, body = item.partition(":")
-        out.append(Setting(name.strip(), parse_sets(body.split(","))))
-    return out
+    return [Setting(name.strip(), parse_sets(body.split(",")))
+            for name, _, body in (i.partition(":") for i in items)]
 
 
 def resolve_tolerances(mech, spec):
@@ -349,21 +345,20 @@ def cmd_run(args) -> None:
             args.output, args.limit, args.lower_limit)
     args.path_reason = _fast_path_refusal(args, mech, settings)  # None: the needle_208 fast path
     _check_needle_flags(args, mech)
-    generic_settings = args.study == "settings" and args.path_reason is not None
-    if args.study == "nominal" or generic_settings:
-        check_study_folder(args, _inputs(args, mech, None), chunked=False)
     if args.study == "nominal":
+        check_study_folder(args, _inputs(args, mech, None), chunked=False)
         res = G.nominal(mech)
         return _finish(args, fmt, mech, None, res.to_dict(), {"nominal": res.to_dataframe()},
                        res.to_dataframe())
-    if generic_settings:
+    if args.study == "settings" and args.path_reason is not None:  # else the guide's (needle)
         from sewtol.studies import settings as SE
         from sewtol.studies.strategies import parse_strategies
 
-        if not settings:
+        if not settings:  # on the needle file: why the guide's settings are not compared
             raise ParameterError("--set", "`run settings` needs at least one SETTING:NAME=VALUE"
-                                 "[,NAME=VALUE...]" + ("" if mech.header.fast_path != "needle_208"
-                                 else f" off the needle_208 fast path ({args.path_reason})"), None)
+                                 "[,NAME=VALUE...]" + (f" ({args.path_reason})" if mech.header
+                                                       .fast_path == "needle_208" else ""), None)
+        check_study_folder(args, _inputs(args, mech, None), chunked=False)
         figures = tolerances = None
         if args.n is not None:  # the same machines on every setting, per case
             cases = parse_strategies(args.strategy, mech) if args.strategy else {
@@ -391,13 +386,11 @@ def cmd_run(args) -> None:
     if args.path_reason is None:  # the needle command (cli.needle.FAST_PATH) checks its folder
         ns = _needle_namespace(args, mech, tolerances)
         return ns.func(ns)
-    if args.study == "settings":  # without --set SETTING:...: the guide's, on the needle model
-        raise ParameterError("--tolerances", "must vary the needle model's parameters alone for "
-                             "the guide's settings (give --set SETTING:... to compare others)",
-                             tolerances.name)
+    if args.study == "settings":  # the guide's settings, on a set the needle model lacks
+        raise ParameterError("--tolerances", f"{args.path_reason} (`needle guides`)", None)
     check_study_folder(args, _inputs(args, mech, tolerances), chunked=False)
     if mech.header.fast_path == "needle_208" and args.path == "auto" \
-            and args.study in FAST_PATH_STUDIES:
+            and args.study in N.FAST_PATH:
         print(f"sewtol: note: `run {args.study}` takes the generic sampled path, not the "
               f"needle_208 fast path: {args.path_reason}", file=sys.stderr)
     outputs = None if args.output is None else [args.output]
@@ -722,11 +715,9 @@ def _finish(args, fmt, mech, tolerances, obj, frames, frame) -> None:
                       obj, frames, None)
     emit(fmt, obj=obj, frame=frame, compact=COMPACT.get(args.study), wide=args.wide)
 
-FAST_PATH_STUDIES = tuple(N.FAST_PATH)
-# `sewtol needle ALIAS` -> `sewtol run needle_208 STUDY` (NEEDLE_NAME: the study's needle name)
-NEEDLE_ALIASES = {**{s: s for s in FAST_PATH_STUDIES if s != "settings"}, "guides": "settings",
-                  "largest-tolerances": "largest-tolerances"}
-NEEDLE_NAME = {study: alias for alias, study in NEEDLE_ALIASES.items()}
+# `sewtol needle ALIAS` is `sewtol run needle_208 STUDY`: the fast path's studies and the generic
+# largest-tolerances (on the needle's plug-in), under the study's name but for NEEDLE_NAME's
+NEEDLE_NAME = {"settings": "guides"}
 # the needle studies that report the fixed and the adjusted case by default
 BOTH_CASES = ("worst-case", "montecarlo", "sobol")
 
@@ -771,7 +762,7 @@ def _fast_path_refusal(args, mech, settings=()) -> str | None:
     if mech.header.fast_path != "needle_208":
         return ("the file declares no fast path" if mech.header.fast_path is None else
                 f"the {mech.header.fast_path} fast path serves {' and '.join(KERNEL_STUDIES)}")
-    if args.study not in FAST_PATH_STUDIES:
+    if args.study not in N.FAST_PATH:
         return f"`run {args.study}` has no fast path"
     if args.output is not None and args.output not in sumdelta_outputs(mech):
         return (f"--output {args.output} is not the SumDelta output "
@@ -797,7 +788,7 @@ def _fast_path_refusal(args, mech, settings=()) -> str | None:
         return (f"{flag} {upper:g}: `needle {args.study}` keeps SumDelta within "
                 f"{sb.DEFAULT_LIMIT_UM:g} um")
     if args.study in ("strategies", "settings") and args.strategy is not None:
-        return f"--strategy: `needle {NEEDLE_NAME[args.study]}` compares its own rows"
+        return f"--strategy: `needle {NEEDLE_NAME.get(args.study, args.study)}` compares its own rows"
     if settings:
         return "--set SETTING:...: `needle guides` compares the guide's own settings"
     if args.weight is not None:
@@ -805,7 +796,7 @@ def _fast_path_refusal(args, mech, settings=()) -> str | None:
     if args.shape == "set":
         return "--shape set: `needle allocation` shapes the tolerances by their slopes"
     if args.out and args.study in ("worst-case", "allocation", "settings"):
-        return f"--out: `needle {NEEDLE_NAME[args.study]}` writes no study folder"
+        return f"--out: `needle {NEEDLE_NAME.get(args.study, args.study)}` writes no study folder"
     return None
 
 
