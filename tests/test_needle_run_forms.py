@@ -2,9 +2,10 @@
 needle_208 fast path: the same parser (the same namespace for any flags), the same function,
 so the same bytes in every format, in the study folder and in the figure. The flags of the
 needle plug-in (--frame, --beta-range, --limit-um, --housing, ...) are flags of `run`, refused
-in one line where nothing reads them. ALIASES is keyed by alias. `sewtol feed STUDY` is
-`sewtol run feed_131 STUDY` (the same parser and function): the same bytes in every format and
-folder."""
+in one line where nothing reads them. ALIASES is keyed by alias; `needle guides` is `run
+needle_208 settings` (RUN_STUDY), `needle largest-tolerances` the generic study on the plug-in.
+`sewtol feed STUDY` is `sewtol run feed_131 STUDY` (the same parser and function): the same
+bytes in every format and folder."""
 
 from __future__ import annotations
 
@@ -42,8 +43,16 @@ ALIASES = {
         ("strategies", ("--n", "20", "--seed", "1")),
         ("strategies", ("--n", "20", "--adjust", "guide_angle", "--measurement-error", "1",
                         "--measured-positions", "12", "--set", "CD=30.01")),
+        ("guides", ("--n", "20", "--seed", "1")),
+        ("guides", ("--n", "20", "--tolerances", "{small}", "--adjust", "beta,guide_shift_um",
+                    "--limit-um", "8", "--beta-range", "20", "26", "--housing")),
+        ("largest-tolerances", ("--tolerances", "{small}")),
+        ("largest-tolerances", ("--tolerances", "{small}", "--adjust", "none", "--limit", "12",
+                                "--set", "CD=30.01")),
     ]),
 }
+# the alias whose run form names the study otherwise
+RUN_STUDY = {"guides": "settings"}
 CASES = [(alias, study, flags) for alias, (_, rows) in ALIASES.items()
          for study, flags in rows]
 IDS = [" ".join((alias, study, *flags)).replace("{small}", "S") for alias, study, flags in CASES]
@@ -58,7 +67,7 @@ def small(tmp_path_factory):
 
 def _forms(alias, study, flags, small):
     argv = [a.format(small=small) for a in flags]
-    return [alias, study, *argv], [*ALIASES[alias][0], study, *argv]
+    return [alias, study, *argv], [*ALIASES[alias][0], RUN_STUDY.get(study, study), *argv]
 
 
 @pytest.mark.parametrize("alias,study,flags", CASES, ids=IDS)
@@ -89,19 +98,38 @@ def test_the_alias_prints_the_run_forms_bytes(alias, study, flags, fmt, small):
      ("montecarlo.json", "machines.csv", "summary.csv", "f.svg")),
     ("ppm", ("--n", "200", "--seed", "2"), ("ppm.json", "levels.csv")),
     ("strategies", ("--n", "20", "--plot", "{d}/f.svg"), ("strategies.json", "f.svg")),
+    ("largest-tolerances", ("--tolerances", "recommended"),
+     ("largest_tolerances.json", "largest_tolerances.csv")),
+    # the guide's settings write no study folder (--out leaves the fast path): the figure alone
+    ("guides", ("--n", "20", "--plot", "{d}/f.svg"), ("f.svg",)),
 ])
 def test_the_alias_writes_the_run_forms_files(study, flags, files, tmp_path):
     a, b = tmp_path / "alias", tmp_path / "run"
-    for d, prefix in ((a, ("needle",)), (b, ("run", "needle_208"))):
+    folder = any(not name.endswith(".svg") for name in files)
+    for d, words in ((a, ("needle", study)), (b, ("run", "needle_208", RUN_STUDY.get(study,
+                                                                                     study)))):
         argv = [f.format(d=d) for f in flags]
         d.mkdir()
-        code, _, err = run(*prefix, study, *argv, "--out", str(d / "out"), "--format", "json")
+        code, _, err = run(*words, *argv, *(("--out", str(d / "out")) if folder else ()),
+                           "--format", "json")
         assert code == 0, err
     for name in files:
         where = "" if name.endswith(".svg") else "out/"
         assert (a / where / name).read_bytes() == (b / where / name).read_bytes(), name
-    ra, rb = (strict_loads((d / "out" / "run.json").read_text())["inputs"] for d in (a, b))
-    assert ra == rb and ra["mechanism_file"] == "needle_208"
+    if folder:
+        ra, rb = (strict_loads((d / "out" / "run.json").read_text())["inputs"] for d in (a, b))
+        assert ra == rb and ra["mechanism_file"] == "needle_208"
+
+
+@pytest.mark.parametrize("alias", ["guides", "largest-tolerances"])
+def test_the_alias_helps_with_the_run_forms_flags(alias):
+    """`--help` of both forms: the same flags, each with the same help (the usage line names
+    the command as given)."""
+    a, b = run("needle", alias, "--help"), run("run", "needle_208", RUN_STUDY.get(alias, alias),
+                                               "--help")
+    assert a[0] == b[0] == 0 and a[2] == b[2] == ""
+    assert a[1].split("\noptions:\n")[1] == b[1].split("\noptions:\n")[1]
+    assert "--beta-range" in a[1] and "--limit-um" in a[1] and "--tolerances" in a[1]
 
 
 @pytest.mark.parametrize("argv,message", [
@@ -119,6 +147,11 @@ def test_the_alias_writes_the_run_forms_files(study, flags, files, tmp_path):
      "(--lower-limit: the needle commands limit SumDelta from above only)"),
     (("needle", "ppm", "--budget", "300", "--n", "300"),
      "--budget: is --n in the needle's words; give one of them"),
+    (("needle", "guides", "--n", "20", "--out", "x", "--housing"),
+     "--housing: is read by the needle_208 fast path only, which this run leaves (--out: "
+     "`needle guides` writes no study folder)"),
+    (("needle", "largest-tolerances", "--limit-um", "8"),
+     "--limit-um: is not used by `run largest-tolerances`"),
     # a study without a figure off the fast path (scan, montecarlo, sobol and refine have one)
     (("run", "feed_131", "worst-case", "--plot", "x.svg"),
      "--plot: is read by the needle_208 fast path only; `run feed_131 worst-case` has none"),

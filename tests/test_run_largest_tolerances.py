@@ -1,6 +1,6 @@
-"""`sewtol run NAME|FILE largest-tolerances`: the run form of `sewtol needle largest-tolerances`
+"""`sewtol run NAME|FILE largest-tolerances` (and `sewtol needle largest-tolerances`, its alias)
 on any mechanism (sewtol.studies.scan.largest_tolerances): the closed form of a centred
-crank-slider, the needle command's numbers on the needle file, and one-line refusals."""
+crank-slider, the needle API's numbers on the needle file, and one-line refusals."""
 
 from __future__ import annotations
 
@@ -46,28 +46,36 @@ def test_the_centred_crank_slider_keeps_its_closed_form():
     assert obj["context"]["spec_source"] == "command line" and obj["context"]["path"] == "generic"
 
 
-def test_the_needle_file_gives_the_needle_commands_numbers(tmp_path):
-    """On the needle file with beta adjusted (its exact plug-in) the rows are those of `sewtol
-    needle largest-tolerances` for the same parts, to the two searches' bisection tolerances;
-    the limit is the file's spec (SumDelta <= 10 um)."""
+def test_the_needle_file_gives_the_apis_numbers(tmp_path):
+    """On the needle file, beta adjusted by default (the file's [defaults] adjust, by its exact
+    plug-in), the rows are those of the API (tables.needle_208.largest_tolerances: beta*
+    re-optimised per machine) for the same parts, to the two searches' bisection tolerances;
+    the limit is the file's spec (SumDelta <= 10 um). `needle largest-tolerances` is this
+    command (tests/test_needle_run_forms.py)."""
+    from sewtol import Needle208
+    from sewtol.tables.needle_208 import largest_tolerances
+
     small = tmp_path / "small.toml"
     small.write_text("[sets.small]\nAB = 0.05\nLF = 0.05\nCD = 0.05\n")
-    obj, rows = _rows("needle_208", "largest-tolerances", "--adjust", "beta", "--tolerances",
-                      f"{small}:small")
+    obj, rows = _rows("needle_208", "largest-tolerances", "--tolerances", f"{small}:small")
     assert obj["limit"] == 10.0 and obj["context"]["spec_source"] == "file"
-    assert obj["context"]["path"] == "needle_208"
-    code, out, err = run("needle", "largest-tolerances", "--params", "AB,LF,CD", "--format",
-                         "json")
-    assert code == 0, err
-    needle = strict_loads(out)["rows"]
-    assert len(needle) == len(rows) == 6
-    for r in needle:
+    assert obj["context"]["path"] == "needle_208" and obj["context"]["strategy"] == "beta"
+    api = largest_tolerances(Needle208.nominal(), ["AB", "LF", "CD"]).to_dict("records")
+    assert len(api) == len(rows) == 6
+    for r in api:
         mine = rows[r["param"], r["side"]]
         assert abs(mine["largest_deviation"] - r["largest_delta_mm"]) <= 2 * XTOL, r
         assert mine["reaches_max"] == r["reaches_max"]
-    # AB alone breaks 10 um near 7.5 um of deviation, LF's lower side never (within 1 mm)
+    # AB alone breaks 10 um near 7.5 um of deviation, LF's lower side never (within 1 mm); the
+    # tightest side, CD's lower, as the report quotes it (-0.0066 mm)
     assert 0.007 < rows["AB", "upper"]["largest_deviation"] < 0.008
     assert rows["LF", "lower"]["reaches_max"]
+    assert round(rows["CD", "lower"]["largest_deviation"], 4) == -0.0066
+    # --adjust none holds beta at the file's value: no side gets wider
+    _, fixed = _rows("needle_208", "largest-tolerances", "--tolerances", f"{small}:small",
+                     "--adjust", "none")
+    assert all(abs(fixed[k]["largest_deviation"]) <= abs(rows[k]["largest_deviation"]) + XTOL
+               for k in rows)
 
 
 @pytest.mark.parametrize("argv,where,rule", [
@@ -79,6 +87,8 @@ def test_the_needle_file_gives_the_needle_commands_numbers(tmp_path):
     ((SLIDER, "largest-tolerances", "--output", "stroke_mm", "--limit", "inf"), "--limit",
      "must be a finite number"),
     ((SLIDER, "largest-tolerances", "--n", "10", "--limit", "20.02"), "--n", "is not used"),
+    (("needle_208", "largest-tolerances", "--beta-range", "10", "30"), "--beta-range",
+     "is not used by `run largest-tolerances`"),
 ])
 def test_bad_flags_are_one_line_naming_the_flag_and_the_rule(argv, where, rule):
     code, out, err = run("run", *argv)

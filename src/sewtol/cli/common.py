@@ -214,11 +214,6 @@ def machine_context(args, params, **extra) -> dict:
     return {**out, **extra}
 
 
-def check_n(value, name="--n", minimum=2):
-    if value < minimum:
-        raise ParameterError(name, f"must be >= {minimum}", value)
-
-
 def check_step(value, name="--step-deg"):
     if not (MIN_STEP_DEG <= value <= 90):
         raise ParameterError(name, f"must be in [{MIN_STEP_DEG:g}, 90]", value)

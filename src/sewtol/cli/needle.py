@@ -1,8 +1,8 @@
 """`sewtol needle COMMAND`: the 208 needle drive's single-machine figures (nominal, deviation,
-frames) and the studies without a run form (guides, largest-tolerances); and the needle_208
-fast path of `sewtol run FILE STUDY` (FAST_PATH: scan, worst-case, montecarlo, sobol, ppm,
-allocation, strategies, with the plug-in's flags of needle_flags), which `sewtol needle STUDY`
-reaches as an alias of `sewtol run needle_208 STUDY` (cli.run.needle_aliases)."""
+frames); and the needle_208 fast path of `sewtol run FILE STUDY` (FAST_PATH: scan, worst-case,
+montecarlo, sobol, ppm, allocation, strategies, settings, with the plug-in's flags of
+needle_flags), which `sewtol needle STUDY` reaches as an alias of `sewtol run needle_208 STUDY`
+(cli.run.needle_aliases: `needle guides` is `run needle_208 settings`)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,6 @@ from sewtol.cli.common import (
     FORMATS,
     Parser,
     as_flags,
-    check_n,
     check_step,
     cluster,
     deviation_columns,
@@ -31,7 +30,6 @@ from sewtol.cli.common import (
     save_plot,
     scan_figure,
     study_inputs,
-    wide_option,
     write_outputs,
 )
 from sewtol.errors import ParameterError
@@ -73,8 +71,8 @@ def _beta_options(p, limit=("--limit-um", "--limit")):
     p.add_argument("--beta-range", nargs=2, type=float, default=None, metavar=("LOW", "HIGH"),
                    help="regulating range searched for beta* (deg); default 10 35")
     p.add_argument(*limit, type=float, default=None,
-                   help="SumDelta limit (um) of the yield and the window; default 10 (--limit "
-                        "as `sewtol run FILE STUDY` names it)")
+                   help="SumDelta limit (um) of the yield and the window; default 10 (`sewtol "
+                        "run needle_208 STUDY`: the same as --limit)")
 
 
 def _beta_search_range(args, strategy=None) -> tuple:
@@ -169,15 +167,11 @@ def _study_nominal(args):
 
 
 def _tolerances(args):
-    from sewtol.mechanisms.needle_208.model import Needle208
-    from sewtol.mechanisms.params import field_names
-    from sewtol.tolerances import needle_builtin_sets, resolve, with_housing
+    """`run`'s set, resolved (args.tolerance_set); --housing: plus the housing bores (a set that
+    tolerances one already is refused)."""
+    from sewtol.tolerances import with_housing
 
-    ts = getattr(args, "tolerance_set", None)  # `run FILE`: the file's set, resolved
-    if ts is None:
-        ts = resolve(args.tolerances, needle_builtin_sets(), field_names(Needle208))
-    # --housing: the set plus the housing bores (a set that tolerances one already is refused)
-    return with_housing(ts) if getattr(args, "housing", False) else ts
+    return with_housing(args.tolerance_set) if args.housing else args.tolerance_set
 
 
 def cmd_needle_frames(args):
@@ -405,10 +399,13 @@ def _strategy(args, setting_errors: bool = False):
 
 
 def _strategy_record(strategy) -> dict:
-    return {c.name: {"low": c.low, "high": c.high, "step": c.step, "resolution": c.resolution,
-                     "mode": c.mode, **({} if c.setting_error is None else
-                                        {"setting_error": c.setting_error.to_dict()})}
-            for c in strategy.compensators}
+    """{"compensators": each compensator's box, step, resolution, mode and setting error}, or
+    {} without a strategy (the studies' JSON and run.json)."""
+    return {} if strategy is None else {"compensators": {
+        c.name: {"low": c.low, "high": c.high, "step": c.step, "resolution": c.resolution,
+                 "mode": c.mode, **({} if c.setting_error is None else
+                                    {"setting_error": c.setting_error.to_dict()})}
+        for c in strategy.compensators}}
 
 
 def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
@@ -418,8 +415,7 @@ def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
 
     params = _at_beta_star(args, params, strategy)
     inputs = study_inputs(args, "montecarlo_adjusted", params, tolerances, limit_um=limit,
-                          chunk_size=CHUNK, strategy=strategy.name,
-                          compensators=_strategy_record(strategy))
+                          chunk_size=CHUNK, strategy=strategy.name, **_strategy_record(strategy))
 
     def study(store, client):
         machines = sample_machines(adjusted_montecarlo_model, params, tolerances, args.n,
@@ -428,8 +424,7 @@ def _adjusted_montecarlo(args, params, tolerances, strategy, limit):
                                    limit_um=limit)
         summary = adjusted_summary(params, machines, strategy, limit)
         record = {**summary.iloc[0].to_dict(), "seed": args.seed, "tolerances": tolerances.name,
-                  "compensators": _strategy_record(strategy),
-                  **_fixed_record(args, params, strategy),
+                  **_strategy_record(strategy), **_fixed_record(args, params, strategy),
                   "context": _context(args, params, tolerances, strategy)}
         return summary, record, {"machines": deviation_columns(
             machines, tolerances.active().params), "summary": summary}
@@ -478,7 +473,7 @@ def cmd_needle_strategies(args):
         frames[f"machines_{safe}"] = deviation_columns(res.machines(r.name), res.params)
     reading = {} if measurement is None else {"measurement_error": measurement.to_dict()}
     inputs = study_inputs(args, "strategies", params, tolerances, limit_um=10.0,
-                          strategies={r.name: _strategy_record(r) for r in rows}, **reading)
+                          strategies={r.name: _strategy_record(r)["compensators"] for r in rows}, **reading)
     context = {**_context(args, params, tolerances, strategy),
                "strategy": [r.name for r in rows], "limit_um": 10.0, **reading}
     obj = {"context": context, **_fixed_record(args, params, strategy),
@@ -491,14 +486,8 @@ def cmd_needle_strategies(args):
         title=f"yield by adjustment strategy, {args.n} machines (95 % interval)"))
 
 
-def _adjust_options(p, adjust=True):
-    """--adjust (needle guides; `run` has its own), --range, --step, --resolution and
-    --setting-error."""
-    if adjust:
-        p.add_argument("--adjust", default=None, metavar="NAMES",
-                       help="compensators the assembler sets per machine, e.g. "
-                            "beta,guide_shift_um (built in: beta, guide_shift_um, guide_angle, "
-                            "CD; none: no adjustment)")
+def _adjust_options(p):
+    """--range, --step, --resolution and --setting-error of the needle's compensators."""
     p.add_argument("--range", action="append", metavar="NAME=LOW,HIGH",
                    help="a compensator's range (offset from as built; beta absolute, deg)")
     p.add_argument("--step", action="append", metavar="NAME=VALUE",
@@ -526,7 +515,6 @@ def cmd_needle_sobol(args):
     rng = tuple(args.beta_range)
     started = now()
     context = _context(args, params, tolerances, strategy)
-    extra = {} if strategy is None else {"compensators": _strategy_record(strategy)}
     inputs = study_inputs(args, "sobol", params, tolerances, beta_search_range_deg=list(rng),
                      limit_um=args.limit_um, second_order=args.second_order, context=context,
                      chunk_size=CHUNK, resamples=SOBOL_RESAMPLES,
@@ -534,7 +522,7 @@ def cmd_needle_sobol(args):
                      strategy="beta fixed at the nominal's beta* (fixed_beta=optimum) and beta "
                      "re-optimised per sample" if strategy is None else "beta fixed at the "
                      f"nominal's beta* (fixed_beta=optimum) and {strategy.name} adjusted per "
-                     "sample (exact joint optimum)", **extra)
+                     "sample (exact joint optimum)", **_strategy_record(strategy))
     store = open_store(args, inputs)
     try:
         runs = run_history(store, started)
@@ -573,11 +561,7 @@ def _sobol_json(res, second_order: bool, context: dict):
 
 
 def _small_study(args):
-    """Flags of guides/allocation, checked before anything is computed."""
-    check_n(args.n)
-    args.seed = 0 if args.seed is None else args.seed  # None: not given, as `run` has it
-    if args.seed < 0:
-        raise ParameterError("--seed", "must be a whole number >= 0", args.seed)
+    """The strategy, machine and set of settings/allocation (--n, --seed: checked by `run`)."""
     strategy = _strategy(args)
     params, tolerances = _study_nominal(args), _tolerances(args)
     if not tolerances.active().items:
@@ -593,13 +577,14 @@ def cmd_needle_guides(args):
     strategy, params, tolerances = _small_study(args)
     _check_beta_range(args)
     table = compare_guides(params, tolerances, args.n, args.seed, strategy=strategy,
-                           range_deg=tuple(args.beta_range), limit_um=args.limit_um)
+                           range_deg=tuple(args.beta_range), limit_um=args.limit_um,
+                           n_jobs=args.n_jobs, progress=args.progress)
     obj = {"tolerances": tolerances.name, "n": args.n, "seed": args.seed,
            "fixed_beta_means": "each guide setting's own beta* (as `sewtol needle nominal` "
                                "prints it for that guide)",
            "context": _context(args, params, tolerances, strategy),
            "strategy": "fixed beta and beta adjusted" if strategy is None else strategy.name,
-           **({} if strategy is None else {"compensators": _strategy_record(strategy)}),
+           **_strategy_record(strategy),
            "rows": table.to_dict(orient="records")}
     emit(args.format, obj=obj, frame=table, compact=COMPACT["guides"], wide=args.wide)
     save_plot(args, lambda ax: plots().grouped_bars(
@@ -623,7 +608,7 @@ def cmd_needle_allocation(args):
            "scale": res.scale,
            "cost_model": "reciprocal: sum c_i / width_i; shape (c_i / s_i^2)^(1/3), common "
                          "scale by bisection on the Monte-Carlo yield (common random numbers)",
-           **({} if strategy is None else {"compensators": _strategy_record(strategy)}),
+           **_strategy_record(strategy),
            "context": _context(args, params, tolerances, strategy),
            "rows": table.to_dict(orient="records")}
     emit(args.format, obj=obj, frame=table)
@@ -660,7 +645,7 @@ def cmd_needle_worst_case(args):
     obj = {"tolerances": tolerances.name, **_fixed_record(args, params, strategy),
            "context": _context(args, params, tolerances, strategy),
            "strategy": "beta" if strategy is None else strategy.name,
-           **({} if strategy is None else {"compensators": _strategy_record(strategy)}),
+           **_strategy_record(strategy),
            "method": "every corner and the centre, the best 3 polished by L-BFGS-B in the box "
                      "(never below any evaluated point; not proven global)",
            "rows": table.to_dict(orient="records")}
@@ -672,36 +657,6 @@ def cmd_needle_worst_case(args):
         list(table["case"]), {"worst SumDelta in the box": table["total_um"]}, ax=ax,
         ylabel="SumDelta (um)", limit=_context(args, params, tolerances, strategy)["limit_um"],
         title=f"worst case over the tolerance box ({tolerances.name})"))
-
-
-def cmd_needle_largest_tolerances(args):
-    from sewtol.mechanisms.needle_208.model import LENGTHS, Needle208
-    from sewtol.mechanisms.params import field_names
-    from sewtol.tables.needle_208 import largest_tolerances
-    from sewtol.tolerances import is_branch
-
-    _check_beta_range(args)
-    params = _study_nominal(args)
-    names = list(LENGTHS) if args.params is None else [s.strip() for s in args.params.split(",")]
-    # beta is re-optimised per machine, so a deviation of it means nothing here
-    valid = [f for f in field_names(Needle208)
-             if not is_branch(f) and f not in ("guide_shift_um", "beta")]
-    for name in names:
-        if name not in valid:
-            raise ParameterError("--params", "must name parameters of the needle drive "
-                                 f"({', '.join(valid)})", name)
-    if not (np.isfinite(args.max_mm) and args.max_mm > 0):
-        raise ParameterError("--max-mm", "must be a positive deviation in mm", args.max_mm)
-    table = largest_tolerances(params, names, limit_um=args.limit_um, max_mm=args.max_mm,
-                               guide_shift_um=float(params.guide_shift_um),
-                               range_deg=tuple(args.beta_range))
-    obj = {"context": _context(args, params, None, None),
-           "limit_um": args.limit_um, "max_mm": args.max_mm,
-           "method": "each parameter alone, the others nominal: SumDelta at beta* (re-optimised "
-                     "in the searched range) on a geometric grid from 1 um, then bisection to "
-                     "1e-5 mm; reaches_max marks sides where even max_mm keeps the limit",
-           "rows": table.to_dict(orient="records")}
-    emit(args.format, obj=obj, frame=table)
 
 
 def cmd_needle_ppm(args):
@@ -734,9 +689,9 @@ def cmd_needle_ppm(args):
         print(f"\nP(SumDelta > {args.limit_um:g} um or no value) = {res.statement}")
 
 
-def _needle_options(p, machine=True, tolerances=None):
+def _needle_options(p, machine=True, housing=False):
     """--set and --format (machine), --frame and --guide-shift-um: every needle command on one
-    machine; --housing, and --tolerances unless tolerances is False, with tolerances."""
+    machine; --housing, with housing (the studies' flag)."""
     from sewtol.mechanisms.needle_208.frames import DEFAULT_FRAME
 
     if machine:
@@ -747,12 +702,8 @@ def _needle_options(p, machine=True, tolerances=None):
     p.add_argument("--guide-shift-um", type=float, default=None, metavar="UM",
                    help="move the fixed guide along its normal (um); the same as --set "
                         "guide_shift_um=UM")
-    if tolerances is None:
+    if not housing:
         return
-    if tolerances:
-        p.add_argument("--tolerances", default="base",
-                       help="base, recommended, base_housing, recommended_housing (with the "
-                            "housing bores), FILE.toml or FILE.toml:SET (default base)")
     p.add_argument("--housing", action="store_true", default=None,
                    help="add the housing tolerances to the set (bores A, D and the guide: "
                         "+/-0.02 mm per coordinate, the guide's direction +/-0.0229 deg; "
@@ -764,9 +715,9 @@ def needle_flags(p) -> None:
     alias): NEEDLE_FLAGS says which study of the fast path reads each."""
     g = p.add_argument_group("the needle_208 fast path (sewtol run needle_208 STUDY, sewtol "
                              "needle STUDY)")
-    _needle_options(g, machine=False, tolerances=False)
+    _needle_options(g, machine=False, housing=True)
     _beta_options(g, limit=("--limit-um",))
-    _adjust_options(g, adjust=False)
+    _adjust_options(g)
     g.add_argument("--measurement-error", default=None, metavar="SD_UM",
                    help="strategies: set the compensators from a reading of the needle bar's "
                         "deviation with a normal error of this sd (um) at each measured "
@@ -784,25 +735,29 @@ def needle_flags(p) -> None:
                    help="montecarlo, sobol: continue the interrupted study in --out")
 
 
-_ALL = ("scan", "worst-case", "montecarlo", "sobol", "ppm", "allocation", "strategies")
-_ADJUSTING = ("scan", "worst-case", "montecarlo", "sobol", "allocation", "strategies")
+_ALL = ("scan", "worst-case", "montecarlo", "sobol", "ppm", "allocation", "strategies",
+        "settings")
+_ADJUSTING = ("scan", "worst-case", "montecarlo", "sobol", "allocation", "strategies",
+              "settings")
 # the fast path's studies that read each flag of needle_flags (and --limit, --adjust, --plot,
 # --n-jobs where the generic study does not); `run` refuses the others in one line
 NEEDLE_FLAGS = {"frame": _ALL, "guide_shift_um": _ALL, "housing": _ALL,
-                "beta_range": ("scan", "worst-case", "montecarlo", "sobol", "ppm"),
-                "limit_um": ("scan", "montecarlo", "sobol", "ppm"), "limit": ("scan", "sobol"),
+                "beta_range": ("scan", "worst-case", "montecarlo", "sobol", "ppm", "settings"),
+                "limit_um": ("scan", "montecarlo", "sobol", "ppm", "settings"),
+                "limit": ("scan", "sobol"),
                 "adjust": ("sobol", "strategies"), "n_jobs": ("sobol",),
                 "range": _ADJUSTING, "step": _ADJUSTING, "resolution": _ADJUSTING,
                 "setting_error": _ADJUSTING, "measurement_error": ("strategies",),
                 "measured_positions": ("strategies",), "second_order": ("sobol",),
                 "budget": ("ppm",), "scheduler": ("montecarlo", "sobol", "ppm", "strategies"),
                 "resume": ("montecarlo", "sobol", "ppm", "strategies"),
-                "plot": ("scan", "worst-case", "montecarlo", "sobol", "allocation", "strategies")}
+                "plot": ("scan", "worst-case", "montecarlo", "sobol", "allocation", "strategies",
+                         "settings")}
 
 
 def add_needle(sub):
-    """`sewtol needle COMMAND`: one sub-parser per command without a run form; the studies with
-    one are added by sewtol.cli.run.needle_aliases to the sub-parsers returned."""
+    """`sewtol needle COMMAND`: one sub-parser per command without a run form; the studies are
+    added by sewtol.cli.run.needle_aliases to the sub-parsers returned."""
     needle = sub.add_parser("needle", help="208-class needle drive")
     nsub = needle.add_subparsers(dest="command", required=True, parser_class=Parser)
 
@@ -819,33 +774,15 @@ def add_needle(sub):
     plot_option(p, "d(phi) over the crank turn")
     p.set_defaults(func=cmd_needle_deviation)
 
-    p = nsub.add_parser("guides", help="guide settings compared: beta*, window, yields")
-    _needle_options(p, tolerances=True)
-    p.add_argument("--n", type=int, default=2000, help="machines per guide setting")
-    p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
-    _beta_options(p)
-    _adjust_options(p)
-    plot_option(p, "the yields of each guide setting, beta fixed and adjusted")
-    wide_option(p)
-    p.set_defaults(func=cmd_needle_guides)
-
-    p = nsub.add_parser("largest-tolerances", help="largest single deviation of each part that "
-                        "keeps SumDelta(beta*) within the limit")
-    _needle_options(p)
-    p.add_argument("--params", default=None, metavar="NAMES",
-                   help="comma-separated parameters (default the seven links LF ... CD)")
-    p.add_argument("--max-mm", type=float, default=1.0,
-                   help="largest deviation tried, mm (default 1)")
-    _beta_options(p)
-    p.set_defaults(func=cmd_needle_largest_tolerances)
-
     p = nsub.add_parser("frames", help="the named frames of the 208 with their residuals")
     p.add_argument("--format", choices=FORMATS, default="table")
     p.set_defaults(func=cmd_needle_frames)
     return nsub
 
 
-# the needle_208 fast path of `sewtol run` (and `sewtol needle STUDY`): each study's command
+# the needle_208 fast path of `sewtol run` (and `sewtol needle STUDY`): each study's command;
+# settings without named settings (--set SETTING:...) compares the guide's (`needle guides`)
 FAST_PATH = {"scan": cmd_needle_scan, "worst-case": cmd_needle_worst_case,
              "montecarlo": cmd_needle_montecarlo, "sobol": cmd_needle_sobol, "ppm": cmd_needle_ppm,
-             "allocation": cmd_needle_allocation, "strategies": cmd_needle_strategies}
+             "allocation": cmd_needle_allocation, "strategies": cmd_needle_strategies,
+             "settings": cmd_needle_guides}

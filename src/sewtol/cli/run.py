@@ -2,10 +2,11 @@
 
 A file that names `fast_path = "needle_208"` (and passed the loader's check that it reproduces
 the built-in needle drive) runs scan, worst-case, montecarlo, sobol, ppm, allocation and
-strategies on the needle's exact model (cli.needle.FAST_PATH) unless `--path generic` is given
-or a flag asks what the fast path cannot answer (`_fast_path_refusal`; the mapping is
-`_needle_namespace`, documented in docs/mechanism_files.md). `sewtol needle STUDY ARGS` is
-`sewtol run needle_208 STUDY ARGS` (needle_aliases: the same parser, the same function).
+strategies (and settings without --set SETTING:..., the guide's settings) on the needle's exact
+model (cli.needle.FAST_PATH) unless `--path generic` is given or a flag asks what the fast path
+cannot answer (`_fast_path_refusal`; the mapping is `_needle_namespace`, documented in
+docs/mechanism_files.md). `sewtol needle STUDY ARGS` is `sewtol run needle_208 STUDY ARGS`
+(needle_aliases: the same parser, the same function; `needle guides` is `settings`).
 """
 
 from __future__ import annotations
@@ -33,9 +34,6 @@ from sewtol.cli.common import (
 )
 from sewtol.errors import ParameterError
 
-STUDIES = ("nominal", "scan", "montecarlo", "sobol", "worst-case", "ppm", "allocation", "report",
-           "settings", "strategies", "shapley", "refine", "clearance", "least-cost",
-           "largest-tolerances")
 RUN_FORMATS = ("text", "table", "json", "csv")
 DEFAULT_N = {"montecarlo": 2000, "strategies": 2000, "sobol": 256, "ppm": 20000,
              "allocation": 2000, "report": 1000, "shapley": 200, "clearance": 400,
@@ -45,14 +43,12 @@ DEFAULT_TARGET = {"ppm": 1e-6, "allocation": 0.9973, "least-cost": 0.9973}
 # the studies whose limits default to the file's [[specs]] (--limit/--lower-limit override them)
 SPEC_STUDIES = ("montecarlo", "ppm", "allocation", "report", "strategies", "least-cost",
                 "settings")
-# which flags each study reads; any other given flag is refused in one line
+# which flags each study reads (any other given flag is refused in one line); its keys: STUDIES
 USES = {"nominal": (), "scan": ("output", "tolerances", "adjust", "objective", "plot"),
-        "worst-case": ("output", "tolerances", "adjust", "objective"),
-        "largest-tolerances": ("output", "tolerances", "limit", "adjust"),
         "montecarlo": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "n_jobs",
                        "adjust", "clearances", "objective", "plot"),
         "sobol": ("output", "tolerances", "n", "seed", "clearances", "plot"),
-        "shapley": ("output", "tolerances", "n", "seed", "adjust", "clearances"),
+        "worst-case": ("output", "tolerances", "adjust", "objective"),
         "ppm": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "method", "target",
                 "adjust", "n_jobs", "clearances", "objective"),
         "allocation": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "target",
@@ -63,17 +59,21 @@ USES = {"nominal": (), "scan": ("output", "tolerances", "adjust", "objective", "
                      "strategy", "n_jobs", "objective"),
         "strategies": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "n_jobs",
                        "strategy", "clearances", "objective"),
+        "shapley": ("output", "tolerances", "n", "seed", "adjust", "clearances"),
         "refine": ("output", "tolerances", "seed", "adjust", "vary", "keep", "require",
                    "restarts", "popsize", "maxiter", "plot"),
         "clearance": ("output", "tolerances", "n", "seed", "limit", "adjust", "target",
                       "guide_diameter", "play_limit", "guide_fit"),
         "least-cost": ("output", "tolerances", "n", "seed", "limit", "lower_limit", "target",
                        "adjust", "cost", "confidence", "check_n", "restarts", "popsize",
-                       "maxiter")}
+                       "maxiter"),
+        "largest-tolerances": ("output", "tolerances", "limit", "adjust")}
+STUDIES = tuple(USES)
 # the studies that adjust the file's [defaults] adjust when --adjust is not given (the ones
 # with a `sewtol needle` form; refine adjusts every compensator by default, shapley, clearance
 # and least-cost none); `--adjust none` adjusts nothing
-DEFAULT_ADJUST_STUDIES = ("scan", "worst-case", "montecarlo", "ppm", "allocation")
+DEFAULT_ADJUST_STUDIES = ("scan", "worst-case", "montecarlo", "ppm", "allocation",
+                          "largest-tolerances")
 # the columns a table prints without --wide (JSON and CSV keep every column); `failed` sums
 # the failure counts where the table has no such column, so ok + out_of_spec + failed = n
 COMPACT = {"montecarlo": ("output", "case", "n", "ok", "out_of_spec", "failed", "mean", "std",
@@ -97,9 +97,10 @@ def add_run(sub) -> None:
 
 
 def needle_aliases(nsub) -> None:
-    """`sewtol needle STUDY ARGS`: `sewtol run needle_208 STUDY ARGS`'s parser and function."""
-    for study in FAST_PATH_STUDIES:
-        p = nsub.add_parser(study, help=f"the same as `sewtol run needle_208 {study}`")
+    """`sewtol needle ALIAS ARGS`: `sewtol run needle_208 STUDY ARGS`'s parser and function."""
+    for study in (*N.FAST_PATH, "largest-tolerances"):
+        p = nsub.add_parser(NEEDLE_NAME.get(study, study),
+                            help=f"the same as `sewtol run needle_208 {study}`")
         run_options(p)
         p.set_defaults(file="needle_208", study=study)
 
@@ -124,8 +125,8 @@ def run_options(p) -> None:
     p.add_argument("--adjust", default=None, metavar="COMPENSATOR[,COMPENSATOR...]|none",
                    help="add the adjusted case: --output (default the first) minimised over "
                         "this [compensators.NAME] of the file on each machine (default: the "
-                        "file's [defaults] adjust for scan, worst-case, montecarlo, ppm and "
-                        "allocation; none: no adjustment)")
+                        "file's [defaults] adjust for scan, worst-case, montecarlo, ppm, "
+                        "allocation and largest-tolerances; none: no adjustment)")
     p.add_argument("--objective", default=None, metavar="minimise|target=T|centre=L,U",
                    help="scan, worst-case, montecarlo, ppm, allocation, strategies, settings: "
                         "what --adjust (strategies, settings: each --strategy) does with "
@@ -190,8 +191,8 @@ def run_options(p) -> None:
                         "tolerance's change at its limits; montecarlo, each output's histogram "
                         "with its spec limits; sobol, S1 and ST with their intervals; refine, "
                         "the objective's curve today and refined; on the needle_208 fast path "
-                        "also worst-case, allocation and strategies (the yield of each "
-                        "strategy with its 95 %% interval)")
+                        "also worst-case, allocation, strategies (the yield of each "
+                        "strategy with its 95 %% interval) and settings (the guide's yields)")
     p.add_argument("--guide-diameter", type=float, default=None, metavar="MM",
                    help="clearance: the guide rod's diameter for its ISO 286 fits (default 8)")
     p.add_argument("--play-limit", type=float, default=None, metavar="UM",
@@ -229,14 +230,8 @@ def _settings(args) -> list:
         return []
     items = [i for i in args.set or [] if ":" in i.partition("=")[0]]
     args.set = [i for i in args.set or [] if i not in items]
-    if not items:
-        raise ParameterError("--set", "`run settings` needs at least one "
-                             "SETTING:NAME=VALUE[,NAME=VALUE...]", None)
-    out = []
-    for item in items:
-        name, _, body = item.partition(":")
-        out.append(Setting(name.strip(), parse_sets(body.split(","))))
-    return out
+    return [Setting(name.strip(), parse_sets(body.split(",")))
+            for name, _, body in (i.partition(":") for i in items)]
 
 
 def resolve_tolerances(mech, spec):
@@ -258,10 +253,7 @@ def resolve_tolerances(mech, spec):
 
 
 def _check_flags(args) -> None:
-    for key in ("output", "tolerances", "n", "seed", "limit", "n_jobs", "adjust", "lower_limit",
-                "method", "target", "weight", "strategy", "vary", "keep", "require", "restarts",
-                "popsize", "maxiter", "plot", "guide_diameter", "play_limit", "guide_fit",
-                "cost", "confidence", "check_n", "clearances", "shape", "objective"):
+    for key in dict.fromkeys(k for keys in USES.values() for k in keys):  # every study flag
         value = getattr(args, key)
         if value is not None and key not in USES[args.study] \
                 and args.study not in N.NEEDLE_FLAGS.get(key, ()):  # _check_needle_flags
@@ -351,18 +343,22 @@ def cmd_run(args) -> None:
     if args.study in SPEC_STUDIES and args.n is not None:  # the limits: the flags', else the file's
         args.spec_output, args.spec, args.spec_source = mech.resolve_spec(
             args.output, args.limit, args.lower_limit)
-    args.path_reason = _fast_path_refusal(args, mech)  # None: the needle_208 fast path
+    args.path_reason = _fast_path_refusal(args, mech, settings)  # None: the needle_208 fast path
     _check_needle_flags(args, mech)
-    if args.study in ("nominal", "settings"):
-        check_study_folder(args, _inputs(args, mech, None), chunked=False)
     if args.study == "nominal":
+        check_study_folder(args, _inputs(args, mech, None), chunked=False)
         res = G.nominal(mech)
         return _finish(args, fmt, mech, None, res.to_dict(), {"nominal": res.to_dataframe()},
                        res.to_dataframe())
-    if args.study == "settings":
+    if args.study == "settings" and args.path_reason is not None:  # else the guide's (needle)
         from sewtol.studies import settings as SE
         from sewtol.studies.strategies import parse_strategies
 
+        if not settings:  # on the needle file: why the guide's settings are not compared
+            raise ParameterError("--set", "`run settings` needs at least one SETTING:NAME=VALUE"
+                                 "[,NAME=VALUE...]" + (f" ({args.path_reason})" if mech.header
+                                                       .fast_path == "needle_208" else ""), None)
+        check_study_folder(args, _inputs(args, mech, None), chunked=False)
         figures = tolerances = None
         if args.n is not None:  # the same machines on every setting, per case
             cases = parse_strategies(args.strategy, mech) if args.strategy else {
@@ -387,11 +383,14 @@ def cmd_run(args) -> None:
     if args.path_reason is None:
         args.path_reason = _tolerances_refusal(tolerances)
     _check_needle_flags(args, mech)
-    if args.path_reason is None:  # the needle commands check their folder (open_store)
-        return _needle_study(args, mech, tolerances)
+    if args.path_reason is None:  # the needle command (cli.needle.FAST_PATH) checks its folder
+        ns = _needle_namespace(args, mech, tolerances)
+        return ns.func(ns)
+    if args.study == "settings":  # the guide's settings, on a set the needle model lacks
+        raise ParameterError("--tolerances", f"{args.path_reason} (`needle guides`)", None)
     check_study_folder(args, _inputs(args, mech, tolerances), chunked=False)
     if mech.header.fast_path == "needle_208" and args.path == "auto" \
-            and args.study in FAST_PATH_STUDIES:
+            and args.study in N.FAST_PATH:
         print(f"sewtol: note: `run {args.study}` takes the generic sampled path, not the "
               f"needle_208 fast path: {args.path_reason}", file=sys.stderr)
     outputs = None if args.output is None else [args.output]
@@ -496,7 +495,6 @@ def _least_cost(args, fmt, mech, tolerances) -> None:
     import math
 
     from sewtol import costs as C
-    from sewtol.protocol import plugins
     from sewtol.studies import least_cost as LC
 
     given = {}
@@ -514,8 +512,7 @@ def _least_cost(args, fmt, mech, tolerances) -> None:
                              confidence)
     if args.check_n is not None and args.check_n < 0:
         raise ParameterError("--check-n", "must be a whole number >= 0", args.check_n)
-    fast = args.path != "generic"
-    args.path_used = (plugins(mech).name or "generic") if fast else "generic"
+    fast = _plugin_path(args, mech)
     spec = args.spec
     upper, lower = (None, None) if spec is None else (spec.upper, spec.lower)
     res = _as_flags(partial(LC.least_cost, fast=fast, confidence=confidence or None,
@@ -552,7 +549,6 @@ def _largest_tolerances(args, fmt, mech, tolerances) -> None:
 
     import pandas as pd
 
-    from sewtol.protocol import plugins
     from sewtol.studies import scan as S
     from sewtol.studies.adjusting import adjusted, evaluated
 
@@ -567,8 +563,7 @@ def _largest_tolerances(args, fmt, mech, tolerances) -> None:
         raise ParameterError(f"[[specs]] {output}", "must have no lower limit for `run "
                              "largest-tolerances`, which searches an upper limit (--limit "
                              "replaces the spec)", spec.lower)
-    fast = args.path != "generic"
-    args.path_used = (plugins(mech).name or "generic") if fast else "generic"
+    fast = _plugin_path(args, mech)
     adjust = args.adjust
     set_by = set() if adjust is None else {mech.compensators[c].parameter for c in
                                            adjust.split(",") if c in mech.compensators}
@@ -610,12 +605,10 @@ def _largest_tolerances(args, fmt, mech, tolerances) -> None:
 def _strategies(args, fmt, mech, tolerances) -> None:
     """`run FILE strategies` (sewtol.studies.strategies): the same machines under each strategy,
     through the file's plug-ins unless --path generic."""
-    from sewtol.protocol import plugins
     from sewtol.studies import strategies as ST
 
     rows = None if args.strategy is None else ST.parse_strategies(args.strategy, mech)
-    fast = args.path != "generic"
-    args.path_used = (plugins(mech).name or "generic") if fast else "generic"
+    fast = _plugin_path(args, mech)
     res = _as_flags(partial(ST.strategies, fast=fast, n_jobs=args.n_jobs, **_goal(args)), mech,
                     tolerances, args.n, args.seed, rows, args.spec_output, args.spec)
     frame = res.to_dataframe()
@@ -722,7 +715,9 @@ def _finish(args, fmt, mech, tolerances, obj, frames, frame) -> None:
                       obj, frames, None)
     emit(fmt, obj=obj, frame=frame, compact=COMPACT.get(args.study), wide=args.wide)
 
-FAST_PATH_STUDIES = tuple(N.FAST_PATH)
+# `sewtol needle ALIAS` is `sewtol run needle_208 STUDY`: the fast path's studies and the generic
+# largest-tolerances (on the needle's plug-in), under the study's name but for NEEDLE_NAME's
+NEEDLE_NAME = {"settings": "guides"}
 # the needle studies that report the fixed and the adjusted case by default
 BOTH_CASES = ("worst-case", "montecarlo", "sobol")
 
@@ -730,6 +725,15 @@ BOTH_CASES = ("worst-case", "montecarlo", "sobol")
 # the studies a fast path other than needle_208's serves through its plug-ins (the m6 needle's
 # exact travel), unless --path generic
 KERNEL_STUDIES = ("scan", "montecarlo")
+
+
+def _plugin_path(args, mech) -> bool:
+    """True (the studies' `fast`) unless --path generic; the context names the path taken."""
+    from sewtol.protocol import plugins
+
+    fast = args.path != "generic"
+    args.path_used = (plugins(mech).name or "generic") if fast else "generic"
+    return fast
 
 
 def _kernel_path(args, mech) -> bool:
@@ -748,7 +752,7 @@ def _kernel_path(args, mech) -> bool:
     return True
 
 
-def _fast_path_refusal(args, mech) -> str | None:
+def _fast_path_refusal(args, mech, settings=()) -> str | None:
     """None when `run FILE STUDY` runs on the needle_208 fast path, else why it does not."""
     from sewtol.mechanisms.needle_208 import beta as sb
     from sewtol.mechanisms.needle_208.fast_path import sumdelta_outputs
@@ -758,7 +762,7 @@ def _fast_path_refusal(args, mech) -> str | None:
     if mech.header.fast_path != "needle_208":
         return ("the file declares no fast path" if mech.header.fast_path is None else
                 f"the {mech.header.fast_path} fast path serves {' and '.join(KERNEL_STUDIES)}")
-    if args.study not in FAST_PATH_STUDIES:
+    if args.study not in N.FAST_PATH:
         return f"`run {args.study}` has no fast path"
     if args.output is not None and args.output not in sumdelta_outputs(mech):
         return (f"--output {args.output} is not the SumDelta output "
@@ -783,14 +787,16 @@ def _fast_path_refusal(args, mech) -> str | None:
     if args.study in ("allocation", "strategies") and upper not in (None, sb.DEFAULT_LIMIT_UM):
         return (f"{flag} {upper:g}: `needle {args.study}` keeps SumDelta within "
                 f"{sb.DEFAULT_LIMIT_UM:g} um")
-    if args.study == "strategies" and args.strategy is not None:
-        return "--strategy: `needle strategies` compares its own rows"
+    if args.study in ("strategies", "settings") and args.strategy is not None:
+        return f"--strategy: `needle {NEEDLE_NAME.get(args.study, args.study)}` compares its own rows"
+    if settings:
+        return "--set SETTING:...: `needle guides` compares the guide's own settings"
     if args.weight is not None:
         return "--weight: `needle allocation` weighs every tolerance alike"
     if args.shape == "set":
         return "--shape set: `needle allocation` shapes the tolerances by their slopes"
-    if args.out and args.study in ("worst-case", "allocation"):
-        return f"--out: `needle {args.study}` writes no study folder"
+    if args.out and args.study in ("worst-case", "allocation", "settings"):
+        return f"--out: `needle {NEEDLE_NAME.get(args.study, args.study)}` writes no study folder"
     return None
 
 
@@ -882,7 +888,7 @@ def _needle_namespace(args, mech, tolerances=None):
     if given is not None:
         ns.adjust = given
     elif args.adjust is None:  # no default adjustment in the file
-        ns.adjust = None if study in BOTH_CASES or study == "strategies" else "none"
+        ns.adjust = None if study in (*BOTH_CASES, "strategies", "settings") else "none"
     else:  # the file's default: beta, the needle's own default
         ns.adjust = "beta" if study == "ppm" else None
         comp = mech.compensators[args.adjust]
@@ -892,7 +898,9 @@ def _needle_namespace(args, mech, tolerances=None):
         ns.seed = None
     if study in ("scan", "worst-case", "ppm"):
         ns.n = None
-    if study in ("montecarlo", "ppm"):
+    if study == "settings" and ns.n is None:  # the guide's settings always draw machines
+        ns.n = DEFAULT_N[study]
+    if study in ("montecarlo", "ppm", "settings"):
         # the limit in force; the file's spec of the needle's own default 10 um is passed as
         # the default, so `run` prints the bytes of the needle's default
         ns.limit_um = None if args.spec is None or (
@@ -912,20 +920,12 @@ def _needle_namespace(args, mech, tolerances=None):
     return ns
 
 
-def _needle_study(args, mech, tolerances) -> None:
-    """The needle_208 fast path: `sewtol needle STUDY` itself (cli.needle.cmd_needle_*), on the
-    file's nominal machine and tolerance set; see docs/mechanism_files.md for the flag mapping."""
-    ns = _needle_namespace(args, mech, tolerances)
-    ns.func(ns)
-
-
 def _yield_study(args, fmt, mech, tolerances) -> None:
     """ppm, allocation and report (sewtol.studies.rare_event, allocation, sewtol.reports.generic_report)."""
     import numpy as np
 
     from sewtol.studies import allocation as AL
     from sewtol.studies import rare_event as PPM
-    from sewtol.studies import rare_event as R
 
     output, spec = args.spec_output, args.spec
     upper, lower = (None, None) if spec is None else (spec.upper, spec.lower)
@@ -973,7 +973,7 @@ def _yield_study(args, fmt, mech, tolerances) -> None:
         return None
     ls = _as_flags(partial(PPM.limit_state, fast=False, **_goal(args)), mech, tolerances, output,
                    upper, lower, args.adjust)
-    res = _as_flags(R.estimate, ls, np.random.default_rng(args.seed), args.method, args.target,
+    res = _as_flags(PPM.estimate, ls, np.random.default_rng(args.seed), args.method, args.target,
                     args.n, args.n_jobs)
     cond = PPM.limits_text(output if args.adjust is None else f"{output}_adjusted", upper,
                           lower, mech.output(output).unit)
@@ -1046,7 +1046,6 @@ def _parse_constraints(args, mech, adjust, objective) -> list:
 def _refine(args, fmt, mech) -> None:
     """`run FILE refine` (sewtol.studies.refine): the design refined, today's beside it."""
     from sewtol.cli.common import save_plot
-    from sewtol.protocol import plugins
     from sewtol.studies import refine as RF
 
     tolerances = (resolve_tolerances(mech, args.tolerances)
@@ -1056,8 +1055,7 @@ def _refine(args, fmt, mech) -> None:
     objective = args.output or mech.output_names[0]
     params = _parse_vary(args.vary, mech)
     constraints = _parse_constraints(args, mech, adjust, objective)
-    fast = args.path != "generic"
-    args.path_used = (plugins(mech).name or "generic") if fast else "generic"
+    fast = _plugin_path(args, mech)
     check_study_folder(args, _inputs(args, mech, tolerances), chunked=False)
     res = RF.refine(mech, params, objective=objective, adjust=adjust, constraints=constraints,
                     seed=args.seed, restarts=args.restarts or 3, popsize=args.popsize or 10,

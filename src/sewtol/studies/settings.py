@@ -13,8 +13,9 @@ machine's status and every output (`sewtol run FILE settings --set NAME:PARAM=V,
 of the setting's machine (the seed's deviations added to its nominals: the same on every row)
 under each case (compensators set per machine; none: as built), with per case counts adding up
 to n, the yield and p95 (`run FILE settings --n N --adjust C`). A mechanism's own comparison
-(the needle's guide placements, tables/needle_208.py) is an instance: settings as data, its own
-nominal figures and the cases' columns in its words.
+(the needle's guide placements, tables/needle_208.py: `run needle_208 settings` without named
+settings, alias `needle guides`) is an instance: settings as data, its own nominal figures and
+the cases' columns in its words.
 """
 
 from __future__ import annotations

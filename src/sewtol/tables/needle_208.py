@@ -26,6 +26,7 @@ import pandas as pd
 from sewtol.errors import ParameterError
 from sewtol.measurement_error import MeasurementError
 from sewtol.mechanism.loader import builtin
+from sewtol.mechanism.spec import Spec
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.needle_208 import beta as sb
 from sewtol.mechanisms.needle_208.adjustment import Adjustment, adjust, columns_of
@@ -37,7 +38,7 @@ from sewtol.studies.montecarlo import (
     MonteCarloResult,
     check_sampling,
 )
-from sewtol.studies.settings import Setting, compare
+from sewtol.studies.settings import Setting, compare, yield_figures
 from sewtol.tolerances import ToleranceSet, needle_set
 
 if TYPE_CHECKING:
@@ -742,9 +743,6 @@ def compare_guides(nominal: Needle208, tolerances: ToleranceSet | str, n: int, s
         strategy with its counts (ok + out_of_spec + cannot_assemble + dead_point = n) and
         ``p95_after_um``.
     """
-    from sewtol.mechanism.spec import Spec
-    from sewtol.studies.settings import yield_figures
-
     tolerances = needle_set(tolerances)
     check_sampling(nominal, tolerances, n, seed)  # as montecarlo checks the same machines
     settings = [Setting(label, {"guide_shift_um": nominal.guide_shift_um + shift_um,
