@@ -21,7 +21,6 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from sewtol.errors import ParameterError
 from sewtol.measurement_error import MeasurementError
@@ -37,10 +36,10 @@ from sewtol.studies.montecarlo import (
     MonteCarloResult,
     check_sampling,
 )
-from sewtol.studies.settings import Setting, compare
 from sewtol.tolerances import ToleranceSet, needle_set
 
 if TYPE_CHECKING:
+    import pandas as pd
     from distributed import Client
 
     from sewtol.mechanisms.needle_208.compensators import Strategy
@@ -152,6 +151,8 @@ def scan(nominal: Needle208, tolerances: ToleranceSet | str, guide_shift_um: flo
         SumDelta is flat up to that end and may stay flat or fall beyond it);
         ``nominal_row`` the same for the nominal.
     """
+    import pandas as pd
+
     from sewtol.studies import scan as S
 
     tolerances = needle_set(tolerances)
@@ -275,6 +276,8 @@ def worst_case_table(nominal: Needle208, tolerances: ToleranceSet | str,
         ``worst_corner_total_um``, ``beta_deg``, ``interior`` (True when the worst point is not
         a corner) and the worst point's deviation per parameter (``NAME_mm``).
     """
+    import pandas as pd
+
     tolerances = needle_set(tolerances)
     return pd.DataFrame([worst_case(nominal, tolerances, a, range_deg,
                                     strategy=strategy if a else None) for a in (False, True)])
@@ -303,6 +306,8 @@ class StrategiesResult(ST.StrategiesResult):
 
     def machines(self, strategy: str) -> pd.DataFrame:
         """Deviations, criterion before and after, settings, at-limit flags and status."""
+        import pandas as pd
+
         self.get(strategy)  # refused in one line when not a row
         f = pd.DataFrame(self.deviations)
         f.insert(0, "machine", np.arange(self.n))
@@ -743,7 +748,7 @@ def compare_guides(nominal: Needle208, tolerances: ToleranceSet | str, n: int, s
         ``p95_after_um``.
     """
     from sewtol.mechanism.spec import Spec
-    from sewtol.studies.settings import yield_figures
+    from sewtol.studies.settings import Setting, compare, yield_figures
 
     tolerances = needle_set(tolerances)
     check_sampling(nominal, tolerances, n, seed)  # as montecarlo checks the same machines
