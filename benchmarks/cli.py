@@ -12,7 +12,7 @@ every 20 ms; /usr/bin/time's %M is the largest single process only) are measured
 
 (a) start-up: `needle montecarlo --n 1000` (target <= 1 s wall warm), medians of
     --startup-repeats (default 7) with the load average before and after, against `python -c
-    pass`, `python -c "import numpy, pandas, numba"` (what no sewtol can undercut) and building
+    pass`, `python -c "import numpy, numba"` (what no sewtol can undercut) and building
     the parser (`from sewtol.cli import build_parser`); on a loaded machine the CPU-s (user +
     sys) of the run is the projection of its wall time on an idle one;
 (b) peak RSS against n: `needle montecarlo --n N --n-jobs 2` for N in --rss-n (target: flat,
@@ -151,8 +151,7 @@ def main(argv=None) -> int:
         res["startup"] = {
             "load_before": load(),
             "python_pass": medians([*py, "-c", "pass"], None, None, k),
-            "import_numpy_pandas_numba": medians(
-                [*py, "-c", "import numpy, pandas, numba"], None, None, k),
+            "import_numpy_numba": medians([*py, "-c", "import numpy, numba"], None, None, k),
             "build_parser": medians(
                 [*py, "-c", "from sewtol.cli import build_parser; build_parser()"], src,
                 args.reference_src, k),

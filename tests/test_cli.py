@@ -159,9 +159,11 @@ def test_the_installed_command_prints_its_help():
 
 def test_start_up_imports_only_what_the_command_uses():
     """In a fresh process: building and running the parser imports no study's libraries, and
-    a Monte-Carlo of the needle (built-in command, and the file on its fast path) never imports
-    scipy.stats, scipy.optimize, joblib, the plotting and cluster libraries or another
-    mechanism's model (each costs a part of the start-up the command has no use for)."""
+    a Monte-Carlo of the needle (built-in command as a table, and the file on its fast path as
+    JSON) never imports scipy.stats, scipy.optimize, joblib, pandas, the plotting and cluster
+    libraries, another mechanism's model or a study it does not run, nor executes numpy.f2py or
+    numpy.testing (bound unexecuted by the CLI; scipy.special's numpy copy binds every numpy
+    submodule): each costs a part of the start-up the command has no use for."""
     import os
     import subprocess
     import sys
@@ -178,8 +180,10 @@ def test_start_up_imports_only_what_the_command_uses():
              "    code = main(sys.argv[1:])\n"
              "print(json.dumps([code, parsed, sorted(sys.modules)]))\n")
     never = {"scipy.stats", "scipy.optimize", "joblib", "matplotlib", "SALib", "dask",
-             "distributed", "tqdm", "sewtol.mechanisms.feed_131.model"}
-    for command in (["needle", "montecarlo", "--n", "50", "--format", "json"],
+             "distributed", "tqdm", "sewtol.mechanisms.feed_131.model", "pandas", "unittest",
+             "numpy.f2py.crackfortran", "sewtol.studies.generic", "sewtol.studies.scan",
+             "sewtol.studies.worst_case", "sewtol.studies.settings"}
+    for command in (["needle", "montecarlo", "--n", "50"],
                     ["run", "needle_208", "montecarlo", "--n", "50", "--format", "json"]):
         done = subprocess.run([sys.executable, "-c", probe, *command], capture_output=True,
                               text=True, env=env, timeout=300)
@@ -188,6 +192,36 @@ def test_start_up_imports_only_what_the_command_uses():
         assert code == 0
         assert not {m for m in parsed if m.split(".")[0] in never | {"scipy", "pandas", "numba"}}
         assert not {m for m in ran if m in never or m.split(".")[0] in never}
+
+
+def test_a_table_of_records_prints_the_bytes_of_its_dataframe(capsys):
+    """emit's pandas-free table (plain records: text, counts, floats, NaN and inf) prints
+    exactly what pandas' to_markdown prints for DataFrame(records), compact (the failure
+    columns summed into `failed`) and wide, with the same --wide note; records pandas must
+    type (a None, a bool, a missing cell, text and numbers mixed, no text column) go through
+    pandas itself. JSON and CSV of records are those of the frame."""
+    from sewtol.cli.common import emit, plain_columns
+
+    plain = [{"case": "fixed", "n": 1000, "ok": 72, "cannot_close": 0, "dead_point": 2,
+              "yield": 0.072, "p95_um": np.float64(87.65741), "Cpu": float("inf"),
+              "beta_at_bound": 0, "mixed": 1},
+             {"case": "adjusted", "n": 1000, "ok": 89, "cannot_close": 3, "dead_point": 0,
+              "yield": 0.089, "p95_um": np.float64(84.05), "Cpu": float("nan"),
+              "beta_at_bound": np.int64(201), "mixed": 2.5}]
+    typed = [[{**plain[0], "lower_limit": None}, plain[1]],
+             [{**plain[0], "flag": True}, {**plain[1], "flag": False}],
+             [plain[0], {k: v for k, v in plain[1].items() if k != "ok"}],
+             [plain[0], {**plain[1], "mixed": "x"}],
+             [{k: v for k, v in r.items() if k != "case"} for r in plain]]
+    compact = ("case", "n", "ok", "failed", "yield", "p95_um", "mixed", "absent")
+    assert plain_columns(plain, compact, False) is not None
+    assert all(plain_columns(r) is None for r in typed)
+    for records in (plain, *typed):
+        for fmt, wide in (("table", False), ("table", True), ("json", False), ("csv", False)):
+            emit(fmt, frame=records, compact=compact, wide=wide)
+            got = capsys.readouterr().out
+            emit(fmt, frame=pd.DataFrame(records), compact=compact, wide=wide)
+            assert got == capsys.readouterr().out
 
 
 def test_kernels_are_cached_on_disk_and_compile_nothing_at_import():

@@ -14,11 +14,14 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from sewtol.errors import ParameterError
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 OBJECTIVES = ("minimise", "target", "centre")
 MAX_COMPENSATORS = 3
@@ -162,6 +165,8 @@ class Adjustment:
     evaluations: int
 
     def to_dataframe(self) -> pd.DataFrame:
+        import pandas as pd
+
         cols = {self.output: self.value, "loss": self.loss, "status": self.status,
                 "failed_group": self.failed_group}
         for n, p in zip(self.names, self.parameters, strict=True):

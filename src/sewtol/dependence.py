@@ -30,7 +30,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import special
 
 from sewtol.errors import ParameterError
 
@@ -110,6 +109,8 @@ class Dependence:
     def ranks(self, u: np.ndarray) -> np.ndarray:
         """The copula's ranks (n, k) of independent standard uniforms u (n, k), columns in
         `params` order: Phi(L Phi^-1(u))."""
+        from scipy import special  # only a dependent law needs it: not on an independent start-up
+
         return special.ndtr(special.ndtri(np.asarray(u, float)) @ self.factor().T)
 
 

@@ -15,7 +15,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import special
 
 from sewtol.errors import ParameterError, real
 from sewtol.law import STREAM, draw_units
@@ -78,6 +77,8 @@ def normal_draws(seed: int, start: int, stop: int, positions: int) -> np.ndarray
         return np.empty((0, int(positions)))
     streams = [np.random.SeedSequence(int(seed), spawn_key=(MEASURE_KEY, j))
                for j in range(-(-stop // STREAM))]
+    from scipy import special
+
     return special.ndtri(draw_units(streams, int(positions), start, stop))
 
 

@@ -18,7 +18,6 @@ import zlib
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import special
 
 from sewtol.errors import ParameterError, real
 from sewtol.law import STREAM, draw_units
@@ -64,6 +63,8 @@ class SettingError:
         """Errors of standard uniforms u in (0, 1)."""
         u = np.asarray(u, float)
         if self.dist == "normal":
+            from scipy import special
+
             return self.width * special.ndtri(u)
         return self.width * (2.0 * u - 1.0)
 

@@ -40,12 +40,39 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+# numpy's submodules no command uses. scipy.special (the exact yield intervals, sewtol.intervals)
+# imports scipy's array-API copy of numpy, which binds every numpy submodule (`from numpy import
+# *` and getattr over dir(numpy)): f2py's regexes and numpy.testing's unittest alone are a fifth
+# of a warm start-up. Bound here as lazy modules, they load (unchanged) on first attribute use.
+LAZY_NUMPY = ("f2py", "testing", "ma", "polynomial", "ctypeslib", "char", "rec", "strings")
+
+
+def defer_numpy_extras() -> None:
+    """Put LAZY_NUMPY's modules not yet imported into sys.modules and on numpy as
+    importlib.util.LazyLoader modules: binding them executes nothing, using one loads it whole.
+    Only the command line calls this (a library user's numpy stays as they imported it)."""
+    import importlib.util
+
+    import numpy
+
+    for name in LAZY_NUMPY:
+        full = f"numpy.{name}"
+        if full in sys.modules or (spec := importlib.util.find_spec(full)) is None:
+            continue
+        spec.loader = importlib.util.LazyLoader(spec.loader)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[full] = module
+        spec.loader.exec_module(module)
+        setattr(numpy, name, module)  # else numpy.__getattr__ imports it (and recurses)
+
+
 def _on_sigterm(signum, frame):
     raise Terminated()
 
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    defer_numpy_extras()
     previous = None
     try:  # only the main thread may set handlers; a library caller's threads run without
         previous = signal.signal(signal.SIGTERM, _on_sigterm)

@@ -65,7 +65,24 @@ FAILURE_COLUMNS = ("cannot_assemble", "cannot_close", "dead_point", "undefined",
 def emit(fmt: str, *, obj=None, frame=None, compact=None, wide: bool = False) -> None:
     """Print a study's result: `obj` as JSON, `frame` as CSV, or `frame` as a Markdown table.
     JSON and CSV always hold every column; a table with `compact` (the column names a decision
-    needs, in their order) prints those unless `wide`, and says in a note what --wide adds."""
+    needs, in their order) prints those unless `wide`, and says in a note what --wide adds.
+    `frame` is a DataFrame or its rows as records (dicts): a table of plain records
+    (`plain_columns`) is printed without importing pandas, in the same bytes."""
+    if isinstance(frame, list):
+        shown = plain_columns(frame, compact, wide) if fmt == "table" else None
+        if shown is not None:
+            from tabulate import tabulate
+
+            # pandas' to_markdown: tabulate of the frame's values, object rows of str/int/float
+            rows = [list(row) for row in zip(*shown.values(), strict=True)]
+            sys.stdout.write(tabulate(rows, headers=list(shown), tablefmt="pipe",
+                                      showindex=False, floatfmt=".4f") + "\n")
+            return _wide_note([c for c in dict.fromkeys(k for r in frame for k in r)
+                               if c not in shown])
+        if fmt != "json" or obj is None:
+            import pandas as pd
+
+            frame = pd.DataFrame(frame)
     if fmt == "json":
         data = obj if obj is not None else frame.to_dict(orient="records")
         sys.stdout.write(to_json(data))
@@ -76,11 +93,7 @@ def emit(fmt: str, *, obj=None, frame=None, compact=None, wide: bool = False) ->
     else:
         shown = frame if wide or compact is None else compact_view(frame, compact)
         sys.stdout.write(shown.to_markdown(index=False, floatfmt=".4f") + "\n")
-        hidden = [c for c in frame.columns if c not in shown.columns]
-        if hidden:
-            sys.stdout.write(f"\nnote: --wide adds {len(hidden)} more columns "
-                             f"({', '.join(map(str, hidden))}); --format json and csv hold "
-                             "every column\n")
+        _wide_note([c for c in frame.columns if c not in shown.columns])
 
 
 def compact_view(frame, compact):
@@ -97,6 +110,46 @@ def compact_view(frame, compact):
             if causes:
                 out[name] = frame[causes].sum(axis=1)
     return pd.DataFrame(out, index=frame.index)
+
+
+def _wide_note(hidden) -> None:
+    if hidden:
+        sys.stdout.write(f"\nnote: --wide adds {len(hidden)} more columns "
+                         f"({', '.join(map(str, hidden))}); --format json and csv hold "
+                         "every column\n")
+
+
+def plain_columns(records, compact=None, wide: bool = True) -> dict | None:
+    """The columns of pandas.DataFrame(records) (cut to `compact` as `compact_view` cuts,
+    unless `wide`) as lists of the values its .values hands tabulate, or None when pandas must
+    decide: a missing cell or a None (NaN), a bool, a column mixing text and numbers, failure
+    columns that are not counts, or no text column (an all-number frame's values are floats)."""
+    import numbers
+
+    names = list(dict.fromkeys(k for r in records for k in r))
+    cols = {}
+    for name in names:
+        vals = [r.get(name) for r in records]
+        if all(isinstance(v, str) for v in vals):
+            cols[name] = vals
+        elif any(v is None or isinstance(v, bool) or not isinstance(v, numbers.Real)
+                 for v in vals) or not vals:
+            return None
+        else:  # int64 when every value is an integer type, else float64
+            kind = int if all(isinstance(v, numbers.Integral) for v in vals) else float
+            cols[name] = [kind(v) for v in vals]
+    if not (wide or compact is None):
+        cut = {}
+        for name in compact:
+            causes = [cols[c] for c in FAILURE_COLUMNS if c in cols]
+            if name in cols:
+                cut[name] = cols[name]
+            elif name == "failed" and causes:
+                if not all(isinstance(v, int) for c in causes for v in c):
+                    return None
+                cut[name] = [sum(v) for v in zip(*causes, strict=True)]
+        cols = cut
+    return cols if any(isinstance(c[0], str) for c in cols.values()) else None
 
 
 def wide_option(p):

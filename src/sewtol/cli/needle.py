@@ -322,7 +322,7 @@ def cmd_needle_montecarlo(args):
                              "summary": res.summary_frame()} if args.out else {}
 
     res, record = _in_study_folder(args, inputs, study)
-    emit(args.format, obj=record, frame=res.summary_frame(), compact=COMPACT["montecarlo"],
+    emit(args.format, obj=record, frame=res.summary_rows(), compact=COMPACT["montecarlo"],
          wide=args.wide)
     print_notes(args, _montecarlo_notes(record))
     save_plot(args, lambda ax: plots().montecarlo_histograms(

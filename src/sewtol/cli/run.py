@@ -224,10 +224,10 @@ def run_options(p) -> None:
 def _settings(args) -> list:
     """The settings of `run settings` (--set SETTING:NAME=VALUE[,...], taken out of args.set;
     the other --set items override the file's nominals for every setting)."""
-    from sewtol.studies.settings import Setting
-
     if args.study != "settings":
         return []
+    from sewtol.studies.settings import Setting
+
     items = [i for i in args.set or [] if ":" in i.partition("=")[0]]
     args.set = [i for i in args.set or [] if i not in items]
     return [Setting(name.strip(), parse_sets(body.split(",")))
@@ -326,10 +326,6 @@ def load_mechanism(text: str, overrides: dict | None = None):
 
 
 def cmd_run(args) -> None:
-    from sewtol.studies import generic as G
-    from sewtol.studies import scan as S
-    from sewtol.studies import worst_case as W
-
     _check_flags(args)
     check_study(args)
     settings = _settings(args)
@@ -346,8 +342,10 @@ def cmd_run(args) -> None:
     args.path_reason = _fast_path_refusal(args, mech, settings)  # None: the needle_208 fast path
     _check_needle_flags(args, mech)
     if args.study == "nominal":
+        from sewtol.studies.generic import nominal
+
         check_study_folder(args, _inputs(args, mech, None), chunked=False)
-        res = G.nominal(mech)
+        res = nominal(mech)
         return _finish(args, fmt, mech, None, res.to_dict(), {"nominal": res.to_dataframe()},
                        res.to_dataframe())
     if args.study == "settings" and args.path_reason is not None:  # else the guide's (needle)
@@ -397,12 +395,16 @@ def cmd_run(args) -> None:
     fast = _kernel_path(args, mech)
     goal = _goal(args)
     if args.study == "scan":
-        res = _as_flags(partial(S.scan, fast=fast, **goal), mech, tolerances, outputs,
+        from sewtol.studies.scan import scan
+
+        res = _as_flags(partial(scan, fast=fast, **goal), mech, tolerances, outputs,
                         args.adjust)
         _finish(args, fmt, mech, tolerances, res.to_dict(), {"scan": res.rows}, res.rows)
         return _figure(args, res.rows["output"], partial(_scan_panel, mech, res.rows))
     if args.study == "worst-case":
-        res = _as_flags(partial(W.worst_case, fast=False, **goal), mech, tolerances,
+        from sewtol.studies.worst_case import worst_case
+
+        res = _as_flags(partial(worst_case, fast=False, **goal), mech, tolerances,
                         args.output or mech.output_names[0], 100, args.adjust)
         return _finish(args, fmt, mech, tolerances, res.to_dict(), {"worst_case": res.rows},
                        res.rows)

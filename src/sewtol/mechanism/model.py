@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from sewtol import engine
 from sewtol.errors import ParameterError
@@ -26,6 +26,9 @@ from sewtol.mechanism.outputs import OUTPUT_TYPES, line_distance_um, provide
 from sewtol.mechanism.spec import Compensator, Group, Header, Output, Parameter, Spec
 from sewtol.mechanisms import params as P
 from sewtol.tolerances import ToleranceSet
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 DEAD_POINT_DEG = 1.0
 # machines evaluated together: a (block, samples) complex array of a joint stays near
@@ -61,6 +64,8 @@ class Evaluation:
         return c
 
     def to_dataframe(self) -> pd.DataFrame:
+        import pandas as pd
+
         f = pd.DataFrame(dict(self.outputs))
         f["status"] = self.status
         f["failed_group"] = self.failed_group

@@ -27,9 +27,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from sewtol.errors import ParameterError
 from sewtol.intervals import clopper_pearson
@@ -38,6 +38,9 @@ from sewtol.mechanism.spec import Spec
 from sewtol.protocol import NO_PLUGINS, machines, plugins
 from sewtol.studies.parallel import chunk_bounds, run_chunks
 from sewtol.tolerances import ToleranceSet
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 # machines per evaluation chunk: the sampler's streams (sewtol.law.STREAM), so a chunk is one stream
 CHUNK = STREAM
@@ -279,6 +282,8 @@ def _joined(parts: list) -> pd.DataFrame:
     column by column: each chunk's array of a column is dropped as soon as it is copied, so
     the chunks and the table are never held whole at once (one DataFrame per chunk and
     pd.concat held both, and set 10 columns per chunk one by one)."""
+    import pandas as pd
+
     names = list(parts[0][0]) + [k for k in parts[0][1] if k not in parts[0][0]]
     cols = {"machine": np.arange(sum(len(next(iter(d.values()))) for d, _ in parts))}
     for k in names:
@@ -398,6 +403,8 @@ class MachineColumns:
 
     def frame(self, columns=None) -> pd.DataFrame:
         """The table (one row per machine) of these columns (default: all, in order)."""
+        import pandas as pd
+
         columns = list(self.names if columns is None else columns)
         dev = self.draw.deviations() if any(c in self.params for c in columns) else {}
         return pd.DataFrame({c: dev[c] if c in dev else self.column(c) for c in columns},
@@ -406,6 +413,8 @@ class MachineColumns:
     def frames(self):
         """The table chunk by chunk (the rows of each chunk of the draw, every column): what a
         writer streams without holding the whole table (`frame` joined)."""
+        import pandas as pd
+
         for a, b in self.draw.bounds:
             dev = self.draw.law.window(list(self.draw.streams), a, b)
             yield pd.DataFrame({c: dev[c] if c in dev else self.rows(c, a, b)
@@ -491,6 +500,8 @@ def contributors(machines: pd.DataFrame, params, output: str, bins: int = 20) ->
     explained part only (100 % in all, whatever the interactions): a ranking, not a variance
     share.
     """
+    import pandas as pd
+
     m = machines.dropna(subset=[output])
     y = m[output].to_numpy()
     rows = []
@@ -530,6 +541,8 @@ def with_remainder(frame: pd.DataFrame, top: int | None = None) -> pd.DataFrame:
         explains, i.e. interactions and estimation noise; negative when the estimates' noise
         exceeds the interactions).
     """
+    import pandas as pd
+
     explained = float(frame["variance_pct"].sum())
     frame = frame if top is None else frame.head(top)
     rows = pd.DataFrame([{"param": EXPLAINED, "eta2": explained / 100,
@@ -805,9 +818,15 @@ class MonteCarloResult:
         return self.machines.copy()
 
     def summary_frame(self) -> pd.DataFrame:
-        """One row per output (or with summary="cases", per case: `case_frame`)."""
+        """One row per output (or with summary="cases", per case: `case_rows`)."""
+        import pandas as pd
+
+        return pd.DataFrame(self.summary_rows())
+
+    def summary_rows(self) -> list[dict]:
+        """`summary_frame`'s rows as records (the table a command prints, without pandas)."""
         if self.summary == "cases":
-            return self.case_frame()
+            return self.case_rows()
         rows = []
         for name in self.outputs:
             v = np.asarray(self.table.column(name), float)
@@ -834,9 +853,9 @@ class MonteCarloResult:
                 row.update({"limit": spec.upper, "lower_limit": spec.lower,
                             "yield": c["ok"] / c["n"], "yield_ci_low": lo, "yield_ci_high": hi})
             rows.append(row)
-        return pd.DataFrame(rows)
+        return rows
 
-    def case_frame(self) -> pd.DataFrame:
+    def case_rows(self) -> list[dict]:
         """One row per case of the spec'd output: counts (ok + out_of_spec + failed = n), yield
         and interval, quantiles (p50_UNIT ...), Cpu, and per compensator its machines at a bound
         (`at_bound`; 0 in the fixed case)."""
@@ -853,7 +872,7 @@ class MonteCarloResult:
             for param in self.compensators():
                 rows[-1][f"{param}_at_bound"] = self.at_bound(param) if i else 0
                 rows[-1][f"{param}_pinned_at_bound"] = self.at_bound(param, True) if i else 0
-        return pd.DataFrame(rows)
+        return rows
 
     def to_dict(self) -> dict:
         """The Monte-Carlo JSON every path shares (docs/studies.md, "One Monte-Carlo JSON"): per

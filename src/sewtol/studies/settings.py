@@ -22,12 +22,14 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-
-import pandas as pd
+from typing import TYPE_CHECKING
 
 from sewtol.adjuster import Objective
 from sewtol.errors import ParameterError
 from sewtol.studies.strategies import STATUSES, strategies
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 
 @dataclass(frozen=True)
@@ -98,6 +100,8 @@ def compare(base, settings: Sequence[Setting], figures: Callable | None = None,
             name_column: str = "setting") -> SettingsResult:
     """One row per setting: its name (column `name_column`), its columns, and
     figures(base.override(**setting.values), setting). Names must be distinct."""
+    import pandas as pd
+
     settings = tuple(settings)
     if not settings:
         raise ParameterError("settings", "must name at least one setting", ())

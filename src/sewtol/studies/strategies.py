@@ -41,9 +41,9 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from sewtol import measurement_error as me
 from sewtol import setting_error as se
@@ -56,6 +56,9 @@ from sewtol.setting_error import SettingError
 from sewtol.studies.adjusting import Adjusted, adjusted
 from sewtol.studies.montecarlo import WORDS, check_seed, contributors, quantiles
 from sewtol.studies.parallel import chunk_bounds, run_chunks
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 # machines per chunk with n_jobs != 1 or a progress bar: the machines are adjusted one by one,
 # but a batch optimum need not be bit-identical across batch sizes (the needle's joint optimum
@@ -345,6 +348,8 @@ def table(rows: list[dict], columns: Mapping | None = None) -> pd.DataFrame:
     """Rows of `row` as one table: every column of COLUMNS (measurement_error only where a row
     was set from a reading), or `columns` (a mechanism's words, in its order); at_limit_NAME
     of every compensator of the table, NaN in a row without it."""
+    import pandas as pd
+
     split = list(dict.fromkeys(k for r in rows for k in r if k.startswith("at_limit_")
                                and k not in ("at_limit_share", "at_limit_*")))
     if columns is None:
@@ -422,6 +427,8 @@ class StrategiesResult:
         a tolerance that does not matter, towards +/-1 for one whose limit the failures sit
         at), and the mean |z| over the failing machines next to that over all machines.
         """
+        import pandas as pd
+
         params = list(self.deviations)
         frame = pd.DataFrame(self.deviations)
         frame["_adjusted"] = self.get(strategy).value
@@ -553,6 +560,8 @@ class Curve:
         """One row per width: the width's column (with a setting error's compensator and dist
         before it, or a reading's positions after it), the counts (they add up to n), the
         yield with its 95 % Clopper-Pearson interval, the quantiles."""
+        import pandas as pd
+
         keys = (*STATUSES, "n", "yield", "yield_ci_low", "yield_ci_high", "p50", "p95", "p99")
         return pd.DataFrame([{"strategy": self.strategy, **({self.column: w, **self._head()}
                                                              if self.positions else

@@ -8,18 +8,24 @@ tolerances (`screened_sobol`).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import pandas as pd
 
 from sewtol.errors import ParameterError
 from sewtol.studies.montecarlo import contributors, with_remainder
 from sewtol.studies.sobol import CaseIndices, SobolResult, result_of, sobol
 from sewtol.tolerances import ToleranceSet
 
+if TYPE_CHECKING:
+    import pandas as pd
+
 
 def scan_table(result, outputs) -> pd.DataFrame:
     """The rows of a ScanResult as one row per tolerance and side: param, side, deviation,
     then per output its value (column OUTPUT) and its change from nominal (change_OUTPUT)."""
+    import pandas as pd
+
     by = {k: f.reset_index(drop=True) for k, f in result.rows.groupby("output", sort=False)}
     frame = pd.DataFrame({"param": result.params, "side": result.sides,
                           "deviation": result.deviations})
@@ -40,6 +46,8 @@ def output_summary(machines: pd.DataFrame, outputs, levels=(0.01, 0.99), ok=None
     others mean, std (ddof 1), the quantiles at `levels` (linear interpolation; columns
     `quantile_column`), min and max (NaN where none is left); with `nominal` (output -> value)
     its value after the output's name."""
+    import pandas as pd
+
     for q in levels:
         if not 0.0 <= q <= 1.0:
             raise ParameterError("levels", "must be quantile levels in [0, 1]", q)
@@ -60,6 +68,8 @@ def contributor_table(machines: pd.DataFrame, tolerances: ToleranceSet, outputs,
                       top: int = 10) -> pd.DataFrame:
     """Each output's `top` contributors, then the explained sum and the interaction remainder,
     one block of rows per output (column `output` first)."""
+    import pandas as pd
+
     frames = []
     for k in outputs:
         f = with_remainder(contributors(machines, tolerances.active().params, k), top)

@@ -21,7 +21,6 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from sewtol.errors import ParameterError
 from sewtol.measurement_error import MeasurementError
@@ -38,10 +37,10 @@ from sewtol.studies.montecarlo import (
     MonteCarloResult,
     check_sampling,
 )
-from sewtol.studies.settings import Setting, compare, yield_figures
 from sewtol.tolerances import ToleranceSet, needle_set
 
 if TYPE_CHECKING:
+    import pandas as pd
     from distributed import Client
 
     from sewtol.mechanisms.needle_208.compensators import Strategy
@@ -153,6 +152,8 @@ def scan(nominal: Needle208, tolerances: ToleranceSet | str, guide_shift_um: flo
         SumDelta is flat up to that end and may stay flat or fall beyond it);
         ``nominal_row`` the same for the nominal.
     """
+    import pandas as pd
+
     from sewtol.studies import scan as S
 
     tolerances = needle_set(tolerances)
@@ -276,6 +277,8 @@ def worst_case_table(nominal: Needle208, tolerances: ToleranceSet | str,
         ``worst_corner_total_um``, ``beta_deg``, ``interior`` (True when the worst point is not
         a corner) and the worst point's deviation per parameter (``NAME_mm``).
     """
+    import pandas as pd
+
     tolerances = needle_set(tolerances)
     return pd.DataFrame([worst_case(nominal, tolerances, a, range_deg,
                                     strategy=strategy if a else None) for a in (False, True)])
@@ -304,6 +307,8 @@ class StrategiesResult(ST.StrategiesResult):
 
     def machines(self, strategy: str) -> pd.DataFrame:
         """Deviations, criterion before and after, settings, at-limit flags and status."""
+        import pandas as pd
+
         self.get(strategy)  # refused in one line when not a row
         f = pd.DataFrame(self.deviations)
         f.insert(0, "machine", np.arange(self.n))
@@ -316,7 +321,6 @@ def adjusted_summary(nominal: Needle208, machines: pd.DataFrame, strategy: Strat
     """`needle montecarlo --adjust`: the strategies table's row (sewtol.studies.strategies.row,
     in the needle's words, without measurement_error) of a per-machine table written by
     Adjustment.to_dataframe()."""
-    from sewtol.mechanism.spec import Spec
     from sewtol.protocol import plugins
     from sewtol.studies.adjusting import Adjusted
 
@@ -374,7 +378,6 @@ def strategies_table(nominal: Needle208, tolerances: ToleranceSet | str, n: int,
         quantiles (um), Cpk, at-limit shares, achieved yield and distinct settings;
         ``machines(name)`` per machine; ``failure_contributors(name)``.
     """
-    from sewtol.mechanism.spec import Spec
     from sewtol.mechanisms.needle_208.compensators import default_strategies
 
     tolerances = needle_set(tolerances)
@@ -743,6 +746,8 @@ def compare_guides(nominal: Needle208, tolerances: ToleranceSet | str, n: int, s
         strategy with its counts (ok + out_of_spec + cannot_assemble + dead_point = n) and
         ``p95_after_um``.
     """
+    from sewtol.studies.settings import Setting, compare, yield_figures
+
     tolerances = needle_set(tolerances)
     check_sampling(nominal, tolerances, n, seed)  # as montecarlo checks the same machines
     settings = [Setting(label, {"guide_shift_um": nominal.guide_shift_um + shift_um,

@@ -22,13 +22,16 @@ range is reported and its centre is the setting.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from sewtol.errors import ParameterError
 from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208 import model as nd
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 COMPENSATORS = ("beta", "guide_shift_um", "guide_angle", "CD")
 DEFAULT_BOXES = {"beta": (10.0, 35.0), "guide_shift_um": (-100.0, 100.0),
@@ -66,6 +69,8 @@ class AdjustResult:
     tol_um: float
 
     def to_dataframe(self) -> pd.DataFrame:
+        import pandas as pd
+
         cols = {"status": self.status, "total_um": self.total_um, "plus_um": self.plus_um,
                 "minus_um": self.minus_um, "min_total_um": self.min_total_um}
         for k in self.settings:

@@ -28,9 +28,9 @@ in the settings over that small box (it is piecewise linear and convex in the sh
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from sewtol.errors import ParameterError
 from sewtol.mechanisms import params as P
@@ -39,6 +39,9 @@ from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208 import model as nd
 from sewtol.mechanisms.needle_208.compensators import Compensator, Strategy
 from sewtol.optimize import bisect_root, golden_min
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 PLATEAU_TOL_UM = 1e-3  # settings within this of the optimum form its plateau (centre chosen)
 STATUSES = ("ok", "out of spec", "cannot assemble", "dead point")
@@ -365,6 +368,8 @@ class Adjustment:
         return {s: int(np.sum(self.status == s)) for s in STATUSES}
 
     def to_dataframe(self) -> pd.DataFrame:
+        import pandas as pd
+
         f = pd.DataFrame({"total_before_um": self.total_before_um,
                           "total_after_um": self.total_um, "plus_after_um": self.plus_um,
                           "minus_after_um": self.minus_um, "achieved_um": self.achieved_um})

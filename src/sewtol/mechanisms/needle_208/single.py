@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from sewtol.errors import AssemblyError
 from sewtol.mechanisms.needle_208 import beta as sb
 from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208.model import Needle208, check_assembly
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 
 @dataclass(frozen=True)
@@ -58,6 +61,8 @@ class NominalFigures:
 
     def to_dataframe(self) -> pd.DataFrame:
         """The figures as quantity/value rows (the table of ``sewtol needle nominal``)."""
+        import pandas as pd
+
         rows = [
             ("beta* (deg)", self.beta_opt_deg),
             ("beta* on a bound of the searched range (1 = yes)", float(self.beta_at_bound)),
@@ -170,6 +175,8 @@ def deviation_table(params: Needle208, step_deg: float = 1.0) -> pd.DataFrame:
     AssemblyError
         If the machine cannot assemble.
     """
+    import pandas as pd
+
     check_assembly(params)
     phi = np.arange(0.0, 360.0, step_deg)
     c, _ = nm.columns(params)
