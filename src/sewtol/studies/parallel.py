@@ -217,9 +217,10 @@ def numba_threads_local(n_jobs: int) -> int:
     return share
 
 
-def _indexed(fn: Callable, i: int, args: Sequence, parent_pid: int | None, on_cluster: bool,
-             n_jobs: int = 1):
-    """Chunk i's result with its index (results arrive in any order). A local worker process
+def _indexed(fn: Callable, run: tuple[int, ...], args: Sequence, parent_pid: int | None,
+             on_cluster: bool, n_jobs: int = 1):
+    """The results of chunks `run` with their indices (results arrive in any order): fn(*args)
+    is chunk run[0]'s result, or with several chunks their list. A local worker process
     watches the main process (parent_pid) and takes its share of the numba threads; a
     cluster's workers outlive it by design."""
     if parent_pid is not None:
@@ -228,13 +229,26 @@ def _indexed(fn: Callable, i: int, args: Sequence, parent_pid: int | None, on_cl
         numba_threads_local(n_jobs)
     if on_cluster:
         numba_threads_on_worker()
-    return i, fn(*args)
+    return run, fn(*args) if len(run) > 1 else [fn(*args)]
+
+
+def runs_of(todo: Sequence[int], size: int) -> list[tuple[int, ...]]:
+    """The chunk indices `todo` (ascending) cut into runs of consecutive indices, at most
+    `size` long."""
+    out: list[list[int]] = []
+    for i in todo:
+        if out and len(out[-1]) < size and out[-1][-1] == i - 1:
+            out[-1].append(i)
+        else:
+            out.append([i])
+    return [tuple(r) for r in out]
 
 
 def run_chunks(fn: Callable, args: Sequence, n_jobs: int = 1, progress=False,
                desc: str = "", backend: str | None = None, store=None,
                validate: Callable | None = None, scheduler=None,
-               keep: Callable | None = None) -> list:
+               keep: Callable | None = None, together: int = 1,
+               join: Callable | None = None) -> list:
     """[fn(*a) for a in args] in order, in parallel when n_jobs != 1 or on a Dask cluster.
 
     progress: True for a tqdm bar on stderr, or a callable progress(done, total) called once
@@ -249,6 +263,12 @@ def run_chunks(fn: Callable, args: Sequence, n_jobs: int = 1, progress=False,
     which one and why. Local workers exit when the main process is gone (see `_watch_parent`).
     keep: what is kept of chunk i, keep(i, result), applied as each chunk arrives (after it is
     saved or loaded and validated): a study that reduces its chunks never holds them whole.
+    together, join: a study whose every call costs the same whatever its size (the needle's
+    kernels: parameter columns, feasibility, statuses, a task's dispatch) computes up to
+    `together` consecutive chunks in one call, join(run) -> (f, a) with f(*a) the list of the
+    results of chunks `run` (indices); fewer when that leaves under two calls per worker, and
+    one on a cluster. Each chunk is still saved, kept and counted on its own, so results,
+    progress and the store are those of single chunks.
     """
     if n_jobs == 0 or n_jobs < -1:
         raise ParameterError("n_jobs", "must be a positive number of workers or -1 (all cores)",
@@ -288,8 +308,15 @@ def run_chunks(fn: Callable, args: Sequence, n_jobs: int = 1, progress=False,
             stack.enter_context(bar)
         if report is not None:
             report(done, len(args))
-        if scheduler is None and n_jobs == 1 and backend is None:
-            results = (_indexed(fn, i, args[i], None, False) for i in todo)
+        serial = scheduler is None and n_jobs == 1 and backend is None
+        workers = max(1, os.cpu_count() or 1) if n_jobs == -1 else n_jobs
+        # on a cluster one chunk per task (progress and resume per chunk, as below)
+        size = 1 if join is None or scheduler is not None else \
+            max(1, min(int(together), len(todo) // (2 * workers)))
+        tasks = [(*join(run), run) if len(run) > 1 else (fn, args[run[0]], run)
+                 for run in runs_of(todo, size)]
+        if serial:
+            results = (_indexed(f, run, a, None, False) for f, a, run in tasks)
         else:
             import joblib  # here: a serial run never needs it (a tenth of a second to import)
 
@@ -310,17 +337,18 @@ def run_chunks(fn: Callable, args: Sequence, n_jobs: int = 1, progress=False,
             share = local or backend == "threading"
             results = joblib.Parallel(n_jobs=n_jobs, return_as="generator_unordered",
                                       batch_size=batch)(
-                joblib.delayed(_indexed)(fn, i, args[i], parent, on_cluster,
+                joblib.delayed(_indexed)(f, run, a, parent, on_cluster,
                                          joblib.effective_n_jobs(n_jobs) if share else 1)
-                for i in todo)
-        for i, r in results:
-            if store is not None:
-                store.save(i, r)
-            out[i] = r if keep is None else keep(i, r)
-            del r
-            done += 1
-            if bar is not None:
-                bar.update()
-            if report is not None:
-                report(done, len(args))
+                for f, a, run in tasks)
+        for run, rs in results:
+            for i, r in zip(run, rs, strict=True):
+                if store is not None:
+                    store.save(i, r)
+                out[i] = r if keep is None else keep(i, r)
+                done += 1
+                if bar is not None:
+                    bar.update()
+                if report is not None:
+                    report(done, len(args))
+            del rs, r
     return out
