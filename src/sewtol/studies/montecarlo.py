@@ -42,8 +42,8 @@ from sewtol.tolerances import ToleranceSet
 # machines per evaluation chunk: the sampler's streams (sewtol.law.STREAM), so a chunk is one stream
 CHUNK = STREAM
 # chunks one call evaluates on the plug-ins alone (`gil_free`): a call's fixed cost (parameter
-# columns, feasibility, statuses, the task; about 2 ms) is shared by 2000 machines of ~15 us
-TOGETHER = 4
+# columns, feasibility, statuses, the task; about 2 ms) is shared by 4000 machines of ~15 us
+TOGETHER = 8
 YIELD_CI_METHOD = "Clopper-Pearson exact binomial interval of ok / n"
 QUANTILES_MEAN = ("p50, p95 and p99 of the spec'd output over all n machines, failed machines "
                   "ranked as infinitely bad (numpy method 'higher': always a machine's value)")
@@ -314,26 +314,32 @@ def _joined(parts: list) -> pd.DataFrame:
     return pd.DataFrame(cols, copy=False)
 
 
-def _coded(words: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]]:
-    """A column of words (str, `_is_text`) as (codes, vocabulary, sorted as np.unique sorts
-    them): one byte a machine, not a pointer and an object (a machine's status, the group
-    that failed). A dict of the few distinct words: a third of np.unique's time on strings."""
-    listed = np.asarray(words).tolist()
-    vocab = sorted(set(listed))
-    index = {w: i for i, w in enumerate(vocab)}
-    codes = np.fromiter(map(index.__getitem__, listed), np.int64, len(listed))
-    return codes.astype(np.uint8 if len(vocab) <= 256 else np.int32), tuple(vocab)
-
-
-def _is_text(a: np.ndarray) -> bool:
-    """A column of words: text, or objects that are all str (checked on the distinct values:
-    a chunk's statuses are a handful of words)."""
-    if a.dtype.kind == "U":
-        return True
+def _coded(words: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]] | None:
+    """A column of words (text, or objects that are all str) as (codes, vocabulary, sorted as
+    np.unique sorts them): one byte a machine, not a pointer and an object (a machine's
+    status, the group that failed); None for any other column. The distinct words are taken
+    once (a set: a third of np.unique's time on strings); a handful of them is coded by one
+    comparison each, more through a dict."""
+    a = np.asarray(words)
+    if a.dtype.kind not in "UO":
+        return None
+    listed = a.ravel().tolist()
     try:
-        return a.dtype == object and all(isinstance(x, str) for x in set(a.ravel().tolist()))
+        distinct = set(listed)
     except TypeError:  # objects that cannot be hashed are no words
-        return False
+        return None
+    if a.dtype.kind == "O" and not all(isinstance(x, str) for x in distinct):
+        return None
+    vocab = sorted(distinct)
+    dtype = np.uint8 if len(vocab) <= 256 else np.int32
+    if len(vocab) <= 8:
+        codes = np.zeros(len(listed), dtype)
+        for i, w in enumerate(vocab[1:], 1):
+            codes[a.ravel() == w] = i
+    else:
+        index = {w: i for i, w in enumerate(vocab)}
+        codes = np.fromiter(map(index.__getitem__, listed), dtype, len(listed))
+    return codes, tuple(vocab)
 
 
 class _Collector:
@@ -355,8 +361,9 @@ class _Collector:
             self.order = [k for k in out if k not in dev]
         for k in self.order:
             v = np.asarray(out[k])
-            if _is_text(v):
-                codes, vocab = _coded(v)
+            coded = _coded(v)
+            if coded is not None:
+                codes, vocab = coded
                 into, words, index = self.words.setdefault(
                     k, (np.zeros(self.n, np.uint8), [], {}))
                 for w in vocab:
@@ -599,9 +606,9 @@ def _file_model(record, dev, mech, outputs, compensator=None, target=None, fast=
                 out[f"{param}_low"] = a.extras["low"][param]
                 out[f"{param}_high"] = a.extras["high"][param]
                 out[f"{param}_at_bound"] = np.asarray(a.at_bound[param], float)
-        words, which = np.unique(np.asarray(a.status, str), return_inverse=True)
-        out["status_adjusted"] = np.array([WORDS.get(w, w) for w in words.tolist()] or [""],
-                                          object)[which.reshape(-1)]
+        which, words = _coded(np.asarray(a.status, object)) or _coded(np.asarray(a.status, str))
+        out["status_adjusted"] = np.array([WORDS.get(w, w) for w in words] or [""],
+                                          object)[which]
         out["failed_group_adjusted"] = a.extras.get("failed_group", np.full(len(a.value), ""))
     return out
 

@@ -3,8 +3,9 @@
 The work is cut into chunks of a fixed size that does not depend on the number of workers; chunk
 i draws its random numbers from the i-th child of one Generator (NEP 19 `spawn`), so the results
 are the same for any n_jobs and on any cluster. joblib runs the chunks: on this machine with
-`n_jobs` (any joblib backend through `backend=`), or on a Dask cluster through joblib's dask
-backend with `scheduler=` (an address such as "tcp://host:8786", or a distributed.Client).
+`n_jobs` (any joblib backend through `backend=`; "threading" on the standard library's thread
+pool), or on a Dask cluster through joblib's dask backend with `scheduler=` (an address such
+as "tcp://host:8786", or a distributed.Client).
 Results are taken as they complete, so progress (a tqdm bar on stderr, or a callback
 progress(done, total)) and the checkpoint store follow the work, in any order of completion.
 """
@@ -16,7 +17,7 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 
 from sewtol.errors import ParameterError
 
@@ -244,6 +245,19 @@ def runs_of(todo: Sequence[int], size: int) -> list[tuple[int, ...]]:
     return [tuple(r) for r in out]
 
 
+def _threaded(tasks: list, workers: int, stack: contextlib.ExitStack) -> Iterator:
+    """The tasks' results as they complete, on `workers` threads of this process (the
+    plug-ins' GIL-free kernels: `montecarlo.gil_free`): the standard library's pool, without
+    joblib's tenth of a second of import. An error or ^C cancels the tasks not yet started; a
+    result is dropped by the pool once it is taken (as_completed releases its futures)."""
+    from concurrent.futures import ThreadPoolExecutor, as_completed
+
+    pool = stack.enter_context(ThreadPoolExecutor(workers, thread_name_prefix="sewtol-chunk"))
+    stack.callback(pool.shutdown, cancel_futures=True)
+    return (done.result() for done in as_completed(
+        [pool.submit(_indexed, f, run, a, None, False, workers) for f, a, run in tasks]))
+
+
 def run_chunks(fn: Callable, args: Sequence, n_jobs: int = 1, progress=False,
                desc: str = "", backend: str | None = None, store=None,
                validate: Callable | None = None, scheduler=None,
@@ -317,6 +331,8 @@ def run_chunks(fn: Callable, args: Sequence, n_jobs: int = 1, progress=False,
                  for run in runs_of(todo, size)]
         if serial:
             results = (_indexed(f, run, a, None, False) for f, a, run in tasks)
+        elif backend == "threading" and scheduler is None:
+            results = _threaded(tasks, workers, stack)
         else:
             import joblib  # here: a serial run never needs it (a tenth of a second to import)
 
