@@ -234,15 +234,14 @@ def _indexed(fn: Callable, run: tuple[int, ...], args: Sequence, parent_pid: int
 
 
 def runs_of(todo: Sequence[int], size: int) -> list[tuple[int, ...]]:
-    """The chunk indices `todo` (ascending) cut into runs of consecutive indices, at most
-    `size` long."""
-    out: list[list[int]] = []
+    """`todo` (ascending chunk indices) as runs of consecutive indices, at most `size` long."""
+    runs: list[tuple[int, ...]] = []
     for i in todo:
-        if out and len(out[-1]) < size and out[-1][-1] == i - 1:
-            out[-1].append(i)
+        if runs and len(runs[-1]) < size and runs[-1][-1] == i - 1:
+            runs[-1] += (i,)
         else:
-            out.append([i])
-    return [tuple(r) for r in out]
+            runs.append((i,))
+    return runs
 
 
 def _threaded(tasks: list, workers: int, stack: contextlib.ExitStack) -> Iterator:
