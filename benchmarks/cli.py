@@ -18,7 +18,7 @@ every 20 ms; /usr/bin/time's %M is the largest single process only) are measured
 (b) peak RSS against n: `needle montecarlo --n N --n-jobs 2` for N in --rss-n (target: flat,
     <= 500 MB at any n);
 (c) `needle montecarlo --n 1000000 --n-jobs 2` end to end (target <= 10 s wall idle, or <= 20
-    CPU-s with peak RSS <= 500 MB);
+    CPU-s with peak RSS <= 500 MB), with the load average before and after;
 (d) `needle strategies --n N --n-jobs 2` for N in --strategies-n (default 2000 and 10000; target
     <= 30 s wall idle at 10000): every default row, the all row's nested CD / guide-angle search
     the bulk of it. Warmed by one run at n 20; --strategies-repeats timed runs (default 1).
@@ -162,9 +162,10 @@ def main(argv=None) -> int:
                                                 args.reference_src, 1, warm=False)
                                 for n in args.rss_n}  # the start-up runs warmed the cache
     if "million" not in args.skip:
+        before = load()
         res["million"] = medians([*mc, "--n", str(args.n_million), "--n-jobs", "2"], src,
                                  args.reference_src, args.repeats)
-        res["million"]["n"] = args.n_million
+        res["million"].update(n=args.n_million, load_before=before, load_after=load())
     if "strategies" not in args.skip and args.strategies_n:
         st = [*py, "-m", "sewtol", "needle", "strategies", "--n-jobs", "2", "--format", "csv"]
         for s in (src, args.reference_src):
@@ -193,7 +194,18 @@ def main(argv=None) -> int:
                          f"wall, {r['ratio']['cpu_s']:.2f} CPU")
             print(line + f" (target <= {TARGETS['startup_n1000_wall_s']:g} s wall warm, idle)")
         if "million" in res:
-            print(f"million: {res['million']}")
+            r = res["million"]
+            line = (f"needle montecarlo --n {r['n']} --n-jobs 2, medians of {args.repeats}, load "
+                    f"{r['load_before'][0]:.2f} -> {r['load_after'][0]:.2f}: "
+                    f"{r['this']['wall_s']:.1f} s wall, {r['this']['cpu_s']:.1f} CPU-s, "
+                    f"{r['this']['peak_rss_mb']:.0f} MB")
+            if "ratio" in r:
+                line += (f"; reference {r['reference']['wall_s']:.1f} s wall, "
+                         f"{r['reference']['cpu_s']:.1f} CPU-s, "
+                         f"{r['reference']['peak_rss_mb']:.0f} MB; ratio "
+                         f"{r['ratio']['wall_s']:.2f} wall, {r['ratio']['cpu_s']:.2f} CPU")
+            print(line + f" (target <= {TARGETS['million_wall_s']:g} s wall idle, or <= "
+                  f"{TARGETS['million_cpu_s']:g} CPU-s, and <= {TARGETS['peak_rss_mb']:g} MB)")
         for n, r in res.get("strategies", {}).items():
             print(f"strategies n={n}: {r}")
     return 0

@@ -33,8 +33,8 @@ import numpy as np
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.needle_208 import adjust as ad
 from sewtol.mechanisms.needle_208 import metrics as nm
-from sewtol.mechanisms.needle_208.fast_path import fixed_sumdelta_um
 from sewtol.mechanisms.needle_208.kernels import positions as K
+from sewtol.mechanisms.needle_208.metrics import total_um_kernel
 from sewtol.mechanisms.needle_208.model import Needle208
 from sewtol.studies.sobol import problem_of, sample
 from sewtol.tables.needle_208 import montecarlo, needle_sobol
@@ -79,7 +79,7 @@ def evaluate(p, dev, compensators=None):
     m = len(next(iter(dev.values())))
     c, _ = nm.columns(P.with_deviations(p, dev))
     c = {k: np.broadcast_to(v, (m, 1)).copy() for k, v in c.items()}
-    fixed_sumdelta_um(c)
+    total_um_kernel(c)
     return ad.optimise(c, compensators or {"beta": (10.0, 35.0)}, feas=nm.feasibility(c))
 
 

@@ -66,9 +66,9 @@ def needle_columns(nominal, dev):
 
 def fixed_um(nominal, dev):
     """SumDelta (um) of nominal + dev, beta as given, by the fast path's fused kernel."""
-    from sewtol.mechanisms.needle_208.fast_path import fixed_sumdelta_um
+    from sewtol.mechanisms.needle_208.metrics import total_um_kernel
 
-    return fixed_sumdelta_um(needle_columns(nominal, dev))
+    return total_um_kernel(needle_columns(nominal, dev))
 
 
 def beta_adjusted(nominal, dev, range_deg=(10.0, 35.0), engine="numba"):

@@ -180,3 +180,10 @@ def test_progress_callback_on_this_machine():
     out = parallel.run_chunks(abs, [(-1,), (-2,), (-3,)], n_jobs=2, backend="threading",
                               progress=lambda d, t: seen.append((d, t)))
     assert out == [1, 2, 3] and seen == [(0, 3), (1, 3), (2, 3), (3, 3)]
+
+
+def test_an_error_in_a_worker_thread_is_raised_in_the_caller():
+    """The threads' pool (backend "threading") raises a chunk's error where run_chunks was
+    called, as the serial path does."""
+    with pytest.raises(ValueError, match="invalid literal for int"):
+        parallel.run_chunks(int, [("1",), ("x",), ("2",)], n_jobs=2, backend="threading")

@@ -88,6 +88,33 @@ def test_same_seed_same_machines_for_any_number_of_workers(nominal):
     assert not one.machines.equals(other.machines)
 
 
+def test_chunks_evaluated_together_give_the_chunks_numbers(nominal, monkeypatch):
+    """On the plug-ins the fast Monte-Carlo evaluates TOGETHER consecutive chunks in one call
+    of the model; every chunk is still counted on its own and every number is the one of chunk
+    by chunk (each machine's figures are its own)."""
+    from sewtol.studies import montecarlo as MC
+
+    calls, real = [], MC._montecarlo_chunk
+
+    def counted(record, dev, *a, **k):
+        calls.append(len(next(iter(dev.values()))))
+        return real(record, dev, *a, **k)
+
+    monkeypatch.setattr(MC, "_montecarlo_chunk", counted)
+    ts, runs = NEEDLE_208_SETS["recommended"], {}
+    for together in (4, 1):
+        monkeypatch.setattr(MC, "TOGETHER", together)
+        seen, calls[:] = [], []
+        runs[together] = montecarlo(nominal, ts, 1150, seed=3, chunk_size=100,
+                                    progress=lambda done, total, seen=seen:
+                                    seen.append((done, total)))
+        assert seen == [(k, 12) for k in range(13)]  # 11 chunks of 100, one of 50
+        # runs of four consecutive chunks, the last run holding the short chunk
+        assert calls == ([400, 400, 350] if together == 4 else [100] * 11 + [50])
+    assert runs[4].machines.equals(runs[1].machines)
+    assert runs[4].to_dict() == runs[1].to_dict()
+
+
 def test_scan_rows_equal_direct_model_calls(nominal):
     res = scan(nominal, NEEDLE_208_SETS["recommended"], guide_shift_um=20.0)
     for param, side, delta in (("BC", "upper", 0.05), ("LF", "lower", -0.8), ("CD", "lower", -0.01)):

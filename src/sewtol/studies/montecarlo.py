@@ -44,6 +44,9 @@ if TYPE_CHECKING:
 
 # machines per evaluation chunk: the sampler's streams (sewtol.law.STREAM), so a chunk is one stream
 CHUNK = STREAM
+# chunks one call evaluates on the plug-ins alone (`gil_free`): a call's fixed cost (parameter
+# columns, feasibility, statuses, the task; about 2 ms) is shared by 4000 machines of ~15 us
+TOGETHER = 8
 YIELD_CI_METHOD = "Clopper-Pearson exact binomial interval of ok / n"
 QUANTILES_MEAN = ("p50, p95 and p99 of the spec'd output over all n machines, failed machines "
                   "ranked as infinitely bad (numpy method 'higher': always a machine's value)")
@@ -210,6 +213,18 @@ def _chunk(model, nominal, law: InputLaw, window, kwargs):
     return dev, model(nominal, dev, **kwargs)
 
 
+def _chunks(model, nominal, law: InputLaw, window, kwargs, sizes):
+    """Consecutive chunks of `sizes` machines drawn and evaluated as one window (one call of
+    the model), each chunk's (deviations, outputs) as `_chunk` gives it: a model's every value
+    is its machine's own, so the same numbers."""
+    dev, out = _chunk(model, nominal, law, window, kwargs)
+    parts, a = [], 0
+    for m in sizes:
+        parts.append(tuple({k: v[a:a + m] for k, v in d.items()} for d in (dev, out)))
+        a += m
+    return parts
+
+
 def sample_machines(model, nominal, tolerances: ToleranceSet, n: int, seed: int,
                     n_jobs: int = 1, progress=False, backend: str | None = None,
                     chunk_size: int = CHUNK, desc: str = "Monte-Carlo", store=None,
@@ -243,10 +258,12 @@ class Draw:
 
 
 def _sampled(model, nominal, tolerances, n, seed, n_jobs, progress, backend, chunk_size, desc,
-             store, scheduler, keep, kwargs, bytes_per_row=None) -> tuple[list, Draw]:
+             store, scheduler, keep, kwargs, bytes_per_row=None,
+             together: int = 1) -> tuple[list, Draw]:
     """The chunks of `sample_machines` (each reduced by keep(i, (deviations, outputs)) as it
     arrives) and the draw they came from; bytes_per_row: what the study holds per machine
-    (default: `sample_machines`' table)."""
+    (default: `sample_machines`' table); together: chunks evaluated in one call of the model
+    (`run_chunks`)."""
     check_sampling(nominal, tolerances, n, seed, chunk_size, bytes_per_row=bytes_per_row)
     law = InputLaw.of(tolerances)
     bounds = chunk_bounds(int(n), chunk_size)
@@ -270,10 +287,16 @@ def _sampled(model, nominal, tolerances, n, seed, n_jobs, progress, backend, chu
             return f"malformed ({type(exc).__name__}: {exc})"
         return None
 
+    def join(run):
+        a, b = bounds[run[0]][0], bounds[run[-1]][1]
+        return _chunks, (model, nominal, law, stream_window(streams, a, b), kwargs,
+                         [bounds[i][1] - bounds[i][0] for i in run])
+
     parts = run_chunks(_chunk, [(model, nominal, law, stream_window(streams, a, b), kwargs)
                                 for a, b in bounds],
                        n_jobs=n_jobs, progress=progress, desc=desc, backend=backend, store=store,
-                       validate=validate, scheduler=scheduler, keep=keep)
+                       validate=validate, scheduler=scheduler, keep=keep, together=together,
+                       join=join)
     return parts, Draw(law, tuple(streams), tuple(bounds))
 
 
@@ -296,26 +319,32 @@ def _joined(parts: list) -> pd.DataFrame:
     return pd.DataFrame(cols, copy=False)
 
 
-def _coded(words: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]]:
-    """A column of words (str, `_is_text`) as (codes, vocabulary, sorted as np.unique sorts
-    them): one byte a machine, not a pointer and an object (a machine's status, the group
-    that failed). A dict of the few distinct words: a third of np.unique's time on strings."""
-    listed = np.asarray(words).tolist()
-    vocab = sorted(set(listed))
-    index = {w: i for i, w in enumerate(vocab)}
-    codes = np.fromiter(map(index.__getitem__, listed), np.int64, len(listed))
-    return codes.astype(np.uint8 if len(vocab) <= 256 else np.int32), tuple(vocab)
-
-
-def _is_text(a: np.ndarray) -> bool:
-    """A column of words: text, or objects that are all str (checked on the distinct values:
-    a chunk's statuses are a handful of words)."""
-    if a.dtype.kind == "U":
-        return True
+def _coded(words: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]] | None:
+    """A column of words (text, or objects that are all str) as (codes, vocabulary, sorted as
+    np.unique sorts them): one byte a machine, not a pointer and an object (a machine's
+    status, the group that failed); None for any other column. The distinct words are taken
+    once (a set: a third of np.unique's time on strings); a handful of them is coded by one
+    comparison each, more through a dict."""
+    a = np.asarray(words)
+    if a.dtype.kind not in "UO":
+        return None
+    listed = a.ravel().tolist()
     try:
-        return a.dtype == object and all(isinstance(x, str) for x in set(a.ravel().tolist()))
+        distinct = set(listed)
     except TypeError:  # objects that cannot be hashed are no words
-        return False
+        return None
+    if a.dtype.kind == "O" and not all(isinstance(x, str) for x in distinct):
+        return None
+    vocab = sorted(distinct)
+    dtype = np.uint8 if len(vocab) <= 256 else np.int32
+    if len(vocab) <= 8:
+        codes = np.zeros(len(listed), dtype)
+        for i, w in enumerate(vocab[1:], 1):
+            codes[a.ravel() == w] = i
+    else:
+        index = {w: i for i, w in enumerate(vocab)}
+        codes = np.fromiter(map(index.__getitem__, listed), dtype, len(listed))
+    return codes, tuple(vocab)
 
 
 class _Collector:
@@ -337,8 +366,9 @@ class _Collector:
             self.order = [k for k in out if k not in dev]
         for k in self.order:
             v = np.asarray(out[k])
-            if _is_text(v):
-                codes, vocab = _coded(v)
+            coded = _coded(v)
+            if coded is not None:
+                codes, vocab = coded
                 into, words, index = self.words.setdefault(
                     k, (np.zeros(self.n, np.uint8), [], {}))
                 for w in vocab:
@@ -589,9 +619,9 @@ def _file_model(record, dev, mech, outputs, compensator=None, target=None, fast=
                 out[f"{param}_low"] = a.extras["low"][param]
                 out[f"{param}_high"] = a.extras["high"][param]
                 out[f"{param}_at_bound"] = np.asarray(a.at_bound[param], float)
-        words, which = np.unique(np.asarray(a.status, str), return_inverse=True)
-        out["status_adjusted"] = np.array([WORDS.get(w, w) for w in words.tolist()] or [""],
-                                          object)[which.reshape(-1)]
+        which, words = _coded(np.asarray(a.status, object)) or _coded(np.asarray(a.status, str))
+        out["status_adjusted"] = np.array([WORDS.get(w, w) for w in words] or [""],
+                                          object)[which]
         out["failed_group_adjusted"] = a.extras.get("failed_group", np.full(len(a.value), ""))
     return out
 
@@ -974,7 +1004,7 @@ def montecarlo(mech, tolerances: ToleranceSet, n: int, seed: int, outputs=None,
                        collect, dict(mech=mech, outputs=list(names), compensator=adjust,
                                      target=limit_output, fast=fast, spec=spec, blank=blank,
                                      objective=objective),
-                       footprint)
+                       footprint, TOGETHER if gil_free(pl, names, adjust) else 1)
     params = tuple(tolerances.active().params)
     dev_names = tuple(draw.law.params)
     # the table's order: machine, deviations, outputs as the chunks give them; a mechanism's

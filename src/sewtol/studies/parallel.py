@@ -3,8 +3,9 @@
 The work is cut into chunks of a fixed size that does not depend on the number of workers; chunk
 i draws its random numbers from the i-th child of one Generator (NEP 19 `spawn`), so the results
 are the same for any n_jobs and on any cluster. joblib runs the chunks: on this machine with
-`n_jobs` (any joblib backend through `backend=`), or on a Dask cluster through joblib's dask
-backend with `scheduler=` (an address such as "tcp://host:8786", or a distributed.Client).
+`n_jobs` (any joblib backend through `backend=`; "threading" on the standard library's thread
+pool), or on a Dask cluster through joblib's dask backend with `scheduler=` (an address such
+as "tcp://host:8786", or a distributed.Client).
 Results are taken as they complete, so progress (a tqdm bar on stderr, or a callback
 progress(done, total)) and the checkpoint store follow the work, in any order of completion.
 """
@@ -16,7 +17,7 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 
 from sewtol.errors import ParameterError
 
@@ -217,9 +218,10 @@ def numba_threads_local(n_jobs: int) -> int:
     return share
 
 
-def _indexed(fn: Callable, i: int, args: Sequence, parent_pid: int | None, on_cluster: bool,
-             n_jobs: int = 1):
-    """Chunk i's result with its index (results arrive in any order). A local worker process
+def _indexed(fn: Callable, run: tuple[int, ...], args: Sequence, parent_pid: int | None,
+             on_cluster: bool, n_jobs: int = 1):
+    """The results of chunks `run` with their indices (results arrive in any order): fn(*args)
+    is chunk run[0]'s result, or with several chunks their list. A local worker process
     watches the main process (parent_pid) and takes its share of the numba threads; a
     cluster's workers outlive it by design."""
     if parent_pid is not None:
@@ -228,13 +230,38 @@ def _indexed(fn: Callable, i: int, args: Sequence, parent_pid: int | None, on_cl
         numba_threads_local(n_jobs)
     if on_cluster:
         numba_threads_on_worker()
-    return i, fn(*args)
+    return run, fn(*args) if len(run) > 1 else [fn(*args)]
+
+
+def runs_of(todo: Sequence[int], size: int) -> list[tuple[int, ...]]:
+    """`todo` (ascending chunk indices) as runs of consecutive indices, at most `size` long."""
+    runs: list[tuple[int, ...]] = []
+    for i in todo:
+        if runs and len(runs[-1]) < size and runs[-1][-1] == i - 1:
+            runs[-1] += (i,)
+        else:
+            runs.append((i,))
+    return runs
+
+
+def _threaded(tasks: list, workers: int, stack: contextlib.ExitStack) -> Iterator:
+    """The tasks' results as they complete, on `workers` threads of this process (the
+    plug-ins' GIL-free kernels: `montecarlo.gil_free`): the standard library's pool, without
+    joblib's tenth of a second of import. An error or ^C cancels the tasks not yet started; a
+    result is dropped by the pool once it is taken (as_completed releases its futures)."""
+    from concurrent.futures import ThreadPoolExecutor, as_completed
+
+    pool = stack.enter_context(ThreadPoolExecutor(workers, thread_name_prefix="sewtol-chunk"))
+    stack.callback(pool.shutdown, cancel_futures=True)
+    return (done.result() for done in as_completed(
+        [pool.submit(_indexed, f, run, a, None, False, workers) for f, a, run in tasks]))
 
 
 def run_chunks(fn: Callable, args: Sequence, n_jobs: int = 1, progress=False,
                desc: str = "", backend: str | None = None, store=None,
                validate: Callable | None = None, scheduler=None,
-               keep: Callable | None = None) -> list:
+               keep: Callable | None = None, together: int = 1,
+               join: Callable | None = None) -> list:
     """[fn(*a) for a in args] in order, in parallel when n_jobs != 1 or on a Dask cluster.
 
     progress: True for a tqdm bar on stderr, or a callable progress(done, total) called once
@@ -249,6 +276,12 @@ def run_chunks(fn: Callable, args: Sequence, n_jobs: int = 1, progress=False,
     which one and why. Local workers exit when the main process is gone (see `_watch_parent`).
     keep: what is kept of chunk i, keep(i, result), applied as each chunk arrives (after it is
     saved or loaded and validated): a study that reduces its chunks never holds them whole.
+    together, join: a study whose every call costs the same whatever its size (the needle's
+    kernels: parameter columns, feasibility, statuses, a task's dispatch) computes up to
+    `together` consecutive chunks in one call, join(run) -> (f, a) with f(*a) the list of the
+    results of chunks `run` (indices); fewer when that leaves under two calls per worker, and
+    one on a cluster. Each chunk is still saved, kept and counted on its own, so results,
+    progress and the store are those of single chunks.
     """
     if n_jobs == 0 or n_jobs < -1:
         raise ParameterError("n_jobs", "must be a positive number of workers or -1 (all cores)",
@@ -288,8 +321,17 @@ def run_chunks(fn: Callable, args: Sequence, n_jobs: int = 1, progress=False,
             stack.enter_context(bar)
         if report is not None:
             report(done, len(args))
-        if scheduler is None and n_jobs == 1 and backend is None:
-            results = (_indexed(fn, i, args[i], None, False) for i in todo)
+        serial = scheduler is None and n_jobs == 1 and backend is None
+        workers = max(1, os.cpu_count() or 1) if n_jobs == -1 else n_jobs
+        # on a cluster one chunk per task (progress and resume per chunk, as below)
+        size = 1 if join is None or scheduler is not None else \
+            max(1, min(int(together), len(todo) // (2 * workers)))
+        tasks = [(*join(run), run) if len(run) > 1 else (fn, args[run[0]], run)
+                 for run in runs_of(todo, size)]
+        if serial:
+            results = (_indexed(f, run, a, None, False) for f, a, run in tasks)
+        elif backend == "threading" and scheduler is None:
+            results = _threaded(tasks, workers, stack)
         else:
             import joblib  # here: a serial run never needs it (a tenth of a second to import)
 
@@ -310,17 +352,18 @@ def run_chunks(fn: Callable, args: Sequence, n_jobs: int = 1, progress=False,
             share = local or backend == "threading"
             results = joblib.Parallel(n_jobs=n_jobs, return_as="generator_unordered",
                                       batch_size=batch)(
-                joblib.delayed(_indexed)(fn, i, args[i], parent, on_cluster,
+                joblib.delayed(_indexed)(f, run, a, parent, on_cluster,
                                          joblib.effective_n_jobs(n_jobs) if share else 1)
-                for i in todo)
-        for i, r in results:
-            if store is not None:
-                store.save(i, r)
-            out[i] = r if keep is None else keep(i, r)
-            del r
-            done += 1
-            if bar is not None:
-                bar.update()
-            if report is not None:
-                report(done, len(args))
+                for f, a, run in tasks)
+        for run, rs in results:
+            for i, r in zip(run, rs, strict=True):
+                if store is not None:
+                    store.save(i, r)
+                out[i] = r if keep is None else keep(i, r)
+                done += 1
+                if bar is not None:
+                    bar.update()
+                if report is not None:
+                    report(done, len(args))
+            del rs, r
     return out

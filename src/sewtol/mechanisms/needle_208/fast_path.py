@@ -148,21 +148,12 @@ def sumdelta_outputs(mech) -> list[str]:
             and o.fields.get("point") == "E" and o.fields.get("measure") == "sum_extremes"]
 
 
-def fixed_sumdelta_um(c: dict[str, np.ndarray], feas=None) -> np.ndarray:
-    """SumDelta (um) of machines given as parameter columns (n, 1), beta as it is: the exact
-    extremes on the rocker interval by the fused kernel; NaN where a machine does not run (the
-    numpy reference: needle_208.metrics.deviation_figures). feas: metrics.feasibility(c) if
-    known."""
-    from sewtol.mechanisms.needle_208 import metrics as nm
-
-    return nm.total_um_kernel(c, feas)
-
-
 def needle_kernel(mech, values) -> dict[str, np.ndarray]:
     """SumDelta (um) of machines `values` (parameter -> array; the rest nominal), exact, by the
     fused kernel, for every SumDelta output of the file; NaN where a machine does not run."""
-    c, _ = _batch(mech, values)
-    total = fixed_sumdelta_um(c)
+    from sewtol.mechanisms.needle_208.metrics import total_um_kernel
+
+    total = total_um_kernel(_batch(mech, values)[0])
     return {name: total for name in sumdelta_outputs(mech)}
 
 
@@ -205,7 +196,7 @@ def needle_adjuster(mech, values, boxes: dict, figures: bool = True) -> dict:
            "low": dict(r.low), "high": dict(r.high), "status": r.status,
            "at_bound": dict(r.at_bound)}
     if not figures:
-        total = fixed_sumdelta_um(c, feas)
+        total = nm.total_um_kernel(c, feas)
         return {**out, "as_built": {name: total for name in sumdelta_outputs(mech)}}
     dead = ~np.isfinite(r.settings["beta"])
     # the figures at the settings; a machine no setting runs is figured at the box centres
