@@ -224,22 +224,19 @@ def test_allocation_keeps_the_copula(monkeypatch):
 
 def test_a_study_folder_records_the_copula_so_a_tied_run_never_resumes_untied_chunks(tmp_path):
     """The needle path's manifest binds its chunks to the set's dependence as run.json does:
-    the same items with a correlation are another study (refused, not resumed)."""
-    import subprocess
-    import sys
+    the same items with a correlation are another study (refused, not resumed). In this
+    process: the folder is the point, not the process boundary."""
+    from cli_helpers import run
 
     untied = tmp_path / "untied.toml"
     untied.write_text("[sets.s]\nAB = 0.05\nBE = 0.05\n")
     tied = tmp_path / "tied.toml"
     tied.write_text('[sets.s]\nAB = 0.05\nBE = 0.05\ncorrelation = [["AB", "BE", 0.9]]\n')
-    argv = [sys.executable, "-m", "sewtol", "needle", "montecarlo", "--n", "600", "--seed", "1",
-            "--out", str(tmp_path / "D")]
-    first = subprocess.run(argv + ["--tolerances", f"{untied}:s"], capture_output=True, text=True,
-                           timeout=300)
-    assert first.returncode == 0, first.stderr
-    again = subprocess.run(argv + ["--tolerances", f"{tied}:s", "--resume"], capture_output=True,
-                           text=True, timeout=300)
-    assert again.returncode == 2 and "tolerances" in again.stderr, again.stderr
+    argv = ["needle", "montecarlo", "--n", "600", "--seed", "1", "--out", str(tmp_path / "D")]
+    code, _, err = run(*argv, "--tolerances", f"{untied}:s")
+    assert code == 0, err
+    code, _, err = run(*argv, "--tolerances", f"{tied}:s", "--resume")
+    assert code == 2 and "tolerances" in err, err
 
 
 @pytest.mark.parametrize("rho, seed", [(0.0, 21), (0.9, 22), (0.99, 23)])

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pytest
 
+from cli_helpers import run
+
 ROOT = Path(__file__).resolve().parents[1]
 NEEDLE = (ROOT / "examples" / "needle_208.toml").read_text()
 TIMEOUT_S = 60  # generous for an overloaded machine; the old header regex took hours on 1 MiB
@@ -25,9 +27,15 @@ def sewtol(*argv, cwd=None, timeout=TIMEOUT_S):
     return p.returncode, p.stdout, p.stderr
 
 
-def refused(*argv, cwd=None) -> str:
+def in_process(*argv, cwd=None):
+    """`sewtol ARGV` in this process, in the current folder (a test that needs no process
+    boundary chdirs into `cwd` first): (exit code, stdout, stderr)."""
+    return run(*map(str, argv))
+
+
+def refused(*argv, cwd=None, runner=sewtol) -> str:
     """The one-line refusal of `sewtol ARGV` (exit 2, nothing on stdout, no traceback)."""
-    code, out, err = sewtol(*argv, cwd=cwd)
+    code, out, err = runner(*argv, cwd=cwd)
     assert code == 2 and out == "" and err.count("\n") == 1, (code, out, err[-2000:])
     assert err.startswith("sewtol: error: ")
     return err
@@ -122,21 +130,23 @@ def test_cli_value_is_refused_by_name(tmp_path, argv, expected):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_a_folder_of_another_study_is_refused_and_kept(tmp_path):
+def test_a_folder_of_another_study_is_refused_and_kept(tmp_path, monkeypatch):
     """`run FILE montecarlo|sobol --out D` over another study's results: refused before
-    computing (as the needle path's manifest check does), D left as it was."""
+    computing (as the needle path's manifest check does), D left as it was. In this process:
+    nothing here can hang, and the folder is the point, not the process boundary."""
+    monkeypatch.chdir(tmp_path)
     base = ("run", "needle_208")
     flags = ("--path", "generic", "--out", "D")
-    assert sewtol(*base, "montecarlo", "--n", "20", *flags, cwd=tmp_path)[0] == 0
+    assert in_process(*base, "montecarlo", "--n", "20", *flags)[0] == 0
     before = {p.name: p.read_bytes() for p in (tmp_path / "D").iterdir()}
-    assert sewtol(*base, "montecarlo", "--n", "20", *flags, cwd=tmp_path)[0] == 0  # same study
-    err = refused(*base, "sobol", "--n", "16", *flags, cwd=tmp_path)
+    assert in_process(*base, "montecarlo", "--n", "20", *flags)[0] == 0  # same study
+    err = refused(*base, "sobol", "--n", "16", *flags, runner=in_process)
     # montecarlo adjusts beta (the file's [defaults] adjust), sobol nothing
     assert err == ("sewtol: error: --out: holds the results of a different study (differs in "
                    "adjust, n, study); choose an empty folder (got 'D')\n")
     assert refused(*base, "montecarlo", "--n", "20", "--seed", "1", *flags,
-                   cwd=tmp_path).startswith("sewtol: error: --out: holds the results of a "
-                                            "different study (differs in seed)")
+                   runner=in_process).startswith("sewtol: error: --out: holds the results of a "
+                                                 "different study (differs in seed)")
     after = {p.name: p.read_bytes() for p in (tmp_path / "D").iterdir()}
     assert after.keys() == before.keys() and after["machines.csv"] == before["machines.csv"]
     # the same study rerun by another revision of the code (as `make report` reruns every
@@ -144,24 +154,26 @@ def test_a_folder_of_another_study_is_refused_and_kept(tmp_path):
     record = json.loads((tmp_path / "D" / "run.json").read_text())
     record["inputs"].update(git_revision="0" * 40, sewtol_version="0.0.0")
     (tmp_path / "D" / "run.json").write_text(json.dumps(record))
-    assert sewtol(*base, "montecarlo", "--n", "20", *flags, cwd=tmp_path)[0] == 0
+    assert in_process(*base, "montecarlo", "--n", "20", *flags)[0] == 0
     assert (tmp_path / "D" / "machines.csv").read_bytes() == before["machines.csv"]
     # an unfinished chunked study (manifest, no run.json) is not mixed with a generic one
     (tmp_path / "E" / "chunks").mkdir(parents=True)
     (tmp_path / "E" / "chunks" / "manifest.json").write_text("{}")
     assert "holds the chunks of another study" in refused(
-        *base, "sobol", "--n", "16", "--path", "generic", "--out", "E", cwd=tmp_path)
+        *base, "sobol", "--n", "16", "--path", "generic", "--out", "E", runner=in_process)
     # the needle path refuses a generic study's folder the same way
     assert "holds the results of a different study" in refused(
-        "needle", "montecarlo", "--n", "50", "--out", "D", cwd=tmp_path)
+        "needle", "montecarlo", "--n", "50", "--out", "D", runner=in_process)
 
 
 # --- study folders ----------------------------------------------------------------------------
 
 @pytest.mark.parametrize("make", ["fifo", "deep"])
-def test_a_hostile_manifest_is_refused_in_one_line_and_the_chunks_kept(tmp_path, make):
+def test_a_hostile_manifest_is_refused_in_one_line_and_the_chunks_kept(tmp_path, make,
+                                                                     monkeypatch):
     argv = ("needle", "montecarlo", "--n", "400", "--out", "D")
-    assert sewtol(*argv, cwd=tmp_path)[0] == 0
+    monkeypatch.chdir(tmp_path)  # the study in this process; the refusals (a FIFO) in their own
+    assert in_process(*argv)[0] == 0
     manifest = tmp_path / "D" / "chunks" / "manifest.json"
     chunks = {p.name: p.read_bytes() for p in manifest.parent.glob("chunk_*.npz")}
     assert chunks
