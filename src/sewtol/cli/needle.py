@@ -452,12 +452,6 @@ def _measurement(args):
     return parse_cli(sd, DEFAULT_POSITIONS if k is None else k)
 
 
-def _machine_chunks(res, name):
-    """The per-machine table of row `name`, piece by piece: made only when --out writes it."""
-    for frame in res.machine_chunks(name):
-        yield deviation_columns(frame, res.params)
-
-
 def cmd_needle_strategies(args):
     from sewtol.mechanisms.needle_208.compensators import Strategy, default_strategies
     from sewtol.provenance import now
@@ -481,7 +475,9 @@ def cmd_needle_strategies(args):
     frames = {"strategies": table}
     for r in rows:
         safe = "".join(ch if ch.isalnum() else "_" for ch in r.name)
-        frames[f"machines_{safe}"] = _machine_chunks(res, r.name)
+        # piece by piece, made only when --out writes it
+        frames[f"machines_{safe}"] = (deviation_columns(f, res.params)
+                                      for f in res.machine_chunks(r.name))
     reading = {} if measurement is None else {"measurement_error": measurement.to_dict()}
     inputs = study_inputs(args, "strategies", params, tolerances, limit_um=10.0,
                           strategies={r.name: _strategy_record(r) for r in rows}, **reading)
