@@ -11,7 +11,8 @@ of the whole process tree (psutil: the sum over the process and all its descenda
 every 20 ms; /usr/bin/time's %M is the largest single process only) are measured per run, and
 the peak of the tree's summed PSS (/proc/PID/smaps_rollup: shared library pages divided among
 the processes that map them, so three processes with numba loaded are not counted as three
-copies of libLLVM).
+copies of libLLVM; other processes mapping the same files take their share too, so it reads
+lower on a busy machine).
 
 (a) start-up: `needle montecarlo --n 1000` (target <= 1 s wall warm), medians of
     --startup-repeats (default 7) with the load average before and after, against `python -c
