@@ -487,12 +487,7 @@ def strategies(mech, tolerances, n: int, seed: int, strategies: Mapping | None =
                                  None if noise is None else (measurement, noise[a:b]))
                                 for a, b in chunk_bounds(int(n), CHUNK)],
                        n_jobs=n_jobs, progress=progress, desc="strategies")
-    adj = []
-    for i in range(len(rows)):  # each row joined, its chunks let go
-        adj.append(_concat([p[i] for p in parts]))
-        for p in parts:
-            p[i] = None
-    del parts
+    adj = [_concat([p.pop(0) for p in parts]) for _ in rows]  # each row's chunks let go
     active = tolerance_set(mech, tolerances).active()
     return StrategiesResult(
         mech.name, output, mech.output(output).unit, spec, law.name, int(seed), dev,
