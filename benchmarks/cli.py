@@ -8,7 +8,11 @@ Every figure is a median over --repeats runs of a fresh `python -m sewtol ...` p
 one warm-up run, so numba's cache is on disk and nothing is compiled in a timed run). Wall time,
 CPU time (user + sys of the process and its workers, from wait4) and the peak resident memory
 of the whole process tree (psutil: the sum over the process and all its descendants, sampled
-every 20 ms; /usr/bin/time's %M is the largest single process only) are measured per run.
+every 20 ms; /usr/bin/time's %M is the largest single process only) are measured per run, and
+the peak of the tree's summed PSS (/proc/PID/smaps_rollup: shared library pages divided among
+the processes that map them, so three processes with numba loaded are not counted as three
+copies of libLLVM; other processes mapping the same files take their share too, so it reads
+lower on a busy machine).
 
 (a) start-up: `needle montecarlo --n 1000` (target <= 1 s wall warm), medians of
     --startup-repeats (default 7) with the load average before and after, against `python -c
@@ -20,8 +24,9 @@ every 20 ms; /usr/bin/time's %M is the largest single process only) are measured
 (c) `needle montecarlo --n 1000000 --n-jobs 2` end to end (target <= 10 s wall idle, or <= 20
     CPU-s with peak RSS <= 500 MB), with the load average before and after;
 (d) `needle strategies --n N --n-jobs 2` for N in --strategies-n (default 2000 and 10000; target
-    <= 30 s wall idle at 10000): every default row, the all row's nested CD / guide-angle search
-    the bulk of it. Warmed by one run at n 20; --strategies-repeats timed runs (default 1).
+    <= 30 s wall idle at 10000; peak RSS and PSS flat in n): every default row, the all row's
+    nested CD / guide-angle search the bulk of it. Warmed by one run at n 20;
+    --strategies-repeats timed runs (default 1).
 With --reference-src every sewtol command runs again, interleaved run by run, with that
 checkout's sources first on PYTHONPATH, and the ratio this/reference is printed. The machine
 is shared: the load average at start and end is printed with the figures.
@@ -54,21 +59,27 @@ def load() -> list[float]:
     return [float(x) for x in Path("/proc/loadavg").read_text().split()[:3]]
 
 
-def tree_rss(proc) -> int:
-    """Resident bytes of proc and all its descendants now (0 for those already gone)."""
+def tree_rss(proc) -> tuple[int, int]:
+    """Resident and proportional (PSS) bytes of proc and all its descendants now (0 for those
+    already gone). The RSS sum counts each shared library once per process (libLLVM, numpy's
+    and scipy's .so: about half of a worker's 210 MB); PSS shares those pages out, so its sum is
+    what the tree holds."""
     import psutil
 
-    total = 0
+    rss = pss = 0
     try:
         procs = [proc, *proc.children(recursive=True)]
     except psutil.Error:
-        return 0
+        return 0, 0
     for p in procs:
         try:
-            total += p.memory_info().rss
-        except psutil.Error:
+            rss += p.memory_info().rss
+            with open(f"/proc/{p.pid}/smaps_rollup") as fh:
+                pss += next(int(line.split()[1]) * 1024 for line in fh
+                            if line.startswith("Pss:"))
+        except (psutil.Error, OSError, StopIteration):
             pass
-    return total
+    return rss, pss
 
 
 def run(cmd: list[str], src: Path | None) -> dict:
@@ -84,7 +95,7 @@ def run(cmd: list[str], src: Path | None) -> dict:
     t0 = time.perf_counter()
     p = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     ps = psutil.Process(p.pid)
-    peak = 0
+    peak = peak_pss = 0
     while True:
         try:
             pid, status, usage = os.wait4(p.pid, os.WNOHANG)
@@ -92,7 +103,8 @@ def run(cmd: list[str], src: Path | None) -> dict:
             break
         if pid:
             break
-        peak = max(peak, tree_rss(ps))
+        rss, pss = tree_rss(ps)
+        peak, peak_pss = max(peak, rss), max(peak_pss, pss)
         time.sleep(0.02)
     wall = time.perf_counter() - t0
     p.returncode = os.waitstatus_to_exitcode(status)
@@ -102,7 +114,8 @@ def run(cmd: list[str], src: Path | None) -> dict:
         raise SystemExit(f"{' '.join(cmd)} failed ({p.returncode}): {err[-500:]}")
     # wait4's usage covers the process and the children it waited for (joblib's workers)
     return {"wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime,
-            "peak_rss_mb": max(peak, usage.ru_maxrss * 1024) / 2**20}
+            "peak_rss_mb": max(peak, usage.ru_maxrss * 1024) / 2**20,
+            "peak_pss_mb": peak_pss / 2**20}
 
 
 def medians(cmd, src, reference, repeats, warm: bool = True) -> dict:

@@ -370,3 +370,39 @@ def test_allocation_takes_a_strategy(nominal):
     # fraction of what beta alone leaves (~1000 um/mm), BC's (which shift cannot take) is not
     assert t.loc["AB", "slope_um_per_mm"] < 150 and t.loc["BE", "slope_um_per_mm"] < 150
     assert t.loc["BC", "slope_um_per_mm"] > 150
+
+
+def test_strategies_hold_one_chunk_of_working_arrays_not_n(nominal):
+    """Flat memory: the adjusters work on chunks of CHUNK machines for any n_jobs, so what the
+    study holds at its peak grows with n only by what its result keeps per machine (a few
+    floats a row); the whole batch's working arrays (about 13 kB a machine at 400 and 1600
+    machines before the study was chunked with n_jobs 1) are never held at once."""
+    import tracemalloc
+
+    from sewtol.studies import strategies as ST
+    from sewtol.tables.needle_208 import as_mechanism
+
+    mech = as_mechanism(nominal)
+    ST.strategies(mech, "base", 20, 1, {"none": ()}, limit_um=10.0)  # compiled outside the count
+    got = {}
+    for n in (400, 1600):
+        tracemalloc.start()
+        try:
+            res = ST.strategies(mech, "base", n, 1, {"none": ()}, limit_um=10.0)
+            kept, peak = tracemalloc.get_traced_memory()
+        finally:
+            tracemalloc.stop()
+        got[n] = kept, peak, res
+    grown_kept = got[1600][0] - got[400][0]
+    grown_peak = got[1600][1] - got[400][1]
+    # measured: the peak grows 1.5x what the result keeps (the chunks and their joined copy);
+    # holding the batch's working arrays made it 88x
+    assert 0 < grown_peak < 3 * grown_kept
+    # the same numbers however the chunks are run (a progress callback went the chunked way
+    # before, n_jobs 1 without one did not)
+    calls = []
+    shown = ST.strategies(mech, "base", 400, 1, {"none": ()}, progress=lambda *a: calls.append(a),
+                          limit_um=10.0)
+    assert calls[-1] == (2, 2)
+    np.testing.assert_array_equal(shown.adjusted[0].value, got[400][2].adjusted[0].value)
+    assert shown.to_dataframe().equals(got[400][2].to_dataframe())

@@ -470,7 +470,9 @@ def cmd_needle_strategies(args):
     frames = {"strategies": table}
     for r in rows:
         safe = "".join(ch if ch.isalnum() else "_" for ch in r.name)
-        frames[f"machines_{safe}"] = deviation_columns(res.machines(r.name), res.params)
+        # piece by piece, made only when --out writes it
+        frames[f"machines_{safe}"] = (deviation_columns(f, res.params)
+                                      for f in res.machine_chunks(r.name))
     reading = {} if measurement is None else {"measurement_error": measurement.to_dict()}
     inputs = study_inputs(args, "strategies", params, tolerances, limit_um=10.0,
                           strategies={r.name: _strategy_record(r)["compensators"] for r in rows}, **reading)

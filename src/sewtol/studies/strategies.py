@@ -60,10 +60,10 @@ from sewtol.studies.parallel import chunk_bounds, run_chunks
 if TYPE_CHECKING:
     import pandas as pd
 
-# machines per chunk with n_jobs != 1 or a progress bar: the machines are adjusted one by one,
-# but a batch optimum need not be bit-identical across batch sizes (the needle's joint optimum
-# differs by ~1e-11 um on 2 of 2000 machines between chunks of 250 and 500), so the chunking
-# is part of the study's identity: 250, as the needle's strategies report has always used
+# machines per chunk, for any n_jobs: the machines are adjusted one by one, but a batch
+# optimum need not be bit-identical across batch sizes (the needle's joint optimum differs by
+# ~1e-11 um on 2 of 2000 machines between chunks of 250 and 500), so the chunking is part of
+# the study's identity: 250, as the needle's strategies report has always used
 CHUNK = 250
 STATUSES = ("ok", "out_of_spec", "cannot_close", "dead_point")
 
@@ -458,8 +458,10 @@ def strategies(mech, tolerances, n: int, seed: int, strategies: Mapping | None =
     """The machines 0 .. n-1 of `seed` (`law.draw`) under each strategy (name -> compensators;
     None: `default_strategies`), `output` (default: that of the mechanism's first spec, else its
     first) adjusted and held to `spec` (default: the mechanism's spec of it; none: every machine
-    that runs is ok). fast=False: the generic optimiser always; n_jobs, progress: chunks of
-    CHUNK machines on worker processes; options go to the mechanism's strategy adjuster (e.g.
+    that runs is ok). fast=False: the generic optimiser always; chunks of CHUNK machines, one
+    after another (n_jobs 1) or on n_jobs worker processes, with the same numbers for any
+    n_jobs; progress: a bar (or callback) per chunk; options go to the mechanism's strategy
+    adjuster (e.g.
     the needle's limit_um). measurement: the compensators set from a reading of the output
     with this error (sewtol.measurement_error; None or sd 0: from the truth)."""
     if isinstance(n, bool) or int(n) != n or n < 2:
@@ -484,18 +486,15 @@ def strategies(mech, tolerances, n: int, seed: int, strategies: Mapping | None =
         measurement = None
     noise = None if measurement is None else measurement.sd_um * me.normal_draws(
         seed, 0, int(n), measurement.positions)
-    if n_jobs == 1 and not progress:
-        measured = None if noise is None else (measurement, noise)
-        adj = [set_in_order(mech, values, s, output, units, fast=fast, measured=measured,
-                            **options) for s in rows]
-    else:
-        parts = run_chunks(_chunk, [(mech, {k: v[a:b] for k, v in values.items()}, rows, output,
-                                     fast, options, 1 if n_jobs != 1 else None,
-                                     {k: v[a:b] for k, v in units.items()},
-                                     None if noise is None else (measurement, noise[a:b]))
-                                    for a, b in chunk_bounds(int(n), CHUNK)],
-                           n_jobs=n_jobs, progress=progress, desc="strategies")
-        adj = [_concat([p[i] for p in parts]) for i in range(len(rows))]
+    # chunks of CHUNK machines for any n_jobs (one at a time with n_jobs 1): the adjusters'
+    # working arrays stay those of one chunk, and the numbers do not depend on n_jobs
+    parts = run_chunks(_chunk, [(mech, {k: v[a:b] for k, v in values.items()}, rows, output,
+                                 fast, options, 1 if n_jobs != 1 else None,
+                                 {k: v[a:b] for k, v in units.items()},
+                                 None if noise is None else (measurement, noise[a:b]))
+                                for a, b in chunk_bounds(int(n), CHUNK)],
+                       n_jobs=n_jobs, progress=progress, desc="strategies")
+    adj = [_concat([p.pop(0) for p in parts]) for _ in rows]  # each row's chunks let go
     active = tolerance_set(mech, tolerances).active()
     return StrategiesResult(
         mech.name, output, mech.output(output).unit, spec, law.name, int(seed), dev,

@@ -37,6 +37,7 @@ from sewtol.studies.montecarlo import (
     MonteCarloResult,
     check_sampling,
 )
+from sewtol.studies.parallel import chunk_bounds
 from sewtol.tolerances import ToleranceSet, needle_set
 
 if TYPE_CHECKING:
@@ -295,25 +296,41 @@ class StrategiesResult(ST.StrategiesResult):
     def params(self) -> tuple[str, ...]:
         return tuple(self.deviations)
 
+    def _adjustment(self, i: int, rows: slice = slice(None)) -> Adjustment:
+        """Row i (its machines `rows`) as needle_208.adjustment.Adjustment."""
+        a = self.adjusted[i]
+
+        def cut(v):
+            return {k: cut(x) for k, x in v.items()} if isinstance(v, dict) else v[rows]
+
+        return Adjustment(self.rows[i], self.limit_um, *(cut(v) for v in (
+            a.extras["total_before_um"], a.value, a.extras["plus_um"], a.extras["minus_um"],
+            a.extras["achieved_um"], a.status, a.settings, a.extras["low"], a.extras["high"],
+            a.extras["at_limit"])))
+
     @property
     def adjustments(self) -> tuple[Adjustment, ...]:
         """Each row as needle_208.adjustment.Adjustment (its settings, plateaus, at-limit flags
         and achieved SumDelta per machine)."""
-        return tuple(Adjustment(s, self.limit_um, a.extras["total_before_um"], a.value,
-                                a.extras["plus_um"], a.extras["minus_um"],
-                                a.extras["achieved_um"], a.status, a.settings, a.extras["low"],
-                                a.extras["high"], a.extras["at_limit"])
-                     for s, a in zip(self.rows, self.adjusted, strict=True))
+        return tuple(self._adjustment(i) for i in range(len(self.names)))
 
-    def machines(self, strategy: str) -> pd.DataFrame:
-        """Deviations, criterion before and after, settings, at-limit flags and status."""
+    def machines(self, strategy: str, rows: slice = slice(None)) -> pd.DataFrame:
+        """Deviations, criterion before and after, settings, at-limit flags and status (of the
+        machines `rows`: a slice of 0 .. n-1)."""
         import pandas as pd
 
         self.get(strategy)  # refused in one line when not a row
-        f = pd.DataFrame(self.deviations)
-        f.insert(0, "machine", np.arange(self.n))
-        return pd.concat([f, self.adjustments[self.names.index(strategy)].to_dataframe()],
+        f = pd.DataFrame({k: v[rows] for k, v in self.deviations.items()})
+        f.insert(0, "machine", np.arange(self.n)[rows])
+        return pd.concat([f, self._adjustment(self.names.index(strategy), rows).to_dataframe()],
                          axis=1)
+
+    def machine_chunks(self, strategy: str, size: int = ST.CHUNK):
+        """`machines(strategy)` in consecutive pieces of `size` machines, made one at a time
+        (what --out writes: never the whole per-machine table at once)."""
+        self.get(strategy)
+        for a, b in chunk_bounds(self.n, size):
+            yield self.machines(strategy, slice(a, b))
 
 
 def adjusted_summary(nominal: Needle208, machines: pd.DataFrame, strategy: Strategy,

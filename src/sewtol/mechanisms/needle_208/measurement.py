@@ -33,7 +33,7 @@ import numpy as np
 
 from sewtol.errors import ParameterError
 from sewtol.mechanisms.needle_208 import metrics as nm
-from sewtol.mechanisms.needle_208.adjustment import Adjustment, shift_optimum
+from sewtol.mechanisms.needle_208.adjustment import Adjustment, shift_optimum, status_of
 from sewtol.mechanisms.needle_208.compensators import Strategy
 from sewtol.mechanisms.needle_208.kernels.positions import FIELDS, positions_kernel_serial
 
@@ -216,9 +216,7 @@ def adjust_measured(c: dict, strategy: Strategy, limit_um: float, phi_rad, noise
         eps = 1e-6 * (comp.high - comp.low)
         at_limit[comp.name] = (x <= comp.low + eps) | (x >= comp.high - eps)
     dead_point = np.where(dead, before_feas.dead_point, feas.dead_point)
-    status = np.where(np.isfinite(figs.total_um),
-                      np.where(figs.total_um <= limit_um, "ok", "out of spec"),
-                      np.where(dead_point, "dead point", "cannot assemble")).astype(object)
+    status = status_of(figs.total_um, limit_um, dead_point)
     adj = Adjustment(strategy, float(limit_um), before, figs.total_um, figs.plus_um,
                      figs.minus_um, figs.total_um, status, out, dict(out), dict(out), at_limit)
     return adj, np.where(np.isfinite(measured), measured, np.nan)
