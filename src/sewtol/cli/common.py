@@ -96,20 +96,28 @@ def emit(fmt: str, *, obj=None, frame=None, compact=None, wide: bool = False) ->
         _wide_note([c for c in frame.columns if c not in shown.columns])
 
 
+def _compact_plan(columns, compact) -> dict:
+    """The `compact` names a table of `columns` shows, in that order, each -> its column, or
+    for `failed` (when there is no such column) the tuple of FAILURE_COLUMNS it sums."""
+    plan = {}
+    for name in compact:
+        if name in columns:
+            plan[name] = name
+        elif name == "failed":
+            causes = tuple(c for c in FAILURE_COLUMNS if c in columns)
+            if causes:
+                plan[name] = causes
+    return plan
+
+
 def compact_view(frame, compact):
-    """`frame` cut to the `compact` columns it has, in that order; `failed` (when the frame
-    has no such column) is the sum of its FAILURE_COLUMNS."""
+    """`frame` cut to `_compact_plan`'s columns, `failed` the sum of its failure columns."""
     import pandas as pd
 
-    out = {}
-    for name in compact:
-        if name in frame.columns:
-            out[name] = frame[name]
-        elif name == "failed":
-            causes = [c for c in FAILURE_COLUMNS if c in frame.columns]
-            if causes:
-                out[name] = frame[causes].sum(axis=1)
-    return pd.DataFrame(out, index=frame.index)
+    return pd.DataFrame({name: frame[src] if isinstance(src, str) else
+                         frame[list(src)].sum(axis=1)
+                         for name, src in _compact_plan(frame.columns, compact).items()},
+                        index=frame.index)
 
 
 def _wide_note(hidden) -> None:
@@ -120,10 +128,11 @@ def _wide_note(hidden) -> None:
 
 
 def plain_columns(records, compact=None, wide: bool = True) -> dict | None:
-    """The columns of pandas.DataFrame(records) (cut to `compact` as `compact_view` cuts,
-    unless `wide`) as lists of the values its .values hands tabulate, or None when pandas must
-    decide: a missing cell or a None (NaN), a bool, a column mixing text and numbers, failure
-    columns that are not counts, or no text column (an all-number frame's values are floats)."""
+    """The columns of pandas.DataFrame(records) (cut to `compact` by `_compact_plan`, as
+    `compact_view` cuts a frame, unless `wide`) as lists of the values its .values hands
+    tabulate, or None when pandas must decide: a missing cell or a None (NaN), a bool, a column
+    mixing text and numbers, failure columns that are not counts, or no text column (an
+    all-number frame's values are floats)."""
     import numbers
 
     names = list(dict.fromkeys(k for r in records for k in r))
@@ -140,14 +149,13 @@ def plain_columns(records, compact=None, wide: bool = True) -> dict | None:
             cols[name] = [kind(v) for v in vals]
     if not (wide or compact is None):
         cut = {}
-        for name in compact:
-            causes = [cols[c] for c in FAILURE_COLUMNS if c in cols]
-            if name in cols:
-                cut[name] = cols[name]
-            elif name == "failed" and causes:
-                if not all(isinstance(v, int) for c in causes for v in c):
-                    return None
-                cut[name] = [sum(v) for v in zip(*causes, strict=True)]
+        for name, src in _compact_plan(cols, compact).items():
+            if isinstance(src, str):
+                cut[name] = cols[src]
+            elif all(isinstance(v, int) for c in src for v in cols[c]):
+                cut[name] = [sum(v) for v in zip(*(cols[c] for c in src), strict=True)]
+            else:
+                return None
         cols = cut
     return cols if any(isinstance(c[0], str) for c in cols.values()) else None
 

@@ -739,8 +739,7 @@ def needle_flags(p) -> None:
 
 _ALL = ("scan", "worst-case", "montecarlo", "sobol", "ppm", "allocation", "strategies",
         "settings")
-_ADJUSTING = ("scan", "worst-case", "montecarlo", "sobol", "allocation", "strategies",
-              "settings")
+_ADJUSTING = tuple(s for s in _ALL if s != "ppm")  # ppm reads no compensator flag
 # the fast path's studies that read each flag of needle_flags (and --limit, --adjust, --plot,
 # --n-jobs where the generic study does not); `run` refuses the others in one line
 NEEDLE_FLAGS = {"frame": _ALL, "guide_shift_um": _ALL, "housing": _ALL,

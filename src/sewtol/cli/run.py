@@ -789,8 +789,9 @@ def _fast_path_refusal(args, mech, settings=()) -> str | None:
     if args.study in ("allocation", "strategies") and upper not in (None, sb.DEFAULT_LIMIT_UM):
         return (f"{flag} {upper:g}: `needle {args.study}` keeps SumDelta within "
                 f"{sb.DEFAULT_LIMIT_UM:g} um")
+    alias = NEEDLE_NAME.get(args.study, args.study)  # the study's `sewtol needle` command
     if args.study in ("strategies", "settings") and args.strategy is not None:
-        return f"--strategy: `needle {NEEDLE_NAME.get(args.study, args.study)}` compares its own rows"
+        return f"--strategy: `needle {alias}` compares its own rows"
     if settings:
         return "--set SETTING:...: `needle guides` compares the guide's own settings"
     if args.weight is not None:
@@ -798,7 +799,7 @@ def _fast_path_refusal(args, mech, settings=()) -> str | None:
     if args.shape == "set":
         return "--shape set: `needle allocation` shapes the tolerances by their slopes"
     if args.out and args.study in ("worst-case", "allocation", "settings"):
-        return f"--out: `needle {NEEDLE_NAME.get(args.study, args.study)}` writes no study folder"
+        return f"--out: `needle {alias}` writes no study folder"
     return None
 
 
