@@ -20,7 +20,7 @@ FIGURE_FORMAT ?= png
 NARROWED := OPENBLAS_CORETYPE=Prescott NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL AVX512_SPR" \
 	NUMBA_CPU_NAME=generic
 
-.PHONY: report test test-narrowed test-latest lint bench lock validate clean docs
+.PHONY: report test test-narrowed test-latest lint bench lock validate clean docs kernels
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -31,9 +31,16 @@ $(STAMP): pyproject.toml setup.py $(LOCK) | $(BIN)/python
 	$(BIN)/python -m pip install --quiet --no-deps -e .
 	touch $(STAMP)
 
+# The needle Monte-Carlo's two kernels compiled ahead of time (numba.pycc, from the same Python
+# functions) into an extension module beside them, so a short `needle montecarlo` starts without
+# importing numba; its name holds a digest of the kernels' sources and the numba and numpy
+# versions, so this rebuilds it only when one of those changed (and a stale one is never loaded)
+kernels: $(STAMP)
+	$(BIN)/python -c "from sewtol.mechanisms.needle_208.kernels import build; build()"
+
 # Reports come from the frames shipped as package data (never refitted here) and name the
 # revision they were made from: the package is reinstalled first so run.json records it.
-report: $(STAMP)
+report: $(STAMP) kernels
 	$(BIN)/python -m pip install --quiet --no-deps -e .
 ifeq ($(strip $(TOLERANCES)),)
 	$(BIN)/python studies/calibrate_needle_208.py --stored --out $(REPORTS)
@@ -77,11 +84,11 @@ endif
 lint: $(STAMP)
 	$(BIN)/ruff check src tests studies examples $(wildcard benchmarks)
 
-test: lint
+test: lint kernels
 	$(BIN)/python -m pytest -q
 
 # the numerically sensitive tests again, under another CPU's kernels (see docs/reproducibility.md)
-test-narrowed: $(STAMP)
+test-narrowed: $(STAMP) kernels
 	$(NARROWED) $(BIN)/python -m pytest -q -m numerics -p no:cacheprovider
 
 # the suite against the newest versions pyproject.toml allows (no lock): warns of a breaking
@@ -121,13 +128,15 @@ $(BENCH)/.installed: pyproject.toml $(LOCK)
 	touch $@
 
 bench: $(BENCH)/.installed
+	$(BENCH)/bin/python -c "from sewtol.mechanisms.needle_208.kernels import build; build()"
 	$(BENCH)/bin/python benchmarks/throughput.py --json
 	$(BENCH)/bin/python benchmarks/studies.py --json
 	$(BENCH)/bin/python benchmarks/generic_vs_fused.py --json
 	$(BENCH)/bin/python benchmarks/cli.py --json
 
 clean:
-	rm -rf $(VENV) $(BENCH) $(LATEST) .venv-lock .pytest_cache .hypothesis build site src/*.egg-info
+	rm -rf $(VENV) $(BENCH) $(LATEST) .venv-lock .pytest_cache .hypothesis build site src/*.egg-info \
+		src/sewtol/mechanisms/needle_208/kernels/ahead_*
 
 # the exact optimiser against a dense brute force on the 10,000 seed-2026 recommended-set
 # machines (beta alone, then beta + guide shift); about 10 min each on 2 cores

@@ -163,11 +163,14 @@ def test_start_up_imports_only_what_the_command_uses():
     JSON) never imports scipy.stats, scipy.optimize, joblib, pandas, the plotting and cluster
     libraries, another mechanism's model or a study it does not run, nor executes numpy.f2py or
     numpy.testing (bound unexecuted by the CLI; scipy.special's numpy copy binds every numpy
-    submodule): each costs a part of the start-up the command has no use for."""
+    submodule): each costs a part of the start-up the command has no use for. With the kernels
+    compiled ahead of time built (make kernels), the Monte-Carlo never imports numba either."""
     import os
     import subprocess
     import sys
     from pathlib import Path
+
+    from sewtol.mechanisms.needle_208.kernels import ahead
 
     root = Path(__file__).resolve().parents[1]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(
@@ -192,6 +195,8 @@ def test_start_up_imports_only_what_the_command_uses():
         assert code == 0
         assert not {m for m in parsed if m.split(".")[0] in never | {"scipy", "pandas", "numba"}}
         assert not {m for m in ran if m in never or m.split(".")[0] in never}
+        if ahead() is not None:
+            assert not {m for m in ran if m.split(".")[0] in ("numba", "llvmlite")}
 
 
 def test_a_table_of_records_prints_the_bytes_of_its_dataframe(capsys):

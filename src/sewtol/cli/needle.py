@@ -35,6 +35,11 @@ from sewtol.cli.common import (
 from sewtol.errors import ParameterError
 
 BETA_LIMIT_DEG = 360.0
+# `needle montecarlo` (beta fixed and adjusted) up to this many machines, on one worker and no
+# cluster, runs the needle's two kernels compiled ahead of time on one thread
+# (needle_208.kernels.ahead_of_time): numba is never imported, 0.7 s less start-up; above it
+# numba's kernels on every core make up for their start-up (docs/layout.md has the crossing)
+AHEAD_MAX_N = 20_000
 SOBOL_RESAMPLES, SOBOL_CONF_LEVEL = 200, 0.95
 # the columns a table prints without --wide: what a decision needs (JSON and CSV keep every
 # column; `failed` is the sum of the failure counts, so ok + out_of_spec + failed = n shows)
@@ -286,6 +291,7 @@ def cmd_needle_montecarlo(args):
     per-machine table of one strategy, each with its study folder and cluster. `run FILE
     montecarlo` on the needle fast path runs this command itself (args.file_inputs names the
     file in run.json), so both print the same bytes."""
+    from sewtol.mechanisms.needle_208.kernels import ahead_of_time
     from sewtol.studies.montecarlo import CHUNK, check_sampling, montecarlo_bytes
     from sewtol.tables.needle_208 import montecarlo
 
@@ -309,11 +315,13 @@ def cmd_needle_montecarlo(args):
                           "beta re-optimised per machine")
 
     def study(store, client):
-        res = montecarlo(params, tolerances, args.n, args.seed, limit_um=limit, range_deg=rng,
-                         n_jobs=args.n_jobs, progress=args.progress, store=store,
-                         chunk_size=CHUNK, scheduler=client)
+        with ahead_of_time(args.n <= AHEAD_MAX_N and args.n_jobs == 1 and client is None):
+            res = montecarlo(params, tolerances, args.n, args.seed, limit_um=limit,
+                             range_deg=rng, n_jobs=args.n_jobs, progress=args.progress,
+                             store=store, chunk_size=CHUNK, scheduler=client)
+            fixed = _beta_star_figures(args, params)
         record = res.to_dict()
-        record["extra"]["fixed_beta_at_bound"] = _beta_star_figures(args, params).beta_at_bound
+        record["extra"]["fixed_beta_at_bound"] = fixed.beta_at_bound
         record["context"] = _context(args, params, tolerances, None)
         # the per-machine table only for --out (the summary and the JSON never need it)
         # written chunk by chunk: the whole table is never held

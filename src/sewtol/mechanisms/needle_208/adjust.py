@@ -198,12 +198,11 @@ def _inner(c, boxes, r_lo, r_hi, engine, h_deg, tol_um):
     slo, shi = boxes.get("guide_shift_um", (0.0, 0.0))
     if engine == "numpy":
         return _reference(c, r_lo, r_hi, blo, bhi, slo, shi, shift, tol_um)
-    from sewtol.mechanisms.needle_208.kernels import fused as KB
-    from sewtol.mechanisms.needle_208.kernels import window as KW
+    from sewtol.mechanisms.needle_208 import kernels
 
-    return KW.optimise_batch(KB.pack(c), np.ascontiguousarray(r_lo, float),
-                             np.ascontiguousarray(r_hi, float), blo, bhi, slo, shi, shift,
-                             h_deg, tol_um)
+    return kernels.optimise_batch(kernels.pack(c), np.ascontiguousarray(r_lo, float),
+                                  np.ascontiguousarray(r_hi, float), blo, bhi, slo, shi, shift,
+                                  h_deg, tol_um)
 
 
 def _result(out, boxes, code, tol_um, outer=None) -> AdjustResult:

@@ -111,8 +111,7 @@ def total_um_kernel(c, feas: Feasibility | None = None) -> np.ndarray:
     by Newton on the exact d); NaN where a machine does not run. 6x faster than the numpy path
     and within 3.2e-11 um of it on 4000 base-set machines with beta and CD spread over their
     boxes (tests/test_kernels.py)."""
-    from sewtol.mechanisms.needle_208.kernels import fused as K
-    from sewtol.mechanisms.needle_208.kernels import window as KW
+    from sewtol.mechanisms.needle_208 import kernels
 
     feas = feas or feasibility(c)
     # the rocker interval depends on the first four-bar only (not on beta)
@@ -121,7 +120,7 @@ def total_um_kernel(c, feas: Feasibility | None = None) -> np.ndarray:
     r_hi = np.where(np.isnan(r_lo), np.nan, feas.hi)
     n = r_lo.size
     beta = np.broadcast_to(np.asarray(c["beta"], float).reshape(-1, 1), (n, 1))[:, 0].copy()
-    dev = KW.fixed_batch(K.pack(c), beta, r_lo, r_hi)
+    dev = kernels.fixed_batch(kernels.pack(c), beta, r_lo, r_hi)
     return dev[:, 0] + dev[:, 1]
 
 

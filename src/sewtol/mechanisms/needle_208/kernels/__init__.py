@@ -1,2 +1,127 @@
 """Fused numba kernels of the needle drive (fast paths; the numpy engine is the reference they are
-tested against)."""
+tested against), and the two a Monte-Carlo calls, compiled ahead of time.
+
+A short `needle montecarlo` spent most of its start-up importing numba and setting up its
+compiler context (about 0.7 s of 1.3 s warm). `build()` (make's `kernels` step) compiles
+window.fixed_batch and window.optimise_batch, the same Python functions run serially (prange is
+range outside a parallel njit), with numba.pycc into an extension module beside this file that
+runs without numba. Inside `ahead_of_time()` the `fixed_batch` and `optimise_batch` below run
+it on the calling thread; elsewhere, or when it is not built, numba's kernels (window.py).
+tests/test_ahead.py holds the two bit for bit equal.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import functools
+import hashlib
+import importlib
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+
+# parameter columns passed to the kernels (fused.py, window.py), in this order
+FIELDS = ("AB", "BC", "BE", "CD", "CBE", "Ax", "Ay", "Dx", "Dy", "branch_C", "beta_sense",
+          "guide_x", "guide_y", "guide_angle", "guide_shift_um")
+# the kernels compiled ahead of time and their signatures (numba's; P's rows follow FIELDS)
+AHEAD = {"fixed_batch": "f8[:,:](f8[:,::1], f8[::1], f8[::1], f8[::1], f8)",
+         "optimise_batch": "f8[:,:](f8[:,::1], f8[::1], f8[::1], f8, f8, f8, f8, b1, f8, f8)"}
+# the module ahead_of_time() put in force on this thread (a context variable: a thread started
+# inside it, such as a worker of a pool, runs numba's kernels)
+_IN_FORCE: contextvars.ContextVar = contextvars.ContextVar("needle_ahead", default=None)
+
+
+def pack(c: dict) -> np.ndarray:
+    """Parameter columns (n, 1) to the kernel's (n, len(FIELDS)) matrix."""
+    n = next(iter(c.values())).shape[0]
+    out = np.empty((n, len(FIELDS)))
+    for j, f in enumerate(FIELDS):
+        out[:, j] = np.asarray(c[f], float).reshape(-1)  # a column, or one value for all
+    return out
+
+
+def ahead_name() -> str:
+    """The extension module's name: ahead_ and a digest of the kernels' sources (this file,
+    fused.py, window.py) and of the numba and numpy versions, so a module built from other
+    sources or versions is never loaded (Python's version is in the file's suffix). Read
+    without importing numba."""
+    here = Path(__file__).parent
+    h = hashlib.sha256(np.__version__.encode())
+    numba = importlib.util.find_spec("numba").submodule_search_locations[0]
+    for f in (here / "__init__.py", here / "fused.py", here / "window.py",
+              Path(numba, "_version.py")):
+        h.update(f.read_bytes())
+    return "ahead_" + h.hexdigest()[:16]
+
+
+@functools.cache
+def ahead():
+    """The extension module built from these sources, or None (not built)."""
+    try:
+        return importlib.import_module(f"{__name__}.{ahead_name()}")
+    except ModuleNotFoundError:
+        return None
+
+
+@contextlib.contextmanager
+def ahead_of_time(use: bool = True):
+    """Within, on this thread, fixed_batch and optimise_batch run the module compiled ahead of
+    time when it is built (one thread, numba never imported); with use False, or without it,
+    numba's kernels (parallel over the machines)."""
+    token = _IN_FORCE.set(ahead() if use else None)
+    try:
+        yield _IN_FORCE.get() is not None
+    finally:
+        _IN_FORCE.reset(token)
+
+
+def fixed_batch(P, beta, lo, hi):
+    """window.fixed_batch (its default h_deg, 2): Delta+, Delta- (um) per machine."""
+    if (m := _IN_FORCE.get()) is not None:
+        return m.fixed_batch(P, beta, lo, hi, 2.0)
+    from sewtol.mechanisms.needle_208.kernels.window import fixed_batch
+
+    return fixed_batch(P, beta, lo, hi)
+
+
+def optimise_batch(*args):
+    """window.optimise_batch(P, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active, h_deg,
+    tol_um), every argument given: per machine the columns of window.COLUMNS."""
+    if (m := _IN_FORCE.get()) is not None:
+        return m.optimise_batch(*args)
+    from sewtol.mechanisms.needle_208.kernels.window import optimise_batch
+
+    return optimise_batch(*args)
+
+
+def build(out_dir: str | Path | None = None) -> Path:
+    """Compile AHEAD from window.py's kernels (their Python functions, serial) with numba.pycc
+    into out_dir (default: this folder) unless the current module is there; stale ones are
+    removed. For a generic x86-64 (pycc's default CPU), so one build serves any CPU of the
+    platform; the same bits as numba's kernels (tests/test_ahead.py). Returns its path."""
+    import warnings
+
+    from numba.core.errors import NumbaPendingDeprecationWarning
+
+    out = Path(out_dir or Path(__file__).parent)
+    name = ahead_name()
+    for old in out.glob("ahead_*"):
+        if not old.name.startswith(name + "."):
+            old.unlink()
+    built = list(out.glob(name + ".*"))
+    if built:
+        return built[0]
+    from sewtol.mechanisms.needle_208.kernels import window
+
+    with warnings.catch_warnings():  # pycc is deprecated, not yet replaced; pinned by the lock
+        warnings.simplefilter("ignore", NumbaPendingDeprecationWarning)
+        from numba.pycc import CC
+
+        cc = CC(name, source_module=__name__)
+    cc.output_dir = str(out)
+    for fn, sig in AHEAD.items():
+        cc.export(fn, sig)(getattr(window, fn).py_func)
+    cc.compile()
+    return out / cc.output_file

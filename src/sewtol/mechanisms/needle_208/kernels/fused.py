@@ -1,8 +1,8 @@
 """The needle point and the guide's deviation d as scalar numba functions, with analytic
 d/dtheta and d2/dtheta2 (the second four-bar from the rocker angle in closed form): the same
 mathematics as the engine's groups, nothing allocated. The exact optimiser and the fixed-beta
-figures (kernels/window.py) evaluate d through them; `pack` lays the machines out as they take
-them. tests/test_kernels.py holds them to the numpy path.
+figures (kernels/window.py) evaluate d through them; `pack` (kernels/__init__.py) lays the machines
+out as they take them. tests/test_kernels.py holds them to the numpy path.
 """
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ import math
 import numba as nb
 import numpy as np
 
-# parameter columns passed to the kernel, in this order
-FIELDS = ("AB", "BC", "BE", "CD", "CBE", "Ax", "Ay", "Dx", "Dy", "branch_C", "beta_sense",
-          "guide_x", "guide_y", "guide_angle", "guide_shift_um")
+# the parameter columns, P's rows (kernels/__init__.py, which needs no numba)
+from sewtol.mechanisms.needle_208.kernels import FIELDS, pack  # noqa: F401
+
 # needle_208.DEAD_POINT_DEG as the sine the kernel compares with (kept equal by a test)
 SIN_DEAD_POINT = math.sin(math.radians(1.0))
 
@@ -99,11 +99,3 @@ def guide_offset_on(p, beta_deg, th, nx, ny, off):
         return np.nan, np.nan, np.nan
     return nx * Ex + ny * Ey - off, nx * E1x + ny * E1y, nx * E2x + ny * E2y
 
-
-def pack(c: dict) -> np.ndarray:
-    """Parameter columns (n, 1) to the kernel's (n, len(FIELDS)) matrix."""
-    n = next(iter(c.values())).shape[0]
-    out = np.empty((n, len(FIELDS)))
-    for j, f in enumerate(FIELDS):
-        out[:, j] = np.asarray(c[f], float).reshape(-1)  # a column, or one value for all
-    return out
