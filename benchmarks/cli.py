@@ -16,9 +16,11 @@ lower on a busy machine).
 
 (a) start-up: `needle montecarlo --n 1000` (target <= 1 s wall warm), medians of
     --startup-repeats (default 7) with the load average before and after, against `python -c
-    pass`, `python -c "import numpy, numba"` (what no sewtol can undercut) and building
-    the parser (`from sewtol.cli import build_parser`); on a loaded machine the CPU-s (user +
-    sys) of the run is the projection of its wall time on an idle one;
+    pass`, `python -c "import numpy, numba"`, building the parser (`from sewtol.cli import
+    build_parser`) and the same run on numba's kernels (the kernels compiled ahead of time
+    hidden: what it costs without `make kernels`; `ahead_of_time_built` says whether the first
+    run had them); on a loaded machine the CPU-s (user + sys) of the run is the projection of
+    its wall time on an idle one;
 (b) peak RSS against n: `needle montecarlo --n N --n-jobs 2` for N in --rss-n (target: flat,
     <= 500 MB at any n);
 (c) `needle montecarlo --n 1000000 --n-jobs 2` end to end (target <= 10 s wall idle, or <= 20
@@ -118,6 +120,22 @@ def run(cmd: list[str], src: Path | None) -> dict:
             "peak_pss_mb": peak_pss / 2**20}
 
 
+# `needle montecarlo --n N` with the kernels compiled ahead of time hidden: numba's kernels
+NUMBA_ONLY = ("import sys\n"
+              "from sewtol.mechanisms.needle_208 import kernels\n"
+              "kernels.ahead = lambda: None\n"
+              "from sewtol.cli import main\n"
+              "sys.exit(main(['needle', 'montecarlo', '--n', sys.argv[1]]))\n")
+
+
+def ahead_built(src: Path) -> bool:
+    """Whether src's needle kernels compiled ahead of time are built (make kernels)."""
+    probe = "from sewtol.mechanisms.needle_208.kernels import ahead; print(ahead() is not None)"
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(src)}, check=True)
+    return done.stdout.strip() == "True"
+
+
 def medians(cmd, src, reference, repeats, warm: bool = True) -> dict:
     """Medians of repeats runs (one warm-up first unless warm is False), this checkout and the
     reference interleaved run by run; ratios this / reference."""
@@ -169,6 +187,9 @@ def main(argv=None) -> int:
                 [*py, "-c", "from sewtol.cli import build_parser; build_parser()"], src,
                 args.reference_src, k),
             "needle_montecarlo_n1000": medians([*mc, "--n", "1000"], src, args.reference_src, k),
+            "ahead_of_time_built": ahead_built(src),
+            "needle_montecarlo_n1000_numba": medians([*py, "-c", NUMBA_ONLY, "1000"], src,
+                                                     None, k),
             "load_after": load()}
     if "rss" not in args.skip:
         res["peak_rss_vs_n"] = {str(n): medians([*mc, "--n", str(n), "--n-jobs", "2"], src,
@@ -206,6 +227,10 @@ def main(argv=None) -> int:
                          f"{r['reference']['cpu_s']:.2f} CPU-s; ratio {r['ratio']['wall_s']:.2f} "
                          f"wall, {r['ratio']['cpu_s']:.2f} CPU")
             print(line + f" (target <= {TARGETS['startup_n1000_wall_s']:g} s wall warm, idle)")
+            r = st["needle_montecarlo_n1000_numba"]["this"]
+            print(f"  kernels compiled ahead of time: "
+                  f"{'built' if st['ahead_of_time_built'] else 'NOT built (make kernels)'}; "
+                  f"on numba's kernels {r['wall_s']:.2f} s wall, {r['cpu_s']:.2f} CPU-s")
         if "million" in res:
             r = res["million"]
             line = (f"needle montecarlo --n {r['n']} --n-jobs 2, medians of {args.repeats}, load "

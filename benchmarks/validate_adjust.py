@@ -22,6 +22,7 @@ import numpy as np
 
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.needle_208 import adjust as ad
+from sewtol.mechanisms.needle_208 import kernels
 from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208.kernels import fused as KB
 from sewtol.mechanisms.needle_208.model import Needle208
@@ -127,7 +128,7 @@ def main(argv=None):
     t_fast = time.perf_counter() - t
     r_lo, r_hi, _ = ad._rocker(c)
     t = time.perf_counter()
-    bf = brute_batch(KB.pack(c), r_lo, r_hi, 10.0, 35.0, a.step_deg, a.shift, -100.0, 100.0)
+    bf = brute_batch(kernels.pack(c), r_lo, r_hi, 10.0, 35.0, a.step_deg, a.shift, -100.0, 100.0)
     t_brute = time.perf_counter() - t
     ok = r.status == "ok"
     both = ok & np.isfinite(bf[:, 0])

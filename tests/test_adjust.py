@@ -16,6 +16,7 @@ from sewtol.errors import ParameterError
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.needle_208 import adjust as ad
 from sewtol.mechanisms.needle_208 import beta as sb
+from sewtol.mechanisms.needle_208 import kernels
 from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208 import model as nd
 from sewtol.mechanisms.needle_208.adjustment import adjust
@@ -286,7 +287,7 @@ def test_fixed_beta_figures_are_exact(nominal, tset):
     ref = nm.deviation_figures(c, feas)
     lo = np.where(feas.ok, feas.lo, np.nan)
     hi = np.where(feas.ok, feas.hi, np.nan)
-    out = KW.fixed_batch(KB.pack(c), c["beta"][:, 0].copy(), lo, hi)
+    out = KW.fixed_batch(kernels.pack(c), c["beta"][:, 0].copy(), lo, hi)
     assert np.array_equal(np.isnan(out[:, 0]), np.isnan(ref.plus_um))
     assert np.nanmax(np.abs(out[:, 0] - ref.plus_um)) < 1e-9
     assert np.nanmax(np.abs(out[:, 1] - ref.minus_um)) < 1e-9
@@ -432,7 +433,6 @@ def test_angle_cutoff_only_cuts_machines_that_cannot_reach_it(nominal):
     a machine its grid's best angle, whose minimum is then still above the cutoff; and the
     bound that decides it (window._angle_bound, from the 21-point grid) lies below a dense
     brute force of the angle (201 points) on every machine."""
-    from sewtol.mechanisms.needle_208.kernels import fused as KB
     from sewtol.mechanisms.needle_208.kernels import window as KW
 
     dev = NEEDLE_208_SETS["base"].sample(np.random.default_rng(26), 40)
@@ -449,7 +449,7 @@ def test_angle_cutoff_only_cuts_machines_that_cannot_reach_it(nominal):
     assert np.all(below.min_total_um[cut] > full.min_total_um[cut] - 0.5)
     grid = np.linspace(-0.1, 0.1, 21)
     dense = np.linspace(-0.1, 0.1, 201)
-    P = KB.pack(c)
+    P = kernels.pack(c)
     r_lo, r_hi, _ = ad._rocker(c)
     h = 2.0 * np.pi / 180
     for i in np.flatnonzero(ok):

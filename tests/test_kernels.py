@@ -7,9 +7,9 @@ import numpy as np
 from cli_helpers import beta_adjusted, fixed_um, needle_columns
 from sewtol.mechanisms import params as P
 from sewtol.mechanisms.needle_208 import beta as sb
+from sewtol.mechanisms.needle_208 import kernels
 from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208 import model as nd
-from sewtol.mechanisms.needle_208.kernels import fused as KB
 from sewtol.mechanisms.needle_208.kernels import positions as KP
 from sewtol.tolerances import NEEDLE_208_SETS
 
@@ -85,8 +85,8 @@ def test_beta_kernel_reports_global_minima(nominal):
 
 def test_kernel_packs_fields_in_order(nominal):
     c, _ = nm.columns(nominal)
-    row = KB.pack(c)[0]
-    assert [row[KB.FIELDS.index(f)] for f in ("AB", "CD", "guide_angle")] == \
+    row = kernels.pack(c)[0]
+    assert [row[kernels.FIELDS.index(f)] for f in ("AB", "CD", "guide_angle")] == \
         [nominal.AB, nominal.CD, nominal.guide_angle]
 
 

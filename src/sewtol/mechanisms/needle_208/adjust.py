@@ -42,7 +42,7 @@ OUTER = ("guide_angle", "CD")
 OUTER_GRID = {"guide_angle": 21, "CD": 61}  # default grid points of the outer search
 STATUS = ("ok", "cannot assemble", "dead point")
 OUTER_SEARCHES = ("fused", "loop")
-_KERNEL_COLUMN = {"guide_angle": 13, "CD": 3}  # kernels.fused.FIELDS
+_KERNEL_COLUMN = {"guide_angle": 13, "CD": 3}  # kernels.FIELDS
 PLATEAU_TOL_UM = 1e-3
 
 
@@ -239,7 +239,7 @@ def _with_outer_fused(name, c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um, a
     """_with_outer's search with every machine's grid and refinements in one numba call
     (kernels.window.outer_batch: golden sections as _with_outer), then the
     full inner optimum at the setting found."""
-    from sewtol.mechanisms.needle_208.kernels import fused as KB
+    from sewtol.mechanisms.needle_208 import kernels as KB
     from sewtol.mechanisms.needle_208.kernels import window as KW
 
     alo, ahi = boxes[name]
@@ -514,7 +514,7 @@ def _reference(c, r_lo, r_hi, blo, bhi, slo, shi, shift, tol_um, n_psi=1441, n_u
     st = np.zeros(n)
     bad = good & ~np.isfinite(best)
     if bad.any():
-        KBP = __import__("sewtol.mechanisms.needle_208.kernels.fused", fromlist=["pack"]).pack(c)
+        KBP = __import__("sewtol.mechanisms.needle_208.kernels", fromlist=["pack"]).pack(c)
         for i in np.nonzero(bad)[0]:
             seg = np.empty((12, 2))
             k = KW.feasible_segments(KBP[i], u0[i], u1[i] + w[i], 0.0, seg)

@@ -1,8 +1,8 @@
 """The needle point and the guide's deviation d as scalar numba functions, with analytic
 d/dtheta and d2/dtheta2 (the second four-bar from the rocker angle in closed form): the same
 mathematics as the engine's groups, nothing allocated. The exact optimiser and the fixed-beta
-figures (kernels/window.py) evaluate d through them; `pack` (kernels/__init__.py) lays the machines
-out as they take them. tests/test_kernels.py holds them to the numpy path.
+figures (kernels/window.py) evaluate d through them, on a machine's row of the matrix
+`kernels.pack` lays out. tests/test_kernels.py holds them to the numpy path.
 """
 
 from __future__ import annotations
@@ -11,9 +11,6 @@ import math
 
 import numba as nb
 import numpy as np
-
-# the parameter columns, P's rows (kernels/__init__.py, which needs no numba)
-from sewtol.mechanisms.needle_208.kernels import FIELDS, pack  # noqa: F401
 
 # needle_208.DEAD_POINT_DEG as the sine the kernel compares with (kept equal by a test)
 SIN_DEAD_POINT = math.sin(math.radians(1.0))
