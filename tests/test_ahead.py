@@ -63,3 +63,17 @@ def test_a_thread_started_inside_runs_numbas_kernels():
     with kernels.ahead_of_time(), ThreadPoolExecutor(1) as pool:
         assert pool.submit(kernels._IN_FORCE.get).result() is None
         assert kernels._IN_FORCE.get() is kernels.ahead()
+
+
+@pytest.mark.parametrize("fmt", ["json", "table"])
+def test_needle_montecarlo_prints_the_same_bytes_on_both(capsys, monkeypatch, fmt):
+    """`needle montecarlo --n 1000` (the compiled kernels, serially) and the same run with the
+    module hidden (numba's kernels, in parallel) print the same bytes."""
+    from sewtol.cli import main
+
+    argv = ["needle", "montecarlo", "--n", "1000", "--format", fmt]
+    assert main(argv) == 0
+    ahead = capsys.readouterr().out
+    monkeypatch.setattr(kernels, "ahead", lambda: None)
+    assert main(argv) == 0
+    assert capsys.readouterr().out == ahead

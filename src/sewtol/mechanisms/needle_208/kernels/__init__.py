@@ -68,8 +68,8 @@ def ahead():
 @contextlib.contextmanager
 def ahead_of_time(use: bool = True):
     """Within, on this thread, fixed_batch and optimise_batch run the module compiled ahead of
-    time when it is built (one thread, numba never imported); with use False, or without it,
-    numba's kernels (parallel over the machines)."""
+    time when it is built (serially, numba never imported); with use False, or without it,
+    numba's kernels (parallel over the machines). Yields whether the module is in force."""
     token = _IN_FORCE.set(ahead() if use else None)
     try:
         yield _IN_FORCE.get() is not None
@@ -96,17 +96,16 @@ def optimise_batch(*args):
     return optimise_batch(*args)
 
 
-def build(out_dir: str | Path | None = None) -> Path:
+def build() -> Path:
     """Compile AHEAD from window.py's kernels (their Python functions, serial) with numba.pycc
-    into out_dir (default: this folder) unless the current module is there; stale ones are
-    removed. For a generic x86-64 (pycc's default CPU), so one build serves any CPU of the
-    platform; the same bits as numba's kernels (tests/test_ahead.py). Returns its path."""
+    into this folder unless the current module is there; stale ones are removed. For a generic
+    x86-64 (pycc's default CPU), so one build serves any CPU of the platform, with the same bits
+    as numba's kernels (tests/test_ahead.py). Returns its path."""
     import warnings
 
     from numba.core.errors import NumbaPendingDeprecationWarning
 
-    out = Path(out_dir or Path(__file__).parent)
-    name = ahead_name()
+    out, name = Path(__file__).parent, ahead_name()
     for old in out.glob("ahead_*"):
         if not old.name.startswith(name + "."):
             old.unlink()
