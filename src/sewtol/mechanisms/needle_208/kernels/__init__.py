@@ -101,6 +101,9 @@ def build() -> Path:
     into this folder unless the current module is there; stale ones are removed. For a generic
     x86-64 (pycc's default CPU), so one build serves any CPU of the platform, with the same bits
     as numba's kernels (tests/test_ahead.py). Returns its path."""
+    import os
+    import shutil
+    import tempfile
     import warnings
 
     from numba.core.errors import NumbaPendingDeprecationWarning
@@ -119,8 +122,15 @@ def build() -> Path:
         from numba.pycc import CC
 
         cc = CC(name, source_module=__name__)
-    cc.output_dir = str(out)
     for fn, sig in AHEAD.items():
         cc.export(fn, sig)(getattr(window, fn).py_func)
-    cc.compile()
+    # compiled elsewhere and moved in whole (os.replace in this folder), so a build running
+    # beside this one (make test and make report in one checkout) never loads a part-written
+    # module
+    with tempfile.TemporaryDirectory() as tmp:
+        cc.output_dir = tmp
+        cc.compile()
+        part = out / f".{cc.output_file}.{os.getpid()}.part"
+        shutil.copyfile(Path(tmp, cc.output_file), part)
+        os.replace(part, out / cc.output_file)
     return out / cc.output_file
