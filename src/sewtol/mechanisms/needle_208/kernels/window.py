@@ -796,13 +796,11 @@ def _angle_bound(grid, vals, slope, stride=1):
 
 @nb.njit(cache=True)
 def _end_probe(a, b, left, n_min):
-    """The point nearest the grid's end (a if left, else b) that the golden section of
-    _outer_one on the bracket [a, b] evaluates: the last one, when every step moves towards
-    the end. Wherever the trial minimum is non-decreasing away from the end from this point on
-    (the golden section's own assumption: unimodal in the bracket) and above the end's value
-    there, every point the golden section evaluates (none nearer the end) is above the end's
-    value, so it cannot change the search's answer and is skipped: one solve instead of about
-    37. Otherwise it runs."""
+    """The point nearest the grid's end (a if left, else b) that _outer_one's golden section on
+    [a, b] evaluates: its last, when every step moves towards the end. Where the trial minimum
+    there is above the end's and does not come back down further from the end (the golden
+    section's own assumption: unimodal in the bracket), no point it evaluates beats the end:
+    skipped, one solve instead of about 37."""
     x1 = b - _INVPHI * (b - a)
     x2 = a + _INVPHI * (b - a)
     for it in range(40):
@@ -924,8 +922,10 @@ def outer_batch(P, col, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active
     exact minimum of SumDelta over beta (and the guide shift) is least: a grid over `grid`,
     then golden section around each of the `rounds` best local minima of the grid (to a
     bracket below 1e-9). needle_208.adjust._with_outer's search (tests/test_adjust.py holds
-    the two to each other). cutoff_um (per machine, the guide angle): where _angle_bound
-    proves that no angle reaches it, the grid's best, not refined (its minimum is above it)."""
+    the two to each other); a grid end's golden section only where _end_probe says it can
+    beat the end. cutoff_um (per machine, the guide angle): where _angle_bound proves from
+    the grid, evaluated coarse to fine, that no angle reaches it, the best grid point so far,
+    not refined (its minimum is above it)."""
     n = P.shape[0]
     out = np.empty(n)
     if cutoff_um is None:
