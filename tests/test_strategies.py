@@ -406,3 +406,85 @@ def test_strategies_hold_one_chunk_of_working_arrays_not_n(nominal):
     assert calls[-1] == (2, 2)
     np.testing.assert_array_equal(shown.adjusted[0].value, got[400][2].adjusted[0].value)
     assert shown.to_dataframe().equals(got[400][2].to_dataframe())
+
+
+def _nbytes(v) -> int:
+    if isinstance(v, dict):
+        return sum(_nbytes(x) for x in v.values())
+    return np.asarray(v).nbytes if np.ndim(v) else 0
+
+
+def test_the_strategies_memory_estimate_bounds_a_measured_run(nominal):
+    """What a run's traced peak grows by per machine (400 to 1600 machines) is what its result
+    keeps (its arrays' bytes) plus at most the joined copy of one row (the chunks are joined
+    row by row): nothing else is held per machine. `held_bytes`, what the cannot-fit check
+    counts a machine, is 1 to 2 times that growth: it adds every working copy (a row's joined
+    chunks, the table's copies of one row), which the chunks' own working arrays hide at this
+    n. Without the per-machine figures a machine costs less."""
+    import tracemalloc
+
+    from sewtol.studies import strategies as ST
+    from sewtol.tables.needle_208 import as_mechanism
+
+    mech = as_mechanism(nominal)
+    rows = {"none": (), "beta": ("beta",), "both": ("beta", "guide_shift")}
+    ST.strategies(mech, "base", 20, 1, rows, limit_um=10.0)  # compiled outside the count
+    grown = {}
+    for per_machine in (False, True):
+        peak, kept = [], []
+        for n in (400, 1600):
+            tracemalloc.start()
+            try:
+                r = ST.strategies(mech, "base", n, 1, rows, per_machine=per_machine,
+                                  limit_um=10.0)
+                peak.append(tracemalloc.get_traced_memory()[1])
+            finally:
+                tracemalloc.stop()
+            each = [_nbytes(vars(a)) for a in r.adjusted]
+            kept.append((_nbytes(r.deviations) + sum(each), max(each)))
+        got, (held, row) = (peak[1] - peak[0]) / 1200, np.divide(kept[1], 1600)
+        est = ST.held_bytes(list(rows.values()), 6, per_machine)
+        assert 0.97 * held <= got <= 1.03 * (held + row), (per_machine, got, held, row)
+        assert 1.0 <= est / got <= 2.0, (per_machine, got, est)
+        grown[per_machine] = got
+    assert grown[False] < 0.7 * grown[True]
+
+
+def test_strategies_that_cannot_fit_are_refused_before_anything_is_drawn(nominal, monkeypatch):
+    """With 1 GiB left, 10^9 machines are refused in one line before a deviation is drawn
+    (they alone would take 48 GB), naming n, the estimate and the largest n that fits: the n
+    whose estimate fills what is left after the run's own machinery and its two workers."""
+    import tracemalloc
+
+    from sewtol.studies import montecarlo as MC
+    from sewtol.studies import strategies as ST
+    from sewtol.tables.needle_208 import as_mechanism
+
+    mech = as_mechanism(nominal)
+    rows = {"none": (), "beta": ("beta",)}
+    monkeypatch.setattr(MC, "memory_limits_bytes", lambda: {"available memory": 2**30})
+    per = ST.held_bytes(list(rows.values()), 6, per_machine=False)
+    tracemalloc.start()
+    try:
+        with pytest.raises(ParameterError) as info:
+            ST.strategies(mech, "base", 10**9, 1, rows, n_jobs=2, per_machine=False,
+                          limit_um=10.0)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 2**20, peak
+    err = info.value
+    assert err.field == "n" and err.value == 10**9 and "\n" not in str(err)
+    assert err.rule.startswith(f"needs about {1e9 * per / 2**30:.3g} GiB for 1000000000 "
+                               f"machines of {per} bytes each, more than the memory this "
+                               "process may still use (")
+    fits = int(err.rule.split("at most n = ")[1].split(" fits")[0])
+    left = 2**30 - MC.run_reserve_bytes("available memory", 2)
+    assert left <= 2**30 - 2 * MC.WORKER_RESIDENT  # the workers are counted
+    assert abs(fits * per - left) <= 0.005 * left + per
+    # one process: no workers to count, more machines fit; the per-machine figures: fewer
+    for n_jobs, per_machine, more in ((1, False, True), (2, True, False)):
+        with pytest.raises(ParameterError) as other:
+            ST.strategies(mech, "base", 10**9, 1, rows, n_jobs=n_jobs, per_machine=per_machine,
+                          limit_um=10.0)
+        assert (int(other.value.rule.split("at most n = ")[1].split(" fits")[0]) > fits) == more
