@@ -271,11 +271,6 @@ def _drawn_chunk(mech, dev, strategies, output, fast, options, threads, seed, wi
 ROW_EXTRAS = ("at_limit", "achieved_um")
 
 
-def _row_figures(a: Adjusted) -> Adjusted:
-    """What `row` reads of a row's adjusted machines (a study without per_machine)."""
-    return replace(a, extras={k: v for k, v in a.extras.items() if k in ROW_EXTRAS})
-
-
 # what the study holds per machine (`held_bytes`): its deviations, 8 bytes each; per row the
 # adjusted output, the status (a pointer to a shared word) and the achieved figure, and per
 # compensator its setting and two flags (at bound, at limit); with per_machine the adjuster's
@@ -296,12 +291,9 @@ def held_bytes(rows, dims: int, per_machine: bool = True) -> int:
 
 
 def _put(held, part, a: int, n: int):
-    """A chunk's figures (arrays, dicts of them) written into `held` at machines a ..: each
-    n-long array made by the first chunk that arrives (promoted as np.concatenate would), a
-    figure of the whole batch (a scalar, the same in every chunk) kept as it is. Each chunk is
-    let go as it arrives (joined at the end, the chunks and their joined copy were held
-    together, and the freed chunks' memory was not used again: 1.55 kB a machine of the
-    parent's resident size where it held 0.87)."""
+    """A chunk's figures (arrays, dicts of them) written into `held` at machines a .., each
+    n-long array made by the first chunk to arrive (promoted as np.concatenate would); a
+    figure of the whole batch (a scalar, the same in every chunk) kept as it is."""
     if isinstance(part, Mapping):
         held = {} if held is None else held
         for k, v in part.items():
@@ -539,9 +531,12 @@ def strategies(mech, tolerances, n: int, seed: int, strategies: Mapping | None =
     # working arrays stay those of one chunk, and the numbers do not depend on n_jobs
     bounds, held = chunk_bounds(int(n), CHUNK), [{} for _ in rows]
 
-    def keep(i, chunk):  # each row's figures written in place as the chunk arrives
+    def keep(i, chunk):  # written in place as each chunk arrives: joined at the end, the
+        # chunks and their copy were held together and the chunks' freed memory left unused
         for h, a in zip(held, chunk, strict=True):
-            _put(h, vars(a if per_machine else _row_figures(a)), bounds[i][0], int(n))
+            _put(h, {**vars(a), "extras": {k: v for k, v in a.extras.items()
+                                           if per_machine or k in ROW_EXTRAS}},
+                 bounds[i][0], int(n))
 
     run_chunks(_drawn_chunk, [(mech, {k: v[a:b] for k, v in dev.items()}, rows, output, fast,
                                options, 1 if n_jobs != 1 else None, seed, (a, b), measurement)
