@@ -159,9 +159,9 @@ def available_memory_bytes() -> int | None:
 # size (245 MB); the part not yet reached when a study is checked is kept free for it
 RUN_ADDRESS_SPACE = 1100 * 2**20
 RUN_RESIDENT = 250 * 2**20
-# what each local worker process adds (measured: needle strategies --n-jobs 2, a worker's
-# private memory, RssAnon, WORKER_PEAK; its shared libraries are the main process's pages)
-WORKER_RESIDENT = 150 * 2**20
+# what each local worker process adds (needle strategies --n-jobs 2 at n 10^4 and 5*10^4: a
+# worker's private memory, RssAnon, peaks at 87 MB; its shared libraries are the parent's pages)
+WORKER_RESIDENT = 100 * 2**20
 
 
 def run_reserve_bytes(source: str, workers: int = 0) -> int:
