@@ -57,6 +57,7 @@ CASES = [
     "needle montecarlo --n abc",
     "needle montecarlo --n 1000000000000",
     "needle sobol --n 1099511627776",
+    "needle strategies --n 1000000000000",
     "needle montecarlo --n-jobs 0",
     "needle montecarlo --seed -1",
     "needle montecarlo --resume",

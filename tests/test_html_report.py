@@ -317,10 +317,14 @@ def test_strategies_in_chunks_are_the_strategies_in_one_piece():
     chosen = [s for s in default_strategies() if s.name in ("beta", "beta+shift", "beta+CD")]
     args = ("SumDelta_um", True, {"limit_um": 10.0}, None)
     whole = S._chunk(mech, values, chosen, *args)
+    windows = ((0, 7), (7, 19), (19, 30))
     parts = [S._chunk(mech, {k: v[a:b] for k, v in values.items()}, chosen, *args)
-             for a, b in ((0, 7), (7, 19), (19, 30))]
+             for a, b in windows]
     for i, one in enumerate(whole):
-        joined = S._concat([part[i] for part in parts])
+        held = {}
+        for (a, _), part in reversed(list(zip(windows, parts, strict=True))):  # any order
+            S._put(held, vars(part[i]), a, 30)
+        joined = S.Adjusted(**held)
         np.testing.assert_array_equal(joined.value, one.value)
         np.testing.assert_array_equal(joined.status, one.status)
         for key in ("settings", "at_bound", "extras"):

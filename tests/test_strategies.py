@@ -395,8 +395,9 @@ def test_strategies_hold_one_chunk_of_working_arrays_not_n(nominal):
         got[n] = kept, peak, res
     grown_kept = got[1600][0] - got[400][0]
     grown_peak = got[1600][1] - got[400][1]
-    # measured: the peak grows 1.5x what the result keeps (the chunks and their joined copy);
-    # holding the batch's working arrays made it 88x
+    # measured: the peak grows 1.2x what the result keeps (1.5x when the chunks were joined
+    # at the end, the chunks and their joined copy held together); holding the batch's
+    # working arrays made it 88x
     assert 0 < grown_peak < 3 * grown_kept
     # the same numbers however the chunks are run (a progress callback went the chunked way
     # before, n_jobs 1 without one did not)
@@ -406,3 +407,97 @@ def test_strategies_hold_one_chunk_of_working_arrays_not_n(nominal):
     assert calls[-1] == (2, 2)
     np.testing.assert_array_equal(shown.adjusted[0].value, got[400][2].adjusted[0].value)
     assert shown.to_dataframe().equals(got[400][2].to_dataframe())
+
+
+def _nbytes(v) -> int:
+    if isinstance(v, dict):
+        return sum(_nbytes(x) for x in v.values())
+    return np.asarray(v).nbytes if np.ndim(v) else 0
+
+
+def test_the_strategies_memory_estimate_bounds_a_measured_run(nominal):
+    """What a run's traced peak grows by per machine (500 to 1500 machines: whole chunks, so
+    the last chunk's working arrays are the same in both) is what its result keeps (its
+    arrays' bytes; measured 1.10x: nothing else is held per machine, the chunks are written
+    into the result as they arrive). `held_bytes`, what the cannot-fit check counts a machine,
+    is 1 to 1.5 times that growth: it adds the working copies of the row being summarised
+    (48 bytes), which this n's chunk working arrays hide. Without the per-machine figures a
+    machine costs less."""
+    import tracemalloc
+
+    from sewtol.studies import strategies as ST
+    from sewtol.tables.needle_208 import as_mechanism
+
+    mech = as_mechanism(nominal)
+    rows = {"none": (), "beta": ("beta",), "both": ("beta", "guide_shift")}
+    ST.strategies(mech, "base", 20, 1, rows, limit_um=10.0)  # compiled outside the count
+    grown = {}
+    for per_machine in (False, True):
+        peak = []
+        for n in (500, 1500):
+            tracemalloc.start()
+            try:
+                r = ST.strategies(mech, "base", n, 1, rows, per_machine=per_machine,
+                                  limit_um=10.0)
+                peak.append(tracemalloc.get_traced_memory()[1])
+            finally:
+                tracemalloc.stop()
+        got = (peak[1] - peak[0]) / 1000
+        held = (_nbytes(r.deviations) + sum(_nbytes(vars(a)) for a in r.adjusted)) / 1500
+        est = ST.held_bytes(list(rows.values()), 6, per_machine)
+        assert held <= got <= 1.15 * held, (per_machine, got, held)
+        assert 1.0 <= est / got <= 1.5, (per_machine, got, est)
+        grown[per_machine] = got
+    assert grown[False] < 0.7 * grown[True]
+
+
+def test_strategies_that_cannot_fit_are_refused_before_anything_is_drawn(nominal, monkeypatch):
+    """With 1 GiB left, 10^9 machines are refused in one line before a deviation is drawn
+    (they alone would take 48 GB), naming n, the estimate and the largest n that fits: the n
+    whose estimate fills what is left after the run's own machinery and its two workers."""
+    import tracemalloc
+
+    from sewtol.studies import montecarlo as MC
+    from sewtol.studies import strategies as ST
+    from sewtol.tables.needle_208 import as_mechanism
+
+    mech = as_mechanism(nominal)
+    rows = {"none": (), "beta": ("beta",)}
+    monkeypatch.setattr(MC, "memory_limits_bytes", lambda: {"available memory": 2**30})
+    per = ST.held_bytes(list(rows.values()), 6, per_machine=False)
+    tracemalloc.start()
+    try:
+        with pytest.raises(ParameterError) as info:
+            ST.strategies(mech, "base", 10**9, 1, rows, n_jobs=2, per_machine=False,
+                          limit_um=10.0)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 2**20, peak
+    err = info.value
+    assert err.field == "n" and err.value == 10**9 and "\n" not in str(err)
+    assert err.rule.startswith(f"needs about {1e9 * per / 2**30:.3g} GiB for 1000000000 "
+                               f"machines of {per} bytes each, more than the memory this "
+                               "process may still use (")
+    fits = int(err.rule.split("at most n = ")[1].split(" fits")[0])
+    left = 2**30 - MC.run_reserve_bytes("available memory", 2)
+    assert left <= 2**30 - 2 * MC.WORKER_RESIDENT  # the workers are counted
+    assert abs(fits * per - left) <= 0.005 * left + per
+    # one process: no workers to count, more machines fit; the per-machine figures: fewer
+    for n_jobs, per_machine, more in ((1, False, True), (2, True, False)):
+        with pytest.raises(ParameterError) as other:
+            ST.strategies(mech, "base", 10**9, 1, rows, n_jobs=n_jobs, per_machine=per_machine,
+                          limit_um=10.0)
+        assert (int(other.value.rule.split("at most n = ")[1].split(" fits")[0]) > fits) == more
+
+
+def test_a_table_without_per_machine_figures_has_the_same_rows_and_refuses_machines(nominal):
+    """per_machine=False keeps what the rows read: the same table, and the per-machine view
+    refused in one line (it needs the figures that were dropped)."""
+    rows = [s for s in C.default_strategies() if s.name in ("none", "beta+shift")]
+    full = strategies_table(nominal, "base", 6, 2, rows)
+    slim = strategies_table(nominal, "base", 6, 2, rows, per_machine=False)
+    assert slim.to_dataframe().equals(full.to_dataframe())
+    assert len(full.machines("beta+shift")) == 6
+    with pytest.raises(ParameterError, match="per_machine: must be True for the per-machine"):
+        slim.machines("beta+shift")

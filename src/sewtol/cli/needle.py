@@ -472,8 +472,10 @@ def cmd_needle_strategies(args):
             strategy = Strategy(strategy.name + " (given)", strategy.compensators)
         rows.append(strategy)
     started = now()
-    res = strategies_table(params, tolerances, args.n, args.seed, rows, n_jobs=args.n_jobs,
-                           progress=args.progress, measurement=measurement)
+    # per machine only what the rows read, unless --out writes the per-machine tables
+    res = as_flags(lambda: strategies_table(
+        params, tolerances, args.n, args.seed, rows, n_jobs=args.n_jobs, progress=args.progress,
+        measurement=measurement, per_machine=bool(args.out)))
     table = res.to_dataframe()
     frames = {"strategies": table}
     for r in rows:

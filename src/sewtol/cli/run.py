@@ -611,7 +611,8 @@ def _strategies(args, fmt, mech, tolerances) -> None:
 
     rows = None if args.strategy is None else ST.parse_strategies(args.strategy, mech)
     fast = _plugin_path(args, mech)
-    res = _as_flags(partial(ST.strategies, fast=fast, n_jobs=args.n_jobs, **_goal(args)), mech,
+    res = _as_flags(partial(ST.strategies, fast=fast, n_jobs=args.n_jobs, per_machine=False,
+                            **_goal(args)), mech,
                     tolerances, args.n, args.seed, rows, args.spec_output, args.spec)
     frame = res.to_dataframe()
     return _finish(args, fmt, mech, tolerances, res.to_dict(), {"strategies": frame}, frame)

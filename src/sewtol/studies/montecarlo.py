@@ -159,15 +159,19 @@ def available_memory_bytes() -> int | None:
 # size (245 MB); the part not yet reached when a study is checked is kept free for it
 RUN_ADDRESS_SPACE = 1100 * 2**20
 RUN_RESIDENT = 250 * 2**20
+# what each local worker process adds (needle strategies --n-jobs 2 at n 10^4 and 5*10^4: a
+# worker's private memory, RssAnon, peaks at 87 MB; its shared libraries are the parent's pages)
+WORKER_RESIDENT = 100 * 2**20
 
 
-def run_reserve_bytes(source: str) -> int:
+def run_reserve_bytes(source: str, workers: int = 0) -> int:
     """What the machinery of a run still adds to a memory source (`memory_limits_bytes`' name)
-    after this point: RUN_ADDRESS_SPACE less the address space in use, or RUN_RESIDENT less the
-    resident size now."""
+    after this point: RUN_ADDRESS_SPACE less the address space in use (a worker process has
+    its own), or RUN_RESIDENT less the resident size now, plus WORKER_RESIDENT per worker
+    process."""
     if source.startswith("address-space"):
         return max(0, RUN_ADDRESS_SPACE - (_status_bytes("VmSize") or 0))
-    return max(0, RUN_RESIDENT - (_status_bytes("VmRSS") or 0))
+    return max(0, RUN_RESIDENT - (_status_bytes("VmRSS") or 0)) + int(workers) * WORKER_RESIDENT
 
 
 def largest_that_fits(have_bytes: int, columns: int, rows_per_unit: int = 1,
@@ -183,18 +187,23 @@ def largest_that_fits(have_bytes: int, columns: int, rows_per_unit: int = 1,
 
 
 def check_memory(n: int, columns: int, what: str = "n", value=None, rows_per_unit: int = 1,
-                 power_of_two: bool = False, bytes_per_row: int | None = None) -> None:
+                 power_of_two: bool = False, bytes_per_row: int | None = None,
+                 workers: int = 0) -> None:
     """Refuse a study whose result table cannot fit in the memory available now, before it
     starts, naming the largest `what` that fits (`value` rows per unit of it: n rows are
     value * rows_per_unit). A study that holds its machines compactly gives their bytes each
-    (bytes_per_row, e.g. `montecarlo_bytes`) instead of a table's columns."""
+    (bytes_per_row, e.g. `montecarlo_bytes`) instead of a table's columns, and the worker
+    processes it starts (-1: one per core)."""
     row = int(columns) * BYTES_PER_CELL if bytes_per_row is None else int(bytes_per_row)
     need = int(n) * row
     limits = memory_limits_bytes()
     if not limits:
         return
     if bytes_per_row is not None:  # a compact study: its machinery counts beside the machines
-        limits = {k: max(0, v - run_reserve_bytes(k)) for k, v in limits.items()}
+        import os
+
+        workers = (os.cpu_count() or 1) if workers == -1 else max(0, int(workers))
+        limits = {k: max(0, v - run_reserve_bytes(k, workers)) for k, v in limits.items()}
     source = min(limits, key=limits.get)
     have = limits[source]
     if need > have:

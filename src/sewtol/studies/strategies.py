@@ -54,7 +54,7 @@ from sewtol.mechanism.spec import Compensator as FileCompensator
 from sewtol.protocol import input_law, machines, plugins, tolerance_set
 from sewtol.setting_error import SettingError
 from sewtol.studies.adjusting import Adjusted, adjusted
-from sewtol.studies.montecarlo import WORDS, check_seed, contributors, quantiles
+from sewtol.studies.montecarlo import WORDS, check_memory, check_seed, contributors, quantiles
 from sewtol.studies.parallel import chunk_bounds, run_chunks
 
 if TYPE_CHECKING:
@@ -234,11 +234,11 @@ def set_in_order(mech, values, compensators, output, units: Mapping | None = Non
                     {**made_bound, **last.at_bound}, extras, last.path, terms or last.terms)
 
 
-def _units(seed: int, mech, rows, n: int) -> dict[str, np.ndarray]:
-    """The standard uniforms of every setting error in the rows, machines 0 .. n-1."""
+def _units(seed: int, mech, rows, a: int, b: int) -> dict[str, np.ndarray]:
+    """The standard uniforms of every setting error in the rows, machines a .. b-1."""
     names = sorted({c.name for r in rows for c in compensator_objects(mech, r)
                     if getattr(c, "setting_error", None) is not None})
-    return {name: se.unit_draws(seed, name, 0, n) for name in names}
+    return {name: se.unit_draws(seed, name, a, b) for name in names}
 
 
 def _chunk(mech, values, strategies, output, fast, options, threads, units=None, measured=None):
@@ -254,20 +254,58 @@ def _chunk(mech, values, strategies, output, fast, options, threads, units=None,
         numba.set_num_threads(before)
 
 
-def _cat(values: list):
-    """Consecutive chunks' figures as one: arrays joined, dicts of them key by key."""
-    if isinstance(values[0], Mapping):
-        return {k: _cat([v[k] for v in values]) for k in values[0]}
-    if np.ndim(values[0]) == 0:  # a figure of the whole batch (the same in every chunk)
-        return values[0]
-    return np.concatenate([np.asarray(v, object if isinstance(v[0], str) else None)
-                           for v in values])
+def _drawn_chunk(mech, dev, strategies, output, fast, options, threads, seed, window,
+                 measurement=None):
+    """`_chunk` of machines window = (a, b) with deviations `dev`: their parameter values and
+    their setting-error and reading draws made here (each machine's draws are its own: the
+    numbers of a draw of all n, cut to the window), never held for all n by the parent."""
+    a, b = window
+    noise = None if measurement is None else (measurement, measurement.sd_um * me.normal_draws(
+        seed, a, b, measurement.positions))
+    return _chunk(mech, machines(mech, dev), strategies, output, fast, options, threads,
+                  _units(seed, mech, strategies, a, b), noise)
 
 
-def _concat(parts: list[Adjusted]) -> Adjusted:
-    return Adjusted(*(_cat([getattr(p, k) for p in parts]) for k in
-                      ("value", "settings", "status", "at_bound", "extras")), parts[0].path,
-                    parts[0].terms)
+# what `row` reads of an adjuster's extras; the others (the needle's plateaus, plus and minus,
+# SumDelta before) only its per-machine tables
+ROW_EXTRAS = ("at_limit", "achieved_um")
+
+
+# what the study holds per machine (`held_bytes`): its deviations, 8 bytes each; per row the
+# adjusted output, the status (a pointer to a shared word) and the achieved figure, and per
+# compensator its setting and two flags (at bound, at limit); with per_machine the adjuster's
+# other figures too (the needle's: four per row, each compensator's plateau ends); and the
+# working copies of the row being summarised (`row`: its status words as a list and an array,
+# the quantiles' two copies, masks)
+ROW_BYTES, COMPENSATOR_BYTES = 3 * 8, 8 + 2
+FIGURES_ROW_BYTES, FIGURES_COMPENSATOR_BYTES = 4 * 8, 2 * 8
+WORKING_BYTES = 6 * 8
+
+
+def held_bytes(rows, dims: int, per_machine: bool = True) -> int:
+    """Bytes the study holds per machine of `rows` (each row's compensators, in any form
+    `strategies` takes) and `dims` deviations (check_memory's bytes_per_row)."""
+    row = ROW_BYTES + (FIGURES_ROW_BYTES if per_machine else 0)
+    comp = COMPENSATOR_BYTES + (FIGURES_COMPENSATOR_BYTES if per_machine else 0)
+    return 8 * int(dims) + sum(row + comp * len(_names(r)) for r in rows) + WORKING_BYTES
+
+
+def _put(held, part, a: int, n: int):
+    """A chunk's figures (arrays, dicts of them) written into `held` at machines a .., each
+    n-long array made by the first chunk to arrive (promoted as np.concatenate would); a
+    figure of the whole batch (a scalar, the same in every chunk) kept as it is."""
+    if isinstance(part, Mapping):
+        held = {} if held is None else held
+        for k, v in part.items():
+            held[k] = _put(held.get(k), v, a, n)
+        return held
+    if np.ndim(part) == 0:
+        return part
+    v = np.asarray(part, object if isinstance(part[0], str) else None)
+    if held is None or np.result_type(held, v) != held.dtype:
+        held = np.empty(n, v.dtype) if held is None else held.astype(np.result_type(held, v))
+    held[a:a + v.size] = v
+    return held
 
 
 # a row's columns in the generic words and order; a mechanism's `Plugins.columns["strategies"]`
@@ -454,7 +492,7 @@ class StrategiesResult:
 def strategies(mech, tolerances, n: int, seed: int, strategies: Mapping | None = None,
                output: str | None = None, spec=None, *, fast: bool = True, n_jobs: int = 1,
                progress=False, measurement: MeasurementError | None = None,
-               **options) -> StrategiesResult:
+               per_machine: bool = True, **options) -> StrategiesResult:
     """The machines 0 .. n-1 of `seed` (`law.draw`) under each strategy (name -> compensators;
     None: `default_strategies`), `output` (default: that of the mechanism's first spec, else its
     first) adjusted and held to `spec` (default: the mechanism's spec of it; none: every machine
@@ -463,7 +501,12 @@ def strategies(mech, tolerances, n: int, seed: int, strategies: Mapping | None =
     n_jobs; progress: a bar (or callback) per chunk; options go to the mechanism's strategy
     adjuster (e.g.
     the needle's limit_um). measurement: the compensators set from a reading of the output
-    with this error (sewtol.measurement_error; None or sd 0: from the truth)."""
+    with this error (sewtol.measurement_error; None or sd 0: from the truth). per_machine=False:
+    each row keeps per machine only what its table row reads (`row`: the value, status,
+    settings, bound flags, ROW_EXTRAS), the adjuster's other figures dropped as each chunk
+    arrives (the needle's per-machine tables then cannot be made). A run whose machines
+    (`held_bytes`) cannot fit in the memory left is refused before anything is drawn, naming
+    the largest n that fits."""
     if isinstance(n, bool) or int(n) != n or n < 2:
         raise ParameterError("n", "must be a whole number >= 2", n)
     check_seed(seed)
@@ -475,26 +518,31 @@ def strategies(mech, tolerances, n: int, seed: int, strategies: Mapping | None =
     law = input_law(mech, tolerances)
     if law.dim == 0:
         raise ParameterError("tolerances", "has no tolerance with a non-zero width", law.name)
-    dev = law.draw(int(n), seed)
-    values = machines(mech, dev)
-    rows = list(strategies.values())
-    units = _units(seed, mech, rows, int(n))
     if measurement is not None and not isinstance(measurement, MeasurementError):
         raise ParameterError("measurement", "must be a MeasurementError or None",
                              type(measurement).__name__)
     if measurement is not None and measurement.exact:
         measurement = None
-    noise = None if measurement is None else measurement.sd_um * me.normal_draws(
-        seed, 0, int(n), measurement.positions)
+    rows = list(strategies.values())
+    check_memory(n, 0, bytes_per_row=held_bytes(rows, law.dim, per_machine),
+                 workers=0 if n_jobs == 1 else n_jobs)
+    dev = law.draw(int(n), seed)
     # chunks of CHUNK machines for any n_jobs (one at a time with n_jobs 1): the adjusters'
     # working arrays stay those of one chunk, and the numbers do not depend on n_jobs
-    parts = run_chunks(_chunk, [(mech, {k: v[a:b] for k, v in values.items()}, rows, output,
-                                 fast, options, 1 if n_jobs != 1 else None,
-                                 {k: v[a:b] for k, v in units.items()},
-                                 None if noise is None else (measurement, noise[a:b]))
-                                for a, b in chunk_bounds(int(n), CHUNK)],
-                       n_jobs=n_jobs, progress=progress, desc="strategies")
-    adj = [_concat([p.pop(0) for p in parts]) for _ in rows]  # each row's chunks let go
+    bounds, held = chunk_bounds(int(n), CHUNK), [{} for _ in rows]
+
+    def keep(i, chunk):  # written in place as each chunk arrives: joined at the end, the
+        # chunks and their copy were held together and the chunks' freed memory left unused
+        for h, a in zip(held, chunk, strict=True):
+            _put(h, {**vars(a), "extras": {k: v for k, v in a.extras.items()
+                                           if per_machine or k in ROW_EXTRAS}},
+                 bounds[i][0], int(n))
+
+    run_chunks(_drawn_chunk, [(mech, {k: v[a:b] for k, v in dev.items()}, rows, output, fast,
+                               options, 1 if n_jobs != 1 else None, seed, (a, b), measurement)
+                              for a, b in bounds],
+               n_jobs=n_jobs, progress=progress, desc="strategies", keep=keep)
+    adj = [Adjusted(**h) for h in held]
     active = tolerance_set(mech, tolerances).active()
     return StrategiesResult(
         mech.name, output, mech.output(output).unit, spec, law.name, int(seed), dev,
@@ -615,7 +663,7 @@ def yield_curve(mech, tolerances, n: int, seed: int, strategy, compensator: str,
                                          SettingError(dist, w) if w else None)
             for w in widths}
     r = strategies(mech, tolerances, n, seed, rows, output, spec, fast=fast, n_jobs=n_jobs,
-                   progress=progress, **options)
+                   progress=progress, per_machine=False, **options)
     unit, key = _unit(mech, objs[compensator]), "sd" if dist == "normal" else "half_width"
     return Curve(mech.name, getattr(strategy, "name", "+".join(objs)), r.tolerances, int(seed),
                  r.n, widths, tuple(r.row(i) for i in range(len(r.names))),
@@ -636,7 +684,7 @@ def measurement_curve(mech, tolerances, n: int, seed: int, strategy, sds_um,
     rows = []
     for w in sds:
         r = strategies(mech, tolerances, n, seed, {"row": strategy}, output, spec, fast=fast,
-                       n_jobs=n_jobs, progress=progress,
+                       n_jobs=n_jobs, progress=progress, per_machine=False,
                        measurement=MeasurementError(w, positions), **options)
         rows.append(r.row(0))
     return Curve(mech.name, getattr(strategy, "name", "+".join(_names(strategy))), r.tolerances,

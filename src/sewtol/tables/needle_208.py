@@ -299,6 +299,9 @@ class StrategiesResult(ST.StrategiesResult):
     def _adjustment(self, i: int, rows: slice = slice(None)) -> Adjustment:
         """Row i (its machines `rows`) as needle_208.adjustment.Adjustment."""
         a = self.adjusted[i]
+        if "plus_um" not in a.extras:
+            raise ParameterError("per_machine", "must be True for the per-machine tables (this "
+                                 "study kept only what its rows read)", False)
 
         def cut(v):
             return {k: cut(x) for k, x in v.items()} if isinstance(v, dict) else v[rows]
@@ -358,7 +361,8 @@ def adjusted_summary(nominal: Needle208, machines: pd.DataFrame, strategy: Strat
 def strategies_table(nominal: Needle208, tolerances: ToleranceSet | str, n: int, seed: int,
                      strategies: list[Strategy] | None = None, limit_um: float = 10.0,
                      n_jobs: int = 1, progress: bool | Callable[[int, int], None] = False,
-                     measurement: MeasurementError | None = None) -> StrategiesResult:
+                     measurement: MeasurementError | None = None,
+                     per_machine: bool = True) -> StrategiesResult:
     """`sewtol needle strategies`: the strategies study (sewtol.studies.strategies) of the same
     n machines (one draw from `seed`) on `as_mechanism(nominal)`, each strategy's joint optimum
     by the needle's strategy adjuster (needle_208.adjustment), in the source's columns.
@@ -385,6 +389,9 @@ def strategies_table(nominal: Needle208, tolerances: ToleranceSet | str, n: int,
     measurement : sewtol.measurement_error.MeasurementError or None
         Set the compensators from a reading of the needle bar's deviation with this error
         (None or sd 0: from the true deviation, as before).
+    per_machine : bool
+        Keep every machine's figures for ``machines(name)`` (False: only what the table's
+        rows read, less memory; sewtol.studies.strategies.strategies).
 
     Returns
     -------
@@ -410,7 +417,7 @@ def strategies_table(nominal: Needle208, tolerances: ToleranceSet | str, n: int,
     r = ST.strategies(as_mechanism(nominal), tolerances, n, seed,
                       {s.name: s for s in strategies}, OUTPUT, Spec(OUTPUT, float(limit_um)),
                       n_jobs=n_jobs, progress=progress, limit_um=limit_um,
-                      measurement=measurement)
+                      measurement=measurement, per_machine=per_machine)
     return StrategiesResult(**vars(r), limit_um=float(limit_um))
 
 
