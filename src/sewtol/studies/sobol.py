@@ -9,6 +9,7 @@ assembled rows (docs/studies.md, "Sobol with machines that cannot be built").
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
@@ -39,6 +40,9 @@ ROWS_PER_BIN, MAX_BINS = 100, 100
 # below these, an index is NaN (undefined, never a guess): complete base samples for S1/ST (the
 # floor MIN_N // 2 of the convergence check) and assembled rows for S1_given (2 per bin)
 MIN_COMPLETE, MIN_GIVEN_ROWS = 8, 20
+# the bootstraps hold one block of resamples at a time: about this many (sample, resample)
+# cells per array (8 MB), so SALib's estimators hold about 0.1 GB of temporaries at any N
+BOOTSTRAP_CELLS = 2**20
 
 
 def check_independent(tolerances: ToleranceSet) -> None:
@@ -122,15 +126,63 @@ def _check_bootstrap(resamples, conf_level) -> None:
         raise ParameterError("conf_level", "must be in (0, 1)", conf_level)
 
 
+def _column_blocks(resamples: int, n: int) -> list[slice]:
+    """Blocks of about BOOTSTRAP_CELLS // n resample columns, each of >= 2 columns: numpy sums
+    the (n, k) arrays of SALib's estimators down axis 0 row after row as it sums SALib's
+    (n, resamples) ones, while one column would be summed pairwise (other bits)."""
+    k = max(2, BOOTSTRAP_CELLS // max(int(n), 1))
+    starts = list(range(0, resamples, k))
+    if resamples - starts[-1] < 2:  # a last block of one column joins the one before it
+        starts.pop()
+    return [slice(a, b) for a, b in zip(starts, [*starts[1:], resamples], strict=True)]
+
+
 def _analyze(problem: dict, y: np.ndarray, seed: int, resamples: int, conf_level: float,
              second_order: bool):
+    """SALib's sobol.analyze, bit for bit, in bounded memory: its point estimators, its
+    resamples r (drawn whole by its call), and its bootstrap intervals evaluated over blocks
+    of r's columns (SALib's estimators on (N, resamples) arrays held ten 0.2-0.4 GB
+    temporaries at N = 2**17)."""
     _check_bootstrap(resamples, conf_level)
-    res = sobol_analyze.analyze(problem, y, calc_second_order=bool(second_order),
-                                num_resamples=resamples, conf_level=conf_level,
-                                seed=_salib_seed(seed))
-    first = pd.DataFrame({"param": problem["names"], "S1": res["S1"], "S1_conf": res["S1_conf"],
-                          "ST": res["ST"], "ST_conf": res["ST_conf"]})
-    return first, _pairs(problem["names"], res["S2"], res["S2_conf"]) if second_order else None
+    d, resamples = problem["num_vars"], int(resamples)
+    n = y.size // rows_per_sample(d, second_order)
+    y = (y - y.mean()) / y.std()
+    a, b, ab, ba = sobol_analyze.separate_output_values(y, d, n, second_order)
+    r = np.random.default_rng(_salib_seed(seed)).integers(n, size=(n, resamples))
+    pairs = [(j, k) for j in range(d) for k in range(j + 1, d)] if second_order else []
+    s1_all, st_all = np.empty((d, resamples)), np.empty((d, resamples))
+    s2_all = np.empty((len(pairs), resamples))
+    high, low = -np.inf, np.inf
+    with warnings.catch_warnings():  # a block of equal values: SALib's warning, once below
+        warnings.simplefilter("ignore", UserWarning)
+        for blk in _column_blocks(resamples, n):
+            rb = r[:, blk]
+            ar, br = a[rb], b[rb]
+            high, low = np.max([high, ar.max(), br.max()]), np.min([low, ar.min(), br.min()])
+            for j in range(d):
+                s1_all[j, blk] = sobol_analyze.first_order(ar, ab[rb, j], br)
+                st_all[j, blk] = sobol_analyze.total_order(ar, ab[rb, j], br)
+            for i, (j, k) in enumerate(pairs):
+                s2_all[i, blk] = sobol_analyze.second_order(ar, ab[rb, j], ab[rb, k], ba[rb, j],
+                                                            br)
+    if high - low <= np.finfo(float).eps:
+        warnings.warn(sobol_analyze.CONST_RESULT_MSG, stacklevel=2)
+    z = stats.norm.ppf(0.5 + conf_level / 2)
+    # SALib's var_diff: the spread of the resampled outputs (0: every interval is 0)
+    spread = (high - low) != 0.0
+    s1, st = np.zeros(d), np.zeros(d)
+    for j in range(d):
+        s1[j] = sobol_analyze.first_order(a, ab[:, j], b)
+        st[j] = sobol_analyze.total_order(a, ab[:, j], b)
+    s2, s2_conf = np.full((d, d), np.nan), np.full((d, d), np.nan)
+    for i, (j, k) in enumerate(pairs):
+        s2[j, k] = sobol_analyze.second_order(a, ab[:, j], ab[:, k], ba[:, j], b)
+        s2_conf[j, k] = z * s2_all[i].std(ddof=1)
+    first = pd.DataFrame({
+        "param": problem["names"],
+        "S1": s1, "S1_conf": z * s1_all.std(axis=1, ddof=1) if spread else np.zeros(d),
+        "ST": st, "ST_conf": z * st_all.std(axis=1, ddof=1) if spread else np.zeros(d)})
+    return first, _pairs(problem["names"], s2, s2_conf) if second_order else None
 
 
 def _pairs(names, s2, s2_conf) -> pd.DataFrame:
@@ -284,7 +336,6 @@ def _given_s1(X, y, usable, step, seed, resamples, conf_level) -> tuple[np.ndarr
     blocks = y.size // step
     block = (np.arange(y.size) // step)[usable]
     draws = np.random.default_rng(seed).integers(blocks, size=(int(resamples), blocks))
-    weights = [np.bincount(d, minlength=blocks)[block] for d in draws]
     z = stats.norm.ppf(0.5 + conf_level / 2)
     s1, conf = [], []
     for j in range(X.shape[1]):
@@ -294,7 +345,9 @@ def _given_s1(X, y, usable, step, seed, resamples, conf_level) -> tuple[np.ndarr
                          return_inverse=True)
         k = int(b.max(initial=0)) + 1
         s1.append(correlation_ratio(b, yy, k))
-        conf.append(z * np.std([correlation_ratio(b, yy, k, w) for w in weights], ddof=1))
+        # each resample's weights made when used: all of them held 8 bytes x rows x resamples
+        conf.append(z * np.std([correlation_ratio(b, yy, k, np.bincount(d, minlength=blocks)
+                                                  [block]) for d in draws], ddof=1))
     return np.array(s1), np.array(conf)
 
 
