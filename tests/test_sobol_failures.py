@@ -281,3 +281,12 @@ def test_blocked_bootstrap_is_salibs_analysis_bit_for_bit(nominal, monkeypatch, 
                     iu = np.triu_indices(problem["num_vars"], 1)
                     assert np.array_equal(c.pairs["S2"].to_numpy(), ref["S2"][iu])
                     assert np.array_equal(c.pairs["S2_conf"].to_numpy(), ref["S2_conf"][iu])
+
+
+def test_salibs_resamples_drawn_as_int32_are_its_int64_draws():
+    """_analyze holds SALib's r as int32: numpy draws integers below 2**32 by one 32-bit path
+    whatever the dtype, so the same generator gives the same numbers."""
+    for n, seed in ((4096, so._salib_seed(0)), (2**15 + 3, 11), (2**17, 2026)):
+        assert np.array_equal(np.random.default_rng(seed).integers(n, size=(n // 64, 200)),
+                              np.random.default_rng(seed).integers(n, size=(n // 64, 200),
+                                                                   dtype=np.int32))

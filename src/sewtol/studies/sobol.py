@@ -41,8 +41,9 @@ ROWS_PER_BIN, MAX_BINS = 100, 100
 # floor MIN_N // 2 of the convergence check) and assembled rows for S1_given (2 per bin)
 MIN_COMPLETE, MIN_GIVEN_ROWS = 8, 20
 # the bootstraps hold one block of resamples at a time: about this many (sample, resample)
-# cells per array (8 MB), so SALib's estimators hold about 0.1 GB of temporaries at any N
-BOOTSTRAP_CELLS = 2**20
+# cells per array (4 MB), so SALib's estimators hold about 50 MB of temporaries at any N
+BOOTSTRAP_CELLS = 2**19
+BOOTSTRAP_ARRAYS = 12  # such arrays alive at once (measured: 7 without S2, 10 with)
 
 
 def check_independent(tolerances: ToleranceSet) -> None:
@@ -87,9 +88,10 @@ def rows_per_sample(d: int, second_order: bool = False) -> int:
     return 2 * d + 2 if second_order else d + 2
 
 
-def check_sobol(nominal, tolerances: ToleranceSet, n, seed, second_order: bool = False) -> None:
+def check_sobol(nominal, tolerances: ToleranceSet, n, seed, second_order: bool = False,
+                resamples: int = 200) -> None:
     """Every input of a Sobol study that can be checked before it runs (nothing is written)."""
-    from sewtol.studies.montecarlo import check_memory, check_seed
+    from sewtol.studies.montecarlo import BYTES_PER_CELL, check_memory, check_seed
 
     check_power_of_two(n)
     check_seed(seed)
@@ -99,9 +101,13 @@ def check_sobol(nominal, tolerances: ToleranceSet, n, seed, second_order: bool =
         raise ParameterError("tolerances", "has no tolerance with a non-zero width",
                              tolerances.name)
     tolerances.check_against(nominal)
-    # the sample matrix (N (D + 2) or N (2D + 2) rows of D columns) and two outputs per row
-    check_memory(int(n) * rows_per_sample(d, second_order), d + 2, value=n,
-                 rows_per_unit=rows_per_sample(d, second_order), power_of_two=True)
+    # per row of the design: its D inputs and two outputs as a table's cells; the bootstrap's
+    # resamples r (4 bytes per base sample and resample) and one block's working arrays shared
+    # out over the rows; the run's machinery beside them (check_memory's reserve)
+    rows = int(n) * rows_per_sample(d, second_order)
+    boot = 4 * int(resamples) * int(n) + BOOTSTRAP_ARRAYS * 8 * BOOTSTRAP_CELLS
+    check_memory(rows, d + 2, value=n, rows_per_unit=rows_per_sample(d, second_order),
+                 power_of_two=True, bytes_per_row=(d + 2) * BYTES_PER_CELL + -(-boot // rows))
 
 
 def sample(problem: dict, n: int, seed: int, second_order: bool = False) -> np.ndarray:
@@ -148,7 +154,9 @@ def _analyze(problem: dict, y: np.ndarray, seed: int, resamples: int, conf_level
     n = y.size // rows_per_sample(d, second_order)
     y = (y - y.mean()) / y.std()
     a, b, ab, ba = sobol_analyze.separate_output_values(y, d, n, second_order)
-    r = np.random.default_rng(_salib_seed(seed)).integers(n, size=(n, resamples))
+    # SALib's r by its call, held as int32: the same numbers (numpy draws any integers below
+    # 2**32 by one 32-bit path; tested) in half the memory, 0.1 GB at N = 2**17
+    r = np.random.default_rng(_salib_seed(seed)).integers(n, size=(n, resamples), dtype=np.int32)
     pairs = [(j, k) for j in range(d) for k in range(j + 1, d)] if second_order else []
     s1_all, st_all = np.empty((d, resamples)), np.empty((d, resamples))
     s2_all = np.empty((len(pairs), resamples))
@@ -307,17 +315,28 @@ class CaseIndices:
     failed: int  # rows not assembled
 
 
+def _words(shape, word: str) -> np.ndarray:
+    """An object array whose every element is one str object: np.full and np.where make a
+    str per element (60 MB a million rows, measured)."""
+    out = np.empty(shape, object)
+    out.fill(word)
+    return out
+
+
 def outcomes_of(y, status=None, group=None) -> tuple[np.ndarray, np.ndarray]:
     """(outcome, group) per row: "assembled", the row's status when it is not "ok"
     (cannot_close, dead_point, ...), "undefined" for a row that runs without a value, and
     "no_value" for a non-finite value when no status is known; group "" where unknown."""
     y = np.asarray(y, float)
+    finite = np.isfinite(y)
     if status is None:
-        outcome = np.where(np.isfinite(y), "assembled", "no_value").astype(object)
+        outcome = _words(y.shape, "no_value")
+        outcome[finite] = "assembled"
     else:
-        status = np.asarray(status, object)
-        outcome = np.where(status == "ok", np.where(np.isfinite(y), "assembled", "undefined"),
-                           status).astype(object)
+        outcome = np.asarray(status, object).copy()
+        ok = outcome == "ok"
+        outcome[ok & finite] = "assembled"
+        outcome[ok & ~finite] = "undefined"
     grp = np.full(y.shape, "", object) if group is None else np.asarray(group, object).copy()
     grp[outcome == "assembled"] = ""
     return outcome, grp
@@ -462,6 +481,13 @@ def case_values(mech, output: str, cases: Mapping, names: list, X: np.ndarray,
                  for comps in cases.values())
 
 
+def _ok_where(y, status) -> np.ndarray:
+    """status with "ok" where y has a value (np.where would make a str object per row)."""
+    out = status.copy()
+    out[np.isfinite(y)] = "ok"
+    return out
+
+
 def sobol(mech, tolerances: ToleranceSet, output: str, n: int, seed: int, *,
           cases: Mapping | None = None, resamples: int = 200, conf_level: float = 0.95,
           second_order: bool = False, n_jobs: int = 1, progress: bool | Callable = False,
@@ -504,7 +530,7 @@ def sobol(mech, tolerances: ToleranceSet, output: str, n: int, seed: int, *,
     """
     mech.output(output)
     cases = {output: None} if cases is None else dict(cases)
-    check_sobol(mech.parameter_record(), tolerances, n, seed, second_order)
+    check_sobol(mech.parameter_record(), tolerances, n, seed, second_order, resamples)
     problem = problem_of(tolerances)
     names = problem["names"]
     X = sample(problem, n, seed, second_order)
@@ -523,13 +549,13 @@ def sobol(mech, tolerances: ToleranceSet, output: str, n: int, seed: int, *,
                        store=store, validate=validate, scheduler=scheduler)
     ys = [np.concatenate([p[i] for p in parts]) for i in range(len(cases))]
     bad = ~np.logical_and.reduce([np.isfinite(y) for y in ys])
-    status = np.full(len(X), "ok", dtype=object)
-    group = np.full(len(X), "", dtype=object)
+    del parts
+    status, group = _words(len(X), "ok"), _words(len(X), "")
     if bad.any():
         why = failures_of(mech, fast, failures)(
             mech, machines(mech, {k: X[bad, i] for i, k in enumerate(names)}), output)
         status[bad], group[bad] = why
     return result_of([case_indices(problem, X, y, n, seed, case, resamples, conf_level,
-                                   second_order, np.where(np.isfinite(y), "ok", status), group)
+                                   second_order, _ok_where(y, status), group)
                       for case, y in zip(cases, ys, strict=True)],
                      n, seed, tolerances.name, second_order, len(X))
