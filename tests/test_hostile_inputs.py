@@ -423,21 +423,24 @@ def test_the_sobol_memory_estimate_counts_the_bootstrap(nominal, monkeypatch):
     working arrays (docs/cli.md; measured peaks in docs/studies.md)."""
     # the Sobol study itself: per row of the base set's needle design (D = 6, 8 rows a base
     # sample) 8 cells of 32 bytes, and the bootstrap's 200 int32 resamples a base sample and
-    # 12 arrays of 2**19 doubles shared out: 256 + ceil((4 * 200 * 2**17 + 12 * 8 * 2**19) /
-    # 2**20) = 404 bytes a row at n = 2**17; the run's machinery left out here
+    # BOOTSTRAP_ARRAYS arrays of BOOTSTRAP_CELLS doubles shared out over the 2**20 rows at
+    # n = 2**17 (380 bytes a row with 12 arrays of 2**18); the run's machinery left out here
     from sewtol.errors import ParameterError
     from sewtol.studies import montecarlo, sobol
     from sewtol.tolerances import needle_set
 
+    per = 256 + -(-(4 * 200 * 2**17 + sobol.BOOTSTRAP_ARRAYS * 8 * sobol.BOOTSTRAP_CELLS)
+                  // 2**20)
+    assert (sobol.BOOTSTRAP_ARRAYS, sobol.BOOTSTRAP_CELLS, per) == (12, 2**18, 380)
     monkeypatch.setattr(montecarlo, "run_reserve_bytes", lambda source: 0)
     base = needle_set("base")
     monkeypatch.setattr(montecarlo, "memory_limits_bytes",
-                        lambda: {"available memory": 404 * 2**20})
+                        lambda: {"available memory": per * 2**20})
     sobol.check_sobol(nominal, base, 2**17, 0)
     monkeypatch.setattr(montecarlo, "memory_limits_bytes",
-                        lambda: {"available memory": 404 * 2**20 - 1})
-    with pytest.raises(ParameterError, match=r"needs about 0\.395 GiB for 1048576 machines of "
-                       r"404 bytes each, .*: at most n = 65536 fits"):
+                        lambda: {"available memory": per * 2**20 - 1})
+    with pytest.raises(ParameterError, match=rf"needs about {per / 2**10:.3g} GiB for 1048576 "
+                       rf"machines of {per} bytes each, .*: at most n = 65536 fits"):
         sobol.check_sobol(nominal, base, 2**17, 0)
 
 

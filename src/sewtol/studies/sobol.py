@@ -41,8 +41,8 @@ ROWS_PER_BIN, MAX_BINS = 100, 100
 # floor MIN_N // 2 of the convergence check) and assembled rows for S1_given (2 per bin)
 MIN_COMPLETE, MIN_GIVEN_ROWS = 8, 20
 # the bootstraps hold one block of resamples at a time: about this many (sample, resample)
-# cells per array (4 MB), so SALib's estimators hold about 50 MB of temporaries at any N
-BOOTSTRAP_CELLS = 2**19
+# cells per array (2 MB), so SALib's estimators hold about 25 MB of temporaries at any N
+BOOTSTRAP_CELLS = 2**18
 BOOTSTRAP_ARRAYS = 12  # such arrays alive at once (measured: 7 without S2, 10 with)
 
 
