@@ -418,6 +418,32 @@ def test_the_memory_estimate_honours_a_container_limit(tmp_path, monkeypatch, ve
     assert "container memory limit (cgroup)" not in montecarlo.memory_limits_bytes()
 
 
+def test_the_sobol_memory_estimate_counts_the_bootstrap(nominal, monkeypatch):
+    """check_sobol's estimate: the design and outputs, and the bootstrap's resamples and
+    working arrays (docs/cli.md; measured peaks in docs/studies.md)."""
+    # the Sobol study itself: per row of the base set's needle design (D = 6, 8 rows a base
+    # sample) 8 cells of 32 bytes, and the bootstrap's 200 int32 resamples a base sample and
+    # BOOTSTRAP_ARRAYS arrays of BOOTSTRAP_CELLS doubles shared out over the 2**20 rows at
+    # n = 2**17 (380 bytes a row with 12 arrays of 2**18); the run's machinery left out here
+    from sewtol.errors import ParameterError
+    from sewtol.studies import montecarlo, sobol
+    from sewtol.tolerances import needle_set
+
+    per = 256 + -(-(4 * 200 * 2**17 + sobol.BOOTSTRAP_ARRAYS * 8 * sobol.BOOTSTRAP_CELLS)
+                  // 2**20)
+    assert (sobol.BOOTSTRAP_ARRAYS, sobol.BOOTSTRAP_CELLS, per) == (12, 2**18, 380)
+    monkeypatch.setattr(montecarlo, "run_reserve_bytes", lambda source: 0)
+    base = needle_set("base")
+    monkeypatch.setattr(montecarlo, "memory_limits_bytes",
+                        lambda: {"available memory": per * 2**20})
+    sobol.check_sobol(nominal, base, 2**17, 0)
+    monkeypatch.setattr(montecarlo, "memory_limits_bytes",
+                        lambda: {"available memory": per * 2**20 - 1})
+    with pytest.raises(ParameterError, match=rf"needs about {per / 2**10:.3g} GiB for 1048576 "
+                       rf"machines of {per} bytes each, .*: at most n = 65536 fits"):
+        sobol.check_sobol(nominal, base, 2**17, 0)
+
+
 @pytest.mark.parametrize("kind", ["http", "garbage"])
 def test_a_scheduler_that_stops_answering_after_the_probe_is_one_error(kind, monkeypatch):
     """The client after a passed probe is bounded by the same timeout, and a failed one is

@@ -234,3 +234,59 @@ def strict_json(obj):
     from sewtol.io import to_json
 
     return to_json(obj)
+
+
+def _needle_design(nominal, n, seed, second_order):
+    """SumDelta (beta fixed) of the needle on a Sobol design of the base tolerances."""
+    from sewtol.tables.needle_208 import OUTPUT, as_mechanism
+    from sewtol.tolerances import needle_set
+
+    problem = so.problem_of(needle_set("base"))
+    X = so.sample(problem, n, seed, second_order)
+    (y,) = so.case_values(as_mechanism(nominal), OUTPUT, {OUTPUT: None}, problem["names"], X)
+    return problem, X, y
+
+
+# cells None: one block; 3: blocks of 3 columns; 5: of 5, the last column joining a block
+@pytest.mark.parametrize(("cells", "seed", "second_order"),
+                         [(None, 0, False), (3, 11, False), (3, 0, True), (5, 11, True)])
+def test_blocked_bootstrap_is_salibs_analysis_bit_for_bit(nominal, monkeypatch, cells, seed,
+                                                          second_order):
+    """The bootstrap over blocks of resample columns (bounded memory) gives SALib's analyze
+    exactly: point indices and intervals of S1, ST, S2 at n and n/2, and of the indicator
+    "assembles"; on Ishigami and on the needle, seed 0 (mapped by so._salib_seed's rule) and
+    another. cells: BOOTSTRAP_CELLS as a multiple of n (blocks of that many columns)."""
+    n, resamples = 64, 41  # 41 = 13 blocks of 3 + 2; = 8 blocks of 5 + 1, the 1 joined
+    needle = _needle_design(nominal, n, seed, second_order)
+    x_ishigami = so.sample(PROBLEM, n, seed, second_order)
+    for problem, X, y in (needle, (PROBLEM, x_ishigami, ishigami(x_ishigami))):
+        step = so.rows_per_sample(problem["num_vars"], second_order)
+        fail = np.zeros(len(X), bool)
+        fail[::7] = True  # some rows fail: the indices of "assembles" too
+        for m in (n // 2, n):
+            monkeypatch.setattr(so, "BOOTSTRAP_CELLS",
+                                so.BOOTSTRAP_CELLS if cells is None else cells * m)
+            for values, feasibility in ((y, False), (np.where(fail, np.nan, y), True)):
+                c = so.case_indices(problem, X[: m * step], values[: m * step], m, seed,
+                                    resamples=resamples, second_order=second_order)
+                got = (c.feasibility if feasibility else
+                       c.indices[c.indices["n"] == m].reset_index(drop=True))
+                ref = sobol_analyze.analyze(
+                    problem, (~fail if feasibility else y)[: m * step].astype(float),
+                    calc_second_order=second_order, num_resamples=resamples,
+                    conf_level=0.95, seed=so._salib_seed(seed))
+                for k in ("S1", "S1_conf", "ST", "ST_conf"):
+                    assert np.array_equal(got[k].to_numpy(), ref[k]), (k, m, feasibility)
+                if second_order and not feasibility:
+                    iu = np.triu_indices(problem["num_vars"], 1)
+                    assert np.array_equal(c.pairs["S2"].to_numpy(), ref["S2"][iu])
+                    assert np.array_equal(c.pairs["S2_conf"].to_numpy(), ref["S2_conf"][iu])
+
+
+def test_salibs_resamples_drawn_as_int32_are_its_int64_draws():
+    """_analyze holds SALib's r as int32: numpy draws integers below 2**32 by one 32-bit path
+    whatever the dtype, so the same generator gives the same numbers."""
+    for n, seed in ((4096, so._salib_seed(0)), (2**15 + 3, 11), (2**17, 2026)):
+        assert np.array_equal(np.random.default_rng(seed).integers(n, size=(n // 64, 200)),
+                              np.random.default_rng(seed).integers(n, size=(n // 64, 200),
+                                                                   dtype=np.int32))

@@ -9,6 +9,7 @@ assembled rows (docs/studies.md, "Sobol with machines that cannot be built").
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
@@ -39,6 +40,10 @@ ROWS_PER_BIN, MAX_BINS = 100, 100
 # below these, an index is NaN (undefined, never a guess): complete base samples for S1/ST (the
 # floor MIN_N // 2 of the convergence check) and assembled rows for S1_given (2 per bin)
 MIN_COMPLETE, MIN_GIVEN_ROWS = 8, 20
+# the bootstraps hold one block of resamples at a time: about this many (sample, resample)
+# cells per array (2 MB), so SALib's estimators hold about 25 MB of temporaries at any N
+BOOTSTRAP_CELLS = 2**18
+BOOTSTRAP_ARRAYS = 12  # such arrays alive at once (measured: 7 without S2, 10 with)
 
 
 def check_independent(tolerances: ToleranceSet) -> None:
@@ -83,9 +88,10 @@ def rows_per_sample(d: int, second_order: bool = False) -> int:
     return 2 * d + 2 if second_order else d + 2
 
 
-def check_sobol(nominal, tolerances: ToleranceSet, n, seed, second_order: bool = False) -> None:
+def check_sobol(nominal, tolerances: ToleranceSet, n, seed, second_order: bool = False,
+                resamples: int = 200) -> None:
     """Every input of a Sobol study that can be checked before it runs (nothing is written)."""
-    from sewtol.studies.montecarlo import check_memory, check_seed
+    from sewtol.studies.montecarlo import BYTES_PER_CELL, check_memory, check_seed
 
     check_power_of_two(n)
     check_seed(seed)
@@ -95,9 +101,13 @@ def check_sobol(nominal, tolerances: ToleranceSet, n, seed, second_order: bool =
         raise ParameterError("tolerances", "has no tolerance with a non-zero width",
                              tolerances.name)
     tolerances.check_against(nominal)
-    # the sample matrix (N (D + 2) or N (2D + 2) rows of D columns) and two outputs per row
-    check_memory(int(n) * rows_per_sample(d, second_order), d + 2, value=n,
-                 rows_per_unit=rows_per_sample(d, second_order), power_of_two=True)
+    # per row of the design: its D inputs and two outputs as a table's cells; the bootstrap's
+    # resamples r (4 bytes per base sample and resample) and one block's working arrays shared
+    # out over the rows; the run's machinery beside them (check_memory's reserve)
+    rows = int(n) * rows_per_sample(d, second_order)
+    boot = 4 * int(resamples) * int(n) + BOOTSTRAP_ARRAYS * 8 * BOOTSTRAP_CELLS
+    check_memory(rows, d + 2, value=n, rows_per_unit=rows_per_sample(d, second_order),
+                 power_of_two=True, bytes_per_row=(d + 2) * BYTES_PER_CELL + -(-boot // rows))
 
 
 def sample(problem: dict, n: int, seed: int, second_order: bool = False) -> np.ndarray:
@@ -122,15 +132,65 @@ def _check_bootstrap(resamples, conf_level) -> None:
         raise ParameterError("conf_level", "must be in (0, 1)", conf_level)
 
 
+def _column_blocks(resamples: int, n: int) -> list[slice]:
+    """Blocks of about BOOTSTRAP_CELLS // n resample columns, each of >= 2 columns: numpy sums
+    the (n, k) arrays of SALib's estimators down axis 0 row after row as it sums SALib's
+    (n, resamples) ones, while one column would be summed pairwise (other bits)."""
+    k = max(2, BOOTSTRAP_CELLS // max(int(n), 1))
+    starts = list(range(0, resamples, k))
+    if resamples - starts[-1] < 2:  # a last block of one column joins the one before it
+        starts.pop()
+    return [slice(a, b) for a, b in zip(starts, [*starts[1:], resamples], strict=True)]
+
+
 def _analyze(problem: dict, y: np.ndarray, seed: int, resamples: int, conf_level: float,
              second_order: bool):
+    """SALib's sobol.analyze, bit for bit, in bounded memory: its point estimators, its
+    resamples r (drawn whole by its call), and its bootstrap intervals evaluated over blocks
+    of r's columns (SALib's estimators on (N, resamples) arrays held ten 0.2-0.4 GB
+    temporaries at N = 2**17)."""
     _check_bootstrap(resamples, conf_level)
-    res = sobol_analyze.analyze(problem, y, calc_second_order=bool(second_order),
-                                num_resamples=resamples, conf_level=conf_level,
-                                seed=_salib_seed(seed))
-    first = pd.DataFrame({"param": problem["names"], "S1": res["S1"], "S1_conf": res["S1_conf"],
-                          "ST": res["ST"], "ST_conf": res["ST_conf"]})
-    return first, _pairs(problem["names"], res["S2"], res["S2_conf"]) if second_order else None
+    d, resamples = problem["num_vars"], int(resamples)
+    n = y.size // rows_per_sample(d, second_order)
+    y = (y - y.mean()) / y.std()
+    a, b, ab, ba = sobol_analyze.separate_output_values(y, d, n, second_order)
+    # SALib's r by its call, held as int32: the same numbers (numpy draws any integers below
+    # 2**32 by one 32-bit path; tested) in half the memory, 0.1 GB at N = 2**17
+    r = np.random.default_rng(_salib_seed(seed)).integers(n, size=(n, resamples), dtype=np.int32)
+    pairs = [(j, k) for j in range(d) for k in range(j + 1, d)] if second_order else []
+    s1_all, st_all = np.empty((d, resamples)), np.empty((d, resamples))
+    s2_all = np.empty((len(pairs), resamples))
+    high, low = -np.inf, np.inf
+    with warnings.catch_warnings():  # a block of equal values: SALib's warning, once below
+        warnings.simplefilter("ignore", UserWarning)
+        for blk in _column_blocks(resamples, n):
+            rb = r[:, blk]
+            ar, br = a[rb], b[rb]
+            high, low = np.max([high, ar.max(), br.max()]), np.min([low, ar.min(), br.min()])
+            for j in range(d):
+                s1_all[j, blk] = sobol_analyze.first_order(ar, ab[rb, j], br)
+                st_all[j, blk] = sobol_analyze.total_order(ar, ab[rb, j], br)
+            for i, (j, k) in enumerate(pairs):
+                s2_all[i, blk] = sobol_analyze.second_order(ar, ab[rb, j], ab[rb, k], ba[rb, j],
+                                                            br)
+    if high - low <= np.finfo(float).eps:
+        warnings.warn(sobol_analyze.CONST_RESULT_MSG, stacklevel=2)
+    z = stats.norm.ppf(0.5 + conf_level / 2)
+    # SALib's var_diff: the spread of the resampled outputs (0: every interval is 0)
+    spread = (high - low) != 0.0
+    s1, st = np.zeros(d), np.zeros(d)
+    for j in range(d):
+        s1[j] = sobol_analyze.first_order(a, ab[:, j], b)
+        st[j] = sobol_analyze.total_order(a, ab[:, j], b)
+    s2, s2_conf = np.full((d, d), np.nan), np.full((d, d), np.nan)
+    for i, (j, k) in enumerate(pairs):
+        s2[j, k] = sobol_analyze.second_order(a, ab[:, j], ab[:, k], ba[:, j], b)
+        s2_conf[j, k] = z * s2_all[i].std(ddof=1)
+    first = pd.DataFrame({
+        "param": problem["names"],
+        "S1": s1, "S1_conf": z * s1_all.std(axis=1, ddof=1) if spread else np.zeros(d),
+        "ST": st, "ST_conf": z * st_all.std(axis=1, ddof=1) if spread else np.zeros(d)})
+    return first, _pairs(problem["names"], s2, s2_conf) if second_order else None
 
 
 def _pairs(names, s2, s2_conf) -> pd.DataFrame:
@@ -255,17 +315,28 @@ class CaseIndices:
     failed: int  # rows not assembled
 
 
+def _words(shape, word: str) -> np.ndarray:
+    """An object array whose every element is one str object: np.full and np.where make a
+    str per element (60 MB a million rows, measured)."""
+    out = np.empty(shape, object)
+    out.fill(word)
+    return out
+
+
 def outcomes_of(y, status=None, group=None) -> tuple[np.ndarray, np.ndarray]:
     """(outcome, group) per row: "assembled", the row's status when it is not "ok"
     (cannot_close, dead_point, ...), "undefined" for a row that runs without a value, and
     "no_value" for a non-finite value when no status is known; group "" where unknown."""
     y = np.asarray(y, float)
+    finite = np.isfinite(y)
     if status is None:
-        outcome = np.where(np.isfinite(y), "assembled", "no_value").astype(object)
+        outcome = _words(y.shape, "no_value")
+        outcome[finite] = "assembled"
     else:
-        status = np.asarray(status, object)
-        outcome = np.where(status == "ok", np.where(np.isfinite(y), "assembled", "undefined"),
-                           status).astype(object)
+        outcome = np.asarray(status, object).copy()
+        ok = outcome == "ok"
+        outcome[ok & finite] = "assembled"
+        outcome[ok & ~finite] = "undefined"
     grp = np.full(y.shape, "", object) if group is None else np.asarray(group, object).copy()
     grp[outcome == "assembled"] = ""
     return outcome, grp
@@ -284,7 +355,6 @@ def _given_s1(X, y, usable, step, seed, resamples, conf_level) -> tuple[np.ndarr
     blocks = y.size // step
     block = (np.arange(y.size) // step)[usable]
     draws = np.random.default_rng(seed).integers(blocks, size=(int(resamples), blocks))
-    weights = [np.bincount(d, minlength=blocks)[block] for d in draws]
     z = stats.norm.ppf(0.5 + conf_level / 2)
     s1, conf = [], []
     for j in range(X.shape[1]):
@@ -294,7 +364,9 @@ def _given_s1(X, y, usable, step, seed, resamples, conf_level) -> tuple[np.ndarr
                          return_inverse=True)
         k = int(b.max(initial=0)) + 1
         s1.append(correlation_ratio(b, yy, k))
-        conf.append(z * np.std([correlation_ratio(b, yy, k, w) for w in weights], ddof=1))
+        # each resample's weights made when used: all of them held 8 bytes x rows x resamples
+        conf.append(z * np.std([correlation_ratio(b, yy, k, np.bincount(d, minlength=blocks)
+                                                  [block]) for d in draws], ddof=1))
     return np.array(s1), np.array(conf)
 
 
@@ -409,6 +481,13 @@ def case_values(mech, output: str, cases: Mapping, names: list, X: np.ndarray,
                  for comps in cases.values())
 
 
+def _ok_where(y, status) -> np.ndarray:
+    """status with "ok" where y has a value (np.where would make a str object per row)."""
+    out = status.copy()
+    out[np.isfinite(y)] = "ok"
+    return out
+
+
 def sobol(mech, tolerances: ToleranceSet, output: str, n: int, seed: int, *,
           cases: Mapping | None = None, resamples: int = 200, conf_level: float = 0.95,
           second_order: bool = False, n_jobs: int = 1, progress: bool | Callable = False,
@@ -451,7 +530,7 @@ def sobol(mech, tolerances: ToleranceSet, output: str, n: int, seed: int, *,
     """
     mech.output(output)
     cases = {output: None} if cases is None else dict(cases)
-    check_sobol(mech.parameter_record(), tolerances, n, seed, second_order)
+    check_sobol(mech.parameter_record(), tolerances, n, seed, second_order, resamples)
     problem = problem_of(tolerances)
     names = problem["names"]
     X = sample(problem, n, seed, second_order)
@@ -470,13 +549,13 @@ def sobol(mech, tolerances: ToleranceSet, output: str, n: int, seed: int, *,
                        store=store, validate=validate, scheduler=scheduler)
     ys = [np.concatenate([p[i] for p in parts]) for i in range(len(cases))]
     bad = ~np.logical_and.reduce([np.isfinite(y) for y in ys])
-    status = np.full(len(X), "ok", dtype=object)
-    group = np.full(len(X), "", dtype=object)
+    del parts
+    status, group = _words(len(X), "ok"), _words(len(X), "")
     if bad.any():
         why = failures_of(mech, fast, failures)(
             mech, machines(mech, {k: X[bad, i] for i, k in enumerate(names)}), output)
         status[bad], group[bad] = why
     return result_of([case_indices(problem, X, y, n, seed, case, resamples, conf_level,
-                                   second_order, np.where(np.isfinite(y), "ok", status), group)
+                                   second_order, _ok_where(y, status), group)
                       for case, y in zip(cases, ys, strict=True)],
                      n, seed, tolerances.name, second_order, len(X))
