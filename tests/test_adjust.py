@@ -20,7 +20,7 @@ from sewtol.mechanisms.needle_208 import kernels
 from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208 import model as nd
 from sewtol.mechanisms.needle_208.adjustment import adjust
-from sewtol.mechanisms.needle_208.compensators import Compensator, Strategy, exact, strategy_of
+from sewtol.mechanisms.needle_208.compensators import Compensator, Strategy
 from sewtol.mechanisms.needle_208.kernels import fused as KB
 from sewtol.mechanisms.needle_208.kernels import window as KW
 from sewtol.studies.parallel import chunk_bounds
@@ -427,46 +427,6 @@ def test_fused_outer_search_equals_the_loop(nominal, outer):
         ad.optimise(c, box, outer_search="grid")
 
 
-def test_angle_search_skips_an_end_only_where_its_golden_section_cannot_beat_it(nominal):
-    """The guide angle's search at CD near the all row's joint optimum, where its minimum lies
-    at the box's low end or just inside it (the joint optimum sits on that kink): CD 1e-3 mm
-    above it, the batched loop (whose golden sections always run) ends on the grid's end on
-    most machines, and the fused search (which skips an end's golden section when the point
-    nearest the end that it would evaluate, window._end_probe, is above the end) returns that
-    end, bit for bit; at the optimum's CD the golden section beats the end on most machines,
-    and the fused search still runs it there (an angle inside the end cell, a minimum below
-    the end's, as the loop's)."""
-    dev = NEEDLE_208_SETS["base"].sample(np.random.default_rng(25), 60)
-    c = _columns(nominal, dev)
-    joint = adjust(c, exact(strategy_of(("beta", "guide_shift_um", "guide_angle", "CD"))),
-                   plateaus=False)
-    box = {"beta": (10.0, 35.0), "guide_shift_um": (-100.0, 100.0), "guide_angle": (-0.1, 0.1)}
-    grid = np.linspace(-0.1, 0.1, 21)
-    for dcd, end_cases in ((1e-3, True), (0.0, False)):
-        cc = dict(c)
-        cc["CD"] = c["CD"] + joint.settings["CD"][:, None] + dcd
-        loop = ad.optimise(cc, box, outer_search="loop")
-        fused = ad.optimise(cc, box)
-        a_loop, a_fused = loop.settings["guide_angle"], fused.settings["guide_angle"]
-        at_end = a_loop == grid[0]
-        inside = (a_loop > grid[0]) & (a_loop < grid[1])
-        if end_cases:
-            assert at_end.sum() >= 40
-            assert np.array_equal(a_fused[at_end], a_loop[at_end])
-        else:
-            assert inside.sum() >= 30
-            assert np.all((a_fused[inside] > grid[0]) & (a_fused[inside] < grid[1]))
-            assert np.max(np.abs(a_fused[inside] - a_loop[inside])) < 1e-9
-            end = dict(cc)
-            end["guide_angle"] = cc["guide_angle"] + grid[0]
-            at_grid_end = ad.optimise(end, {k: box[k] for k in ("beta", "guide_shift_um")})
-            assert np.all(fused.min_total_um[inside] < at_grid_end.min_total_um[inside])
-    # the probe is the golden section's last point, inside its final bracket at the end
-    # (n_min 0: the steps until the bracket is below 1e-9)
-    assert grid[0] < KW._end_probe(grid[0], grid[1], True, 0) < grid[0] + 1e-9
-    assert grid[-1] - 1e-9 < KW._end_probe(grid[-2], grid[-1], False, 0) < grid[-1]
-
-
 def test_angle_cutoff_only_cuts_machines_that_cannot_reach_it(nominal):
     """The guide angle's search with a cutoff (what the all row's CD grid passes): a cutoff just
     above each machine's minimum changes nothing, bit for bit; one 0.5 um below it may leave
@@ -501,10 +461,8 @@ def test_angle_cutoff_only_cuts_machines_that_cannot_reach_it(nominal):
         nn = max(KW._grid(geo[j, 0], geo[j, 1], w, h)[4] for j in range(k))
         EN, XN, runs = np.empty((k, nn, 6)), np.empty((k, nn)), np.zeros(12, bool)
         KW._points(P[i], geo, k, w, 2.0, EN, XN, runs)
-        slope = KW._angle_slope(P[i], EN, geo, k, w, runs, h)
-        for stride in (10, 5, 1):  # the coarse-to-fine grid's bounds
-            bound = KW._angle_bound(grid, vals, slope, stride)
-            assert bound <= min(brute, full.min_total_um[i])
+        bound = KW._angle_bound(P[i], grid, vals, EN, geo, k, w, runs, h)
+        assert bound <= min(brute, full.min_total_um[i])
 
 
 def test_golden_min_with_cutoffs_takes_the_same_steps():

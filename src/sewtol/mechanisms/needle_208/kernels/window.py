@@ -751,14 +751,17 @@ def _trial_min(p, col, own, rel, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, g
 
 
 @nb.njit(cache=True)
-def _angle_slope(p, EN, geo, k, w, ok, h):
-    """A bound (um/deg) of the slope of the trial minimum in the guide angle. Turning the guide
-    by da (rad) about its point turns its normal n by da, so each d = n.(E - guide point) -
-    shift moves by at most R da (R: the largest |E - guide point|) and F - G (max and min of
-    d over a window) by at most D da (D: the largest |E - E'| between two needle points), so
-    SumDelta = max(F - G, F - T1, T0 - G), and its minimum over beta and the shift (whose
-    feasible windows no angle changes), by at most max(R, D) da. R and D from the nodes (EN
-    of _points, <= h rad apart) plus h (max |E'| + h max |E''|) for each point between them."""
+def _angle_bound(p, grid, vals, EN, geo, k, w, ok, h):
+    """A lower bound (um) of the trial minimum over the guide angle's whole box from its values
+    at the grid. Turning the guide by da (rad) about its point turns its normal n by da, so
+    each d = n.(E - guide point) - shift moves by at most R da (R: the largest |E - guide
+    point|) and F - G (max and min of d over a window) by at most D da (D: the largest
+    |E - E'| between two needle points), so SumDelta = max(F - G, F - T1, T0 - G), and its
+    minimum over beta and the shift (whose feasible windows no angle changes), by at most
+    max(R, D) da. Between two grid points the minimum is then at least the mean of their
+    values less that slope times half their gap, less 0.01 um for the surrogate's and the
+    sampling's errors (SURROGATE_TOL_MM, SAMPLE_TOL_MM). R and D from the nodes (EN of
+    _points, <= h rad apart) plus h (max |E'| + h max |E''|) for each point between them."""
     r = 0.0
     dd = 0.0
     d1 = 0.0
@@ -778,43 +781,11 @@ def _angle_slope(p, EN, geo, k, w, ok, h):
                 for j2 in range(j + 1 if i2 == i else 0, _grid(geo[i2, 0], geo[i2, 1], w, h)[4]):
                     dd = max(dd, math.hypot(EN[i2, j2, 0] - ex, EN[i2, j2, 1] - ey))
     gap = h * (d1 + h * d2)
-    return max(r + gap, dd + 2.0 * gap) * (math.pi / 180.0) * 1e3
-
-
-@nb.njit(cache=True)
-def _angle_bound(grid, vals, slope, stride=1):
-    """A lower bound (um) of the trial minimum over the guide angle's whole box from its values
-    at every stride-th grid point (the first and the last among them; slope: _angle_slope):
-    between two of them the minimum is at least the mean of their values less the slope times
-    half their gap, less 0.01 um for the surrogate's and the sampling's errors
-    (SURROGATE_TOL_MM, SAMPLE_TOL_MM)."""
+    slope = max(r + gap, dd + 2.0 * gap) * (math.pi / 180.0) * 1e3
     lb = np.inf
-    for g in range(0, grid.size - stride, stride):
-        lb = min(lb, 0.5 * (vals[g] + vals[g + stride] - slope * (grid[g + stride] - grid[g])))
+    for g in range(grid.size - 1):
+        lb = min(lb, 0.5 * (vals[g] + vals[g + 1] - slope * (grid[g + 1] - grid[g])))
     return lb - 0.01
-
-
-@nb.njit(cache=True)
-def _end_probe(a, b, left, n_min):
-    """The point nearest the grid's end (a if left, else b) that _outer_one's golden section on
-    [a, b] evaluates: its last, when every step moves towards the end. Where the trial minimum
-    there is above the end's and does not come back down further from the end (the golden
-    section's own assumption: unimodal in the bracket), no point it evaluates beats the end:
-    skipped, one solve instead of about 37."""
-    x1 = b - _INVPHI * (b - a)
-    x2 = a + _INVPHI * (b - a)
-    for it in range(40):
-        if b - a < 1e-9 and it >= n_min:
-            break
-        if left:
-            b = x2
-            x2 = x1
-            x1 = b - _INVPHI * (b - a)
-        else:
-            a = x1
-            x1 = x2
-            x2 = a + _INVPHI * (b - a)
-    return x1 if left else x2
 
 
 @nb.njit(cache=True)
@@ -839,27 +810,13 @@ def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_
         cap = nmax
     ws = _work(cap)
     fb = np.empty((3, cap))
-    vals = np.full(G, np.inf)
-    done = np.zeros(G, np.bool_)
-    # with a cutoff, the grid coarse to fine (every 10th point, every 5th, all): where the
-    # bound from the points so far is above it, the best of them, not refined (the minimum
-    # is above the cutoff, which is all the caller reads of it); else the same grid
-    slope = np.inf
-    if col == 13 and cutoff < np.inf:
-        slope = _angle_slope(p, EN, geo, k, w, ok, h_deg * (math.pi / 180.0))
-    for stride in (10, 5, 1):
-        if stride > 1 and (slope == np.inf or (G - 1) % stride != 0):
-            continue
-        for g in range(0, G, stride):
-            if done[g]:
-                continue
-            done[g] = True
-            if not (math.isnan(lo) or math.isnan(hi)):
-                v = _trial_min(p, col, own, grid[g], lo, hi, blo, bhi, T0, T1, h_deg, tol_mm,
-                               res, geo, k, w, EN, XN, ok, ws, fb)
-                vals[g] = np.inf if math.isnan(v) else v
-        if slope < np.inf and _angle_bound(grid, vals, slope, stride) > cutoff:
-            return grid[np.argmin(vals)]  # vals inf where not evaluated
+    vals = np.empty(G)
+    for g in range(G):
+        v = np.nan
+        if not (math.isnan(lo) or math.isnan(hi)):
+            v = _trial_min(p, col, own, grid[g], lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res,
+                           geo, k, w, EN, XN, ok, ws, fb)
+        vals[g] = np.inf if math.isnan(v) else v
     score = np.empty(G)
     for g in range(G):
         left = vals[g - 1] if g > 0 else np.inf
@@ -868,6 +825,9 @@ def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_
     i0 = np.argmin(vals)
     best_rel = grid[i0]
     best_val = vals[i0]
+    if col == 13 and cutoff < np.inf and _angle_bound(
+            p, grid, vals, EN, geo, k, w, ok, h_deg * (math.pi / 180.0)) > cutoff:
+        rounds = 0  # no angle can bring this machine down to the cutoff: the grid's best
     for _ in range(rounds):
         i = np.argmin(score)
         if not score[i] < np.inf:
@@ -875,10 +835,6 @@ def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_
         score[i] = np.inf
         a = grid[max(i - 1, 0)]
         b = grid[min(i + 1, G - 1)]
-        if (i == 0 or i == G - 1) and _trial_min(
-                p, col, own, _end_probe(a, b, i == 0, n_min), lo, hi, blo, bhi, T0, T1, h_deg,
-                tol_mm, res, geo, k, w, EN, XN, ok, ws, fb) > vals[i]:
-            continue  # the golden section cannot beat the grid's end (_end_probe)
         x1 = b - _INVPHI * (b - a)
         x2 = a + _INVPHI * (b - a)
         f1 = _trial_min(p, col, own, x1, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res, geo,
@@ -922,10 +878,8 @@ def outer_batch(P, col, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active
     exact minimum of SumDelta over beta (and the guide shift) is least: a grid over `grid`,
     then golden section around each of the `rounds` best local minima of the grid (to a
     bracket below 1e-9). needle_208.adjust._with_outer's search (tests/test_adjust.py holds
-    the two to each other); a grid end's golden section only where _end_probe says it can
-    beat the end. cutoff_um (per machine, the guide angle): where _angle_bound proves from
-    the grid, evaluated coarse to fine, that no angle reaches it, the best grid point so far,
-    not refined (its minimum is above it)."""
+    the two to each other). cutoff_um (per machine, the guide angle): where _angle_bound
+    proves that no angle reaches it, the grid's best, not refined (its minimum is above it)."""
     n = P.shape[0]
     out = np.empty(n)
     if cutoff_um is None:
