@@ -432,7 +432,7 @@ def test_the_sobol_memory_estimate_counts_the_bootstrap(nominal, monkeypatch):
     per = 256 + -(-(4 * 200 * 2**17 + sobol.BOOTSTRAP_ARRAYS * 8 * sobol.BOOTSTRAP_CELLS)
                   // 2**20)
     assert (sobol.BOOTSTRAP_ARRAYS, sobol.BOOTSTRAP_CELLS, per) == (12, 2**18, 380)
-    monkeypatch.setattr(montecarlo, "run_reserve_bytes", lambda source: 0)
+    monkeypatch.setattr(montecarlo, "run_reserve_bytes", lambda source, workers=0: 0)
     base = needle_set("base")
     monkeypatch.setattr(montecarlo, "memory_limits_bytes",
                         lambda: {"available memory": per * 2**20})
