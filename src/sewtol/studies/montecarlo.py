@@ -171,7 +171,8 @@ def run_reserve_bytes(source: str, workers: int = 0) -> int:
     process."""
     if source.startswith("address-space"):
         return max(0, RUN_ADDRESS_SPACE - (_status_bytes("VmSize") or 0))
-    return max(0, RUN_RESIDENT - (_status_bytes("VmRSS") or 0)) + int(workers) * WORKER_RESIDENT
+    return (max(0, RUN_RESIDENT - (_status_bytes("VmRSS") or 0))
+            + max(0, int(workers)) * WORKER_RESIDENT)
 
 
 def largest_that_fits(have_bytes: int, columns: int, rows_per_unit: int = 1,
@@ -193,16 +194,13 @@ def check_memory(n: int, columns: int, what: str = "n", value=None, rows_per_uni
     starts, naming the largest `what` that fits (`value` rows per unit of it: n rows are
     value * rows_per_unit). A study that holds its machines compactly gives their bytes each
     (bytes_per_row, e.g. `montecarlo_bytes`) instead of a table's columns, and the worker
-    processes it starts (-1: one per core)."""
+    processes it starts (`parallel.local_workers`)."""
     row = int(columns) * BYTES_PER_CELL if bytes_per_row is None else int(bytes_per_row)
     need = int(n) * row
     limits = memory_limits_bytes()
     if not limits:
         return
     if bytes_per_row is not None:  # a compact study: its machinery counts beside the machines
-        import os
-
-        workers = (os.cpu_count() or 1) if workers == -1 else max(0, int(workers))
         limits = {k: max(0, v - run_reserve_bytes(k, workers)) for k, v in limits.items()}
     source = min(limits, key=limits.get)
     have = limits[source]

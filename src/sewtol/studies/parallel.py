@@ -205,6 +205,11 @@ def _watch_parent(pid: int, every_s: float = 0.25) -> None:
     threading.Thread(target=loop, name="sewtol-parent-watch", daemon=True).start()
 
 
+def local_workers(n_jobs: int) -> int:
+    """The worker count n_jobs stands for on this machine (-1: one per core)."""
+    return max(1, os.cpu_count() or 1) if n_jobs == -1 else n_jobs
+
+
 def numba_threads_local(n_jobs: int) -> int:
     """In one of n_jobs local workers (processes, or threads of this process: numba's count
     is per thread): NUMBA_NUM_THREADS // n_jobs numba threads (at
@@ -322,7 +327,7 @@ def run_chunks(fn: Callable, args: Sequence, n_jobs: int = 1, progress=False,
         if report is not None:
             report(done, len(args))
         serial = scheduler is None and n_jobs == 1 and backend is None
-        workers = max(1, os.cpu_count() or 1) if n_jobs == -1 else n_jobs
+        workers = local_workers(n_jobs)
         # on a cluster one chunk per task (progress and resume per chunk, as below)
         size = 1 if join is None or scheduler is not None else \
             max(1, min(int(together), len(todo) // (2 * workers)))

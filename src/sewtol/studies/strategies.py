@@ -55,7 +55,7 @@ from sewtol.protocol import input_law, machines, plugins, tolerance_set
 from sewtol.setting_error import SettingError
 from sewtol.studies.adjusting import Adjusted, adjusted
 from sewtol.studies.montecarlo import WORDS, check_memory, check_seed, contributors, quantiles
-from sewtol.studies.parallel import chunk_bounds, run_chunks
+from sewtol.studies.parallel import chunk_bounds, local_workers, run_chunks
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -525,7 +525,7 @@ def strategies(mech, tolerances, n: int, seed: int, strategies: Mapping | None =
         measurement = None
     rows = list(strategies.values())
     check_memory(n, 0, bytes_per_row=held_bytes(rows, law.dim, per_machine),
-                 workers=0 if n_jobs == 1 else n_jobs)
+                 workers=0 if n_jobs == 1 else local_workers(n_jobs))
     dev = law.draw(int(n), seed)
     # chunks of CHUNK machines for any n_jobs (one at a time with n_jobs 1): the adjusters'
     # working arrays stay those of one chunk, and the numbers do not depend on n_jobs
