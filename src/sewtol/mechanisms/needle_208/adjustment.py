@@ -171,12 +171,14 @@ def _plateau(fun, x_opt, best, comp: Compensator, xtol=None):
 
 
 def _search(c: dict, outer: list[Compensator], plateaus: bool, leaf, held=(),
-            guess=None) -> _Inner:
+            guess=None, found=None) -> _Inner:
     """Nested 1-D searches over `outer` (outermost first) around `leaf` (columns, cutoff ->
     _Inner, the inner optimum, or where the leaf proves it above the cutoff (um, per machine),
     perhaps only a value above it; `held` are the compensators it sets, held at its settings
     when an outer plateau is measured). guess: columns -> a cheap SumDelta per machine that
-    orders the innermost grid (the likely best first, so the cutoffs cut early)."""
+    orders the innermost grid (the likely best first, so the cutoffs cut early). found: the
+    outermost compensator's optimum where another search found it (then only the inner
+    optimum there and the plateau)."""
     if not outer:
         return leaf(c)
     comp, rest = outer[0], outer[1:]
@@ -189,7 +191,10 @@ def _search(c: dict, outer: list[Compensator], plateaus: bool, leaf, held=(),
         return _finite(sub(_apply(c, comp, x), cutoff_um=cutoff_um).total)
 
     grid = _grid(comp)
-    if comp.discrete:
+    res = None
+    if found is not None:
+        x = found
+    elif comp.discrete:
         # every allowed setting of every machine in batches of repeated machines
         vals = np.empty((n, grid.size))
         per = max(1, DISCRETE_BATCH // n)
@@ -212,11 +217,12 @@ def _search(c: dict, outer: list[Compensator], plateaus: bool, leaf, held=(),
         for j in order.T:
             vals[rows, j] = score(grid[j], best)
             best = np.minimum(best, vals[rows, j])
-    i = np.argmin(vals, axis=1)
-    res = None
-    if comp.discrete:
-        x = grid[i]
+    if found is not None:
+        pass
+    elif comp.discrete:
+        x = grid[np.argmin(vals, axis=1)]
     else:
+        i = np.argmin(vals, axis=1)
         a, b = grid[np.maximum(i - 1, 0)], grid[np.minimum(i + 1, grid.size - 1)]
         # each new point scored with the one it is compared with as its cutoff
         x = golden_min(score, a, b, xtol=_xtol(comp), value=False, cutoff=not rest)[0]
@@ -336,7 +342,14 @@ def _joint_optimum(c: dict, strategy: Strategy, plateaus: bool = True) -> _Inner
     outer = sorted((k for k in comps if k not in inner),
                    key=lambda k: ("beta", "guide_angle").index(k.name) + 1
                    if k.name in ("beta", "guide_angle") else 0)
-    return _search(c, outer, plateaus, leaf, inner, guess)
+    found = None
+    if ([k.name for k in outer] == ["CD"] and not outer[0].discrete
+            and outer[0].mode == "offset" and outer[0].high > outer[0].low
+            and any(k.name == "guide_angle" and k.high > k.low for k in inner)):
+        # CD around the guide angle: both kink searches in one kernel call (adjust.cd_and_angle)
+        boxes = {**_exact_boxes(c, inner), "CD": (outer[0].low, outer[0].high)}
+        found = exact.cd_and_angle(c, boxes, _grid(outer[0]), feas)[0]
+    return _search(c, outer, plateaus, leaf, inner, guess, found)
 
 
 # --- the result ---------------------------------------------------------------------------

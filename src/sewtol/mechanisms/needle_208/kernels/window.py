@@ -900,3 +900,210 @@ def outer_batch(P, col, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active
         out[i] = _outer_one(P[i], col, lo[i], hi[i], blo, bhi, T0, T1, grid, h_deg,
                             tol_um * 1e-3, rounds, n_min, cut[i])
     return out
+
+
+# --- the guide angle inside CD: the joint search of both, by kink searches ---------------------
+
+KINK_CAP = 96  # known points one kink search holds (its grid and its steps)
+
+
+@nb.njit(cache=True)
+def _cross(xa, fa, xb, fb, xc, fc, xd, fd):
+    """Where the line through (xa, fa), (xb, fb) meets the line through (xc, fc), (xd, fd), its
+    value there, and whether the first falls and the second rises (a V)."""
+    sa = (fb - fa) / (xb - xa)
+    sc = (fd - fc) / (xd - xc)
+    if not (sa < 0.0 < sc) or not (math.isfinite(sa) and math.isfinite(sc)):
+        return np.nan, np.inf, False
+    xk = (fc - fa + sa * xa - sc * xc) / (sa - sc)
+    return xk, fa + sa * (xk - xa), True
+
+
+@nb.njit(cache=True)
+def _kink_next(x, f, cnt, xtol, st):
+    """The next point of a kink search (NaN: done), from its cnt known points x (increasing)
+    and values f (inf where the mechanism does not run). The minimum is taken to be unimodal
+    and lie between the known points either side of the least; a row ends when they are less
+    than xtol apart. A step is, in this order of preference: a probe xtol * 0.49 beside the
+    least where it is at an end of the box, or where the V model puts the minimum at it (a V:
+    the line through two known points on one side meets the line through the least and its
+    neighbour on the other; of the two ways the one whose meeting point lies in the bracket with
+    the lower value; on an exact V it is the kink, in one step); the model's point; a golden-
+    section step into the larger side, where the model fails, was wrong (a probe beat the least)
+    or the bracket has not halved in two steps. st (4,): the search's state (widths of the last
+    two brackets, whether the last step probed, the least then), inf, inf, 0, NaN at the start."""
+    j = 0
+    for i in range(1, cnt):
+        if f[i] < f[j]:
+            j = i
+    xb, fb = x[j], f[j]
+    if not fb < np.inf or cnt < 2:
+        return np.nan
+    no_l, no_r = j == 0, j == cnt - 1
+    xl1 = xb if no_l else x[j - 1]
+    xr1 = xb if no_r else x[j + 1]
+    width = xr1 - xl1
+    if width < xtol:
+        return np.nan
+    if no_l or no_r:  # the least at an end of the box: beside it
+        st[0], st[1], st[2], st[3] = st[1], width, 1.0, xb
+        return xb + 0.49 * xtol if no_l else xb - 0.49 * xtol
+    model, vbest = np.nan, np.inf
+    if j + 2 < cnt:  # the least on the falling line
+        xk, v, ok = _cross(x[j - 1], f[j - 1], xb, fb, x[j + 1], f[j + 1], x[j + 2], f[j + 2])
+        if ok and xl1 < xk < xr1:
+            model, vbest = xk, v
+    if j >= 2:  # the least on the rising line
+        xk, v, ok = _cross(x[j - 2], f[j - 2], x[j - 1], f[j - 1], xb, fb, x[j + 1], f[j + 1])
+        if ok and xl1 < xk < xr1 and (math.isnan(model) or v < vbest):
+            model = xk
+    gap_r, gap_l = xr1 - xb, xb - xl1
+    if abs(gap_r - gap_l) <= 0.1 * width:  # even sides: towards the larger rise (a lopsided V)
+        right = f[j + 1] - fb >= f[j - 1] - fb
+    else:
+        right = gap_r > gap_l
+    golden = xb + (1.0 - _INVPHI) * gap_r if right else xb - (1.0 - _INVPHI) * gap_l
+    at_best = abs(model - xb) < 0.25 * xtol  # False for a NaN model
+    wrong = st[2] > 0.0 and xb != st[3]
+    near = at_best and not wrong
+    if near:
+        prop = xb + 0.49 * xtol if gap_r >= gap_l else xb - 0.49 * xtol
+    elif math.isnan(model) or at_best or width > 0.5 * st[0]:
+        prop = golden
+    else:
+        prop = model
+    prop = min(max(prop, xl1 + 0.25 * xtol), xr1 - 0.25 * xtol)
+    st[0], st[1], st[2], st[3] = st[1], width, 1.0 if near else 0.0, xb
+    return prop
+
+
+@nb.njit(cache=True)
+def _insert(x, f, cnt, xn, fn):
+    i = cnt
+    while i > 0 and x[i - 1] > xn:
+        x[i] = x[i - 1]
+        f[i] = f[i - 1]
+        i -= 1
+    x[i] = xn
+    f[i] = fn
+    return cnt + 1
+
+
+@nb.njit(cache=True)
+def _angle_kink(q, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xtol_a):
+    """The least SumDelta (um; inf where no setting runs) of machine q (its CD set) over the
+    guide angle's offsets [a_lo, a_hi] (deg; the exact optimum over beta and the shift at each),
+    and that offset: a grid of n_a angles, then a kink search to xtol_a."""
+    own = q[13]
+    res = np.empty(8)
+    geo = np.empty((12, 2))
+    k, w = _segments(q, lo, hi, blo, bhi, geo)
+    nmax = 1
+    ht = h_deg * (math.pi / 180.0)
+    for i in range(k):
+        nmax = max(nmax, _grid(geo[i, 0], geo[i, 1], w, ht)[4])
+    EN = np.empty((max(k, 1), nmax, 6))
+    XN = np.empty((max(k, 1), nmax))
+    ok = np.zeros(12, np.bool_)
+    _points(q, geo, k, w, h_deg, EN, XN, ok)
+    ws = _work(nmax)
+    fb = np.empty((3, nmax))
+    xs = np.empty(KINK_CAP)
+    fs = np.empty(KINK_CAP)
+    cnt = 0
+    for g in range(n_a):
+        rel = a_lo + (a_hi - a_lo) * g / (n_a - 1)
+        v = _minimum_angle_at(q, own, rel, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok,
+                              ws, fb)
+        cnt = _insert(xs, fs, cnt, rel, v)
+    st = np.array([np.inf, np.inf, 0.0, np.nan])
+    while cnt < KINK_CAP:
+        rel = _kink_next(xs, fs, cnt, xtol_a, st)
+        if math.isnan(rel):
+            break
+        v = _minimum_angle_at(q, own, rel, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok,
+                              ws, fb)
+        cnt = _insert(xs, fs, cnt, rel, v)
+    j = 0
+    for i in range(1, cnt):
+        if fs[i] < fs[j]:
+            j = i
+    return fs[j], xs[j]
+
+
+@nb.njit(cache=True)
+def _minimum_angle_at(q, own, rel, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok, ws, fb):
+    r = q.copy()
+    r[13] = own + rel
+    v = _minimum_angle(r, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok, ws, fb)
+    return np.inf if math.isnan(v) else v
+
+
+@nb.njit(cache=True)
+def _cd_value(q, own, rel, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xtol_a):
+    q[3] = own + rel
+    return _angle_kink(q, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xtol_a)[0]
+
+
+@nb.njit(cache=True, parallel=True)
+def cd_angle_batch(P, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active, cd_grid, a_lo,
+                   a_hi, n_a=11, h_deg=2.0, tol_um=1e-3, xtol_cd=3e-6, xtol_a=2e-7):
+    """Per machine (rows of P): the CD offset (mm, in [cd_grid[0], cd_grid[-1]]) where the least
+    SumDelta over the guide angle's offsets [a_lo, a_hi] (deg) and, at each, the exact optimum
+    over beta in [blo, bhi] and the guide shift (shift_active: in [shift_lo_um, shift_hi_um],
+    absolute; else the machine's own, P[:, 14]) is least, and that SumDelta (um). CD: on
+    cd_grid, then golden section on the best grid point's two cells to a bracket below
+    xtol_cd (mm), never worse than the grid (as adjustment._search's nested search, which it
+    replaces for this pair); at every CD the angle: on n_a points, then a kink search to xtol_a
+    (deg) (_angle_kink, which takes SumDelta to be unimodal in the angle: the tests check it).
+    Returns (n, 2): CD offset, SumDelta (NaN where no setting runs)."""
+    n = P.shape[0]
+    out = np.empty((n, 2))
+    G = cd_grid.size
+    tol_mm = tol_um * 1e-3
+    for i in nb.prange(n):
+        if shift_active:
+            T0, T1 = shift_lo_um * 1e-3, shift_hi_um * 1e-3
+        else:
+            T0 = T1 = P[i, 14] * 1e-3
+        li, hi_ = lo[i], hi[i]
+        if math.isnan(li) or math.isnan(hi_):
+            out[i, 0] = cd_grid[G // 2]
+            out[i, 1] = np.nan
+            continue
+        q = P[i].copy()
+        own = q[3]
+        vals = np.empty(G)
+        for g in range(G):
+            vals[g] = _cd_value(q, own, cd_grid[g], li, hi_, blo, bhi, T0, T1, h_deg, tol_mm,
+                                a_lo, a_hi, n_a, xtol_a)
+        j = np.argmin(vals)
+        a = cd_grid[max(j - 1, 0)]
+        b = cd_grid[min(j + 1, G - 1)]
+        c = b - _INVPHI * (b - a)
+        d = a + _INVPHI * (b - a)
+        fc = _cd_value(q, own, c, li, hi_, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a,
+                       xtol_a)
+        fd = _cd_value(q, own, d, li, hi_, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a,
+                       xtol_a)
+        for _ in range(200):
+            if b - a < xtol_cd:
+                break
+            if fc < fd:
+                b, d, fd = d, c, fc
+                c = b - _INVPHI * (b - a)
+                fc = _cd_value(q, own, c, li, hi_, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi,
+                               n_a, xtol_a)
+            else:
+                a, c, fc = c, d, fd
+                d = a + _INVPHI * (b - a)
+                fd = _cd_value(q, own, d, li, hi_, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi,
+                               n_a, xtol_a)
+        x = 0.5 * (a + b)
+        fx = _cd_value(q, own, x, li, hi_, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a,
+                       xtol_a)
+        if vals[j] < fx:  # never worse than the grid
+            x, fx = cd_grid[j], vals[j]
+        out[i, 0] = x
+        out[i, 1] = fx if fx < np.inf else np.nan
+    return out
