@@ -990,10 +990,13 @@ def _insert(x, f, cnt, xn, fn):
 
 
 @nb.njit(cache=True)
-def _angle_kink(q, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xtol_a):
+def _angle_kink(q, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xtol_a, start):
     """The least SumDelta (um; inf where no setting runs) of machine q (its CD set) over the
     guide angle's offsets [a_lo, a_hi] (deg; the exact optimum over beta and the shift at each),
-    and that offset: a grid of n_a angles, then a kink search to xtol_a."""
+    and that offset: a grid of n_a angles (start NaN), or from `start` (the optimum at a nearby
+    CD) a bracket a quarter of a grid cell either side, widened (doubling) until the least is
+    inside it or at an end of the box; then a kink search to xtol_a. Both take SumDelta to be
+    unimodal in the angle."""
     own = q[13]
     res = np.empty(8)
     geo = np.empty((12, 2))
@@ -1011,11 +1014,35 @@ def _angle_kink(q, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xto
     xs = np.empty(KINK_CAP)
     fs = np.empty(KINK_CAP)
     cnt = 0
-    for g in range(n_a):
-        rel = a_lo + (a_hi - a_lo) * g / (n_a - 1)
-        v = _minimum_angle_at(q, own, rel, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok,
-                              ws, fb)
-        cnt = _insert(xs, fs, cnt, rel, v)
+    if math.isnan(start):
+        for g in range(n_a):
+            rel = a_lo + (a_hi - a_lo) * g / (n_a - 1)
+            v = _minimum_angle_at(q, own, rel, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN,
+                                  ok, ws, fb)
+            cnt = _insert(xs, fs, cnt, rel, v)
+    else:
+        step = 0.25 * (a_hi - a_lo) / (n_a - 1)
+        x0 = min(max(start, a_lo), a_hi)
+        for rel in (x0, max(x0 - step, a_lo), min(x0 + step, a_hi)):
+            if cnt > 0 and rel == x0:  # x0 at an end of the box
+                continue
+            v = _minimum_angle_at(q, own, rel, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN,
+                                  ok, ws, fb)
+            cnt = _insert(xs, fs, cnt, rel, v)
+        while cnt < KINK_CAP // 2:
+            j = 0
+            for i in range(1, cnt):
+                if fs[i] < fs[j]:
+                    j = i
+            if j == 0 and xs[0] > a_lo:
+                rel = max(xs[0] - 2.0 * (xs[1] - xs[0]), a_lo)
+            elif j == cnt - 1 and xs[cnt - 1] < a_hi:
+                rel = min(xs[cnt - 1] + 2.0 * (xs[cnt - 1] - xs[cnt - 2]), a_hi)
+            else:
+                break
+            v = _minimum_angle_at(q, own, rel, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN,
+                                  ok, ws, fb)
+            cnt = _insert(xs, fs, cnt, rel, v)
     st = np.array([np.inf, np.inf, 0.0, np.nan])
     while cnt < KINK_CAP:
         rel = _kink_next(xs, fs, cnt, xtol_a, st)
@@ -1040,9 +1067,16 @@ def _minimum_angle_at(q, own, rel, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN
 
 
 @nb.njit(cache=True)
-def _cd_value(q, own, rel, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xtol_a):
+def _cd_value(q, own, rel, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xtol_a,
+              start, best):
+    """_angle_kink at CD offset rel; best (2,): the least SumDelta so far and its angle, which
+    is updated, and from which (start) the angle search starts unless start is NaN."""
     q[3] = own + rel
-    return _angle_kink(q, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xtol_a)[0]
+    v, a = _angle_kink(q, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xtol_a,
+                       best[1] if start else np.nan)
+    if v < best[0]:
+        best[0], best[1] = v, a
+    return v
 
 
 @nb.njit(cache=True, parallel=True)
@@ -1074,18 +1108,20 @@ def cd_angle_batch(P, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active, 
         q = P[i].copy()
         own = q[3]
         vals = np.empty(G)
+        best = np.array([np.inf, np.nan])
         for g in range(G):
             vals[g] = _cd_value(q, own, cd_grid[g], li, hi_, blo, bhi, T0, T1, h_deg, tol_mm,
-                                a_lo, a_hi, n_a, xtol_a)
+                                a_lo, a_hi, n_a, xtol_a, False, best)
+        warm = best[0] < np.inf  # golden's CDs: the angle from the best so far
         j = np.argmin(vals)
         a = cd_grid[max(j - 1, 0)]
         b = cd_grid[min(j + 1, G - 1)]
         c = b - _INVPHI * (b - a)
         d = a + _INVPHI * (b - a)
         fc = _cd_value(q, own, c, li, hi_, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a,
-                       xtol_a)
+                       xtol_a, warm, best)
         fd = _cd_value(q, own, d, li, hi_, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a,
-                       xtol_a)
+                       xtol_a, warm, best)
         for _ in range(200):
             if b - a < xtol_cd:
                 break
@@ -1093,15 +1129,15 @@ def cd_angle_batch(P, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active, 
                 b, d, fd = d, c, fc
                 c = b - _INVPHI * (b - a)
                 fc = _cd_value(q, own, c, li, hi_, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi,
-                               n_a, xtol_a)
+                               n_a, xtol_a, warm, best)
             else:
                 a, c, fc = c, d, fd
                 d = a + _INVPHI * (b - a)
                 fd = _cd_value(q, own, d, li, hi_, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi,
-                               n_a, xtol_a)
+                               n_a, xtol_a, warm, best)
         x = 0.5 * (a + b)
         fx = _cd_value(q, own, x, li, hi_, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a,
-                       xtol_a)
+                       xtol_a, warm, best)
         if vals[j] < fx:  # never worse than the grid
             x, fx = cd_grid[j], vals[j]
         out[i, 0] = x
