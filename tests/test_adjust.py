@@ -635,29 +635,3 @@ def _local_minima(f) -> int:
     f = np.where(np.isfinite(f), f, np.inf)
     inner = (f[1:-1] < f[:-2]) & (f[1:-1] <= f[2:])
     return int(inner.sum() + (f[0] <= f[1]) + (f[-1] < f[-2]))
-
-
-def test_cd_with_the_shift_has_one_minimum_and_13_grid_points_find_it(forty):
-    """With the guide shift among the compensators, SumDelta's least over beta and the shift has
-    one local minimum over CD's box (121 points, the guide angle fixed at the machine's own), so
-    adjustment's CD search on 13 grid points (CD_GRID_WITH_SHIFT) finds the optimum of the 61
-    adjust.optimise uses by default: the same SumDelta to the golden section's precision
-    (a bracket of 1e-9 mm at a slope of at most 1e3 um/mm: 1e-6 um)."""
-    from sewtol.mechanisms.needle_208.adjustment import CD_GRID_WITH_SHIFT
-
-    boxes = {k: b for k, b in ALL_BOXES.items() if k != "guide_angle"}
-    no_cd = {k: b for k, b in boxes.items() if k != "CD"}
-    cds = np.linspace(-0.3, 0.3, 121)
-    for c in forty.values():
-        prof = []
-        for d in cds:
-            cc = dict(c)
-            cc["CD"] = c["CD"] + d
-            prof.append(ad.optimise(cc, no_cd).min_total_um)
-        prof = np.array(prof).T
-        runs = np.isfinite(prof).all(axis=1)
-        assert runs.sum() >= 35
-        assert all(_local_minima(f) == 1 for f in prof[runs])
-        coarse = ad.optimise(c, boxes, angle_grid=CD_GRID_WITH_SHIFT).min_total_um
-        fine = ad.optimise(c, boxes).min_total_um
-        assert np.all(np.abs(coarse - fine)[runs] <= 1e-6)

@@ -50,11 +50,6 @@ OUTER_GRID_STEP = {"beta": 1.0}
 MAX_DISCRETE = 5001
 DISCRETE_BATCH = 20000  # machines per call when every allowed setting is tried
 EXACT_INNER = ("beta", "guide_shift_um", "guide_angle")  # what the exact optimum sets itself
-# CD's outer grid where the guide shift is set too (adjust.optimise's default: 61 points): with
-# the shift, SumDelta's least over beta and the shift has one minimum over CD's box (121 points,
-# tests/test_adjust.py), so golden section from the best of 13 finds it; without the shift it
-# may have two (a third of the machines), and the 61-point grid stays
-CD_GRID_WITH_SHIFT = 13
 
 
 def _grid(comp: Compensator) -> np.ndarray:
@@ -294,9 +289,7 @@ def _exact_boxes(c: dict, comps) -> dict | None:
 def _exact(c: dict, comps, boxes: dict, feas=None, cutoff_um=None) -> _Inner:
     """needle_208.adjust.optimise, its settings and plateau ranges in this module's terms
     (feas: the machines' feasibility if known; cutoff_um: as optimise's)."""
-    shift_and_cd = "CD" in boxes and "guide_shift_um" in boxes
-    r = exact.optimise(c, boxes, feas=feas, cutoff_um=cutoff_um,
-                       angle_grid=CD_GRID_WITH_SHIFT if shift_and_cd else None)
+    r = exact.optimise(c, boxes, feas=feas, cutoff_um=cutoff_um)
     out = _Inner(total=np.asarray(r.min_total_um, float))
     for k in comps:
         x, lo, hi = (np.asarray(v[k.name], float) for v in (r.settings, r.low, r.high))
