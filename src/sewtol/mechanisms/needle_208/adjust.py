@@ -235,11 +235,11 @@ def _result(out, boxes, code, tol_um, outer=None) -> AdjustResult:
 # --- the guide angle or CD: an outer search around the exact inner optimum ---------------------
 
 def cd_and_angle(c: dict[str, np.ndarray], active: dict, cd_grid, feas=None,
-                 angle_grid: int = 11, h_deg: float = 2.0, tol_um: float = PLATEAU_TOL_UM):
+                 angle_grid: int = 21, h_deg: float = 2.0, tol_um: float = PLATEAU_TOL_UM):
     """CD's offset (mm) at the joint optimum of beta, the guide shift (if active), the guide
     angle and CD, and that least SumDelta (um), per machine: kernels.window.cd_angle_batch (CD
-    on cd_grid, the angle on angle_grid points, each then a kink search; both taken to be
-    unimodal). `active` as optimise's, with both guide_angle and CD."""
+    on cd_grid, then golden section; at each CD the angle on angle_grid points, its local
+    minima refined by kink searches). `active` as optimise's, with both guide_angle and CD."""
     from sewtol.mechanisms.needle_208 import kernels as KB
     from sewtol.mechanisms.needle_208.kernels import window as KW
 

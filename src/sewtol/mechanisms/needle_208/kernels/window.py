@@ -990,13 +990,35 @@ def _insert(x, f, cnt, xn, fn):
 
 
 @nb.njit(cache=True)
-def _angle_kink(q, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xtol_a, start):
+def _kink_run(q, own, xs, fs, cnt, xtol_a, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok,
+              ws, fb):
+    """A kink search over the guide angle from its cnt known points; the least and where."""
+    st = np.array([np.inf, np.inf, 0.0, np.nan])
+    while cnt < KINK_CAP:
+        rel = _kink_next(xs, fs, cnt, xtol_a, st)
+        if math.isnan(rel):
+            break
+        v = _minimum_angle_at(q, own, rel, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok,
+                              ws, fb)
+        cnt = _insert(xs, fs, cnt, rel, v)
+    j = 0
+    for i in range(1, cnt):
+        if fs[i] < fs[j]:
+            j = i
+    return fs[j], xs[j]
+
+
+@nb.njit(cache=True)
+def _angle_kink(q, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xtol_a, start,
+                rounds=3):
     """The least SumDelta (um; inf where no setting runs) of machine q (its CD set) over the
     guide angle's offsets [a_lo, a_hi] (deg; the exact optimum over beta and the shift at each),
-    and that offset: a grid of n_a angles (start NaN), or from `start` (the optimum at a nearby
-    CD) a bracket a quarter of a grid cell either side, widened (doubling) until the least is
-    inside it or at an end of the box; then a kink search to xtol_a. Both take SumDelta to be
-    unimodal in the angle."""
+    that offset, and whether the grid saw one local minimum. start NaN: a grid of n_a angles,
+    then a kink search to xtol_a in the two cells around each of the `rounds` least local
+    minima of the grid (as outer_batch's golden sections); else (start: the optimum at a nearby
+    CD, where the angle has one minimum) a bracket a quarter of a grid cell either side of
+    start, widened (doubling) until the least is inside it or at an end of the box, then one
+    kink search."""
     own = q[13]
     res = np.empty(8)
     geo = np.empty((12, 2))
@@ -1013,14 +1035,8 @@ def _angle_kink(q, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xto
     fb = np.empty((3, nmax))
     xs = np.empty(KINK_CAP)
     fs = np.empty(KINK_CAP)
-    cnt = 0
-    if math.isnan(start):
-        for g in range(n_a):
-            rel = a_lo + (a_hi - a_lo) * g / (n_a - 1)
-            v = _minimum_angle_at(q, own, rel, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN,
-                                  ok, ws, fb)
-            cnt = _insert(xs, fs, cnt, rel, v)
-    else:
+    if not math.isnan(start):
+        cnt = 0
         step = 0.25 * (a_hi - a_lo) / (n_a - 1)
         x0 = min(max(start, a_lo), a_hi)
         for rel in (x0, max(x0 - step, a_lo), min(x0 + step, a_hi)):
@@ -1043,19 +1059,38 @@ def _angle_kink(q, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xto
             v = _minimum_angle_at(q, own, rel, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN,
                                   ok, ws, fb)
             cnt = _insert(xs, fs, cnt, rel, v)
-    st = np.array([np.inf, np.inf, 0.0, np.nan])
-    while cnt < KINK_CAP:
-        rel = _kink_next(xs, fs, cnt, xtol_a, st)
-        if math.isnan(rel):
+        v, x = _kink_run(q, own, xs, fs, cnt, xtol_a, geo, k, w, h_deg, T0, T1, tol_mm, res, EN,
+                         XN, ok, ws, fb)
+        return v, x, True
+    grid = np.empty(n_a)
+    vals = np.empty(n_a)
+    for g in range(n_a):
+        grid[g] = a_lo + (a_hi - a_lo) * g / (n_a - 1)
+        vals[g] = _minimum_angle_at(q, own, grid[g], geo, k, w, h_deg, T0, T1, tol_mm, res, EN,
+                                    XN, ok, ws, fb)
+    score = np.empty(n_a)
+    n_loc = 0
+    for g in range(n_a):
+        left = vals[g - 1] if g > 0 else np.inf
+        right = vals[g + 1] if g < n_a - 1 else np.inf
+        score[g] = vals[g] if (vals[g] <= left and vals[g] <= right) else np.inf
+        if score[g] < np.inf:
+            n_loc += 1
+    i0 = np.argmin(vals)
+    best_v, best_x = vals[i0], grid[i0]
+    for _ in range(rounds):
+        i = np.argmin(score)
+        if not score[i] < np.inf:
             break
-        v = _minimum_angle_at(q, own, rel, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok,
-                              ws, fb)
-        cnt = _insert(xs, fs, cnt, rel, v)
-    j = 0
-    for i in range(1, cnt):
-        if fs[i] < fs[j]:
-            j = i
-    return fs[j], xs[j]
+        score[i] = np.inf
+        cnt = 0
+        for g in range(max(i - 1, 0), min(i + 2, n_a)):
+            cnt = _insert(xs, fs, cnt, grid[g], vals[g])
+        v, x = _kink_run(q, own, xs, fs, cnt, xtol_a, geo, k, w, h_deg, T0, T1, tol_mm, res, EN,
+                         XN, ok, ws, fb)
+        if v < best_v:
+            best_v, best_x = v, x
+    return best_v, best_x, n_loc == 1
 
 
 @nb.njit(cache=True)
@@ -1069,28 +1104,33 @@ def _minimum_angle_at(q, own, rel, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN
 @nb.njit(cache=True)
 def _cd_value(q, own, rel, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xtol_a,
               start, best):
-    """_angle_kink at CD offset rel; best (2,): the least SumDelta so far and its angle, which
-    is updated, and from which (start) the angle search starts unless start is NaN."""
+    """_angle_kink at CD offset rel; best (3,): the least SumDelta so far, its angle, and 1 while
+    every grid so far saw one local minimum (else 0), updated; start: begin the angle's search
+    at best's angle (else on its grid)."""
     q[3] = own + rel
-    v, a = _angle_kink(q, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xtol_a,
-                       best[1] if start else np.nan)
+    v, a, one = _angle_kink(q, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xtol_a,
+                            best[1] if start else np.nan)
     if v < best[0]:
         best[0], best[1] = v, a
+    if not one:
+        best[2] = 0.0
     return v
 
 
 @nb.njit(cache=True, parallel=True)
 def cd_angle_batch(P, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active, cd_grid, a_lo,
-                   a_hi, n_a=11, h_deg=2.0, tol_um=1e-3, xtol_cd=3e-6, xtol_a=2e-7):
+                   a_hi, n_a=21, h_deg=2.0, tol_um=1e-3, xtol_cd=3e-6, xtol_a=2e-7):
     """Per machine (rows of P): the CD offset (mm, in [cd_grid[0], cd_grid[-1]]) where the least
     SumDelta over the guide angle's offsets [a_lo, a_hi] (deg) and, at each, the exact optimum
     over beta in [blo, bhi] and the guide shift (shift_active: in [shift_lo_um, shift_hi_um],
     absolute; else the machine's own, P[:, 14]) is least, and that SumDelta (um). CD: on
     cd_grid, then golden section on the best grid point's two cells to a bracket below
     xtol_cd (mm), never worse than the grid (as adjustment._search's nested search, which it
-    replaces for this pair); at every CD the angle: on n_a points, then a kink search to xtol_a
-    (deg) (_angle_kink, which takes SumDelta to be unimodal in the angle: the tests check it).
-    Returns (n, 2): CD offset, SumDelta (NaN where no setting runs)."""
+    replaces for this pair). The angle at every CD of the grid: on n_a points, each of the three
+    least local minima refined by a kink search to xtol_a (deg) (outer_batch refines them by
+    golden section to 1e-9 deg); at golden section's CDs, where every grid CD's angle grid saw
+    one minimum, one kink search from the best CD's angle so far, else as on the grid
+    (_angle_kink). Returns (n, 2): CD offset, SumDelta (NaN where no setting runs)."""
     n = P.shape[0]
     out = np.empty((n, 2))
     G = cd_grid.size
@@ -1108,11 +1148,13 @@ def cd_angle_batch(P, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active, 
         q = P[i].copy()
         own = q[3]
         vals = np.empty(G)
-        best = np.array([np.inf, np.nan])
+        best = np.array([np.inf, np.nan, 1.0])
         for g in range(G):
             vals[g] = _cd_value(q, own, cd_grid[g], li, hi_, blo, bhi, T0, T1, h_deg, tol_mm,
                                 a_lo, a_hi, n_a, xtol_a, False, best)
-        warm = best[0] < np.inf  # golden's CDs: the angle from the best so far
+        # golden's CDs: the angle's search from the best's angle so far where every grid CD's
+        # angle grid saw one minimum; else on its grid with each local minimum refined
+        warm = best[0] < np.inf and best[2] > 0.0
         j = np.argmin(vals)
         a = cd_grid[max(j - 1, 0)]
         b = cd_grid[min(j + 1, G - 1)]
