@@ -1010,7 +1010,7 @@ def _kink_run(q, own, xs, fs, cnt, xtol_a, geo, k, w, h_deg, T0, T1, tol_mm, res
 
 @nb.njit(cache=True)
 def _angle_kink(q, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xtol_a, start,
-                rounds=3):
+                cutoff=np.inf, rounds=3):
     """The least SumDelta (um; inf where no setting runs) of machine q (its CD set) over the
     guide angle's offsets [a_lo, a_hi] (deg; the exact optimum over beta and the shift at each),
     that offset, and whether the grid saw one local minimum. start NaN: a grid of n_a angles,
@@ -1018,7 +1018,8 @@ def _angle_kink(q, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xto
     minima of the grid (as outer_batch's golden sections); else (start: the optimum at a nearby
     CD, where the angle has one minimum) a bracket a quarter of a grid cell either side of
     start, widened (doubling) until the least is inside it or at an end of the box, then one
-    kink search."""
+    kink search. cutoff (um): where _angle_bound proves from the grid that no angle reaches it,
+    the grid's least, not refined (a value above the cutoff, as outer_batch's)."""
     own = q[13]
     res = np.empty(8)
     geo = np.empty((12, 2))
@@ -1063,11 +1064,29 @@ def _angle_kink(q, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xto
                          XN, ok, ws, fb)
         return v, x, True
     grid = np.empty(n_a)
-    vals = np.empty(n_a)
+    vals = np.full(n_a, np.nan)
     for g in range(n_a):
         grid[g] = a_lo + (a_hi - a_lo) * g / (n_a - 1)
-        vals[g] = _minimum_angle_at(q, own, grid[g], geo, k, w, h_deg, T0, T1, tol_mm, res, EN,
-                                    XN, ok, ws, fb)
+    if cutoff < np.inf:
+        # every fourth grid angle first: where they prove that no angle reaches the cutoff,
+        # their least (a value above the cutoff), the other grid angles never evaluated
+        sub = np.append(np.arange(0, n_a - 1, 4), n_a - 1)
+        for g in sub:
+            vals[g] = _minimum_angle_at(q, own, grid[g], geo, k, w, h_deg, T0, T1, tol_mm, res,
+                                        EN, XN, ok, ws, fb)
+        if _angle_bound(q, grid[sub], vals[sub], EN, geo, k, w, ok, ht) > cutoff:
+            j = sub[np.argmin(vals[sub])]
+            n_loc = 0
+            for m in range(sub.size):
+                left = vals[sub[m - 1]] if m > 0 else np.inf
+                right = vals[sub[m + 1]] if m < sub.size - 1 else np.inf
+                if vals[sub[m]] <= left and vals[sub[m]] <= right:
+                    n_loc += 1
+            return vals[j], grid[j], n_loc == 1
+    for g in range(n_a):
+        if math.isnan(vals[g]):
+            vals[g] = _minimum_angle_at(q, own, grid[g], geo, k, w, h_deg, T0, T1, tol_mm, res,
+                                        EN, XN, ok, ws, fb)
     score = np.empty(n_a)
     n_loc = 0
     for g in range(n_a):
@@ -1078,6 +1097,8 @@ def _angle_kink(q, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xto
             n_loc += 1
     i0 = np.argmin(vals)
     best_v, best_x = vals[i0], grid[i0]
+    if cutoff < np.inf and _angle_bound(q, grid, vals, EN, geo, k, w, ok, ht) > cutoff:
+        rounds = 0
     for _ in range(rounds):
         i = np.argmin(score)
         if not score[i] < np.inf:
@@ -1103,13 +1124,13 @@ def _minimum_angle_at(q, own, rel, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN
 
 @nb.njit(cache=True)
 def _cd_value(q, own, rel, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xtol_a,
-              start, best):
+              start, best, cut=False):
     """_angle_kink at CD offset rel; best (3,): the least SumDelta so far, its angle, and 1 while
     every grid so far saw one local minimum (else 0), updated; start: begin the angle's search
-    at best's angle (else on its grid)."""
+    at best's angle (else on its grid); cut: the least so far as the angle search's cutoff."""
     q[3] = own + rel
     v, a, one = _angle_kink(q, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xtol_a,
-                            best[1] if start else np.nan)
+                            best[1] if start else np.nan, best[0] if cut else np.inf)
     if v < best[0]:
         best[0], best[1] = v, a
     if not one:
@@ -1149,9 +1170,12 @@ def cd_angle_batch(P, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active, 
         own = q[3]
         vals = np.empty(G)
         best = np.array([np.inf, np.nan, 1.0])
-        for g in range(G):
+        for m in range(G):  # from the middle of the box out, so the least comes early and the
+            # cutoff (the least so far) skips the refinement of CDs that cannot beat it: a value
+            # above the cutoff is never the grid's least
+            g = (G - 1) // 2 + ((m + 1) // 2) * (1 if m % 2 else -1)
             vals[g] = _cd_value(q, own, cd_grid[g], li, hi_, blo, bhi, T0, T1, h_deg, tol_mm,
-                                a_lo, a_hi, n_a, xtol_a, False, best)
+                                a_lo, a_hi, n_a, xtol_a, False, best, True)
         # golden's CDs: the angle's search from the best's angle so far where every grid CD's
         # angle grid saw one minimum; else on its grid with each local minimum refined
         warm = best[0] < np.inf and best[2] > 0.0
