@@ -592,7 +592,7 @@ def test_cd_and_angle_against_the_nested_search_it_replaced(forty):
     grid = np.linspace(-0.3, 0.3, 13)
     no_cd = {k: b for k, b in ALL_BOXES.items() if k != "CD"}
     for key, c in forty.items():
-        x, v = ad.cd_and_angle(c, ALL_BOXES, grid)
+        x, a, v = ad.cd_and_angle(c, ALL_BOXES, grid)
 
         def nested(d, c=c):
             cc = dict(c)
@@ -610,3 +610,9 @@ def test_cd_and_angle_against_the_nested_search_it_replaced(forty):
         assert np.array_equal(np.isfinite(v), runs), key
         assert np.all(np.abs(v - ref)[runs] <= 2e-4), key
         assert np.all(np.abs(v - nested(x))[runs] <= 2e-5), key
+        # and it is SumDelta's optimum over beta and the shift at that CD and angle
+        cc = dict(c)
+        cc["CD"] = c["CD"] + x.reshape(-1, 1)
+        cc["guide_angle"] = c["guide_angle"] + a.reshape(-1, 1)
+        at = ad.optimise(cc, {k: b for k, b in no_cd.items() if k != "guide_angle"})
+        assert np.allclose(at.min_total_um[runs], v[runs], rtol=0, atol=1e-9), key

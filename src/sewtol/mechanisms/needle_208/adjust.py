@@ -236,8 +236,9 @@ def _result(out, boxes, code, tol_um, outer=None) -> AdjustResult:
 
 def cd_and_angle(c: dict[str, np.ndarray], active: dict, cd_grid, feas=None,
                  angle_grid: int = 21, h_deg: float = 2.0, tol_um: float = PLATEAU_TOL_UM):
-    """CD's offset (mm) at the joint optimum of beta, the guide shift (if active), the guide
-    angle and CD, and that least SumDelta (um), per machine: kernels.window.cd_angle_batch (CD
+    """CD's and the guide angle's offsets (mm, deg) at the joint optimum of beta, the guide shift
+    (if active), the guide angle and CD, and that least SumDelta (um), per machine (CD, angle,
+    SumDelta): kernels.window.cd_angle_batch (CD
     on cd_grid, then golden section; at each CD the angle on angle_grid points, its local
     minima refined by kink searches). `active` as optimise's, with both guide_angle and CD."""
     from sewtol.mechanisms.needle_208 import kernels as KB
@@ -253,7 +254,7 @@ def cd_and_angle(c: dict[str, np.ndarray], active: dict, cd_grid, feas=None,
                             np.ascontiguousarray(r_hi, float).reshape(-1), blo, bhi, slo, shi,
                             "guide_shift_um" in boxes, cd_grid, alo, ahi, int(angle_grid), h_deg,
                             tol_um, 5e-6 * (cd_grid[-1] - cd_grid[0]), 1e-6 * (ahi - alo))
-    return out[:, 0], out[:, 1]
+    return out[:, 0], out[:, 2], out[:, 1]
 
 # --- the guide angle or CD: an outer search around the exact inner optimum ---------------------
 

@@ -343,12 +343,22 @@ def _joint_optimum(c: dict, strategy: Strategy, plateaus: bool = True) -> _Inner
                    key=lambda k: ("beta", "guide_angle").index(k.name) + 1
                    if k.name in ("beta", "guide_angle") else 0)
     found = None
+    angle = next((k for k in inner if k.name == "guide_angle"), None)
     if ([k.name for k in outer] == ["CD"] and not outer[0].discrete
             and outer[0].mode == "offset" and outer[0].high > outer[0].low
-            and any(k.name == "guide_angle" and k.high > k.low for k in inner)):
-        # CD around the guide angle: both kink searches in one kernel call (adjust.cd_and_angle)
+            and angle is not None and angle.high > angle.low):
+        # CD around the guide angle in one kernel call (adjust.cd_and_angle): CD's optimum and
+        # the angle's there; the inner optimum at CD's is then beta's and the shift's at that
+        # angle
         boxes = {**_exact_boxes(c, inner), "CD": (outer[0].low, outer[0].high)}
-        found = exact.cd_and_angle(c, boxes, _grid(outer[0]), feas)[0]
+        found, at_angle, _ = exact.cd_and_angle(c, boxes, _grid(outer[0]), feas)
+        rest = [k for k in inner if k is not angle]
+
+        def leaf(cc, cutoff_um=None):
+            r = _exact(_apply(cc, angle, at_angle), rest, _exact_boxes(cc, rest), feas)
+            r.settings[angle.name] = at_angle
+            r.plateaus[angle.name] = (at_angle, at_angle)
+            return r
     return _search(c, outer, plateaus, leaf, inner, guess, found)
 
 

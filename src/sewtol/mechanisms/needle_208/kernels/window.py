@@ -1125,14 +1125,15 @@ def _minimum_angle_at(q, own, rel, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN
 @nb.njit(cache=True)
 def _cd_value(q, own, rel, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xtol_a,
               start, best, cut=False):
-    """_angle_kink at CD offset rel; best (3,): the least SumDelta so far, its angle, and 1 while
-    every grid so far saw one local minimum (else 0), updated; start: begin the angle's search
-    at best's angle (else on its grid); cut: the least so far as the angle search's cutoff."""
+    """_angle_kink at CD offset rel; best (4,): the least SumDelta so far, its angle, 1 while
+    every grid so far saw one local minimum (else 0), and its CD offset, updated; start: begin
+    the angle's search at best's angle (else on its grid); cut: the least so far as the angle
+    search's cutoff (a value above it is never the least)."""
     q[3] = own + rel
     v, a, one = _angle_kink(q, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xtol_a,
                             best[1] if start else np.nan, best[0] if cut else np.inf)
     if v < best[0]:
-        best[0], best[1] = v, a
+        best[0], best[1], best[3] = v, a, rel
     if not one:
         best[2] = 0.0
     return v
@@ -1151,9 +1152,10 @@ def cd_angle_batch(P, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active, 
     least local minima refined by a kink search to xtol_a (deg) (outer_batch refines them by
     golden section to 1e-9 deg); at golden section's CDs, where every grid CD's angle grid saw
     one minimum, one kink search from the best CD's angle so far, else as on the grid
-    (_angle_kink). Returns (n, 2): CD offset, SumDelta (NaN where no setting runs)."""
+    (_angle_kink). Returns (n, 3) of the least point tried (never worse than the grid): CD
+    offset, SumDelta (NaN where no setting runs), guide angle offset."""
     n = P.shape[0]
-    out = np.empty((n, 2))
+    out = np.empty((n, 3))
     G = cd_grid.size
     tol_mm = tol_um * 1e-3
     for i in nb.prange(n):
@@ -1163,13 +1165,13 @@ def cd_angle_batch(P, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active, 
             T0 = T1 = P[i, 14] * 1e-3
         li, hi_ = lo[i], hi[i]
         if math.isnan(li) or math.isnan(hi_):
-            out[i, 0] = cd_grid[G // 2]
-            out[i, 1] = np.nan
+            out[i, 0] = cd_grid[(G - 1) // 2]
+            out[i, 1] = out[i, 2] = np.nan
             continue
         q = P[i].copy()
         own = q[3]
         vals = np.empty(G)
-        best = np.array([np.inf, np.nan, 1.0])
+        best = np.array([np.inf, np.nan, 1.0, cd_grid[(G - 1) // 2]])
         for m in range(G):  # from the middle of the box out, so the least comes early and the
             # cutoff (the least so far) skips the refinement of CDs that cannot beat it: a value
             # above the cutoff is never the grid's least
@@ -1201,11 +1203,10 @@ def cd_angle_batch(P, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active, 
                 d = a + _INVPHI * (b - a)
                 fd = _cd_value(q, own, d, li, hi_, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi,
                                n_a, xtol_a, warm, best)
-        x = 0.5 * (a + b)
-        fx = _cd_value(q, own, x, li, hi_, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a,
-                       xtol_a, warm, best)
-        if vals[j] < fx:  # never worse than the grid
-            x, fx = cd_grid[j], vals[j]
-        out[i, 0] = x
-        out[i, 1] = fx if fx < np.inf else np.nan
+        _cd_value(q, own, 0.5 * (a + b), li, hi_, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi,
+                  n_a, xtol_a, warm, best)
+        # the least of every point tried (the grid's, golden section's and the bracket's centre)
+        out[i, 0] = best[3]
+        out[i, 1] = best[0] if best[0] < np.inf else np.nan
+        out[i, 2] = best[1]
     return out
