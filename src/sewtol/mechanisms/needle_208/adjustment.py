@@ -14,7 +14,9 @@ Structure used, innermost first:
 - every other compensator (CD, any parameter declared one, a discrete beta or shift, the angle
   without beta): an outer 1-D search around that inner optimum, nested: a grid over the range,
   then golden section on the best grid cell. A discrete compensator is searched over all its
-  allowed settings (exact given the inner optimum).
+  allowed settings (exact given the inner optimum). CD (continuous, an offset) around the
+  exact optimum with the guide angle: both outer searches in one kernel call
+  (needle_208.adjust.cd_and_angle), then beta and the shift at the CD and angle it found.
 
 Every reported SumDelta is recomputed at the chosen settings with the exact extremes
 (needle_208.metrics.deviation_figures), so it is the machine's true SumDelta at those settings.
