@@ -6,10 +6,11 @@ kernel and search stage, in one process with one numba thread (so CPU-s add up).
 Runs `needle strategies --n N --format json` in-process (after one run at n 20, so nothing is
 compiled in the timed run) with timers wrapped around: the rows (studies.strategies.
 set_in_order), the window kernels (optimise_batch; outer_batch over the guide angle or over
-CD; fixed_batch), the `all` row's first-stage CD search (its golden section, grid and plateau:
-needle_208.adjustment), and the exact extremes (metrics.deviation_figures, feasibility). A
-stage's figure includes the kernels it calls. With --reference-src the same script runs again
-in a subprocess on that checkout's sources, the two interleaved run by run (--repeats, medians),
+CD; fixed_batch), the `all` row's first-stage CD search (cd_angle_batch, or before it the
+golden section of needle_208.adjustment; its plateau), and the exact extremes
+(metrics.deviation_figures, feasibility); each row's figures summed over its chunks. A stage's
+figure includes the kernels it calls. With --reference-src the same script runs again in a
+subprocess on that checkout's sources, the two interleaved run by run (--repeats, medians),
 and the ratio this / reference is printed; the load average before and after is printed with
 the figures (the machine is shared). `benchmarks/cli.py` times the whole command with workers.
 """
@@ -46,7 +47,9 @@ def profile(n: int) -> dict:
     acc: dict[str, float] = {}
 
     def timed(mod, name, key):
-        f = getattr(mod, name)
+        f = getattr(mod, name, None)
+        if f is None:  # a reference checkout from before it
+            return
 
         def g(*a, **k):
             t = time.process_time()
@@ -63,6 +66,7 @@ def profile(n: int) -> dict:
           else "outer_batch CD")
     timed(KW, "fixed_batch", "fixed_batch")
     timed(A, "golden_min", "stage 1 CD golden section")
+    timed(KW, "cd_angle_batch", "stage 1 cd_angle_batch")
     timed(A, "_plateau", "stage 1 CD plateau")
     timed(NM, "deviation_figures", "deviation_figures")
     timed(NM, "feasibility", "feasibility")
@@ -72,9 +76,11 @@ def profile(n: int) -> dict:
     def per_row(mech, values, s, *a, **k):
         before, t = dict(acc), time.process_time()
         out = row(mech, values, s, *a, **k)
-        rows[s.name] = {"cpu_s": time.process_time() - t,
-                        **{k2: v - before.get(k2, 0.0) for k2, v in acc.items()
-                           if v - before.get(k2, 0.0) > 0}}
+        got = rows.setdefault(s.name, {})  # summed over the chunks
+        for k2, v in {"cpu_s": time.process_time() - t,
+                      **{k2: v - before.get(k2, 0.0) for k2, v in acc.items()
+                         if v - before.get(k2, 0.0) > 0}}.items():
+            got[k2] = got.get(k2, 0.0) + v
         return out
 
     ST.set_in_order = per_row

@@ -234,6 +234,30 @@ def _result(out, boxes, code, tol_um, outer=None) -> AdjustResult:
 
 # --- the guide angle or CD: an outer search around the exact inner optimum ---------------------
 
+def cd_and_angle(c: dict[str, np.ndarray], active: dict, cd_grid, feas=None,
+                 angle_grid: int = 21, h_deg: float = 2.0, tol_um: float = PLATEAU_TOL_UM):
+    """CD's and the guide angle's offsets (mm, deg) at the joint optimum of beta, the guide shift
+    (if active), the guide angle and CD, and that least SumDelta (um), per machine (CD, angle,
+    SumDelta): kernels.window.cd_angle_batch (CD
+    on cd_grid, then golden section; at each CD the angle on angle_grid points, its local
+    minima refined by kink searches). `active` as optimise's, with both guide_angle and CD."""
+    from sewtol.mechanisms.needle_208 import kernels as KB
+    from sewtol.mechanisms.needle_208.kernels import window as KW
+
+    boxes = check_boxes(active)
+    r_lo, r_hi, _ = _rocker(c, feas)
+    blo, bhi = boxes["beta"]
+    slo, shi = boxes.get("guide_shift_um", (0.0, 0.0))
+    alo, ahi = boxes["guide_angle"]
+    cd_grid = np.asarray(cd_grid, float)
+    out = KW.cd_angle_batch(KB.pack(c), np.ascontiguousarray(r_lo, float).reshape(-1),
+                            np.ascontiguousarray(r_hi, float).reshape(-1), blo, bhi, slo, shi,
+                            "guide_shift_um" in boxes, cd_grid, alo, ahi, int(angle_grid), h_deg,
+                            tol_um, 5e-6 * (cd_grid[-1] - cd_grid[0]), 1e-6 * (ahi - alo))
+    return out[:, 0], out[:, 2], out[:, 1]
+
+# --- the guide angle or CD: an outer search around the exact inner optimum ---------------------
+
 def _with_outer_fused(name, c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um, angle_grid,
                       cutoff_um=None):
     """_with_outer's search with every machine's grid and refinements in one numba call

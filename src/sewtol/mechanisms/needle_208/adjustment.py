@@ -14,7 +14,9 @@ Structure used, innermost first:
 - every other compensator (CD, any parameter declared one, a discrete beta or shift, the angle
   without beta): an outer 1-D search around that inner optimum, nested: a grid over the range,
   then golden section on the best grid cell. A discrete compensator is searched over all its
-  allowed settings (exact given the inner optimum).
+  allowed settings (exact given the inner optimum). CD (continuous, an offset) around the
+  exact optimum with the guide angle: both outer searches in one kernel call
+  (needle_208.adjust.cd_and_angle), then beta and the shift at the CD and angle it found.
 
 Every reported SumDelta is recomputed at the chosen settings with the exact extremes
 (needle_208.metrics.deviation_figures), so it is the machine's true SumDelta at those settings.
@@ -171,12 +173,14 @@ def _plateau(fun, x_opt, best, comp: Compensator, xtol=None):
 
 
 def _search(c: dict, outer: list[Compensator], plateaus: bool, leaf, held=(),
-            guess=None) -> _Inner:
+            guess=None, found=None) -> _Inner:
     """Nested 1-D searches over `outer` (outermost first) around `leaf` (columns, cutoff ->
     _Inner, the inner optimum, or where the leaf proves it above the cutoff (um, per machine),
     perhaps only a value above it; `held` are the compensators it sets, held at its settings
     when an outer plateau is measured). guess: columns -> a cheap SumDelta per machine that
-    orders the innermost grid (the likely best first, so the cutoffs cut early)."""
+    orders the innermost grid (the likely best first, so the cutoffs cut early). found: the
+    outermost compensator's optimum where another search found it (then only the inner
+    optimum there and the plateau)."""
     if not outer:
         return leaf(c)
     comp, rest = outer[0], outer[1:]
@@ -189,7 +193,10 @@ def _search(c: dict, outer: list[Compensator], plateaus: bool, leaf, held=(),
         return _finite(sub(_apply(c, comp, x), cutoff_um=cutoff_um).total)
 
     grid = _grid(comp)
-    if comp.discrete:
+    res = None
+    if found is not None:
+        x = found
+    elif comp.discrete:
         # every allowed setting of every machine in batches of repeated machines
         vals = np.empty((n, grid.size))
         per = max(1, DISCRETE_BATCH // n)
@@ -212,11 +219,12 @@ def _search(c: dict, outer: list[Compensator], plateaus: bool, leaf, held=(),
         for j in order.T:
             vals[rows, j] = score(grid[j], best)
             best = np.minimum(best, vals[rows, j])
-    i = np.argmin(vals, axis=1)
-    res = None
-    if comp.discrete:
-        x = grid[i]
+    if found is not None:
+        pass
+    elif comp.discrete:
+        x = grid[np.argmin(vals, axis=1)]
     else:
+        i = np.argmin(vals, axis=1)
         a, b = grid[np.maximum(i - 1, 0)], grid[np.minimum(i + 1, grid.size - 1)]
         # each new point scored with the one it is compared with as its cutoff
         x = golden_min(score, a, b, xtol=_xtol(comp), value=False, cutoff=not rest)[0]
@@ -336,7 +344,24 @@ def _joint_optimum(c: dict, strategy: Strategy, plateaus: bool = True) -> _Inner
     outer = sorted((k for k in comps if k not in inner),
                    key=lambda k: ("beta", "guide_angle").index(k.name) + 1
                    if k.name in ("beta", "guide_angle") else 0)
-    return _search(c, outer, plateaus, leaf, inner, guess)
+    found = None
+    angle = next((k for k in inner if k.name == "guide_angle"), None)
+    if ([k.name for k in outer] == ["CD"] and not outer[0].discrete
+            and outer[0].mode == "offset" and outer[0].high > outer[0].low
+            and angle is not None and angle.high > angle.low):
+        # CD around the guide angle in one kernel call (adjust.cd_and_angle): CD's optimum and
+        # the angle's there; the inner optimum at CD's is then beta's and the shift's at that
+        # angle
+        boxes = {**_exact_boxes(c, inner), "CD": (outer[0].low, outer[0].high)}
+        found, at_angle, _ = exact.cd_and_angle(c, boxes, _grid(outer[0]), feas)
+        rest = [k for k in inner if k is not angle]
+
+        def leaf(cc, cutoff_um=None):
+            r = _exact(_apply(cc, angle, at_angle), rest, _exact_boxes(cc, rest), feas)
+            r.settings[angle.name] = at_angle
+            r.plateaus[angle.name] = (at_angle, at_angle)
+            return r
+    return _search(c, outer, plateaus, leaf, inner, guess, found)
 
 
 # --- the result ---------------------------------------------------------------------------

@@ -900,3 +900,313 @@ def outer_batch(P, col, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active
         out[i] = _outer_one(P[i], col, lo[i], hi[i], blo, bhi, T0, T1, grid, h_deg,
                             tol_um * 1e-3, rounds, n_min, cut[i])
     return out
+
+
+# --- the guide angle inside CD: the joint search of both, by kink searches ---------------------
+
+KINK_CAP = 96  # known points one kink search holds (its grid and its steps)
+
+
+@nb.njit(cache=True)
+def _cross(xa, fa, xb, fb, xc, fc, xd, fd):
+    """Where the line through (xa, fa), (xb, fb) meets the line through (xc, fc), (xd, fd), its
+    value there, and whether the first falls and the second rises (a V)."""
+    sa = (fb - fa) / (xb - xa)
+    sc = (fd - fc) / (xd - xc)
+    if not (sa < 0.0 < sc) or not (math.isfinite(sa) and math.isfinite(sc)):
+        return np.nan, np.inf, False
+    xk = (fc - fa + sa * xa - sc * xc) / (sa - sc)
+    return xk, fa + sa * (xk - xa), True
+
+
+@nb.njit(cache=True)
+def _kink_next(x, f, cnt, xtol, st):
+    """The next point of a kink search (NaN: done), from its cnt known points x (increasing)
+    and values f (inf where the mechanism does not run). The minimum is taken to be unimodal
+    and lie between the known points either side of the least; a row ends when they are less
+    than xtol apart. A step is, in this order of preference: a probe xtol * 0.49 beside the
+    least where it is at an end of the box, or where the V model puts the minimum at it (a V:
+    the line through two known points on one side meets the line through the least and its
+    neighbour on the other; of the two ways the one whose meeting point lies in the bracket with
+    the lower value; on an exact V it is the kink, in one step); the model's point; a golden-
+    section step into the larger side, where the model fails, was wrong (a probe beat the least)
+    or the bracket has not halved in two steps. st (4,): the search's state (widths of the last
+    two brackets, whether the last step probed, the least then), inf, inf, 0, NaN at the start."""
+    j = 0
+    for i in range(1, cnt):
+        if f[i] < f[j]:
+            j = i
+    xb, fb = x[j], f[j]
+    if not fb < np.inf or cnt < 2:
+        return np.nan
+    no_l, no_r = j == 0, j == cnt - 1
+    xl1 = xb if no_l else x[j - 1]
+    xr1 = xb if no_r else x[j + 1]
+    width = xr1 - xl1
+    if width < xtol:
+        return np.nan
+    if no_l or no_r:  # the least at an end of the box: beside it
+        st[0], st[1], st[2], st[3] = st[1], width, 1.0, xb
+        return xb + 0.49 * xtol if no_l else xb - 0.49 * xtol
+    model, vbest = np.nan, np.inf
+    if j + 2 < cnt:  # the least on the falling line
+        xk, v, ok = _cross(x[j - 1], f[j - 1], xb, fb, x[j + 1], f[j + 1], x[j + 2], f[j + 2])
+        if ok and xl1 < xk < xr1:
+            model, vbest = xk, v
+    if j >= 2:  # the least on the rising line
+        xk, v, ok = _cross(x[j - 2], f[j - 2], x[j - 1], f[j - 1], xb, fb, x[j + 1], f[j + 1])
+        if ok and xl1 < xk < xr1 and (math.isnan(model) or v < vbest):
+            model = xk
+    gap_r, gap_l = xr1 - xb, xb - xl1
+    if abs(gap_r - gap_l) <= 0.1 * width:  # even sides: towards the larger rise (a lopsided V)
+        right = f[j + 1] - fb >= f[j - 1] - fb
+    else:
+        right = gap_r > gap_l
+    golden = xb + (1.0 - _INVPHI) * gap_r if right else xb - (1.0 - _INVPHI) * gap_l
+    at_best = abs(model - xb) < 0.25 * xtol  # False for a NaN model
+    wrong = st[2] > 0.0 and xb != st[3]
+    near = at_best and not wrong
+    if near:
+        prop = xb + 0.49 * xtol if gap_r >= gap_l else xb - 0.49 * xtol
+    elif math.isnan(model) or at_best or width > 0.5 * st[0]:
+        prop = golden
+    else:
+        prop = model
+    prop = min(max(prop, xl1 + 0.25 * xtol), xr1 - 0.25 * xtol)
+    st[0], st[1], st[2], st[3] = st[1], width, 1.0 if near else 0.0, xb
+    return prop
+
+
+@nb.njit(cache=True)
+def _insert(x, f, cnt, xn, fn):
+    i = cnt
+    while i > 0 and x[i - 1] > xn:
+        x[i] = x[i - 1]
+        f[i] = f[i - 1]
+        i -= 1
+    x[i] = xn
+    f[i] = fn
+    return cnt + 1
+
+
+@nb.njit(cache=True)
+def _kink_run(q, own, xs, fs, cnt, xtol_a, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok,
+              ws, fb):
+    """A kink search over the guide angle from its cnt known points; the least and where."""
+    st = np.array([np.inf, np.inf, 0.0, np.nan])
+    while cnt < KINK_CAP:
+        rel = _kink_next(xs, fs, cnt, xtol_a, st)
+        if math.isnan(rel):
+            break
+        v = _minimum_angle_at(q, own, rel, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok,
+                              ws, fb)
+        cnt = _insert(xs, fs, cnt, rel, v)
+    j = 0
+    for i in range(1, cnt):
+        if fs[i] < fs[j]:
+            j = i
+    return fs[j], xs[j]
+
+
+@nb.njit(cache=True)
+def _angle_kink(q, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xtol_a, start,
+                cutoff=np.inf, rounds=3):
+    """The least SumDelta (um; inf where no setting runs) of machine q (its CD set) over the
+    guide angle's offsets [a_lo, a_hi] (deg; the exact optimum over beta and the shift at each),
+    that offset, and whether the grid saw one local minimum. start NaN: a grid of n_a angles,
+    then a kink search to xtol_a in the two cells around each of the `rounds` least local
+    minima of the grid (as outer_batch's golden sections); else (start: the optimum at a nearby
+    CD, where the angle has one minimum) a bracket a quarter of a grid cell either side of
+    start, widened (doubling) until the least is inside it or at an end of the box, then one
+    kink search. cutoff (um): where _angle_bound proves from the grid that no angle reaches it,
+    the grid's least, not refined (a value above the cutoff, as outer_batch's)."""
+    own = q[13]
+    res = np.empty(8)
+    geo = np.empty((12, 2))
+    k, w = _segments(q, lo, hi, blo, bhi, geo)
+    nmax = 1
+    ht = h_deg * (math.pi / 180.0)
+    for i in range(k):
+        nmax = max(nmax, _grid(geo[i, 0], geo[i, 1], w, ht)[4])
+    EN = np.empty((max(k, 1), nmax, 6))
+    XN = np.empty((max(k, 1), nmax))
+    ok = np.zeros(12, np.bool_)
+    _points(q, geo, k, w, h_deg, EN, XN, ok)
+    ws = _work(nmax)
+    fb = np.empty((3, nmax))
+    xs = np.empty(KINK_CAP)
+    fs = np.empty(KINK_CAP)
+    if not math.isnan(start):
+        cnt = 0
+        step = 0.25 * (a_hi - a_lo) / (n_a - 1)
+        x0 = min(max(start, a_lo), a_hi)
+        for rel in (x0, max(x0 - step, a_lo), min(x0 + step, a_hi)):
+            if cnt > 0 and rel == x0:  # x0 at an end of the box
+                continue
+            v = _minimum_angle_at(q, own, rel, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN,
+                                  ok, ws, fb)
+            cnt = _insert(xs, fs, cnt, rel, v)
+        while cnt < KINK_CAP // 2:
+            j = 0
+            for i in range(1, cnt):
+                if fs[i] < fs[j]:
+                    j = i
+            if j == 0 and xs[0] > a_lo:
+                rel = max(xs[0] - 2.0 * (xs[1] - xs[0]), a_lo)
+            elif j == cnt - 1 and xs[cnt - 1] < a_hi:
+                rel = min(xs[cnt - 1] + 2.0 * (xs[cnt - 1] - xs[cnt - 2]), a_hi)
+            else:
+                break
+            v = _minimum_angle_at(q, own, rel, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN,
+                                  ok, ws, fb)
+            cnt = _insert(xs, fs, cnt, rel, v)
+        v, x = _kink_run(q, own, xs, fs, cnt, xtol_a, geo, k, w, h_deg, T0, T1, tol_mm, res, EN,
+                         XN, ok, ws, fb)
+        return v, x, True
+    grid = np.empty(n_a)
+    vals = np.full(n_a, np.nan)
+    for g in range(n_a):
+        grid[g] = a_lo + (a_hi - a_lo) * g / (n_a - 1)
+    if cutoff < np.inf:
+        # every fourth grid angle first: where they prove that no angle reaches the cutoff,
+        # their least (a value above the cutoff), the other grid angles never evaluated
+        sub = np.append(np.arange(0, n_a - 1, 4), n_a - 1)
+        for g in sub:
+            vals[g] = _minimum_angle_at(q, own, grid[g], geo, k, w, h_deg, T0, T1, tol_mm, res,
+                                        EN, XN, ok, ws, fb)
+        if _angle_bound(q, grid[sub], vals[sub], EN, geo, k, w, ok, ht) > cutoff:
+            j = sub[np.argmin(vals[sub])]
+            n_loc = 0
+            for m in range(sub.size):
+                left = vals[sub[m - 1]] if m > 0 else np.inf
+                right = vals[sub[m + 1]] if m < sub.size - 1 else np.inf
+                if vals[sub[m]] <= left and vals[sub[m]] <= right:
+                    n_loc += 1
+            return vals[j], grid[j], n_loc == 1
+    for g in range(n_a):
+        if math.isnan(vals[g]):
+            vals[g] = _minimum_angle_at(q, own, grid[g], geo, k, w, h_deg, T0, T1, tol_mm, res,
+                                        EN, XN, ok, ws, fb)
+    score = np.empty(n_a)
+    n_loc = 0
+    for g in range(n_a):
+        left = vals[g - 1] if g > 0 else np.inf
+        right = vals[g + 1] if g < n_a - 1 else np.inf
+        score[g] = vals[g] if (vals[g] <= left and vals[g] <= right) else np.inf
+        if score[g] < np.inf:
+            n_loc += 1
+    i0 = np.argmin(vals)
+    best_v, best_x = vals[i0], grid[i0]
+    if cutoff < np.inf and _angle_bound(q, grid, vals, EN, geo, k, w, ok, ht) > cutoff:
+        rounds = 0
+    for _ in range(rounds):
+        i = np.argmin(score)
+        if not score[i] < np.inf:
+            break
+        score[i] = np.inf
+        cnt = 0
+        for g in range(max(i - 1, 0), min(i + 2, n_a)):
+            cnt = _insert(xs, fs, cnt, grid[g], vals[g])
+        v, x = _kink_run(q, own, xs, fs, cnt, xtol_a, geo, k, w, h_deg, T0, T1, tol_mm, res, EN,
+                         XN, ok, ws, fb)
+        if v < best_v:
+            best_v, best_x = v, x
+    return best_v, best_x, n_loc == 1
+
+
+@nb.njit(cache=True)
+def _minimum_angle_at(q, own, rel, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok, ws, fb):
+    r = q.copy()
+    r[13] = own + rel
+    v = _minimum_angle(r, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok, ws, fb)
+    return np.inf if math.isnan(v) else v
+
+
+@nb.njit(cache=True)
+def _cd_value(q, own, rel, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xtol_a,
+              start, best, cut=False):
+    """_angle_kink at CD offset rel; best (4,): the least SumDelta so far, its angle, 1 while
+    every grid so far saw one local minimum (else 0), and its CD offset, updated; start: begin
+    the angle's search at best's angle (else on its grid); cut: the least so far as the angle
+    search's cutoff (a value above it is never the least)."""
+    q[3] = own + rel
+    v, a, one = _angle_kink(q, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xtol_a,
+                            best[1] if start else np.nan, best[0] if cut else np.inf)
+    if v < best[0]:
+        best[0], best[1], best[3] = v, a, rel
+    if not one:
+        best[2] = 0.0
+    return v
+
+
+@nb.njit(cache=True, parallel=True)
+def cd_angle_batch(P, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active, cd_grid, a_lo,
+                   a_hi, n_a=21, h_deg=2.0, tol_um=1e-3, xtol_cd=3e-6, xtol_a=2e-7):
+    """Per machine (rows of P): the CD offset (mm, in [cd_grid[0], cd_grid[-1]]) where the least
+    SumDelta over the guide angle's offsets [a_lo, a_hi] (deg) and, at each, the exact optimum
+    over beta in [blo, bhi] and the guide shift (shift_active: in [shift_lo_um, shift_hi_um],
+    absolute; else the machine's own, P[:, 14]) is least, and that SumDelta (um). CD: on
+    cd_grid, then golden section on the best grid point's two cells to a bracket below
+    xtol_cd (mm), never worse than the grid (as adjustment._search's nested search, which it
+    replaces for this pair). The angle at every CD of the grid: on n_a points, each of the three
+    least local minima refined by a kink search to xtol_a (deg) (outer_batch refines them by
+    golden section to 1e-9 deg); at golden section's CDs, where every grid CD's angle grid saw
+    one minimum, one kink search from the best CD's angle so far, else as on the grid
+    (_angle_kink). Returns (n, 3) of the least point tried (never worse than the grid): CD
+    offset, SumDelta (NaN where no setting runs), guide angle offset."""
+    n = P.shape[0]
+    out = np.empty((n, 3))
+    G = cd_grid.size
+    tol_mm = tol_um * 1e-3
+    for i in nb.prange(n):
+        if shift_active:
+            T0, T1 = shift_lo_um * 1e-3, shift_hi_um * 1e-3
+        else:
+            T0 = T1 = P[i, 14] * 1e-3
+        li, hi_ = lo[i], hi[i]
+        if math.isnan(li) or math.isnan(hi_):
+            out[i, 0] = cd_grid[(G - 1) // 2]
+            out[i, 1] = out[i, 2] = np.nan
+            continue
+        q = P[i].copy()
+        own = q[3]
+        vals = np.empty(G)
+        best = np.array([np.inf, np.nan, 1.0, cd_grid[(G - 1) // 2]])
+        for m in range(G):  # from the middle of the box out, so the least comes early and the
+            # cutoff (the least so far) skips the refinement of CDs that cannot beat it: a value
+            # above the cutoff is never the grid's least
+            g = (G - 1) // 2 + ((m + 1) // 2) * (1 if m % 2 else -1)
+            vals[g] = _cd_value(q, own, cd_grid[g], li, hi_, blo, bhi, T0, T1, h_deg, tol_mm,
+                                a_lo, a_hi, n_a, xtol_a, False, best, True)
+        # golden's CDs: the angle's search from the best's angle so far where every grid CD's
+        # angle grid saw one minimum; else on its grid with each local minimum refined
+        warm = best[0] < np.inf and best[2] > 0.0
+        j = np.argmin(vals)
+        a = cd_grid[max(j - 1, 0)]
+        b = cd_grid[min(j + 1, G - 1)]
+        c = b - _INVPHI * (b - a)
+        d = a + _INVPHI * (b - a)
+        fc = _cd_value(q, own, c, li, hi_, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a,
+                       xtol_a, warm, best)
+        fd = _cd_value(q, own, d, li, hi_, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a,
+                       xtol_a, warm, best)
+        for _ in range(200):
+            if b - a < xtol_cd:
+                break
+            if fc < fd:
+                b, d, fd = d, c, fc
+                c = b - _INVPHI * (b - a)
+                fc = _cd_value(q, own, c, li, hi_, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi,
+                               n_a, xtol_a, warm, best)
+            else:
+                a, c, fc = c, d, fd
+                d = a + _INVPHI * (b - a)
+                fd = _cd_value(q, own, d, li, hi_, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi,
+                               n_a, xtol_a, warm, best)
+        _cd_value(q, own, 0.5 * (a + b), li, hi_, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi,
+                  n_a, xtol_a, warm, best)
+        # the least of every point tried (the grid's, golden section's and the bracket's centre)
+        out[i, 0] = best[3]
+        out[i, 1] = best[0] if best[0] < np.inf else np.nan
+        out[i, 2] = best[1]
+    return out
