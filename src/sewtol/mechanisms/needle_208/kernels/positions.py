@@ -14,8 +14,7 @@ import math
 import numba as nb
 import numpy as np
 
-FIELDS = ("LF", "LM", "AM", "AB", "BC", "BE", "CD", "CBE", "beta", "Ax", "Ay", "Dx", "Dy",
-          "branch_M", "branch_C", "beta_sense")
+from sewtol.mechanisms.needle_208.kernels import POSITION_FIELDS as FIELDS
 
 
 def pack(params) -> np.ndarray:
