@@ -41,10 +41,11 @@ AHEAD = {"fixed_batch": ("window", "fixed_batch",
                          "f8, f8, b1, f8[::1], f8, f8, i8, f8[::1])"),
          "positions_serial": ("positions", "positions_kernel_serial",
                               "f8[:,:,::1](f8[:,::1], f8[::1])")}
-# `needle montecarlo` (one process, no cluster) runs the compiled module serially up to this
-# many machines; above it numba's kernels on every core make up for their start-up
-# (docs/layout.md has the crossing)
-AHEAD_MAX_N = 20_000
+# the most machines a one-process run (n_jobs 1, no cluster) of each needle study computes with
+# the compiled module on one thread, numba never imported, rather than on numba's kernels on
+# every core (docs/layout.md has the crossings): montecarlo (beta fixed and adjusted) saves 0.7
+# s of start-up and costs 19 us a machine; strategies saves 1.5 CPU-s and costs 12 ms a machine
+AHEAD_MAX_N = {"montecarlo": 20_000, "strategies": 60}
 # the module ahead_of_time() put in force on this thread (a context variable: a thread started
 # inside it, such as a worker of a pool, runs numba's kernels)
 _IN_FORCE: contextvars.ContextVar = contextvars.ContextVar("needle_ahead", default=None)
@@ -82,11 +83,16 @@ def ahead():
         return None
 
 
-def runs_ahead(n: int, n_jobs: int = 1, cluster: bool = False) -> bool:
-    """Whether `needle montecarlo` of n machines runs the compiled module (`ahead_of_time`):
-    one process (n_jobs 1, no cluster) and at most AHEAD_MAX_N machines. A worker process of
-    the strategies study always does (sewtol.studies.strategies: one thread each)."""
-    return n <= AHEAD_MAX_N and n_jobs == 1 and not cluster
+def runs_ahead(study: str, n: int, n_jobs: int = 1, cluster: bool = False) -> bool:
+    """Whether the calling thread of a needle `study` ("montecarlo" or "strategies") of n
+    machines runs the compiled module (`ahead_of_time`): in one process, up to AHEAD_MAX_N
+    machines; the strategies study on workers always (its chunks run in worker processes, each
+    inside the mechanism's `Plugins.serial`: this one figures only the nominal machine)."""
+    if cluster:
+        return False
+    if n_jobs != 1:
+        return study == "strategies"
+    return n <= AHEAD_MAX_N[study]
 
 
 @contextlib.contextmanager
