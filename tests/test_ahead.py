@@ -126,10 +126,25 @@ def test_needle_montecarlo_prints_the_same_bytes_on_both(capsys, monkeypatch, fm
     assert capsys.readouterr().out == ahead
 
 
+def test_short_needle_strategies_prints_the_same_bytes_on_both(capsys, monkeypatch):
+    """`needle strategies --n 40` (one process: the compiled kernels, `kernels.runs_ahead`)
+    and the same run with the module hidden (numba's kernels) print the same bytes."""
+    from sewtol.cli import main
+
+    assert kernels.runs_ahead("strategies", 40) and not kernels.runs_ahead("strategies", 61)
+    argv = ["needle", "strategies", "--n", "40", "--format", "json"]
+    assert main(argv) == 0
+    ahead = capsys.readouterr().out
+    monkeypatch.setattr(kernels, "ahead", lambda: None)
+    assert main(argv) == 0
+    assert capsys.readouterr().out == ahead
+
+
 def test_a_strategies_worker_never_imports_numba():
     """A chunk of `needle strategies` as a worker process runs it (`_drawn_chunk`, one thread:
     the mechanism's kernels compiled ahead of time), in a fresh process: every default row,
-    the setting errors and a measured row, and numba and llvmlite are never imported."""
+    the guide angle's setting error and a measured row (the readings' position kernel), and
+    numba and llvmlite are never imported."""
     code = textwrap.dedent("""
         import sys
         import numpy as np
@@ -145,7 +160,8 @@ def test_a_strategies_worker_never_imports_numba():
         rows = default_strategies()
         out = _drawn_chunk(mech, dev, rows, "SumDelta_um", True, {"limit_um": 10.0}, 1, 7,
                            (0, 40))
-        measured = _drawn_chunk(mech, dev, rows[-1:], "SumDelta_um", True, {"limit_um": 10.0}, 1, 7,
+        angle = [r for r in rows if r.name == "beta+shift+angle"]  # the all row read: 11 CPU-s
+        measured = _drawn_chunk(mech, dev, angle, "SumDelta_um", True, {"limit_um": 10.0}, 1, 7,
                                 (0, 40), MeasurementError(1.0, 12))
         assert len(out) == len(rows) and all(np.isfinite(a.value).sum() >= 30 for a in out)
         assert np.isfinite(measured[0].value).sum() >= 30
