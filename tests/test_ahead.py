@@ -92,6 +92,7 @@ def test_positions_are_numbas_bit_for_bit():
     of the base set at 24 crank angles and one whose rod BC is too short to close (NaN)."""
     from sewtol.mechanisms.needle_208.kernels import positions
 
+    assert kernels.POSITION_FIELDS == positions.FIELDS  # what the measured adjuster packs
     dev = NEEDLE_208_SETS["base"].sample(np.random.default_rng(25), 2000)
     Pm = positions.pack(P.with_deviations(Needle208.nominal(), dev))
     Pm = np.vstack([Pm, Pm[:1]])

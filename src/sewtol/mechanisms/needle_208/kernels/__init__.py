@@ -27,7 +27,8 @@ import numpy as np
 # parameter columns passed to the kernels (fused.py, window.py), in this order
 FIELDS = ("AB", "BC", "BE", "CD", "CBE", "Ax", "Ay", "Dx", "Dy", "branch_C", "beta_sense",
           "guide_x", "guide_y", "guide_angle", "guide_shift_um")
-# parameter columns of the position kernel (positions.py), in this order
+# parameter columns of the position kernel, positions.FIELDS (which imports numba; kept equal
+# by tests/test_ahead.py)
 POSITION_FIELDS = ("LF", "LM", "AM", "AB", "BC", "BE", "CD", "CBE", "beta", "Ax", "Ay", "Dx", "Dy",
                    "branch_M", "branch_C", "beta_sense")
 # the kernels compiled ahead of time: name -> (module, function, signature: numba's; P's rows

@@ -14,7 +14,8 @@ import math
 import numba as nb
 import numpy as np
 
-from sewtol.mechanisms.needle_208.kernels import POSITION_FIELDS as FIELDS
+FIELDS = ("LF", "LM", "AM", "AB", "BC", "BE", "CD", "CBE", "beta", "Ax", "Ay", "Dx", "Dy",
+          "branch_M", "branch_C", "beta_sense")
 
 
 def pack(params) -> np.ndarray:
