@@ -31,9 +31,9 @@ $(STAMP): pyproject.toml setup.py $(LOCK) | $(BIN)/python
 	$(BIN)/python -m pip install --quiet --no-deps -e .
 	touch $(STAMP)
 
-# The needle Monte-Carlo's two kernels compiled ahead of time (numba.pycc, from the same Python
-# functions) into an extension module beside them, so a short `needle montecarlo` starts without
-# importing numba; its name holds a digest of the kernels' sources and the numba and numpy
+# The needle kernels a Monte-Carlo and the strategies study call, compiled ahead of time (numba.pycc,
+# from the same Python functions) into an extension module beside them, so a short `needle
+# montecarlo` and every worker of `needle strategies` run without importing numba; its name holds a digest of the kernels' sources and the numba and numpy
 # versions, so this rebuilds it only when one of those changed (and a stale one is never loaded).
 # Without a C compiler it is not built and says so: numba's kernels then run (the same bits, a
 # slower start); CI sets SEWTOL_REQUIRE_AHEAD=1 so tests/test_ahead.py fails instead of skipping

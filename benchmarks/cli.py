@@ -26,9 +26,12 @@ lower on a busy machine).
 (c) `needle montecarlo --n 1000000 --n-jobs 2` end to end (target <= 10 s wall idle, or <= 20
     CPU-s with peak RSS <= 500 MB), with the load average before and after;
 (d) `needle strategies --n N --n-jobs 2` for N in --strategies-n (default 2000 and 10000; target
-    <= 30 s wall idle at 10000; peak RSS and PSS flat in n): every default row, the all row's
-    nested CD / guide-angle search the bulk of it. Warmed by one run at n 20;
-    --strategies-repeats timed runs (default 1).
+    <= 30 s wall idle at 10000; peak RSS and PSS flat in n, <= 500 MB): every default row, the
+    all row's nested CD / guide-angle search the bulk of it; its workers run the needle's
+    kernels compiled ahead of time where built (numba never loaded in them). Warmed by one run
+    at n 20; --strategies-repeats timed runs (default 1).
+Every run reports the peak of the tree's summed RSS and PSS and the largest single process's
+peak RSS.
 With --reference-src every sewtol command runs again, interleaved run by run, with that
 checkout's sources first on PYTHONPATH, and the ratio this/reference is printed. The machine
 is shared: the load average at start and end is printed with the figures.
@@ -61,31 +64,33 @@ def load() -> list[float]:
     return [float(x) for x in Path("/proc/loadavg").read_text().split()[:3]]
 
 
-def tree_rss(proc) -> tuple[int, int]:
+def tree_rss(proc) -> tuple[int, int, int]:
     """Resident and proportional (PSS) bytes of proc and all its descendants now (0 for those
-    already gone). The RSS sum counts each shared library once per process (libLLVM, numpy's
-    and scipy's .so: about half of a worker's 210 MB); PSS shares those pages out, so its sum is
-    what the tree holds."""
+    already gone), and the largest single process's resident bytes. The RSS sum counts each
+    shared library once per process (numpy's and scipy's .so, and libLLVM where numba is
+    loaded); PSS shares those pages out, so its sum is what the tree holds."""
     import psutil
 
-    rss = pss = 0
+    rss = pss = largest = 0
     try:
         procs = [proc, *proc.children(recursive=True)]
     except psutil.Error:
-        return 0, 0
+        return 0, 0, 0
     for p in procs:
         try:
-            rss += p.memory_info().rss
+            own = p.memory_info().rss
+            rss, largest = rss + own, max(largest, own)
             with open(f"/proc/{p.pid}/smaps_rollup") as fh:
                 pss += next(int(line.split()[1]) * 1024 for line in fh
                             if line.startswith("Pss:"))
         except (psutil.Error, OSError, StopIteration):
             pass
-    return rss, pss
+    return rss, pss, largest
 
 
 def run(cmd: list[str], src: Path | None) -> dict:
-    """One run of cmd: wall s, CPU s of it and its children, peak tree RSS (MB), exit code."""
+    """One run of cmd: wall s, CPU s of it and its children, peak tree RSS and PSS and the
+    largest process's peak RSS (MB)."""
     import psutil
 
     env = dict(os.environ)
@@ -97,7 +102,7 @@ def run(cmd: list[str], src: Path | None) -> dict:
     t0 = time.perf_counter()
     p = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     ps = psutil.Process(p.pid)
-    peak = peak_pss = 0
+    peak = peak_pss = peak_process = 0
     while True:
         try:
             pid, status, usage = os.wait4(p.pid, os.WNOHANG)
@@ -105,8 +110,8 @@ def run(cmd: list[str], src: Path | None) -> dict:
             break
         if pid:
             break
-        rss, pss = tree_rss(ps)
-        peak, peak_pss = max(peak, rss), max(peak_pss, pss)
+        rss, pss, largest = tree_rss(ps)
+        peak, peak_pss, peak_process = max(peak, rss), max(peak_pss, pss), max(peak_process, largest)
         time.sleep(0.02)
     wall = time.perf_counter() - t0
     p.returncode = os.waitstatus_to_exitcode(status)
@@ -117,7 +122,7 @@ def run(cmd: list[str], src: Path | None) -> dict:
     # wait4's usage covers the process and the children it waited for (joblib's workers)
     return {"wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime,
             "peak_rss_mb": max(peak, usage.ru_maxrss * 1024) / 2**20,
-            "peak_pss_mb": peak_pss / 2**20}
+            "peak_pss_mb": peak_pss / 2**20, "peak_process_rss_mb": peak_process / 2**20}
 
 
 # `needle montecarlo --n N` with the kernels compiled ahead of time hidden: numba's kernels

@@ -120,6 +120,11 @@ class Plugins:
         further figures (the needle: angle, gap, transmission angle). On the fast path the
         Monte-Carlo names each machine's status by it (`studies.montecarlo.named_failures`),
         Sobol, ppm and allocation their failures (`studies.adjusting.failures_of`).
+    serial : callable or None
+        ``serial()`` a context manager within which the mechanism's kernels run on the calling
+        thread without numba where it can (the needle's: its kernels compiled ahead of time,
+        when built); it yields whether they do. A worker process of the strategies study runs
+        its chunk inside it (one thread each), so the worker never loads numba and LLVM.
     columns : mapping
         Study -> (generic column name -> the mechanism's name), in the order its tables show
         them: the source study's words for the generic results (data, not code).
@@ -136,6 +141,7 @@ class Plugins:
     strategy_parameters: frozenset = frozenset()
     measured_adjuster: Callable | None = None
     failure_table: Callable | None = None
+    serial: Callable | None = None
     columns: Mapping[str, Mapping[str, str]] = field(default_factory=dict, hash=False)
     name: str = ""
     notes: tuple[str, ...] = field(default=())

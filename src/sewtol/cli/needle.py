@@ -35,11 +35,6 @@ from sewtol.cli.common import (
 from sewtol.errors import ParameterError
 
 BETA_LIMIT_DEG = 360.0
-# `needle montecarlo` (beta fixed and adjusted) up to this many machines, on one worker and no
-# cluster, runs the needle's two kernels compiled ahead of time on one thread
-# (needle_208.kernels.ahead_of_time): numba is never imported, 0.7 s less start-up; above it
-# numba's kernels on every core make up for their start-up (docs/layout.md has the crossing)
-AHEAD_MAX_N = 20_000
 SOBOL_RESAMPLES, SOBOL_CONF_LEVEL = 200, 0.95
 # the columns a table prints without --wide: what a decision needs (JSON and CSV keep every
 # column; `failed` is the sum of the failure counts, so ok + out_of_spec + failed = n shows)
@@ -291,7 +286,7 @@ def cmd_needle_montecarlo(args):
     per-machine table of one strategy, each with its study folder and cluster. `run FILE
     montecarlo` on the needle fast path runs this command itself (args.file_inputs names the
     file in run.json), so both print the same bytes."""
-    from sewtol.mechanisms.needle_208.kernels import ahead_of_time
+    from sewtol.mechanisms.needle_208.kernels import ahead_of_time, runs_ahead
     from sewtol.studies.montecarlo import CHUNK, check_sampling, montecarlo_bytes
     from sewtol.tables.needle_208 import montecarlo
 
@@ -315,7 +310,8 @@ def cmd_needle_montecarlo(args):
                           "beta re-optimised per machine")
 
     def study(store, client):
-        with ahead_of_time(args.n <= AHEAD_MAX_N and args.n_jobs == 1 and client is None):
+        # a short run on one thread, numba never imported (needle_208.kernels.runs_ahead)
+        with ahead_of_time(runs_ahead("montecarlo", args.n, args.n_jobs, client is not None)):
             res = montecarlo(params, tolerances, args.n, args.seed, limit_um=limit,
                              range_deg=rng, n_jobs=args.n_jobs, progress=args.progress,
                              store=store, chunk_size=CHUNK, scheduler=client)
@@ -457,6 +453,7 @@ def _measurement(args):
 
 def cmd_needle_strategies(args):
     from sewtol.mechanisms.needle_208.compensators import Strategy, default_strategies
+    from sewtol.mechanisms.needle_208.kernels import ahead_of_time, runs_ahead
     from sewtol.provenance import now
     from sewtol.tables.needle_208 import strategies_table
 
@@ -465,17 +462,21 @@ def cmd_needle_strategies(args):
                  scheduler="it runs on this machine; use --n-jobs")
     strategy = _strategy(args, setting_errors=True)
     measurement = _measurement(args)
-    params, tolerances = _at_beta_star(args, _study_nominal(args)), _tolerances(args)
     rows = default_strategies()
     if strategy is not None:
         if strategy.name in {r.name for r in rows}:
             strategy = Strategy(strategy.name + " (given)", strategy.compensators)
         rows.append(strategy)
-    started = now()
-    # per machine only what the rows read, unless --out writes the per-machine tables
-    res = as_flags(lambda: strategies_table(
-        params, tolerances, args.n, args.seed, rows, n_jobs=args.n_jobs, progress=args.progress,
-        measurement=measurement, per_machine=bool(args.out)))
+    # on workers (each on the compiled kernels) or a short run, this process never imports
+    # numba: the nominal's beta* and its figures too
+    with ahead_of_time(runs_ahead("strategies", args.n, args.n_jobs)):
+        params, tolerances = _at_beta_star(args, _study_nominal(args)), _tolerances(args)
+        started = now()
+        # per machine only what the rows read, unless --out writes the per-machine tables
+        res = as_flags(lambda: strategies_table(
+            params, tolerances, args.n, args.seed, rows, n_jobs=args.n_jobs,
+            progress=args.progress, measurement=measurement, per_machine=bool(args.out)))
+        fixed = _fixed_record(args, params, strategy)
     table = res.to_dataframe()
     frames = {"strategies": table}
     for r in rows:
@@ -488,8 +489,7 @@ def cmd_needle_strategies(args):
                           strategies={r.name: _strategy_record(r)["compensators"] for r in rows}, **reading)
     context = {**_context(args, params, tolerances, strategy),
                "strategy": [r.name for r in rows], "limit_um": 10.0, **reading}
-    obj = {"context": context, **_fixed_record(args, params, strategy),
-           "rows": table.to_dict(orient="records")}
+    obj = {"context": context, **fixed, "rows": table.to_dict(orient="records")}
     write_outputs(args, "strategies", inputs, started, obj, frames, [])
     emit(args.format, obj=obj, frame=table, compact=COMPACT["strategies"], wide=args.wide)
     save_plot(args, lambda ax: plots().grouped_bars(

@@ -13,6 +13,7 @@ progress(done, total)) and the checkpoint store follow the work, in any order of
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import sys
 import threading
@@ -210,15 +211,32 @@ def local_workers(n_jobs: int) -> int:
     return max(1, os.cpu_count() or 1) if n_jobs == -1 else n_jobs
 
 
-def numba_threads_local(n_jobs: int) -> int:
+@functools.cache
+def _numba_cores() -> int:
+    """numba.config.NUMBA_NUM_THREADS as numba will read it at import (NUMBA_NUM_THREADS, else
+    the cores this process may run on), before anything here sets the variable."""
+    if os.environ.get("NUMBA_NUM_THREADS"):
+        return int(os.environ["NUMBA_NUM_THREADS"])
+    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+               else os.cpu_count() or 1)
+
+
+def numba_threads_local(n_jobs: int, process: bool = False) -> int:
     """In one of n_jobs local workers (processes, or threads of this process: numba's count
     is per thread): NUMBA_NUM_THREADS // n_jobs numba threads (at
     least 1), so the workers together run no more threads than the cores numba sees (the
     strategies study already did this in its chunks). The kernels' loops are over independent
-    machines: no number depends on it."""
+    machines: no number depends on it. A worker process (`process`) that has not imported
+    numba is not made to: the share goes into NUMBA_NUM_THREADS, which numba reads if the
+    work imports it (the strategies study's workers run the needle's kernels compiled ahead of
+    time, without numba)."""
+    share = max(1, _numba_cores() // max(1, n_jobs))
+    if process and "numba" not in sys.modules:
+        os.environ["NUMBA_NUM_THREADS"] = str(share)
+        return share
     import numba
 
-    share = max(1, numba.config.NUMBA_NUM_THREADS // max(1, n_jobs))
+    share = min(share, numba.config.NUMBA_NUM_THREADS)  # a reused worker: as numba started
     numba.set_num_threads(share)
     return share
 
@@ -232,7 +250,7 @@ def _indexed(fn: Callable, run: tuple[int, ...], args: Sequence, parent_pid: int
     if parent_pid is not None:
         _watch_parent(parent_pid)
     if n_jobs > 1:  # numba's thread count is per thread: a worker thread takes its share too
-        numba_threads_local(n_jobs)
+        numba_threads_local(n_jobs, process=parent_pid is not None)
     if on_cluster:
         numba_threads_on_worker()
     return run, fn(*args) if len(run) > 1 else [fn(*args)]

@@ -39,6 +39,7 @@ for every row and every level of `measurement_curve` (only the scale changes); s
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
@@ -242,16 +243,24 @@ def _units(seed: int, mech, rows, a: int, b: int) -> dict[str, np.ndarray]:
 
 
 def _chunk(mech, values, strategies, output, fast, options, threads, units=None, measured=None):
-    import numba
+    """Each strategy's `set_in_order` on these machines. threads (a worker process's share,
+    one): the mechanism's kernels on this thread without numba where it can (its plug-in's
+    `serial`: the needle's compiled ahead of time), else numba on that many threads (2 x 2
+    threads ran slower)."""
+    serial = plugins(mech).serial if threads is not None else None
+    with serial() if serial is not None else contextlib.nullcontext(False) as numba_free:
+        before = None
+        if threads is not None and not numba_free:
+            import numba
 
-    before = numba.get_num_threads()
-    if threads is not None:  # one numba thread per worker process (2 x 2 threads ran slower)
-        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
-    try:
-        return [set_in_order(mech, values, s, output, units, fast=fast, measured=measured,
-                             **options) for s in strategies]
-    finally:
-        numba.set_num_threads(before)
+            before = numba.get_num_threads()
+            numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+        try:
+            return [set_in_order(mech, values, s, output, units, fast=fast, measured=measured,
+                                 **options) for s in strategies]
+        finally:
+            if before is not None:
+                numba.set_num_threads(before)
 
 
 def _drawn_chunk(mech, dev, strategies, output, fast, options, threads, seed, window,

@@ -264,7 +264,6 @@ def _with_outer_fused(name, c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um, a
     (kernels.window.outer_batch: golden sections as _with_outer), then the
     full inner optimum at the setting found."""
     from sewtol.mechanisms.needle_208 import kernels as KB
-    from sewtol.mechanisms.needle_208.kernels import window as KW
 
     alo, ahi = boxes[name]
     if ahi == alo:
@@ -280,7 +279,7 @@ def _with_outer_fused(name, c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um, a
     slo, shi = inner_boxes.get("guide_shift_um", (0.0, 0.0))
     lo = np.ascontiguousarray(r_lo, float).reshape(-1)
     hi = np.ascontiguousarray(r_hi, float).reshape(-1)
-    best_rel = KW.outer_batch(KB.pack(cc), _KERNEL_COLUMN[name], lo, hi, blo, bhi, slo, shi,
+    best_rel = KB.outer_batch(KB.pack(cc), _KERNEL_COLUMN[name], lo, hi, blo, bhi, slo, shi,
                               shift, grid, h_deg, tol_um, 3,
                               None if cutoff_um is None else np.asarray(cutoff_um, float))
     cc[name] = (own + best_rel).reshape(-1, 1)

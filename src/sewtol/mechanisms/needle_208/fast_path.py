@@ -286,6 +286,7 @@ COLUMNS = {"montecarlo": {
 def _plugins():
     from sewtol.mechanisms import params as P
     from sewtol.mechanisms.needle_208 import adjust as ad
+    from sewtol.mechanisms.needle_208.kernels import ahead_of_time
     from sewtol.mechanisms.needle_208.model import Needle208
     from sewtol.protocol import Plugins
 
@@ -296,7 +297,7 @@ def _plugins():
                    strategy_adjuster=needle_strategy_adjuster,
                    strategy_parameters=frozenset(P.field_names(Needle208)),
                    measured_adjuster=needle_measured_adjuster,
-                   failure_table=needle_failure_table,
+                   failure_table=needle_failure_table, serial=ahead_of_time,
                    columns=COLUMNS, name="needle_208")
 
 

@@ -35,7 +35,8 @@ from sewtol.errors import ParameterError
 from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208.adjustment import Adjustment, shift_optimum, status_of
 from sewtol.mechanisms.needle_208.compensators import Strategy
-from sewtol.mechanisms.needle_208.kernels.positions import FIELDS, positions_kernel_serial
+from sewtol.mechanisms.needle_208.kernels import POSITION_FIELDS as FIELDS
+from sewtol.mechanisms.needle_208.kernels import positions_serial
 
 NAMES = ("beta", "guide_shift_um", "guide_angle", "CD")
 BETA_GRID_DEG = 0.5
@@ -138,7 +139,7 @@ def measured_settings(c: dict, strategy: Strategy, phi_rad, noise_um) -> tuple:
         return np.where(bad | ~np.isfinite(total), np.inf, total)
 
     def by_angle(P):
-        E = positions_kernel_serial(P, phi)
+        E = positions_serial(P, phi)
         if angle is None:
             return at_angle(E, zeros), {"guide_angle": zeros}
         s, x, _ = _golden(lambda x: (at_angle(E, x), {}), np.full(n, angle.low),
@@ -183,7 +184,7 @@ def measured_settings(c: dict, strategy: Strategy, phi_rad, noise_um) -> tuple:
             Q[:, 8] = aux["beta"]
         if cd is not None:
             Q[:, cd_col] = P0[:, cd_col] + aux["CD"]
-        m = readings_um(positions_kernel_serial(Q, phi), gx, gy, own_angle + aux["guide_angle"],
+        m = readings_um(positions_serial(Q, phi), gx, gy, own_angle + aux["guide_angle"],
                         noise)
         settings["guide_shift_um"] = shift_optimum(m.max(axis=1), m.min(axis=1), own_shift,
                                                    shift)[1]

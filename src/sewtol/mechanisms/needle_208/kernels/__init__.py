@@ -1,13 +1,15 @@
 """Fused numba kernels of the needle drive (fast paths; the numpy engine is the reference they are
-tested against), and the two a Monte-Carlo calls, compiled ahead of time.
+tested against), and those a Monte-Carlo and the strategies study call, compiled ahead of time.
 
 A short `needle montecarlo` spent most of its start-up importing numba and setting up its
-compiler context (about 0.7 s of 1.3 s warm). `build()` (make's `kernels` step) compiles
-window.fixed_batch and window.optimise_batch, the same Python functions run serially (prange is
-range outside a parallel njit), with numba.pycc into an extension module beside this file that
-runs without numba. Inside `ahead_of_time()` the `fixed_batch` and `optimise_batch` below run
-it on the calling thread; elsewhere, or when it is not built, numba's kernels (window.py).
-tests/test_ahead.py holds the two bit for bit equal.
+compiler context (about 0.7 s of 1.3 s warm), and every worker process of `needle strategies`
+held numba and LLVM (about 100 MB of its resident size). `build()` (make's `kernels` step)
+compiles the kernels of AHEAD (window.fixed_batch, window.optimise_batch, window.outer_batch,
+positions.positions_kernel_serial), the same Python functions run serially (prange is range
+outside a parallel njit), with numba.pycc into an extension module beside this file that runs
+without numba. Inside `ahead_of_time()` the functions of the same names below run it on the
+calling thread; elsewhere, or when it is not built, numba's kernels (window.py, positions.py).
+tests/test_ahead.py holds each bit for bit equal to numba's.
 """
 
 from __future__ import annotations
@@ -25,9 +27,26 @@ import numpy as np
 # parameter columns passed to the kernels (fused.py, window.py), in this order
 FIELDS = ("AB", "BC", "BE", "CD", "CBE", "Ax", "Ay", "Dx", "Dy", "branch_C", "beta_sense",
           "guide_x", "guide_y", "guide_angle", "guide_shift_um")
-# the kernels compiled ahead of time and their signatures (numba's; P's rows follow FIELDS)
-AHEAD = {"fixed_batch": "f8[:,:](f8[:,::1], f8[::1], f8[::1], f8[::1], f8)",
-         "optimise_batch": "f8[:,:](f8[:,::1], f8[::1], f8[::1], f8, f8, f8, f8, b1, f8, f8)"}
+# parameter columns of the position kernel, positions.FIELDS (which imports numba; kept equal
+# by tests/test_ahead.py)
+POSITION_FIELDS = ("LF", "LM", "AM", "AB", "BC", "BE", "CD", "CBE", "beta", "Ax", "Ay", "Dx", "Dy",
+                   "branch_M", "branch_C", "beta_sense")
+# the kernels compiled ahead of time: name -> (module, function, signature: numba's; P's rows
+# follow FIELDS, or POSITION_FIELDS for the positions). outer_batch's cutoff_um is always an
+# array there (None: +inf for every machine, which is what numba's kernel makes of None)
+AHEAD = {"fixed_batch": ("window", "fixed_batch",
+                         "f8[:,:](f8[:,::1], f8[::1], f8[::1], f8[::1], f8)"),
+         "optimise_batch": ("window", "optimise_batch",
+                            "f8[:,:](f8[:,::1], f8[::1], f8[::1], f8, f8, f8, f8, b1, f8, f8)"),
+         "outer_batch": ("window", "outer_batch", "f8[::1](f8[:,::1], i8, f8[::1], f8[::1], f8, f8, "
+                         "f8, f8, b1, f8[::1], f8, f8, i8, f8[::1])"),
+         "positions_serial": ("positions", "positions_kernel_serial",
+                              "f8[:,:,::1](f8[:,::1], f8[::1])")}
+# the most machines a one-process run (n_jobs 1, no cluster) of each needle study computes with
+# the compiled module on one thread, numba never imported, rather than on numba's kernels on
+# every core (docs/layout.md has the crossings): montecarlo (beta fixed and adjusted) saves 0.7
+# s of start-up and costs 19 us a machine; strategies saves 1.5 CPU-s and costs 12 ms a machine
+AHEAD_MAX_N = {"montecarlo": 20_000, "strategies": 60}
 # the module ahead_of_time() put in force on this thread (a context variable: a thread started
 # inside it, such as a worker of a pool, runs numba's kernels)
 _IN_FORCE: contextvars.ContextVar = contextvars.ContextVar("needle_ahead", default=None)
@@ -44,14 +63,14 @@ def pack(c: dict) -> np.ndarray:
 
 def ahead_name() -> str:
     """The extension module's name: ahead_ and a digest of the kernels' sources (this file,
-    fused.py, window.py) and of the numba and numpy versions, so a module built from other
+    fused.py, window.py, positions.py) and of the numba and numpy versions, so a module built from other
     sources or versions is never loaded (Python's version is in the file's suffix). Read
     without importing numba."""
     here = Path(__file__).parent
     h = hashlib.sha256(np.__version__.encode())
     numba = importlib.util.find_spec("numba").submodule_search_locations[0]
     for f in (here / "__init__.py", here / "fused.py", here / "window.py",
-              Path(numba, "_version.py")):
+              here / "positions.py", Path(numba, "_version.py")):
         h.update(f.read_bytes())
     return "ahead_" + h.hexdigest()[:16]
 
@@ -65,11 +84,23 @@ def ahead():
         return None
 
 
+def runs_ahead(study: str, n: int, n_jobs: int = 1, cluster: bool = False) -> bool:
+    """Whether the calling thread of a needle `study` ("montecarlo" or "strategies") of n
+    machines runs the compiled module (`ahead_of_time`): in one process, up to AHEAD_MAX_N
+    machines; the strategies study on workers always (its chunks run in worker processes, each
+    inside the mechanism's `Plugins.serial`: this one figures only the nominal machine)."""
+    if cluster:
+        return False
+    if n_jobs != 1:
+        return study == "strategies"
+    return n <= AHEAD_MAX_N[study]
+
+
 @contextlib.contextmanager
 def ahead_of_time(use: bool = True):
-    """Within, on this thread, fixed_batch and optimise_batch run the module compiled ahead of
-    time when it is built (serially, numba never imported); with use False, or without it,
-    numba's kernels (parallel over the machines). Yields whether the module is in force."""
+    """Within, on this thread, the kernels of AHEAD run the module compiled ahead of time when
+    it is built (serially, numba never imported); with use False, or without it, numba's
+    kernels (parallel over the machines). Yields whether the module is in force."""
     token = _IN_FORCE.set(ahead() if use else None)
     try:
         yield _IN_FORCE.get() is not None
@@ -96,8 +127,32 @@ def optimise_batch(*args):
     return optimise_batch(*args)
 
 
+def outer_batch(P, col, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active, grid, h_deg,
+                tol_um, rounds, cutoff_um):
+    """window.outer_batch, every argument given (cutoff_um None or per machine): per machine
+    the compensator's offset where the exact minimum over beta (and the shift) is least."""
+    if (m := _IN_FORCE.get()) is not None:
+        cut = np.full(P.shape[0], np.inf) if cutoff_um is None else cutoff_um
+        return m.outer_batch(P, col, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active,
+                             grid, h_deg, tol_um, rounds, cut)
+    from sewtol.mechanisms.needle_208.kernels.window import outer_batch
+
+    return outer_batch(P, col, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active, grid,
+                       h_deg, tol_um, rounds, cutoff_um)
+
+
+def positions_serial(P, phi):
+    """positions.positions_kernel_serial: E (n, m, 2) of n machines (rows of POSITION_FIELDS)
+    at m crank angles, on this thread."""
+    if (m := _IN_FORCE.get()) is not None:
+        return m.positions_serial(P, phi)
+    from sewtol.mechanisms.needle_208.kernels.positions import positions_kernel_serial
+
+    return positions_kernel_serial(P, phi)
+
+
 def build() -> Path:
-    """Compile AHEAD from window.py's kernels (their Python functions, serial) with numba.pycc
+    """Compile AHEAD from numba's kernels (their Python functions, serial) with numba.pycc
     into this folder unless the current module is there; stale ones are removed. For a generic
     x86-64 (pycc's default CPU), so one build serves any CPU of the platform, with the same bits
     as numba's kernels (tests/test_ahead.py). Returns its path."""
@@ -115,15 +170,15 @@ def build() -> Path:
     built = list(out.glob(name + ".*"))
     if built:
         return built[0]
-    from sewtol.mechanisms.needle_208.kernels import window
 
     with warnings.catch_warnings():  # pycc is deprecated, not yet replaced; pinned by the lock
         warnings.simplefilter("ignore", NumbaPendingDeprecationWarning)
         from numba.pycc import CC
 
         cc = CC(name, source_module=__name__)
-    for fn, sig in AHEAD.items():
-        cc.export(fn, sig)(getattr(window, fn).py_func)
+    for name, (module, fn, sig) in AHEAD.items():
+        kernel = getattr(importlib.import_module(f"{__name__}.{module}"), fn)
+        cc.export(name, sig)(kernel.py_func)
     # compiled elsewhere and moved in whole (os.replace in this folder), so a build running
     # beside this one (make test and make report in one checkout) never loads a part-written
     # module
