@@ -87,6 +87,17 @@ def test_outer_search_is_numbas_bit_for_bit(chunk, name, col, box, n_grid):
     assert np.array_equal(a_cut, b_cut, equal_nan=True)
 
 
+def test_cd_and_angle_search_is_numbas_bit_for_bit(chunk):
+    """window.cd_angle_batch as the `all` strategy's first stage calls it (adjust.cd_and_angle;
+    100 machines a set): CD's offset, SumDelta and the guide angle's offset."""
+    Pm, _, r_lo, r_hi = (a[:100] for a in chunk)
+    a, b = both(kernels.cd_angle_batch, np.ascontiguousarray(Pm), r_lo.copy(), r_hi.copy(), 10.0,
+                35.0, -100.0, 100.0, True, np.linspace(-0.3, 0.3, 13), -0.1, 0.1, 21, 2.0, 1e-3,
+                3e-6, 2e-7)
+    assert np.isfinite(a[:, 1]).sum() >= 90 and np.unique(a[:, 0]).size > 50
+    assert np.array_equal(a, b, equal_nan=True)
+
+
 def test_positions_are_numbas_bit_for_bit():
     """positions.positions_kernel_serial (the measured adjuster's readings) on 2000 machines
     of the base set at 24 crank angles and one whose rod BC is too short to close (NaN)."""

@@ -242,7 +242,6 @@ def cd_and_angle(c: dict[str, np.ndarray], active: dict, cd_grid, feas=None,
     on cd_grid, then golden section; at each CD the angle on angle_grid points, its local
     minima refined by kink searches). `active` as optimise's, with both guide_angle and CD."""
     from sewtol.mechanisms.needle_208 import kernels as KB
-    from sewtol.mechanisms.needle_208.kernels import window as KW
 
     boxes = check_boxes(active)
     r_lo, r_hi, _ = _rocker(c, feas)
@@ -250,7 +249,7 @@ def cd_and_angle(c: dict[str, np.ndarray], active: dict, cd_grid, feas=None,
     slo, shi = boxes.get("guide_shift_um", (0.0, 0.0))
     alo, ahi = boxes["guide_angle"]
     cd_grid = np.asarray(cd_grid, float)
-    out = KW.cd_angle_batch(KB.pack(c), np.ascontiguousarray(r_lo, float).reshape(-1),
+    out = KB.cd_angle_batch(KB.pack(c), np.ascontiguousarray(r_lo, float).reshape(-1),
                             np.ascontiguousarray(r_hi, float).reshape(-1), blo, bhi, slo, shi,
                             "guide_shift_um" in boxes, cd_grid, alo, ahi, int(angle_grid), h_deg,
                             tol_um, 5e-6 * (cd_grid[-1] - cd_grid[0]), 1e-6 * (ahi - alo))

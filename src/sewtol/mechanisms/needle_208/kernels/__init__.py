@@ -5,10 +5,11 @@ A short `needle montecarlo` spent most of its start-up importing numba and setti
 compiler context (about 0.7 s of 1.3 s warm), and every worker process of `needle strategies`
 held numba and LLVM (about 100 MB of its resident size). `build()` (make's `kernels` step)
 compiles the kernels of AHEAD (window.fixed_batch, window.optimise_batch, window.outer_batch,
-positions.positions_kernel_serial), the same Python functions run serially (prange is range
-outside a parallel njit), with numba.pycc into an extension module beside this file that runs
-without numba. Inside `ahead_of_time()` the functions of the same names below run it on the
-calling thread; elsewhere, or when it is not built, numba's kernels (window.py, positions.py).
+window.cd_angle_batch, positions.positions_kernel_serial), the same Python functions run
+serially (prange is range outside a parallel njit), with numba.pycc into an extension module
+beside this file that runs without numba. Inside `ahead_of_time()` the functions of the same
+names below run it on the calling thread; elsewhere, or when it is not built, numba's kernels
+(window.py, positions.py).
 tests/test_ahead.py holds each bit for bit equal to numba's.
 """
 
@@ -40,6 +41,8 @@ AHEAD = {"fixed_batch": ("window", "fixed_batch",
                             "f8[:,:](f8[:,::1], f8[::1], f8[::1], f8, f8, f8, f8, b1, f8, f8)"),
          "outer_batch": ("window", "outer_batch", "f8[::1](f8[:,::1], i8, f8[::1], f8[::1], f8, f8, "
                          "f8, f8, b1, f8[::1], f8, f8, i8, f8[::1])"),
+         "cd_angle_batch": ("window", "cd_angle_batch", "f8[:,:](f8[:,::1], f8[::1], f8[::1], "
+                            "f8, f8, f8, f8, b1, f8[::1], f8, f8, i8, f8, f8, f8, f8)"),
          "positions_serial": ("positions", "positions_kernel_serial",
                               "f8[:,:,::1](f8[:,::1], f8[::1])")}
 # the most machines a one-process run (n_jobs 1, no cluster) of each needle study computes with
@@ -125,6 +128,17 @@ def optimise_batch(*args):
     from sewtol.mechanisms.needle_208.kernels.window import optimise_batch
 
     return optimise_batch(*args)
+
+
+def cd_angle_batch(*args):
+    """window.cd_angle_batch(P, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active,
+    cd_grid, a_lo, a_hi, n_a, h_deg, tol_um, xtol_cd, xtol_a), every argument given: per
+    machine CD's offset, SumDelta and the guide angle's offset at their joint optimum."""
+    if (m := _IN_FORCE.get()) is not None:
+        return m.cd_angle_batch(*args)
+    from sewtol.mechanisms.needle_208.kernels.window import cd_angle_batch
+
+    return cd_angle_batch(*args)
 
 
 def outer_batch(P, col, lo, hi, blo, bhi, shift_lo_um, shift_hi_um, shift_active, grid, h_deg,
