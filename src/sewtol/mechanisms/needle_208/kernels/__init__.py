@@ -64,13 +64,27 @@ def pack(c: dict) -> np.ndarray:
     return out
 
 
+def _cpu() -> bytes:
+    """This machine's CPU as the module is built for it: its model and feature flags
+    (/proc/cpuinfo's first processor), else what the platform module says."""
+    import platform
+
+    try:
+        info = Path("/proc/cpuinfo").read_text(errors="replace").split("\n\n", 1)[0]
+        keep = [ln for ln in info.splitlines() if ln.split(":")[0].strip() in
+                ("vendor_id", "cpu family", "model", "model name", "flags", "Features")]
+    except OSError:
+        keep = []
+    return "\n".join(keep or [platform.machine(), platform.processor()]).encode()
+
+
 def ahead_name() -> str:
     """The extension module's name: ahead_ and a digest of the kernels' sources (this file,
-    fused.py, window.py, positions.py) and of the numba and numpy versions, so a module built from other
-    sources or versions is never loaded (Python's version is in the file's suffix). Read
-    without importing numba."""
+    fused.py, window.py, positions.py), of the numba and numpy versions and of the CPU it is
+    built for (_cpu), so a module built from other sources or versions, or on another CPU, is
+    never loaded (Python's version is in the file's suffix). Read without importing numba."""
     here = Path(__file__).parent
-    h = hashlib.sha256(np.__version__.encode())
+    h = hashlib.sha256(np.__version__.encode() + _cpu())
     numba = importlib.util.find_spec("numba").submodule_search_locations[0]
     for f in (here / "__init__.py", here / "fused.py", here / "window.py",
               here / "positions.py", Path(numba, "_version.py")):
@@ -167,9 +181,10 @@ def positions_serial(P, phi):
 
 def build() -> Path:
     """Compile AHEAD from numba's kernels (their Python functions, serial) with numba.pycc
-    into this folder unless the current module is there; stale ones are removed. For a generic
-    x86-64 (pycc's default CPU), so one build serves any CPU of the platform, with the same bits
-    as numba's kernels (tests/test_ahead.py). Returns its path."""
+    into this folder unless the current module is there; stale ones are removed. For this
+    machine's CPU (its name is in the module's), with the same bits as numba's kernels, also
+    numba's for a generic CPU (tests/test_ahead.py, which CI repeats under
+    NUMBA_CPU_NAME=generic). Returns its path."""
     import os
     import shutil
     import tempfile
@@ -190,6 +205,11 @@ def build() -> Path:
         from numba.pycc import CC
 
         cc = CC(name, source_module=__name__)
+    # for this machine's CPU, as numba's own kernels are compiled (a generic x86-64 build ran
+    # the strategies study's kernels 10-20 % slower); llvmlite's name, not NUMBA_CPU_NAME's
+    import llvmlite.binding as ll
+
+    cc.target_cpu = ll.get_host_cpu_name()
     for name, (module, fn, sig) in AHEAD.items():
         kernel = getattr(importlib.import_module(f"{__name__}.{module}"), fn)
         cc.export(name, sig)(kernel.py_func)
