@@ -422,10 +422,11 @@ def test_the_sobol_memory_estimate_counts_the_bootstrap(nominal, monkeypatch):
     """check_sobol's estimate: the design, outputs and words, and the bootstrap's resamples and
     working arrays (docs/cli.md; measured peaks in docs/studies.md), first and second order."""
     # the Sobol study itself when some row fails: per row of the base set's needle design
-    # (D = 6; 8 rows a base sample, 14 with S2) the 6 inputs, 2 outputs, 5 columns of words and
-    # the output analysed, 8 bytes each (112), and the bootstrap's 200 int32 resamples a base
-    # sample and BOOTSTRAP_ARRAYS arrays of BOOTSTRAP_CELLS doubles shared out over the rows at
-    # n = 2**17 (124 bytes a row of 2**20, 71 of 14 * 2**17); the run's machinery left out here
+    # (D = 6; 8 rows a base sample, 14 with S2) the 6 inputs, 2 outputs, the output analysed
+    # and 5 columns of words, 8 bytes each (112), and the bootstrap's 200 int32 resamples a
+    # base sample and BOOTSTRAP_ARRAYS arrays of BOOTSTRAP_CELLS doubles shared out over the
+    # rows at n = 2**17 (124 bytes a row of 2**20, 71 of 14 * 2**17); the run's machinery left
+    # out here
     from sewtol.errors import ParameterError
     from sewtol.studies import montecarlo, sobol
     from sewtol.tolerances import needle_set

@@ -101,10 +101,10 @@ def check_sobol(nominal, tolerances: ToleranceSet, n, seed, second_order: bool =
         raise ParameterError("tolerances", "has no tolerance with a non-zero width",
                              tolerances.name)
     tolerances.check_against(nominal)
-    # the bootstrap's peak when a row failed (the most: the design is kept for S1_given): per
-    # row its D inputs, two outputs, five columns of words and the output analysed, 8 bytes
-    # each; r (4 bytes per base sample and resample) and one block's working arrays shared out
-    # over the rows; the run's machinery beside them (check_memory's reserve)
+    # the peak when a row fails (the design is then kept for S1_given): per row its D inputs,
+    # two outputs, the output analysed and five columns more (the words counted before the
+    # bootstraps), 8 bytes each; r (4 bytes per base sample and resample) and a block's arrays
+    # shared out over the rows; the run's machinery beside them (check_memory's reserve)
     rows = int(n) * rows_per_sample(d, second_order)
     boot = 4 * int(resamples) * int(n) + BOOTSTRAP_ARRAYS * 8 * BOOTSTRAP_CELLS
     check_memory(rows, d + 2, value=n, rows_per_unit=rows_per_sample(d, second_order),
