@@ -419,29 +419,58 @@ def test_the_memory_estimate_honours_a_container_limit(tmp_path, monkeypatch, ve
 
 
 def test_the_sobol_memory_estimate_counts_the_bootstrap(nominal, monkeypatch):
-    """check_sobol's estimate: the design and outputs, and the bootstrap's resamples and
-    working arrays (docs/cli.md; measured peaks in docs/studies.md)."""
-    # the Sobol study itself: per row of the base set's needle design (D = 6, 8 rows a base
-    # sample) 8 cells of 32 bytes, and the bootstrap's 200 int32 resamples a base sample and
-    # BOOTSTRAP_ARRAYS arrays of BOOTSTRAP_CELLS doubles shared out over the 2**20 rows at
-    # n = 2**17 (380 bytes a row with 12 arrays of 2**18); the run's machinery left out here
+    """check_sobol's estimate: the design, outputs and words, and the bootstrap's resamples and
+    working arrays (docs/cli.md; measured peaks in docs/studies.md), first and second order."""
+    # the Sobol study itself when some row fails: per row of the base set's needle design
+    # (D = 6; 8 rows a base sample, 14 with S2) the 6 inputs, 2 outputs, the output analysed
+    # and 5 columns of words, 8 bytes each (112), and the bootstrap's 200 int32 resamples a
+    # base sample and BOOTSTRAP_ARRAYS arrays of BOOTSTRAP_CELLS doubles shared out over the
+    # rows at n = 2**17 (124 bytes a row of 2**20, 71 of 14 * 2**17); the run's machinery left
+    # out here
     from sewtol.errors import ParameterError
     from sewtol.studies import montecarlo, sobol
     from sewtol.tolerances import needle_set
 
-    per = 256 + -(-(4 * 200 * 2**17 + sobol.BOOTSTRAP_ARRAYS * 8 * sobol.BOOTSTRAP_CELLS)
-                  // 2**20)
-    assert (sobol.BOOTSTRAP_ARRAYS, sobol.BOOTSTRAP_CELLS, per) == (12, 2**18, 380)
+    boot = 4 * 200 * 2**17 + sobol.BOOTSTRAP_ARRAYS * 8 * sobol.BOOTSTRAP_CELLS
+    assert (sobol.BOOTSTRAP_ARRAYS, sobol.BOOTSTRAP_CELLS) == (12, 2**18)
     monkeypatch.setattr(montecarlo, "run_reserve_bytes", lambda source, workers=0: 0)
     base = needle_set("base")
+    for second_order, rows, per in ((False, 2**20, 236), (True, 14 * 2**17, 183)):
+        assert per == 8 * (6 + 8) + -(-boot // rows)
+        monkeypatch.setattr(montecarlo, "memory_limits_bytes",
+                            lambda have=per * rows: {"available memory": have})
+        sobol.check_sobol(nominal, base, 2**17, 0, second_order)
+        monkeypatch.setattr(montecarlo, "memory_limits_bytes",
+                            lambda have=per * rows - 1: {"available memory": have})
+        with pytest.raises(ParameterError, match=rf"needs about {per * rows / 2**30:.3g} GiB "
+                           rf"for {rows} machines of {per} bytes each, .*: at most n = 65536 "
+                           "fits"):
+            sobol.check_sobol(nominal, base, 2**17, 0, second_order)
+
+
+def test_a_second_order_sobol_that_cannot_fit_is_refused_before_it_starts(nominal, monkeypatch,
+                                                                           capsys, tmp_path):
+    """`needle sobol --second-order` counts its 14 rows a base sample: with memory for the
+    first-order run of --n 131072 and not for the second-order one, the first is let through
+    and the second refused in one line (exit 2) naming --n and the n that fits."""
+    from sewtol.cli import main
+    from sewtol.studies import montecarlo, sobol
+    from sewtol.tolerances import needle_set
+
+    rows, per = 14 * 2**17, 183  # the estimate above
+    monkeypatch.setattr(montecarlo, "run_reserve_bytes", lambda source, workers=0: 0)
     monkeypatch.setattr(montecarlo, "memory_limits_bytes",
-                        lambda: {"available memory": per * 2**20})
-    sobol.check_sobol(nominal, base, 2**17, 0)
-    monkeypatch.setattr(montecarlo, "memory_limits_bytes",
-                        lambda: {"available memory": per * 2**20 - 1})
-    with pytest.raises(ParameterError, match=rf"needs about {per / 2**10:.3g} GiB for 1048576 "
-                       rf"machines of {per} bytes each, .*: at most n = 65536 fits"):
-        sobol.check_sobol(nominal, base, 2**17, 0)
+                        lambda: {"available memory": per * rows - 1})
+    sobol.check_sobol(nominal, needle_set("base"), 2**17, 0, False)
+    out = tmp_path / "study"
+    code = main(["needle", "sobol", "--n", "131072", "--second-order", "--out", str(out)])
+    captured = capsys.readouterr()
+    assert code == 2 and captured.out == "" and not out.exists()
+    assert captured.err.strip().splitlines() == [
+        f"sewtol: error: --n: needs about {per * rows / 2**30:.3g} GiB for {rows} machines of "
+        f"{per} bytes each, more than the memory this process may still use "
+        f"({(per * rows - 1) / 2**30:.3g} GiB, available memory): at most n = 65536 fits "
+        "(got 131072)"]
 
 
 @pytest.mark.parametrize("kind", ["http", "garbage"])

@@ -111,3 +111,17 @@ def test_the_suite_holds_a_failure_table_to_the_protocols_words(monkeypatch):
     monkeypatch.setattr(protocol, "plugins", lambda m: liar)
     with pytest.raises(AssertionError, match="check_failures_counted: the plug-in's failure"):
         checks.check_failures_counted(mech)
+
+
+def test_a_column_of_words_points_at_one_str_per_word():
+    """protocol.words_of: the statuses of the needle's adjuster, the Monte-Carlo's adjusted
+    statuses and Sobol's outcomes are 8-byte pointers at the vocabulary's own str objects."""
+    from sewtol.mechanisms.needle_208.adjustment import WORDS, status_of
+
+    total = np.array([3.0, 12.0, np.nan, np.nan, 9.5])
+    got = status_of(total, 10.0, np.array([False, False, True, False, False]))
+    assert got.dtype == object and got.tolist() == ["ok", "out of spec", "dead point",
+                                                    "cannot assemble", "ok"]
+    assert all(g is WORDS[i] for g, i in zip(got, [0, 1, 2, 3, 0], strict=True))
+    column = protocol.words_of([""], np.zeros((2, 3), np.uint8))
+    assert column.shape == (2, 3) and len({id(w) for w in column.ravel()}) == 1

@@ -283,6 +283,15 @@ def test_blocked_bootstrap_is_salibs_analysis_bit_for_bit(nominal, monkeypatch, 
                     assert np.array_equal(c.pairs["S2_conf"].to_numpy(), ref["S2_conf"][iu])
 
 
+def test_s1_given_draws_its_resamples_one_at_a_time_as_the_rows_of_one_draw():
+    """_given_s1 draws each resample when it uses it, again for each input: numpy gives the rows
+    of one (resamples, blocks) draw, so the intervals are those of the draw held whole."""
+    for blocks, seed in ((37, so._salib_seed(0)), (2**15 + 3, 11), (2**17, 2026)):
+        whole = np.random.default_rng(seed).integers(blocks, size=(20, blocks))
+        rng = np.random.default_rng(seed)
+        assert all(np.array_equal(row, rng.integers(blocks, size=blocks)) for row in whole)
+
+
 def test_salibs_resamples_drawn_as_int32_are_its_int64_draws():
     """_analyze holds SALib's r as int32: numpy draws integers below 2**32 by one 32-bit path
     whatever the dtype, so the same generator gives the same numbers."""

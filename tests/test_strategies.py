@@ -492,12 +492,14 @@ def test_strategies_that_cannot_fit_are_refused_before_anything_is_drawn(nominal
 
 
 def test_a_table_without_per_machine_figures_has_the_same_rows_and_refuses_machines(nominal):
-    """per_machine=False keeps what the rows read: the same table, and the per-machine view
-    refused in one line (it needs the figures that were dropped)."""
+    """per_machine=False keeps what the rows read: the same table, the result carrying
+    per_machine, and the per-machine view refused in one line (it needs the figures that were
+    dropped)."""
     rows = [s for s in C.default_strategies() if s.name in ("none", "beta+shift")]
     full = strategies_table(nominal, "base", 6, 2, rows)
     slim = strategies_table(nominal, "base", 6, 2, rows, per_machine=False)
     assert slim.to_dataframe().equals(full.to_dataframe())
+    assert (full.per_machine, slim.per_machine) == (True, False)  # the result says which
     assert len(full.machines("beta+shift")) == 6
     with pytest.raises(ParameterError, match="per_machine: must be True for the per-machine"):
         slim.machines("beta+shift")

@@ -195,3 +195,11 @@ def machines(mech, deviations: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """Absolute parameter values of machines nominal + deviations (the rest nominal)."""
     nominal = mech.nominal_values()
     return {k: nominal[k] + np.asarray(v, float) for k, v in deviations.items()}
+
+
+def words_of(vocabulary, codes) -> np.ndarray:
+    """A column of words (a status, a failed group) per machine: vocabulary[code] as an object
+    array pointing at one str object per word, 8 bytes a machine (a list of words, astype,
+    np.full and np.where make a str object per machine: 60 MB a million machines, measured);
+    np.zeros(shape, np.uint8) as codes gives a column of one word."""
+    return np.array(list(vocabulary), object)[codes]

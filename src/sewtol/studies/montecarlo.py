@@ -35,7 +35,7 @@ from sewtol.errors import ParameterError
 from sewtol.intervals import clopper_pearson
 from sewtol.law import STREAM, InputLaw, draw_units, stream_window, unit_streams  # noqa: F401 re-exports draw_units
 from sewtol.mechanism.spec import Spec
-from sewtol.protocol import NO_PLUGINS, machines, plugins
+from sewtol.protocol import NO_PLUGINS, machines, plugins, words_of
 from sewtol.studies.parallel import chunk_bounds, run_chunks
 from sewtol.tolerances import ToleranceSet
 
@@ -627,8 +627,7 @@ def _file_model(record, dev, mech, outputs, compensator=None, target=None, fast=
                 out[f"{param}_high"] = a.extras["high"][param]
                 out[f"{param}_at_bound"] = np.asarray(a.at_bound[param], float)
         which, words = _coded(np.asarray(a.status, object)) or _coded(np.asarray(a.status, str))
-        out["status_adjusted"] = np.array([WORDS.get(w, w) for w in words] or [""],
-                                          object)[which]
+        out["status_adjusted"] = words_of([WORDS.get(w, w) for w in words] or [""], which)
         out["failed_group_adjusted"] = a.extras.get("failed_group", np.full(len(a.value), ""))
     return out
 

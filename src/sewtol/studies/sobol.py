@@ -21,7 +21,7 @@ from scipy import stats
 
 from sewtol.errors import ParameterError
 from sewtol.law import refuse_conditioned
-from sewtol.protocol import machines
+from sewtol.protocol import machines, words_of
 from sewtol.studies.adjusting import adjusted, evaluated, failures_of
 from sewtol.studies.parallel import chunk_bounds, run_chunks
 from sewtol.tolerances import ToleranceSet
@@ -91,7 +91,7 @@ def rows_per_sample(d: int, second_order: bool = False) -> int:
 def check_sobol(nominal, tolerances: ToleranceSet, n, seed, second_order: bool = False,
                 resamples: int = 200) -> None:
     """Every input of a Sobol study that can be checked before it runs (nothing is written)."""
-    from sewtol.studies.montecarlo import BYTES_PER_CELL, check_memory, check_seed
+    from sewtol.studies.montecarlo import check_memory, check_seed
 
     check_power_of_two(n)
     check_seed(seed)
@@ -101,13 +101,14 @@ def check_sobol(nominal, tolerances: ToleranceSet, n, seed, second_order: bool =
         raise ParameterError("tolerances", "has no tolerance with a non-zero width",
                              tolerances.name)
     tolerances.check_against(nominal)
-    # per row of the design: its D inputs and two outputs as a table's cells; the bootstrap's
-    # resamples r (4 bytes per base sample and resample) and one block's working arrays shared
-    # out over the rows; the run's machinery beside them (check_memory's reserve)
+    # the peak when a row fails (the design is then kept for S1_given): per row its D inputs,
+    # two outputs, the output analysed and five columns more (the words counted before the
+    # bootstraps), 8 bytes each; r (4 bytes per base sample and resample) and a block's arrays
+    # shared out over the rows; the run's machinery beside them (check_memory's reserve)
     rows = int(n) * rows_per_sample(d, second_order)
     boot = 4 * int(resamples) * int(n) + BOOTSTRAP_ARRAYS * 8 * BOOTSTRAP_CELLS
     check_memory(rows, d + 2, value=n, rows_per_unit=rows_per_sample(d, second_order),
-                 power_of_two=True, bytes_per_row=(d + 2) * BYTES_PER_CELL + -(-boot // rows))
+                 power_of_two=True, bytes_per_row=8 * (d + 8) + -(-boot // rows))
 
 
 def sample(problem: dict, n: int, seed: int, second_order: bool = False) -> np.ndarray:
@@ -152,7 +153,10 @@ def _analyze(problem: dict, y: np.ndarray, seed: int, resamples: int, conf_level
     _check_bootstrap(resamples, conf_level)
     d, resamples = problem["num_vars"], int(resamples)
     n = y.size // rows_per_sample(d, second_order)
-    y = (y - y.mean()) / y.std()
+    # SALib's (y - mean) / std, the division in place: one array of the rows, not three
+    mean, std = y.mean(), y.std()
+    y = y - mean
+    y /= std
     a, b, ab, ba = sobol_analyze.separate_output_values(y, d, n, second_order)
     # SALib's r by its call, held as int32: the same numbers (numpy draws any integers below
     # 2**32 by one 32-bit path; tested) in half the memory, 0.1 GB at N = 2**17
@@ -315,28 +319,19 @@ class CaseIndices:
     failed: int  # rows not assembled
 
 
-def _words(shape, word: str) -> np.ndarray:
-    """An object array whose every element is one str object: np.full and np.where make a
-    str per element (60 MB a million rows, measured)."""
-    out = np.empty(shape, object)
-    out.fill(word)
-    return out
-
-
 def outcomes_of(y, status=None, group=None) -> tuple[np.ndarray, np.ndarray]:
-    """(outcome, group) per row: "assembled", the row's status when it is not "ok"
-    (cannot_close, dead_point, ...), "undefined" for a row that runs without a value, and
-    "no_value" for a non-finite value when no status is known; group "" where unknown."""
+    """(outcome, group) per row: "assembled" where y has a value, else the row's status when
+    it is not "ok" (cannot_close, dead_point, ...: why the machine did not run in this case or
+    another on the design), "undefined" for a row that runs without a value, and "no_value"
+    when no status is known; group "" where unknown."""
     y = np.asarray(y, float)
     finite = np.isfinite(y)
     if status is None:
-        outcome = _words(y.shape, "no_value")
-        outcome[finite] = "assembled"
+        outcome = words_of(["no_value"], np.zeros(y.shape, np.uint8))
     else:
         outcome = np.asarray(status, object).copy()
-        ok = outcome == "ok"
-        outcome[ok & finite] = "assembled"
-        outcome[ok & ~finite] = "undefined"
+        outcome[outcome == "ok"] = "undefined"
+    outcome[finite] = "assembled"
     grp = np.full(y.shape, "", object) if group is None else np.asarray(group, object).copy()
     grp[outcome == "assembled"] = ""
     return outcome, grp
@@ -354,7 +349,6 @@ def _given_s1(X, y, usable, step, seed, resamples, conf_level) -> tuple[np.ndarr
     yy = y[usable]
     blocks = y.size // step
     block = (np.arange(y.size) // step)[usable]
-    draws = np.random.default_rng(seed).integers(blocks, size=(int(resamples), blocks))
     z = stats.norm.ppf(0.5 + conf_level / 2)
     s1, conf = [], []
     for j in range(X.shape[1]):
@@ -364,9 +358,13 @@ def _given_s1(X, y, usable, step, seed, resamples, conf_level) -> tuple[np.ndarr
                          return_inverse=True)
         k = int(b.max(initial=0)) + 1
         s1.append(correlation_ratio(b, yy, k))
-        # each resample's weights made when used: all of them held 8 bytes x rows x resamples
-        conf.append(z * np.std([correlation_ratio(b, yy, k, np.bincount(d, minlength=blocks)
-                                                  [block]) for d in draws], ddof=1))
+        # each resample drawn and weighted when used, the draws made again for each input: the
+        # rows of one draw of (resamples, blocks) (tested), which held 8 bytes x blocks x
+        # resamples (0.2 GB at N = 2**17), the weights 8 bytes x rows x resamples
+        rng = np.random.default_rng(seed)
+        conf.append(z * np.std([correlation_ratio(b, yy, k, np.bincount(
+            rng.integers(blocks, size=blocks), minlength=blocks)[block])
+            for _ in range(int(resamples))], ddof=1))
     return np.array(s1), np.array(conf)
 
 
@@ -389,7 +387,8 @@ def case_indices(problem: dict, X: np.ndarray, y: np.ndarray, n: int, seed: int,
     problem : dict
         SALib's problem of the design.
     X, y : ndarray
-        The design (rows, D) and the output per row (NaN where a machine was not built).
+        The design (rows, D) and the output per row (NaN where a machine was not built); X is
+        read only when some row failed (None serves when none did).
     n : int
         Base samples of the design; the indices are given at n/2 and n.
     seed : int
@@ -402,7 +401,8 @@ def case_indices(problem: dict, X: np.ndarray, y: np.ndarray, n: int, seed: int,
         The design holds the second-order rows (S2 per pair).
     status, group : array or None
         Per row: "ok" or why the machine was not built (cannot_close, dead_point, ...) and
-        the group that failed ("" unknown); None: a non-finite y is "no_value".
+        the group that failed ("" unknown); None: a non-finite y is "no_value". Released
+        once counted: a caller that passes them inline holds them no longer.
 
     Returns
     -------
@@ -417,12 +417,17 @@ def case_indices(problem: dict, X: np.ndarray, y: np.ndarray, n: int, seed: int,
     usable = outcome == "assembled"
     failed = int(np.sum(~usable))
     complete = usable.reshape(-1, step).all(axis=1)
+    keys = sorted(set(zip(outcome, grp, strict=True)), key=lambda k: (k[0] != "assembled", k))
+    outcomes = pd.DataFrame([{"case": case, "outcome": o, "group": g,
+                              "rows": int(np.sum((outcome == o) & (grp == g)))} for o, g in keys])
+    del outcome, grp, status, group  # counted: no column of words during the bootstraps
     frames, pairs = [], []
     for m in (n // 2, n):  # the first m blocks of rows are the design of m base samples
-        rows = np.repeat(complete[:m], step)
-        f, p = _analyze(problem, y[: m * step][rows], seed, resamples, conf_level,
-                        second_order) if complete[:m].sum() >= MIN_COMPLETE \
-            else _undefined(problem, second_order)
+        part = y[: m * step]
+        if not complete[:m].all():
+            part = part[np.repeat(complete[:m], step)]
+        f, p = _analyze(problem, part, seed, resamples, conf_level, second_order) \
+            if complete[:m].sum() >= MIN_COMPLETE else _undefined(problem, second_order)
         if failed:
             s1, conf = _given_s1(X[: m * step], y[: m * step], usable[: m * step], step, seed,
                                  resamples, conf_level)
@@ -441,9 +446,6 @@ def case_indices(problem: dict, X: np.ndarray, y: np.ndarray, n: int, seed: int,
         d2 = pairs[1]["S2"].to_numpy() - pairs[0]["S2"].to_numpy()
         conv["max_abs_dS2"] = float(np.max(np.abs(d2), initial=0.0))
         pairs[1].insert(4, "case", case)
-    keys = sorted(set(zip(outcome, grp, strict=True)), key=lambda k: (k[0] != "assembled", k))
-    outcomes = pd.DataFrame([{"case": case, "outcome": o, "group": g,
-                              "rows": int(np.sum((outcome == o) & (grp == g)))} for o, g in keys])
     feasibility = None
     if 0 < failed < y.size:
         feasibility = _analyze(problem, usable.astype(float), seed, resamples, conf_level,
@@ -479,13 +481,6 @@ def case_values(mech, output: str, cases: Mapping, names: list, X: np.ndarray,
     return tuple(evaluated(mech, values, output, fast=fast) if comps is None
                  else adjusted(mech, values, comps, output, fast=fast, **(options or {})).value
                  for comps in cases.values())
-
-
-def _ok_where(y, status) -> np.ndarray:
-    """status with "ok" where y has a value (np.where would make a str object per row)."""
-    out = status.copy()
-    out[np.isfinite(y)] = "ok"
-    return out
 
 
 def sobol(mech, tolerances: ToleranceSet, output: str, n: int, seed: int, *,
@@ -543,19 +538,33 @@ def sobol(mech, tolerances: ToleranceSet, output: str, n: int, seed: int, *,
             return f"does not hold {len(cases)} outputs of {m} samples"
         return None
 
-    parts = run_chunks(case_values, [(mech, output, cases, names, X[a:b], fast, options)
-                                     for a, b in bounds],
-                       n_jobs=n_jobs, progress=progress, desc="Sobol", backend=backend,
-                       store=store, validate=validate, scheduler=scheduler)
-    ys = [np.concatenate([p[i] for p in parts]) for i in range(len(cases))]
+    runs, why = len(X), None
+    ys = [np.empty(runs) for _ in cases]
+
+    def keep(i, part):  # each chunk's outputs written in place as it arrives, never held
+        for y, p in zip(ys, part, strict=True):
+            y[bounds[i][0]:bounds[i][1]] = p
+        return True
+
+    run_chunks(case_values, [(mech, output, cases, names, X[a:b], fast, options)
+                             for a, b in bounds],
+               n_jobs=n_jobs, progress=progress, desc="Sobol", backend=backend, store=store,
+               validate=validate, scheduler=scheduler, keep=keep)
     bad = ~np.logical_and.reduce([np.isfinite(y) for y in ys])
-    del parts
-    status, group = _words(len(X), "ok"), _words(len(X), "")
     if bad.any():
         why = failures_of(mech, fast, failures)(
             mech, machines(mech, {k: X[bad, i] for i, k in enumerate(names)}), output)
-        status[bad], group[bad] = why
+    else:  # every row ran in every case: only S1_given, where a row failed, reads the design
+        X = None
+
+    def column(i):  # status (0) or group (1) per row, made for each case, which releases it
+        if why is None:
+            return None
+        out = words_of([("ok", "")[i]], np.zeros(runs, np.uint8))
+        out[bad] = why[i]
+        return out
+
     return result_of([case_indices(problem, X, y, n, seed, case, resamples, conf_level,
-                                   second_order, _ok_where(y, status), group)
+                                   second_order, column(0), column(1))
                       for case, y in zip(cases, ys, strict=True)],
-                     n, seed, tolerances.name, second_order, len(X))
+                     n, seed, tolerances.name, second_order, runs)

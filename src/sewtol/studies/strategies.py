@@ -427,6 +427,7 @@ class StrategiesResult:
     measurement: str = "none"  # the reading the compensators are set from (none: the truth)
     limits: dict = field(default_factory=dict)  # param -> (lower, upper) of the tolerance set
     columns: Mapping | None = None  # the mechanism's words (Plugins.columns["strategies"])
+    per_machine: bool = True  # False: each row kept only what its table row reads (`row`)
 
     @property
     def n(self) -> int:
@@ -559,7 +560,7 @@ def strategies(mech, tolerances, n: int, seed: int, strategies: Mapping | None =
                                  else tuple(compensator_objects(mech, s)) for s in rows),
         tuple(adj), tuple(setting_labels(mech, s) for s in rows), me.label(measurement),
         {t.param: (t.lower, t.upper) for t in active.items},
-        plugins(mech).columns.get("strategies") if fast else None)
+        plugins(mech).columns.get("strategies") if fast else None, bool(per_machine))
 
 
 def _unit(mech, c) -> str:

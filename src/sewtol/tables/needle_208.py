@@ -299,7 +299,7 @@ class StrategiesResult(ST.StrategiesResult):
     def _adjustment(self, i: int, rows: slice = slice(None)) -> Adjustment:
         """Row i (its machines `rows`) as needle_208.adjustment.Adjustment."""
         a = self.adjusted[i]
-        if "plus_um" not in a.extras:
+        if not self.per_machine:
             raise ParameterError("per_machine", "must be True for the per-machine tables (this "
                                  "study kept only what its rows read)", False)
 

@@ -41,6 +41,7 @@ from sewtol.mechanisms.needle_208 import metrics as nm
 from sewtol.mechanisms.needle_208 import model as nd
 from sewtol.mechanisms.needle_208.compensators import Compensator, Strategy
 from sewtol.optimize import bisect_root, golden_min
+from sewtol.protocol import words_of
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -469,16 +470,14 @@ def adjust(c: dict[str, np.ndarray], strategy: Strategy, limit_um: float = 10.0,
                       settings, p_lo, p_hi, at_limit)
 
 
-# the statuses' words, one str object each: a status array points at them (8 bytes a machine,
-# where astype(object) made a new str per machine, 55 bytes)
-WORDS = np.array(["ok", "out of spec", "dead point", "cannot assemble"], dtype=object)
+WORDS = ("ok", "out of spec", "dead point", "cannot assemble")  # a status's codes 0-3
 
 
 def status_of(total_um, limit_um: float, dead_point) -> np.ndarray:
     """Per machine: ok / out of spec (SumDelta against limit_um), else dead point / cannot
     assemble."""
-    return WORDS[np.where(np.isfinite(total_um), np.where(total_um <= limit_um, 0, 1),
-                          np.where(dead_point, 2, 3))]
+    return words_of(WORDS, np.where(np.isfinite(total_um), np.where(total_um <= limit_um, 0, 1),
+                                    np.where(dead_point, 2, 3)))
 
 
 def _achieved(c, strategy: Strategy, settings: dict, total) -> np.ndarray:
