@@ -238,9 +238,9 @@ def cd_and_angle(c: dict[str, np.ndarray], active: dict, cd_grid, feas=None,
                  angle_grid: int = 21, h_deg: float = 2.0, tol_um: float = PLATEAU_TOL_UM):
     """CD's and the guide angle's offsets (mm, deg) at the joint optimum of beta, the guide shift
     (if active), the guide angle and CD, and that least SumDelta (um), per machine (CD, angle,
-    SumDelta): kernels.window.cd_angle_batch (CD
-    on cd_grid, then golden section; at each CD the angle on angle_grid points, its local
-    minima refined by kink searches). `active` as optimise's, with both guide_angle and CD."""
+    SumDelta): kernels.window.cd_angle_batch (CD on cd_grid, then golden section; at each CD
+    the angle on angle_grid points, its local minima refined by kink searches). `active` as
+    optimise's, with both guide_angle and CD."""
     from sewtol.mechanisms.needle_208 import kernels as KB
 
     boxes = check_boxes(active)
@@ -255,7 +255,6 @@ def cd_and_angle(c: dict[str, np.ndarray], active: dict, cd_grid, feas=None,
                             tol_um, 5e-6 * (cd_grid[-1] - cd_grid[0]), 1e-6 * (ahi - alo))
     return out[:, 0], out[:, 2], out[:, 1]
 
-# --- the guide angle or CD: an outer search around the exact inner optimum ---------------------
 
 def _with_outer_fused(name, c, boxes, r_lo, r_hi, code, engine, h_deg, tol_um, angle_grid,
                       cutoff_um=None):

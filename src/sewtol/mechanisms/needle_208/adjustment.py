@@ -206,6 +206,7 @@ def _search(c: dict, outer: list[Compensator], plateaus: bool, leaf, held=(),
             cc = {k: np.repeat(v, g.size, axis=0) for k, v in c.items()}
             vals[:, j:j + g.size] = _finite(sub(_apply(cc, comp, np.tile(g, n))).total
                                             ).reshape(n, g.size)
+        x = grid[np.argmin(vals, axis=1)]
     else:
         # only the grid's best is used (its value, and where it is): every later grid point is
         # scored with the best so far as its cutoff, so a point that cannot beat it may keep
@@ -220,11 +221,6 @@ def _search(c: dict, outer: list[Compensator], plateaus: bool, leaf, held=(),
         for j in order.T:
             vals[rows, j] = score(grid[j], best)
             best = np.minimum(best, vals[rows, j])
-    if found is not None:
-        pass
-    elif comp.discrete:
-        x = grid[np.argmin(vals, axis=1)]
-    else:
         i = np.argmin(vals, axis=1)
         a, b = grid[np.maximum(i - 1, 0)], grid[np.minimum(i + 1, grid.size - 1)]
         # each new point scored with the one it is compared with as its cutoff

@@ -789,6 +789,19 @@ def _angle_bound(p, grid, vals, EN, geo, k, w, ok, h):
 
 
 @nb.njit(cache=True)
+def _minima(vals):
+    """Each value that is no greater than its neighbours (a local minimum of the grid), inf
+    elsewhere."""
+    G = vals.size
+    score = np.empty(G)
+    for g in range(G):
+        left = vals[g - 1] if g > 0 else np.inf
+        right = vals[g + 1] if g < G - 1 else np.inf
+        score[g] = vals[g] if (vals[g] <= left and vals[g] <= right) else np.inf
+    return score
+
+
+@nb.njit(cache=True)
 def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_min, cutoff):
     G = grid.size
     own = p[col]
@@ -817,11 +830,7 @@ def _outer_one(p, col, lo, hi, blo, bhi, T0, T1, grid, h_deg, tol_mm, rounds, n_
             v = _trial_min(p, col, own, grid[g], lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, res,
                            geo, k, w, EN, XN, ok, ws, fb)
         vals[g] = np.inf if math.isnan(v) else v
-    score = np.empty(G)
-    for g in range(G):
-        left = vals[g - 1] if g > 0 else np.inf
-        right = vals[g + 1] if g < G - 1 else np.inf
-        score[g] = vals[g] if (vals[g] <= left and vals[g] <= right) else np.inf
+    score = _minima(vals)
     i0 = np.argmin(vals)
     best_rel = grid[i0]
     best_val = vals[i0]
@@ -932,10 +941,7 @@ def _kink_next(x, f, cnt, xtol, st):
     section step into the larger side, where the model fails, was wrong (a probe beat the least)
     or the bracket has not halved in two steps. st (4,): the search's state (widths of the last
     two brackets, whether the last step probed, the least then), inf, inf, 0, NaN at the start."""
-    j = 0
-    for i in range(1, cnt):
-        if f[i] < f[j]:
-            j = i
+    j = _least(f, cnt)
     xb, fb = x[j], f[j]
     if not fb < np.inf or cnt < 2:
         return np.nan
@@ -978,6 +984,16 @@ def _kink_next(x, f, cnt, xtol, st):
 
 
 @nb.njit(cache=True)
+def _least(f, cnt):
+    """The index of the least of f[:cnt] (the first where several are)."""
+    j = 0
+    for i in range(1, cnt):
+        if f[i] < f[j]:
+            j = i
+    return j
+
+
+@nb.njit(cache=True)
 def _insert(x, f, cnt, xn, fn):
     i = cnt
     while i > 0 and x[i - 1] > xn:
@@ -1001,10 +1017,7 @@ def _kink_run(q, own, xs, fs, cnt, xtol_a, geo, k, w, h_deg, T0, T1, tol_mm, res
         v = _minimum_angle_at(q, own, rel, geo, k, w, h_deg, T0, T1, tol_mm, res, EN, XN, ok,
                               ws, fb)
         cnt = _insert(xs, fs, cnt, rel, v)
-    j = 0
-    for i in range(1, cnt):
-        if fs[i] < fs[j]:
-            j = i
+    j = _least(fs, cnt)
     return fs[j], xs[j]
 
 
@@ -1047,10 +1060,7 @@ def _angle_kink(q, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xto
                                   ok, ws, fb)
             cnt = _insert(xs, fs, cnt, rel, v)
         while cnt < KINK_CAP // 2:
-            j = 0
-            for i in range(1, cnt):
-                if fs[i] < fs[j]:
-                    j = i
+            j = _least(fs, cnt)
             if j == 0 and xs[0] > a_lo:
                 rel = max(xs[0] - 2.0 * (xs[1] - xs[0]), a_lo)
             elif j == cnt - 1 and xs[cnt - 1] < a_hi:
@@ -1076,25 +1086,13 @@ def _angle_kink(q, lo, hi, blo, bhi, T0, T1, h_deg, tol_mm, a_lo, a_hi, n_a, xto
                                         EN, XN, ok, ws, fb)
         if _angle_bound(q, grid[sub], vals[sub], EN, geo, k, w, ok, ht) > cutoff:
             j = sub[np.argmin(vals[sub])]
-            n_loc = 0
-            for m in range(sub.size):
-                left = vals[sub[m - 1]] if m > 0 else np.inf
-                right = vals[sub[m + 1]] if m < sub.size - 1 else np.inf
-                if vals[sub[m]] <= left and vals[sub[m]] <= right:
-                    n_loc += 1
-            return vals[j], grid[j], n_loc == 1
+            return vals[j], grid[j], np.sum(_minima(vals[sub]) < np.inf) == 1
     for g in range(n_a):
         if math.isnan(vals[g]):
             vals[g] = _minimum_angle_at(q, own, grid[g], geo, k, w, h_deg, T0, T1, tol_mm, res,
                                         EN, XN, ok, ws, fb)
-    score = np.empty(n_a)
-    n_loc = 0
-    for g in range(n_a):
-        left = vals[g - 1] if g > 0 else np.inf
-        right = vals[g + 1] if g < n_a - 1 else np.inf
-        score[g] = vals[g] if (vals[g] <= left and vals[g] <= right) else np.inf
-        if score[g] < np.inf:
-            n_loc += 1
+    score = _minima(vals)
+    n_loc = np.sum(score < np.inf)
     i0 = np.argmin(vals)
     best_v, best_x = vals[i0], grid[i0]
     if cutoff < np.inf and _angle_bound(q, grid, vals, EN, geo, k, w, ok, ht) > cutoff:
